@@ -1,0 +1,37 @@
+"""u-connectLocate (u-blox XPLR-AOA) AT commands, answers and ``+UUDF`` angle events."""
+
+from protocol.uconnect.commands import Command, CommandMatcher, Response
+from protocol.uconnect.decoder import MAX_LINE, UConnectDecoder
+from protocol.uconnect.encoder import Dialect, encode_angle_event, encode_answer, encode_startup
+from protocol.uconnect.items import (
+    AngleEvent,
+    Drop,
+    Echo,
+    FinalCode,
+    InfoLine,
+    Item,
+    Startup,
+    TagData,
+    UnknownLine,
+)
+
+__all__ = [
+    "MAX_LINE",
+    "AngleEvent",
+    "Command",
+    "CommandMatcher",
+    "Dialect",
+    "Drop",
+    "Echo",
+    "FinalCode",
+    "InfoLine",
+    "Item",
+    "Response",
+    "Startup",
+    "TagData",
+    "UConnectDecoder",
+    "UnknownLine",
+    "encode_angle_event",
+    "encode_answer",
+    "encode_startup",
+]

@@ -1,0 +1,86 @@
+"""What the u-connectLocate decoder yields, one type per kind of line.
+
+Items are NamedTuples: cheap to build on the hot path, immutable, comparable, and
+``_asdict()`` gives the JSON form. ``kind`` is a class attribute, not a field.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Optional, Union
+
+from protocol.drop import Drop
+
+
+class AngleEvent(NamedTuple):
+    """One ``+UUDF`` event: a tag's direction as seen by one anchor.
+
+    Angles are integer degrees in the board's own frame (azimuth -90..90, negative = tag to
+    the left seen from the antenna). ``seq`` exists from firmware 2.x on; the raw angles only
+    on u-locateEmbed with ``AT+UDFCFG=121,1``.
+    """
+
+    instance_id: str
+    rssi1: int
+    azimuth: int
+    elevation: int
+    rssi2: int
+    channel: int
+    anchor_id: str
+    user_str: str
+    timestamp_ms: int
+    seq: Optional[int] = None
+    azimuth_raw: Optional[int] = None
+    elevation_raw: Optional[int] = None
+
+    kind = "angle"
+
+
+class TagData(NamedTuple):
+    """``+UUDFP``: a tag's periodic-advertising payload (2.x), not an angle."""
+
+    instance_id: str
+    payload: bytes
+
+    kind = "tag_data"
+
+
+class Startup(NamedTuple):
+    """``+STARTUP``: the board booted; a host must send its set-up again."""
+
+    kind = "startup"
+
+
+class Echo(NamedTuple):
+    """The board echoing a command the host sent (text without the CR)."""
+
+    text: str
+
+    kind = "echo"
+
+
+class InfoLine(NamedTuple):
+    """An information line of a command answer, e.g. ``+UMLA:…`` or ``"u-blox"``."""
+
+    text: str
+
+    kind = "info"
+
+
+class FinalCode(NamedTuple):
+    """``OK`` or ``ERROR``: the end of a command answer."""
+
+    ok: bool
+
+    kind = "final"
+
+
+class UnknownLine(NamedTuple):
+    """A well-formed ASCII line we do not recognise; kept verbatim and counted."""
+
+    text: str
+    note: str = ""
+
+    kind = "unknown"
+
+
+Item = Union[AngleEvent, TagData, Startup, Echo, InfoLine, FinalCode, UnknownLine, Drop]

@@ -1,0 +1,53 @@
+"""``rfhoming decode`` is the protocol layer's black-box interface; golden captures guard it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from host.cli import main
+
+GOLDEN = Path(__file__).parent / "golden"
+
+
+@pytest.mark.parametrize(
+    ("name", "protocol"), [("xplr_aoa_session", "ublox-aoa"), ("rss_node_stream", "rss")]
+)
+def test_golden_captures_decode_as_recorded(name: str, protocol: str, capsys) -> None:
+    assert main(["decode", "--protocol", protocol, str(GOLDEN / f"{name}.raw")]) == 0
+    expected = (GOLDEN / f"{name}.jsonl").read_text()
+    assert capsys.readouterr().out == expected
+
+
+def test_counters_line_sums_every_item(capsys) -> None:
+    main(["decode", "--protocol", "rss", str(GOLDEN / "rss_node_stream.raw")])
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    counters = lines[-1]
+    assert counters.pop("kind") == "counters"
+    assert sum(counters.values()) == len(lines) - 1
+    assert counters["drop.torn"] == 1 and counters["odometry"] == 1
+
+
+def test_stdin_and_installed_entry_point() -> None:
+    raw = (GOLDEN / "xplr_aoa_session.raw").read_bytes()
+    done = subprocess.run(
+        [sys.executable, "-m", "host.cli", "decode", "--protocol", "ublox-aoa", "-"],
+        input=raw, capture_output=True, check=True,
+    )
+    assert done.stdout.decode() == (GOLDEN / "xplr_aoa_session.jsonl").read_text()
+
+
+def test_missing_file_is_a_clear_error(capsys, tmp_path) -> None:
+    assert main(["decode", "--protocol", "rss", str(tmp_path / "nope.bin")]) == 2
+    assert "cannot open" in capsys.readouterr().err
+
+
+def test_help_teaches_with_examples(capsys) -> None:
+    with pytest.raises(SystemExit):
+        main(["decode", "--help"])
+    out = capsys.readouterr().out
+    assert "examples:" in out and "ublox-aoa" in out
