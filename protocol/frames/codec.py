@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import struct
+import struct
 from collections import Counter
 from collections.abc import Callable
 from typing import Any

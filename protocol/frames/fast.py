@@ -95,16 +95,14 @@ def _make_decoder(rt: RecordType) -> BodyDecoder:
     if layout.group is not None:
         count, width = layout.group
         head = len(cls._fields) - 3 - 1  # fixed fields before the group
+        groups = [slice(head + i * width, head + (i + 1) * width) for i in range(count)]
 
         def decode_grouped(inner: bytes, end: int, node: int, seq: int, t: int) -> Any:
             if end != start:
                 return None
             v = unpack(inner, HEADER_SIZE)
-            readings = tuple(
-                new(AntennaReading, v[head + i * width : head + (i + 1) * width])
-                for i in range(count)
-            )
-            return new(cls, (node, seq, t, *v[:head], readings))
+            readings = tuple([new(AntennaReading, v[g]) for g in groups])
+            return new(cls, (node, seq, t) + v[:head] + (readings,))
 
         return decode_grouped
 
@@ -117,25 +115,36 @@ def _make_decoder(rt: RecordType) -> BodyDecoder:
 
         return decode_fixed
 
+    if layout.tail == "counted" and layout.tail_item is None:
+
+        def decode_counted_bytes(inner: bytes, end: int, node: int, seq: int, t: int) -> Any:
+            if end < start:
+                return None
+            v = unpack(inner, HEADER_SIZE)
+            if end != start + v[-1]:
+                return None
+            return new(cls, (node, seq, t) + v[:-1] + (inner[start:end],))
+
+        return decode_counted_bytes
+
     if layout.tail == "counted":
         item = layout.tail_item
+        item_char = item.format[1:]
+        arrays: dict[int, struct.Struct] = {}
 
-        def decode_counted(inner: bytes, end: int, node: int, seq: int, t: int) -> Any:
+        def decode_counted_array(inner: bytes, end: int, node: int, seq: int, t: int) -> Any:
             if end < start:
                 return None
             v = unpack(inner, HEADER_SIZE)
             n = v[-1]
-            if item is None:
-                if end != start + n:
-                    return None
-                tail: Any = inner[start:end]
-            else:
-                if end != start + n * item.size:
-                    return None
-                tail = struct.unpack_from(f"<{n}{item.format[1:]}", inner, start)
-            return new(cls, (node, seq, t, *v[:-1], tail))
+            if end != start + n * item.size:
+                return None
+            array = arrays.get(n)
+            if array is None:
+                array = arrays[n] = struct.Struct(f"<{n}{item_char}")
+            return new(cls, (node, seq, t) + v[:-1] + (array.unpack_from(inner, start),))
 
-        return decode_counted
+        return decode_counted_array
 
     text = layout.tail == "rest_text"
 

@@ -68,7 +68,7 @@ def _fast_angle_event(line: bytes) -> AngleEvent | None:
     if len(h) != 7 or h[6] or t[0] or len(q[1]) > MAX_STRING or len(q[3]) > MAX_STRING:
         return None
     idb = h[0][6:]
-    if not _is_hex_id(idb):
+    if len(idb) != 12 or idb.translate(None, _HEX):
         return None
     r1 = _RSSI.get(h[1])
     az = _ANGLE.get(h[2])
@@ -80,9 +80,13 @@ def _fast_angle_event(line: bytes) -> AngleEvent | None:
     n = len(t)
     if n not in (2, 3, 5):  # 9, 10 or 12 fields
         return None
-    ts = _strict_int(t[1])
-    if ts is None or ts not in TIMESTAMP_RANGE:
-        return None
+    ts = t[1]
+    if ts.isdigit() and ts[0] != 48 and len(ts) < 10:  # common case: positive, < 1e9 ms
+        ts = int(ts)
+    else:
+        ts = _strict_int(ts)
+        if ts is None or ts not in TIMESTAMP_RANGE:
+            return None
     seq = az_raw = el_raw = None
     if n >= 3:
         seq = _strict_int(t[2])
@@ -231,19 +235,19 @@ class UConnectDecoder:
         if self._discarding:
             segment = self._after_overlong(segment)
         out: list[Item] = []
+        append = out.append
         clean = segment.isascii() and b"\0" not in segment
-        angles = 0
         fast = _fast_angle_event
+        angles = 0
         for line in segment.splitlines():
-            if not line:
-                continue
-            if clean and line[:6] == b"+UUDF:":
+            if clean and line.startswith(b"+UUDF:"):
                 event = fast(line)
                 if event is not None:
-                    out.append(event)
+                    append(event)
                     angles += 1
                     continue
-            out.append(self._count(self._classify(line)))
+            if line:
+                append(self._count(self._classify(line)))
         self.counters["angle"] += angles
         if len(self._rest) > MAX_LINE:
             out.extend(self._hold(b""))
