@@ -75,7 +75,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     decode.add_argument("file", nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=cmd_decode)
+    _add_emulate(sub)
     return parser
+
+
+def _add_emulate(sub: argparse._SubParsersAction) -> None:
+    """The emulator's command; the CLI is the one host module that may wire the emulator in."""
+    from emulator.cli import add_parser
+
+    add_parser(sub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,102 @@
+"""``rfhoming emulate``: run a scenario and serve its devices on ptys or TCP until interrupted."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import math
+import signal
+import sys
+from pathlib import Path
+
+from emulator.faults import Fault, FaultError
+from emulator.runtime import Emulator
+from emulator.scenario import ScenarioError, load, presets
+
+HELP = """\
+Run an emulated world and serve each device where a host opens it like real hardware:
+a pseudo-terminal per device (default; a stable symlink path) or TCP on 127.0.0.1
+(pyserial URL socket://127.0.0.1:PORT). One JSON line per device endpoint is printed,
+then the world runs until Ctrl-C.
+
+examples:
+  rfhoming emulate s0-open --seed 3 --truth truth.jsonl
+  rfhoming emulate s2-c --tcp --speed 10
+  rfhoming emulate s0-open --lockstep --fault unplug@aoa:at=5,for=2 --fault ber:rate=1e-5
+
+faults (repeatable): KIND[@DEVICE][:key=value,...]
+  ber:rate=R  drop:rate=R  garbage:every=S,len=N  unplug:at=S,for=S  reboot:at=S  baud:at=S,rate=B
+"""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("emulate", help="run an emulated world with devices on ptys or TCP",
+                       description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scenario", help=f"a preset ({', '.join(presets())}) or a .toml file")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--pty", action="store_true", help="a pseudo-terminal per device (default)")
+    where.add_argument("--tcp", action="store_true", help="TCP on 127.0.0.1 per device")
+    pace = p.add_mutually_exclusive_group()
+    pace.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second (default 1; 0 = as fast as possible)")
+    pace.add_argument("--lockstep", action="store_true", help="advance a control period only after the host's velocity command")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random stream (default 0)")
+    p.add_argument("--target", help="first target's position X,Y in metres (default: the scenario's, random per seed)")
+    p.add_argument("--aoa-preset", type=int, choices=range(1, 6), help="S0 Table 2 noise configuration 1-5")
+    p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
+    p.add_argument("--truth", type=Path, help="write the true robot pose and target positions as JSON lines")
+    p.add_argument("--duration", type=float, help="stop after this many simulated seconds")
+    p.add_argument("--link-dir", type=Path, help="directory for the pty symlinks (default: a new temp dir)")
+    p.set_defaults(func=cmd_emulate)
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    try:
+        target = tuple(float(v) for v in args.target.split(",")) if args.target else None
+        if target is not None and len(target) != 2:
+            raise ValueError
+    except ValueError:
+        print("rfhoming emulate: --target takes X,Y in metres, e.g. --target 3.5,-2", file=sys.stderr)
+        return 2
+    try:
+        scenario = load(args.scenario, seed=args.seed, target=target, aoa_preset=args.aoa_preset)
+        faults = [Fault.parse(spec) for spec in args.fault]
+    except (ScenarioError, FaultError) as exc:
+        print(f"rfhoming emulate: {exc}", file=sys.stderr)
+        return 2
+    truth = open(args.truth, "w") if args.truth else None
+    try:
+        emulator = Emulator(
+            scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
+            speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
+            faults=faults, truth=truth, link_dir=args.link_dir,
+        )
+    except ValueError as exc:
+        print(f"rfhoming emulate: {exc}", file=sys.stderr)
+        return 2
+    try:
+        asyncio.run(_serve(emulator, args.duration))
+    finally:
+        if truth is not None:
+            truth.close()
+    return 0
+
+
+async def _serve(emulator: Emulator, duration: float | None) -> None:
+    for endpoint in await emulator.start():
+        print(json.dumps(endpoint), flush=True)
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, task.cancel)
+    try:
+        await emulator.run(duration)
+    except asyncio.CancelledError:
+        pass
+    finally:
+        await emulator.close()
+        with contextlib.suppress(OSError):
+            for d in emulator.devices:
+                if hasattr(d.link, "symlink") and d.link.symlink is not None:
+                    d.link.symlink.unlink(missing_ok=True)

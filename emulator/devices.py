@@ -1,0 +1,293 @@
+"""Adapters that connect each firmware model to the world and to its link.
+
+A device runner turns world geometry into what its radio or motors would sense (through the
+channel models), feeds its firmware, and pumps the firmware's bytes through the link's faults.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from typing import Any
+
+import numpy as np
+
+from emulator.faults import ByteFaults, scramble
+from emulator.links import Link
+from emulator.radio import AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth
+from emulator.world import World
+from firmware_py.at86rf212_node import At86rf212NodeFirmware
+from firmware_py.esp32_scanner import Esp32ScannerFirmware
+from firmware_py.robot_base import RobotBaseFirmware
+from firmware_py.xplr_aoa import Advertisement, XplrAoaFirmware
+from protocol.uconnect import Dialect
+
+BOARD_HEIGHT_M = 0.2
+DEFAULT_BAUD = 115200
+
+
+class DeviceRunner:
+    """One device: firmware + link + faults. Subclasses sense the world in :meth:`step`."""
+
+    protocol = "rss"
+
+    def __init__(self, name: str, firmware: Any, link: Link, faults: ByteFaults,
+                 rng: np.random.Generator) -> None:
+        self.name = name
+        self.firmware = firmware
+        self.link = link
+        self.faults = faults
+        self.rng = rng
+        self.forced_baud: int | None = None
+        link.on_receive = self.on_host_bytes
+
+    def describe(self) -> dict[str, Any]:
+        return {"device": self.name, "type": self.kind, "protocol": self.protocol, **self.link.describe()}
+
+    kind = "device"
+
+    def device_baud(self) -> int:
+        return self.forced_baud or DEFAULT_BAUD
+
+    def mismatched(self) -> bool:
+        host = self.link.host_baud()
+        return host is not None and host != self.device_baud()
+
+    def on_host_bytes(self, data: bytes) -> None:
+        data = self.faults.apply(data)
+        if self.mismatched():
+            data = scramble(data, self.rng)
+        self.firmware.receive(data)
+
+    def pump(self, t: float) -> None:
+        data = self.firmware.read() + self.faults.bursts(t)
+        if not data:
+            return
+        data = self.faults.apply(data)
+        if self.mismatched():
+            data = scramble(data, self.rng)
+        self.link.send(data)
+
+    def step(self, world: World, t0: float, t1: float) -> None:
+        self.firmware.tick(int(t1 * 1e6))
+
+    def reboot(self, t: float) -> None:
+        """Power-cycle: the firmware loses its state (binary nodes restart their counters)."""
+        self.firmware.__init__(*self._init_args)  # type: ignore[misc]
+
+    _init_args: tuple = ()
+
+
+class _Schedule:
+    """Next transmission time per source: interval plus uniform jitter, random phase."""
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.next: dict[str, float] = {}
+
+    def due(self, source: str, interval_s: float, jitter_s: float, t0: float, t1: float) -> list[float]:
+        t = self.next.get(source)
+        if t is None:
+            t = t0 + float(self.rng.uniform(0, interval_s))
+        times = []
+        while t <= t1:
+            times.append(t)
+            t += interval_s + float(self.rng.uniform(0, jitter_s))
+        self.next[source] = t
+        return times
+
+
+class AoaRunner(DeviceRunner):
+    """An XPLR-AOA board on the robot (``mount_yaw_deg``) or fixed (``mount = [x, y, θ]``)."""
+
+    protocol = "ublox-aoa"
+    kind = "xplr-aoa"
+
+    def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
+                 options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
+                 robot_tag: tuple[str, float] | None) -> None:
+        dialect = Dialect(str(options.get("dialect", "1.2")))
+        self._init_args = (str(options.get("mac", "CCF9578E0D89")), dialect)
+        super().__init__(name, XplrAoaFirmware(*self._init_args), link, faults, rng)
+        self.aoa = aoa
+        self.path_loss = path_loss
+        self.channel = RadioChannel(path_loss, rng)
+        self.mount = options.get("mount")
+        self.yaw = math.radians(float(options.get("mount_yaw_deg", 0.0)))
+        self.upside_down = bool(options.get("upside_down", False))
+        self.observe_robot = options.get("observe", "targets") == "robot"
+        self.robot_tag = robot_tag
+        self.schedule = _Schedule(rng)
+
+    def device_baud(self) -> int:
+        return self.forced_baud or self.firmware.baud
+
+    def reboot(self, t: float) -> None:
+        self.firmware.boot(int(t * 1000))
+
+    def board_pose(self, world: World) -> tuple[float, float, float]:
+        if self.mount is not None:
+            x, y, th = map(float, self.mount)
+            return x, y, th
+        r = world.robot
+        return r.x, r.y, r.theta + self.yaw
+
+    def sources(self, world: World, t: float) -> list[tuple[str, tuple[float, float], float, float, float]]:
+        """(id, position, height, interval_s, tx_power) of every tag this board hears."""
+        if self.observe_robot:
+            if self.robot_tag is None:
+                return []
+            tag_id, interval_ms = self.robot_tag
+            return [(tag_id, (world.robot.x, world.robot.y), 0.1, interval_ms / 1000, 0.0)]
+        return [(t_.id, t_.position_at(t), t_.height, t_.interval_ms / 1000, t_.tx_power_dbm)
+                for t_ in world.targets if t_.kind == "aoa_tag"]
+
+    def step(self, world: World, t0: float, t1: float) -> None:
+        fw: XplrAoaFirmware = self.firmware
+        for tag_id, pos, height, interval, tx in self.sources(world, t1):
+            for t in self.schedule.due(tag_id, interval, interval * 0.1, t0, t1):
+                fw.tick(int(t * 1000))
+                bx, by, bth = self.board_pose(world)
+                distance = math.hypot(pos[0] - bx, pos[1] - by)
+                walls = world.obstacles_crossed((bx, by), pos)
+                if self.aoa.idealised_rssi:
+                    rssi = idealised_rssi(self.aoa, self.path_loss, distance, tx, self.rng)
+                else:
+                    sample = self.channel.received_dbm((tag_id, self.name), distance, tx, walls)
+                    if sample is None or sample < -100:
+                        continue
+                    rssi = sample
+                relative = math.degrees(math.atan2(pos[1] - by, pos[0] - bx) - bth)
+                azimuth = measure_azimuth(self.aoa, relative, self.rng)
+                if self.upside_down:
+                    azimuth = -azimuth
+                elevation = math.degrees(math.atan2(height - BOARD_HEIGHT_M, max(distance, 0.05)))
+                elevation += float(self.rng.normal(0, self.aoa.angle_deg))
+                fw.on_advertisement(Advertisement(tag_id, "", azimuth, elevation, rssi,
+                                                  rssi + float(self.rng.normal(0, 1.5))))
+        fw.tick(int(t1 * 1000))
+
+
+def _address(target_id: str) -> bytes:
+    """A 12-hex-digit id as the 6 address bytes on the air (LSB first)."""
+    return bytes.fromhex(target_id.rjust(12, "0")[-12:])[::-1]
+
+
+class Esp32Runner(DeviceRunner):
+    """The robot's ESP32 scanner; every beacon advertises on 37, 38, 39 in turn."""
+
+    kind = "esp32"
+
+    def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
+                 rng: np.random.Generator, path_loss: PathLossModel) -> None:
+        self._init_args = (node_id,)
+        super().__init__(name, Esp32ScannerFirmware(node_id), link, faults, rng)
+        self.channel = RadioChannel(path_loss, rng)
+        self.schedule = _Schedule(rng)
+
+    def step(self, world: World, t0: float, t1: float) -> None:
+        fw: Esp32ScannerFirmware = self.firmware
+        r = world.robot
+        for beacon in (b for b in world.targets if b.kind == "ble_beacon"):
+            for t in self.schedule.due(beacon.id, beacon.interval_ms / 1000, beacon.jitter_ms / 1000, t0, t1):
+                pos = beacon.position_at(t)
+                distance = math.hypot(pos[0] - r.x, pos[1] - r.y)
+                walls = world.obstacles_crossed((r.x, r.y), pos)
+                ad = b"\x02\x01\x06\x03\x03\xaa\xfe"
+                for k, ch in enumerate((37, 38, 39)):
+                    power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
+                    if power is not None:
+                        fw.on_advertisement(int(t * 1e6) + 400 * k, ch, _address(beacon.id), power, ad)
+        fw.tick(int(t1 * 1e6))
+
+
+class RssRunner(DeviceRunner):
+    """The four-dish AT86RF212 node on the robot, hearing 915 MHz emitters."""
+
+    kind = "at86rf212"
+
+    def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
+                 rng: np.random.Generator, path_loss: PathLossModel, options: dict[str, Any]) -> None:
+        offsets = tuple(float(v) for v in options.get("chip_offsets_db", rng.uniform(-5, 5, 4)))
+        kwargs = {"chip_offsets_db": offsets, "dish_diameter_m": float(options.get("dish_diameter_m", 0.3))}
+        self._init_args = (node_id,)
+        self._kwargs = kwargs
+        super().__init__(name, At86rf212NodeFirmware(node_id, **kwargs), link, faults, rng)
+        self.channel = RadioChannel(path_loss, rng)
+        self.schedule = _Schedule(rng)
+        self.emitter_seq: dict[str, int] = {}
+
+    def reboot(self, t: float) -> None:
+        self.firmware.__init__(*self._init_args, **self._kwargs)
+
+    def step(self, world: World, t0: float, t1: float) -> None:
+        fw: At86rf212NodeFirmware = self.firmware
+        r = world.robot
+        for emitter in (e for e in world.targets if e.kind == "rf_emitter"):
+            for t in self.schedule.due(emitter.id, emitter.interval_ms / 1000, emitter.jitter_ms / 1000, t0, t1):
+                pos = emitter.position_at(t)
+                distance = math.hypot(pos[0] - r.x, pos[1] - r.y)
+                walls = world.obstacles_crossed((r.x, r.y), pos)
+                incident = [self.channel.received_dbm((emitter.id, f"{self.name}.{i}"), distance,
+                                                      emitter.tx_power_dbm, walls) for i in range(4)]
+                if any(p is None for p in incident):
+                    continue
+                seq = self.emitter_seq[emitter.id] = (self.emitter_seq.get(emitter.id, 0) + 1) & 0xFFFF
+                bearing = math.atan2(pos[1] - r.y, pos[0] - r.x) - r.theta
+                fw.on_frame(int(t * 1e6), seq, bearing, incident)  # type: ignore[arg-type]
+        fw.tick(int(t1 * 1e6))
+
+
+class BaseRunner(DeviceRunner):
+    """The robot base: its applied velocity moves the true pose; scans come from the world."""
+
+    kind = "base"
+    SCAN_PERIOD_S = 0.1
+    SCAN_BEAMS = 181
+    SCAN_RANGE_M = 8.0
+
+    def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
+                 options: dict[str, Any], start: tuple[float, float, float], radius: float) -> None:
+        self._init_args = (0,)
+        super().__init__(name, RobotBaseFirmware(0, start_pose=start), link, faults, rng)
+        self.scan = bool(options.get("scan", False))
+        self.radius = radius
+        self.commanded = asyncio.Event()
+        self._next_scan = 0.0
+        self._commands_seen = 0
+
+    def on_host_bytes(self, data: bytes) -> None:
+        super().on_host_bytes(data)
+        if self.firmware.counters["commands"] != self._commands_seen:
+            self._commands_seen = self.firmware.counters["commands"]
+            self.commanded.set()
+
+    def reboot(self, t: float) -> None:
+        r = self.firmware
+        r.v = r.w = 0.0
+        r._target, r._deadline_us = (0.0, 0.0), None
+
+    def step(self, world: World, t0: float, t1: float) -> None:
+        fw: RobotBaseFirmware = self.firmware
+        v, w = fw.step(int(t1 * 1e6))
+        r = world.robot
+        before = (r.x, r.y, r.theta)
+        r.advance(v, w, t1 - t0)
+        fw.contact = world.collides(r.x, r.y, self.radius)
+        if fw.contact:  # bumped: the wheels slip, the robot stays where it was
+            r.x, r.y, _ = before
+        if self.scan and t1 >= self._next_scan:
+            self._next_scan = t1 + self.SCAN_PERIOD_S
+            angles = np.linspace(-math.pi / 2, math.pi / 2, self.SCAN_BEAMS)
+            ranges = world.cast((r.x, r.y), angles + r.theta, self.SCAN_RANGE_M)
+            fw.send_scan(-math.pi / 2, math.pi / (self.SCAN_BEAMS - 1),
+                         [None if not math.isfinite(d) else float(d) for d in ranges])
+
+
+def target_positions(world: World, t: float) -> list[dict[str, Any]]:
+    out = []
+    for target in world.targets:
+        x, y = target.position_at(t)
+        out.append({"id": target.id, "kind": target.kind, "x": round(x, 4), "y": round(y, 4)})
+    return out
+

@@ -1,0 +1,103 @@
+"""Faults on device links, at given times or rates, seeded.
+
+Spec syntax (``rfhoming emulate --fault``): ``KIND[@DEVICE][:key=value,...]``; without
+``@DEVICE`` the fault hits every device.
+
+| kind | keys | effect |
+|---|---|---|
+| ber | rate | flips each bit the device sends or receives with probability ``rate`` |
+| drop | rate | drops each byte with probability ``rate`` |
+| garbage | every, len | a burst of ``len`` random bytes every ``every`` seconds |
+| unplug | at, for | the endpoint disappears at ``at`` s for ``for`` s (a pty comes back at its path) |
+| reboot | at | the device restarts at ``at`` s (the AoA board prints +STARTUP again) |
+| baud | at, rate | the device's UART moves to ``rate`` at ``at`` s (the host sees garbage) |
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+KINDS = {"ber": {"rate"}, "drop": {"rate"}, "garbage": {"every", "len"}, "unplug": {"at", "for"},
+         "reboot": {"at"}, "baud": {"at", "rate"}}
+
+
+class FaultError(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class Fault:
+    kind: str
+    device: str | None
+    params: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def parse(cls, spec: str) -> Fault:
+        head, _, tail = spec.partition(":")
+        kind, _, device = head.partition("@")
+        if kind not in KINDS:
+            raise FaultError(f"unknown fault {kind!r} in {spec!r}; kinds: {', '.join(KINDS)}")
+        params: dict[str, float] = {}
+        for item in filter(None, tail.split(",")):
+            key, eq, value = item.partition("=")
+            if not eq or key not in KINDS[kind]:
+                raise FaultError(f"fault {kind} takes {sorted(KINDS[kind])}, got {item!r} in {spec!r}")
+            try:
+                params[key] = float(value)
+            except ValueError:
+                raise FaultError(f"{key}={value!r} is not a number in {spec!r}") from None
+        missing = KINDS[kind] - set(params) - ({"for"} if kind == "unplug" else set())
+        if missing:
+            raise FaultError(f"fault {kind} needs {sorted(missing)} in {spec!r}")
+        return cls(kind, device or None, params)
+
+    def hits(self, device: str) -> bool:
+        return self.device is None or self.device == device
+
+
+class ByteFaults:
+    """The rate faults of one link, applied to every chunk in both directions."""
+
+    def __init__(self, faults: list[Fault], rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.ber = sum(f.params["rate"] for f in faults if f.kind == "ber")
+        self.drop = sum(f.params["rate"] for f in faults if f.kind == "drop")
+        self.garbage = [f for f in faults if f.kind == "garbage"]
+        self._next_garbage = [f.params["every"] for f in self.garbage]
+        self.counters = {"flipped_bits": 0, "dropped_bytes": 0, "garbage_bytes": 0}
+
+    def apply(self, data: bytes) -> bytes:
+        if not data or (self.ber == 0 and self.drop == 0):
+            return data
+        buf = np.frombuffer(data, dtype=np.uint8).copy()
+        if self.ber:
+            flips = self.rng.random((len(buf), 8)) < self.ber
+            if flips.any():
+                self.counters["flipped_bits"] += int(flips.sum())
+                buf ^= np.packbits(flips, axis=1, bitorder="little")[:, 0]
+        if self.drop:
+            keep = self.rng.random(len(buf)) >= self.drop
+            self.counters["dropped_bytes"] += int((~keep).sum())
+            buf = buf[keep]
+        return buf.tobytes()
+
+    def bursts(self, t: float) -> bytes:
+        """Garbage due at simulated time ``t`` seconds."""
+        out = b""
+        for i, f in enumerate(self.garbage):
+            while t >= self._next_garbage[i]:
+                self._next_garbage[i] += f.params["every"]
+                n = int(f.params["len"])
+                out += self.rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+                self.counters["garbage_bytes"] += n
+        return out
+
+
+def scramble(data: bytes, rng: np.random.Generator) -> bytes:
+    """What a UART at the wrong baud makes of ``data``: framing errors, random bytes."""
+    if not data:
+        return data
+    n = max(1, len(data) // 2)
+    return rng.integers(0, 256, n, dtype=np.uint8).tobytes()

@@ -1,0 +1,125 @@
+"""Radio channel and angle-of-arrival models, seeded and reproducible.
+
+Received power (dBm) = tx + P0 − 10 n log10(d / d0) − L_wall · (obstacles crossed)
+                       + b_link + N(0, σ_fast²) [+ Rician fading],
+with ``b_link ~ N(0, σ_link²)`` drawn once per link. The defaults give about 5.3 dB of scatter
+around the log-distance fit, like the real recordings in shared/data (5–6 dB indoors).
+
+AoA: the true bearing of the tag relative to the board's boresight (CCW, degrees) is folded
+into the front half-plane (a planar array cannot tell front from back: 120° reads as 60°), noise
+is added (Gaussian growing toward ±90°, or S0's uniform presets), the result is clipped to
+±90° and written with the board's sign: azimuth is negative when the tag is to the LEFT.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PathLossModel:
+    p0_dbm: float = -59.0  # at d0 for 0 dBm transmit power (BLE, 2.4 GHz)
+    n: float = 2.2
+    d0_m: float = 1.0
+    fast_sigma_db: float = 3.5
+    link_sigma_db: float = 4.0
+    wall_loss_db: float = 6.0
+    rician_k: float | None = None
+    max_range_m: float = 60.0
+
+    def mean_dbm(self, distance_m: float, tx_power_dbm: float = 0.0, walls: int = 0) -> float:
+        d = max(distance_m, 0.05)
+        return tx_power_dbm + self.p0_dbm - 10 * self.n * math.log10(d / self.d0_m) - self.wall_loss_db * walls
+
+    def distance_for(self, rssi_dbm: float, tx_power_dbm: float = 0.0) -> float:
+        """Inverse of :meth:`mean_dbm` without walls."""
+        return self.d0_m * 10 ** ((tx_power_dbm + self.p0_dbm - rssi_dbm) / (10 * self.n))
+
+
+class RadioChannel:
+    """Samples received power per link; the per-link bias is drawn on first use."""
+
+    def __init__(self, model: PathLossModel, rng: np.random.Generator) -> None:
+        self.model = model
+        self.rng = rng
+        self._bias: dict[tuple[str, str], float] = {}
+
+    def received_dbm(self, link: tuple[str, str], distance_m: float, tx_power_dbm: float,
+                     walls: int) -> float | None:
+        """One sample, or None beyond the model's range."""
+        m = self.model
+        if distance_m > m.max_range_m:
+            return None
+        bias = self._bias.get(link)
+        if bias is None:
+            bias = self._bias[link] = float(self.rng.normal(0, m.link_sigma_db))
+        power = m.mean_dbm(distance_m, tx_power_dbm, walls) + bias + float(self.rng.normal(0, m.fast_sigma_db))
+        if m.rician_k is not None:
+            k = m.rician_k
+            los = math.sqrt(k / (k + 1))
+            scatter = self.rng.normal(0, math.sqrt(1 / (2 * (k + 1))), 2)
+            power += 20 * math.log10(max(math.hypot(los + scatter[0], scatter[1]), 1e-6))
+        return power
+
+
+S0_PRESETS: dict[int, tuple[float, float, float]] = {
+    1: (5.0, 0.05, 0.0),
+    2: (5.0, 0.10, 0.0),
+    3: (10.0, 0.10, 0.0),
+    4: (10.0, 0.20, 0.0),
+    5: (20.0, 0.20, 1.0),
+}
+"""S0 Table 2: uniform angle noise ±deg, distance noise ±fraction, ±metres."""
+
+
+@dataclass(frozen=True)
+class AoaModel:
+    kind: str = "gaussian"  # or "uniform"
+    angle_deg: float = 3.0  # σ at boresight (gaussian) or half-width (uniform)
+    edge_growth: float = 3.0  # gaussian σ grows to σ·(1 + edge_growth) at ±90°
+    distance_rel: float = 0.0  # uniform presets: RSSI made from d·(1 ± rel) ± abs
+    distance_abs_m: float = 0.0
+    fold: bool = True
+
+    @classmethod
+    def s0_preset(cls, config: int) -> AoaModel:
+        angle, rel, absolute = S0_PRESETS[config]
+        return cls("uniform", angle, 0.0, rel, absolute)
+
+    @property
+    def idealised_rssi(self) -> bool:
+        return self.kind == "uniform"
+
+    def sigma_deg(self, true_deg: float) -> float:
+        return self.angle_deg * (1 + self.edge_growth * (abs(true_deg) / 90.0) ** 4)
+
+
+def fold_front(relative_deg: float) -> float:
+    """Mirror a bearing behind the array's plane into the front half-plane (−90…90)."""
+    a = math.remainder(relative_deg, 360.0)
+    if a > 90:
+        return 180.0 - a
+    if a < -90:
+        return -180.0 - a
+    return a
+
+
+def measure_azimuth(model: AoaModel, relative_ccw_deg: float, rng: np.random.Generator) -> float:
+    """The azimuth the board reports (board sign: negative = left), before integer rounding."""
+    a = fold_front(relative_ccw_deg) if model.fold else math.remainder(relative_ccw_deg, 360.0)
+    if model.kind == "uniform":
+        a += float(rng.uniform(-model.angle_deg, model.angle_deg))
+    else:
+        a += float(rng.normal(0, model.sigma_deg(a)))
+    return -max(-90.0, min(90.0, a))
+
+
+def idealised_rssi(model: AoaModel, path: PathLossModel, distance_m: float, tx_power_dbm: float,
+                   rng: np.random.Generator) -> float:
+    """S0's idealised distance noise expressed as the RSSI the calibration inverts."""
+    noisy = distance_m * (1 + rng.uniform(-model.distance_rel, model.distance_rel))
+    noisy += rng.uniform(-model.distance_abs_m, model.distance_abs_m)
+    return path.mean_dbm(max(noisy, 0.05), tx_power_dbm)

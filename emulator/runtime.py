@@ -1,0 +1,201 @@
+"""The emulator's asyncio runtime: steps the world and every device, paced by a clock.
+
+Clocks:
+- real time (``speed=1``), scaled (``speed=N`` runs N× faster), as fast as possible
+  (``speed=math.inf``);
+- lockstep: after every control period the world waits until the host has answered with a
+  velocity command (or ``lockstep_timeout`` wall seconds pass, counted), so closed-loop runs
+  are fast and deterministic.
+
+Seeds: every random stream is derived from the one seed, so identical seeds give identical
+bytes on every link.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from emulator.devices import AoaRunner, BaseRunner, DeviceRunner, Esp32Runner, RssRunner, target_positions
+from emulator.faults import ByteFaults, Fault
+from emulator.links import Link, PipeLink, PtyLink, TcpLink
+from emulator.scenario import Scenario
+
+TRANSPORTS = ("pty", "tcp", "pipe")
+
+
+class Emulator:
+    def __init__(self, scenario: Scenario, *, transport: str = "pty", seed: int = 0,
+                 step_ms: int = 10, speed: float = 1.0, lockstep: bool = False,
+                 control_period_ms: int = 100, lockstep_timeout: float = 5.0,
+                 faults: list[Fault] = (), truth: IO[str] | None = None,
+                 link_dir: Path | None = None) -> None:
+        if transport not in TRANSPORTS:
+            raise ValueError(f"transport must be one of {TRANSPORTS}")
+        self.scenario = scenario
+        self.world = scenario.world
+        self.step_s = step_ms / 1000
+        self.speed = speed
+        self.lockstep = lockstep
+        self.control_period_s = control_period_ms / 1000
+        self.lockstep_timeout = lockstep_timeout
+        self.truth = truth
+        self.t = 0.0
+        self.counters = {"steps": 0, "lockstep_timeouts": 0}
+        self.link_dir = link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-"))
+        self.faults = list(faults)
+        self.devices: list[DeviceRunner] = []
+        unknown = {f.device for f in self.faults if f.device} - {d.name for d in scenario.devices}
+        if unknown:
+            names = ", ".join(d.name for d in scenario.devices)
+            raise ValueError(f"fault names unknown device(s) {sorted(unknown)}; this scenario has: {names}")
+        for k, spec in enumerate(scenario.devices):
+            rng = np.random.default_rng([seed, k])
+            link = self._link(transport, spec.name)
+            byte_faults = ByteFaults([f for f in self.faults if f.hits(spec.name)], np.random.default_rng([seed, k, 1]))
+            self.devices.append(self._device(spec.type, spec.name, k, link, byte_faults, rng, spec.options))
+        self._timed = sorted(
+            [(f.params["at"], f) for f in self.faults if "at" in f.params], key=lambda x: x[0]
+        )
+        self._replugs: list[tuple[float, DeviceRunner]] = []
+        self._next_truth = 0.0
+        self._next_control = self.control_period_s
+        if lockstep and self.base is None:
+            raise ValueError("lockstep needs a robot base in the scenario: the host's velocity command is its answer")
+
+    def _link(self, transport: str, name: str) -> Link:
+        if transport == "pty":
+            return PtyLink(self.link_dir / name)
+        if transport == "tcp":
+            return TcpLink()
+        return PipeLink()
+
+    def _device(self, kind: str, name: str, k: int, link: Link, faults: ByteFaults,
+                rng: np.random.Generator, options: dict[str, Any]) -> DeviceRunner:
+        sc = self.scenario
+        if kind == "xplr-aoa":
+            tag = (sc.robot_tag, sc.robot_tag_interval_ms) if sc.robot_tag else None
+            return AoaRunner(name, link, faults, rng, options, sc.aoa, sc.path_loss, tag)
+        if kind == "esp32":
+            return Esp32Runner(name, k + 1, link, faults, rng, sc.path_loss)
+        if kind == "at86rf212":
+            return RssRunner(name, k + 1, link, faults, rng, sc.path_loss, options)
+        r = self.world.robot
+        return BaseRunner(name, link, faults, rng, options, (r.x, r.y, r.theta), sc.robot_radius)
+
+    @property
+    def base(self) -> BaseRunner | None:
+        return next((d for d in self.devices if isinstance(d, BaseRunner)), None)
+
+    def device(self, name: str) -> DeviceRunner:
+        for d in self.devices:
+            if d.name == name:
+                return d
+        raise KeyError(name)
+
+    def endpoints(self) -> list[dict[str, Any]]:
+        return [d.describe() for d in self.devices]
+
+    async def start(self) -> list[dict[str, Any]]:
+        for d in self.devices:
+            await d.link.start()
+        self._write_truth()
+        return self.endpoints()
+
+    async def close(self) -> None:
+        for d in self.devices:
+            await d.link.close()
+
+    async def step(self) -> None:
+        """Advance the world and every device by one step, then deliver their bytes."""
+        t0, t1 = self.t, self.t + self.step_s
+        base = self.base
+        if base is not None:
+            base.step(self.world, t0, t1)
+        for d in self.devices:
+            if d is not base:
+                d.step(self.world, t0, t1)
+        self.t = self.world.t = t1
+        await self._timed_faults()
+        for d in self.devices:
+            d.pump(t1)
+        self.counters["steps"] += 1
+        if t1 + 1e-9 >= self._next_truth:
+            self._write_truth()
+
+    async def _timed_faults(self) -> None:
+        while self._replugs and self._replugs[0][0] <= self.t:
+            _, device = self._replugs.pop(0)
+            await device.link.replug()
+        while self._timed and self._timed[0][0] <= self.t:
+            _, fault = self._timed.pop(0)
+            for d in self.devices:
+                if not fault.hits(d.name):
+                    continue
+                if fault.kind == "unplug":
+                    await d.link.unplug()
+                    self._replugs.append((self.t + fault.params.get("for", math.inf), d))
+                    self._replugs.sort(key=lambda x: x[0])
+                elif fault.kind == "reboot":
+                    d.reboot(self.t)
+                elif fault.kind == "baud":
+                    d.forced_baud = int(fault.params["rate"])
+
+    def _write_truth(self) -> None:
+        if self.truth is None:
+            return
+        r = self.world.robot
+        line = {"t": round(self.t, 4), "robot": {"x": round(r.x, 4), "y": round(r.y, 4), "theta": round(r.theta, 5)},
+                "targets": target_positions(self.world, self.t)}
+        self.truth.write(json.dumps(line) + "\n")
+        self.truth.flush()
+        self._next_truth = self.t + 0.05
+
+    async def run(self, duration: float | None = None) -> None:
+        """Step until ``duration`` simulated seconds have passed (forever if None)."""
+        wall0, sim0 = time.monotonic(), self.t
+        end = math.inf if duration is None else self.t + duration
+        while self.t + 1e-9 < end:
+            await self.step()
+            if self.lockstep:
+                if self.t + 1e-9 >= self._next_control:
+                    self._next_control += self.control_period_s
+                    await self._await_host()
+                else:
+                    await asyncio.sleep(0)
+            elif math.isinf(self.speed):
+                await asyncio.sleep(0)
+            else:
+                lag = sim0 + (time.monotonic() - wall0) * self.speed
+                await asyncio.sleep(max(0.0, (self.t - lag) / self.speed))
+
+    async def _await_host(self) -> None:
+        base = self.base
+        assert base is not None
+        try:
+            await asyncio.wait_for(base.commanded.wait(), self.lockstep_timeout)
+        except asyncio.TimeoutError:
+            self.counters["lockstep_timeouts"] += 1
+        base.commanded.clear()
+
+
+@contextlib.asynccontextmanager
+async def running(emulator: Emulator, duration: float | None = None):
+    """Start the emulator, run it in the background, and close it on exit."""
+    await emulator.start()
+    task = asyncio.create_task(emulator.run(duration))
+    try:
+        yield emulator
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        await emulator.close()

@@ -1,0 +1,146 @@
+"""Scenario files (TOML): the world, its radio models and the devices the host will see.
+
+A scenario is a preset name (``s0-open``, ``s2-c`` …, shipped in ``emulator/scenarios/``) or
+a path to a TOML file of the same shape. Random target positions are drawn from the seed, so
+a (scenario, seed) pair always builds the same world.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from emulator.radio import AoaModel, PathLossModel
+from emulator.world import Obstacle, Pose, Target, World
+
+DEVICE_TYPES = ("xplr-aoa", "esp32", "at86rf212", "base")
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be built; the message says what to fix."""
+
+
+@dataclass
+class DeviceSpec:
+    name: str
+    type: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Scenario:
+    name: str
+    description: str
+    world: World
+    path_loss: PathLossModel
+    aoa: AoaModel
+    devices: list[DeviceSpec]
+    robot_radius: float = 0.25
+    robot_tag: str | None = None
+    robot_tag_interval_ms: float = 20.0
+
+
+def presets() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("emulator.scenarios").iterdir() if p.name.endswith(".toml"))
+
+
+def _read(name_or_path: str) -> dict[str, Any]:
+    path = Path(name_or_path)
+    try:
+        if path.suffix == ".toml" or path.exists():
+            text = path.read_text()
+        else:
+            resource = resources.files("emulator.scenarios") / f"{name_or_path}.toml"
+            if not resource.is_file():
+                raise ScenarioError(f"no scenario {name_or_path!r}; presets: {', '.join(presets())}, or a .toml path")
+            text = resource.read_text()
+        return tomllib.loads(text)
+    except OSError as exc:
+        raise ScenarioError(f"cannot read scenario {name_or_path}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"scenario {name_or_path} is not valid TOML: {exc}") from None
+
+
+def _model(cls: type, table: dict[str, Any], where: str) -> Any:
+    known = {f.name for f in fields(cls)}
+    unknown = set(table) - known - {"preset"}
+    if unknown:
+        raise ScenarioError(f"[{where}] has unknown keys {sorted(unknown)}; known: {sorted(known)}")
+    return cls(**{k: v for k, v in table.items() if k in known})
+
+
+def _random_free_point(bounds, obstacles, rng: np.random.Generator, margin: float = 1.0) -> tuple[float, float]:
+    x0, y0, x1, y1 = bounds
+    for _ in range(1000):
+        p = (float(rng.uniform(x0 + margin, x1 - margin)), float(rng.uniform(y0 + margin, y1 - margin)))
+        if not any(o.contains(*p) for o in obstacles):
+            return p
+    raise ScenarioError("no free point for a random target: the bounds are full of obstacles")
+
+
+def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = None,
+         aoa_preset: int | None = None) -> Scenario:
+    """Build a scenario; ``target`` overrides the first target's position, ``aoa_preset`` the
+    AoA noise with S0's configuration 1–5."""
+    raw = _read(name_or_path)
+    rng = np.random.default_rng(seed)
+    try:
+        bounds = tuple(float(v) for v in raw["bounds"])
+        robot = raw.get("robot", {})
+        start = Pose(*map(float, robot.get("start", (0.0, 0.0, 0.0))))
+        obstacles = []
+        for o in raw.get("obstacles", []):
+            if "rect" in o:
+                obstacles.append(Obstacle.rect(*map(float, o["rect"])))
+            else:
+                obstacles.append(Obstacle([tuple(map(float, p)) for p in o["polygon"]]))
+        targets = []
+        for i, t in enumerate(raw.get("targets", [])):
+            if i == 0 and target is not None:
+                position = target
+            elif t.get("position", "random") == "random":
+                position = _random_free_point(bounds, obstacles, rng)
+            else:
+                position = tuple(map(float, t["position"]))
+            targets.append(Target(
+                id=str(t["id"]), kind=str(t["kind"]), position=position,
+                height=float(t.get("height", 0.0)),
+                path=[tuple(map(float, p)) for p in t.get("path", [])], speed=float(t.get("speed", 0.0)),
+                interval_ms=float(t.get("interval_ms", 20.0)), jitter_ms=float(t.get("jitter_ms", 0.0)),
+                tx_power_dbm=float(t.get("tx_power_dbm", 0.0)), heading=float(t.get("heading", 0.0)),
+            ))
+        aoa_table = dict(raw.get("aoa", {}))
+        preset = aoa_preset if aoa_preset is not None else aoa_table.get("preset")
+        aoa = AoaModel.s0_preset(int(preset)) if preset is not None else _model(AoaModel, aoa_table, "aoa")
+        devices = []
+        for name, spec in raw.get("devices", {}).items():
+            options = dict(spec)
+            kind = options.pop("type", None)
+            if kind not in DEVICE_TYPES:
+                raise ScenarioError(f"[devices.{name}] type must be one of {DEVICE_TYPES}, not {kind!r}")
+            devices.append(DeviceSpec(name, kind, options))
+    except KeyError as exc:
+        raise ScenarioError(f"scenario {name_or_path} lacks {exc}") from None
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ScenarioError):
+            raise
+        raise ScenarioError(f"scenario {name_or_path}: {exc}") from None
+    if aoa_preset is not None and aoa_preset not in range(1, 6):
+        raise ScenarioError("AoA preset must be 1..5 (S0 Table 2)")
+    return Scenario(
+        name=str(raw.get("name", name_or_path)),
+        description=str(raw.get("description", "")),
+        world=World(start, targets, obstacles, bounds),  # type: ignore[arg-type]
+        path_loss=_model(PathLossModel, raw.get("radio", {}), "radio"),
+        aoa=aoa,
+        devices=devices,
+        robot_radius=float(robot.get("radius", 0.25)),
+        robot_tag=robot.get("tag"),
+        robot_tag_interval_ms=float(robot.get("tag_interval_ms", 20.0)),
+    )
+

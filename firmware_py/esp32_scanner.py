@@ -1,0 +1,78 @@
+"""ESP32 BLE scanner node: scan duty cycle, channel hopping, collisions, int8 RSSI.
+
+Sans-IO. The emulator calls :meth:`on_advertisement` for every advertisement that reaches the
+antenna (with its channel and float received power); the firmware keeps what a real
+controller would report: only while the scan window is open, only on the channel it is
+listening to this interval, not when two packets overlap on that channel, not below the
+sensitivity floor. Output: record 0x01 per report, status 0x10 at 1 Hz, log text 0x7F.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from firmware_py.framed_node import FramedNode
+from protocol.frames import AdvReport, NodeCommand
+
+AIR_US_PER_BYTE = 8
+"""1 Mb/s LE 1M PHY."""
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    interval_us: int = 100_000  # 0.625 ms units on the chip; 160 units
+    window_us: int = 50_000
+    sensitivity_dbm: float = -97.0
+
+
+class Esp32ScannerFirmware(FramedNode):
+    DEVICE_KIND = 1
+
+    def __init__(self, node_id: int, config: ScanConfig = ScanConfig()) -> None:
+        super().__init__(node_id)
+        if not 2_500 <= config.window_us <= config.interval_us <= 10_240_000:
+            raise ValueError("need 2.5 ms <= scan window <= scan interval <= 10.24 s")
+        self.config = config
+        self.scanning = True
+        self.counters.update(reported=0, duty_cycle=0, wrong_channel=0, collision=0, below_sensitivity=0)
+        self._last_end_us = {37: -1, 38: -1, 39: -1}
+
+    def listening_channel(self, t_us: int) -> int | None:
+        """The channel the controller listens on at ``t_us``, None outside the window."""
+        phase, index = t_us % self.config.interval_us, t_us // self.config.interval_us
+        if not self.scanning or phase >= self.config.window_us:
+            return None
+        return 37 + index % 3
+
+    def on_advertisement(self, t_us: int, channel: int, addr: bytes, rssi_dbm: float,
+                         ad: bytes, tx_power_dbm: int = 127, addr_type: int = 0,
+                         adv_props: int = 0x13) -> None:
+        """One packet on the air arriving at the antenna at ``t_us``."""
+        end = t_us + (len(ad) + 16) * AIR_US_PER_BYTE
+        collided = t_us < self._last_end_us.get(channel, -1)
+        self._last_end_us[channel] = max(end, self._last_end_us.get(channel, -1))
+        if self.listening_channel(t_us) is None:
+            self.counters["duty_cycle"] += 1
+            return
+        if self.listening_channel(t_us) != channel:
+            self.counters["wrong_channel"] += 1
+            return
+        if collided:
+            self.counters["collision"] += 1
+            return
+        if rssi_dbm < self.config.sensitivity_dbm:
+            self.counters["below_sensitivity"] += 1
+            return
+        rssi = max(-127, min(20, round(rssi_dbm)))
+        self.send(AdvReport(self.node_id, self.next_seq(), t_us & 0xFFFFFFFF, addr, addr_type,
+                             adv_props, rssi, tx_power_dbm, 255, ad))
+        self.counters["reported"] += 1
+
+    def command(self, cmd: NodeCommand) -> None:
+        """0x80: 2 start scanning, 3 stop, 4 request status."""
+        if cmd.command in (2, 3):
+            self.scanning = cmd.command == 2
+        elif cmd.command == 4:
+            self.send_status()
+        else:
+            self.log(f"unknown command {cmd.command}")

@@ -1,0 +1,215 @@
+"""The XPLR-AOA model, spoken to through the u-connectLocate codec as a host would."""
+
+from __future__ import annotations
+
+import pytest
+
+from firmware_py.xplr_aoa import RESTART_MS, TAG_TIMEOUT_MS, Advertisement, XplrAoaFirmware
+from protocol.uconnect import CommandMatcher, Dialect, Response, UConnectDecoder
+from protocol.uconnect import commands as c
+
+
+class Host:
+    """A minimal host: sends one command, returns its paired answer and the URCs seen."""
+
+    def __init__(self, fw: XplrAoaFirmware) -> None:
+        self.fw = fw
+        self.decoder = UConnectDecoder()
+        self.matcher = CommandMatcher()
+        self.urcs: list = []
+
+    def drain(self) -> list[Response]:
+        responses = []
+        for item in self.decoder.feed(self.fw.read()):
+            response = self.matcher.on_item(item)
+            if response is not None:
+                responses.append(response)
+            elif item.kind in ("angle", "startup", "tag_data"):
+                self.urcs.append(item)
+        return responses
+
+    def send(self, command: c.Command) -> Response:
+        self.fw.receive(self.matcher.send(command))
+        (response,) = self.drain()
+        return response
+
+    def restart(self, now_ms: int = 1000) -> None:
+        assert self.send(c.restart()).ok
+        self.fw.tick(now_ms + RESTART_MS)
+        self.drain()
+
+
+def adv(tag: str = "CCF9578E0D8A", az: float = 12.4, rssi: float = -55.0) -> Advertisement:
+    return Advertisement(tag, "", az, 0.0, rssi, rssi - 1)
+
+
+@pytest.fixture
+def host() -> Host:
+    h = Host(XplrAoaFirmware(dialect=Dialect.V1_2))
+    h.drain()
+    return h
+
+
+def test_boot_banner_then_echo_info_ok(host: Host) -> None:
+    assert [u.kind for u in host.urcs] == ["startup"]
+    r = host.send(c.identify_manufacturer())
+    assert r.ok and r.echoed and r.info == ['"u-blox"']
+    assert host.send(c.local_address()).info == ["+UMLA:CCF9578E0D89"]
+
+
+def test_echo_bytes_exactly_then_answer() -> None:
+    fw = XplrAoaFirmware()
+    fw.read()
+    fw.receive(b"AT\r")
+    assert fw.read() == b"AT\r\r\nOK\r\n"
+
+
+@pytest.mark.parametrize("line", [b"AT+NOPE\r", b"AT+UDFCFG=1,99999\r", b"AT+UDFCFG=42,1\r",
+                                  b"AT+UDFFILT=2,2,\"XYZ\"\r", b"AT+UMRS=1234,1\r", b"AT+UDFENABLE=2\r"])
+def test_bad_commands_answer_error(host: Host, line: bytes) -> None:
+    host.fw.receive(line)
+    (response,) = [i for i in host.decoder.feed(host.fw.read()) if i.kind == "final"]
+    assert not response.ok
+
+
+def test_identity_per_dialect() -> None:
+    seen = set()
+    for dialect in Dialect:
+        h = Host(XplrAoaFirmware(dialect=dialect))
+        h.drain()
+        seen.add((h.send(c.identify_model()).info[0], h.send(c.identify_version()).info[0],
+                  h.send(c.identify_software()).info[0]))
+    assert len(seen) == 4
+
+
+def test_settings_lost_without_store_kept_with_it(host: Host) -> None:
+    assert host.send(c.set_config(2, "dock")).ok
+    assert host.send(c.read_config(2)).info == ['+UDFCFG:2,"dock"']
+    host.restart()
+    assert host.send(c.read_config(2)).info == ['+UDFCFG:2,""']
+    host.send(c.set_config(2, "dock"))
+    assert host.send(c.store()).ok
+    host.restart(5000)
+    assert host.send(c.read_config(2)).info == ['+UDFCFG:2,"dock"']
+    assert [u.kind for u in host.urcs].count("startup") == 3
+
+
+def test_config_takes_effect_only_after_restart(host: Host) -> None:
+    host.send(c.set_config(2, "new"))
+    host.fw.on_advertisement(adv())
+    host.drain()
+    assert host.urcs[-1].user_str == ""
+    host.send(c.store())
+    host.restart()
+    host.fw.on_advertisement(adv())
+    host.drain()
+    assert host.urcs[-1].user_str == "new"
+
+
+def test_udfenable_acts_at_once_and_is_not_stored(host: Host) -> None:
+    host.send(c.enable_angles(False))
+    host.fw.on_advertisement(adv())
+    assert host.drain() == [] and host.urcs[-1].kind == "startup"
+    host.send(c.store())
+    host.restart()
+    host.fw.on_advertisement(adv())
+    host.drain()
+    assert host.urcs[-1].kind == "angle"
+
+
+def test_angle_event_fields(host: Host) -> None:
+    host.fw.tick(1234)
+    host.fw.on_advertisement(adv(az=-33.6, rssi=-61.4))
+    host.drain()
+    event = host.urcs[-1]
+    assert (event.azimuth, event.rssi1, event.rssi2, event.timestamp_ms) == (-34, -61, 0, 1234)
+    assert event.channel in (37, 38, 39) and event.anchor_id == "CCF9578E0D89"
+
+
+def test_rate_limited_by_tag_1_interval(host: Host) -> None:
+    host.send(c.set_config(1, 100))
+    host.send(c.store())
+    host.restart(0)
+    for ms in range(300, 1300, 20):  # 50 advertisements at 20 ms
+        host.fw.tick(ms)
+        host.fw.on_advertisement(adv())
+    host.drain()
+    assert sum(1 for u in host.urcs if u.kind == "angle") == 10
+
+
+def test_instance_filter(host: Host) -> None:
+    host.send(c.set_filter(c.FILTER_INSTANCE, c.FILTER_APPEND, ("AAAAAAAAAAAA",)))
+    assert host.send(c.read_filter(c.FILTER_INSTANCE)).info == ['+UDFFILT:2,"AAAAAAAAAAAA"']
+    host.send(c.store())
+    host.restart()
+    for tag in ("AAAAAAAAAAAA", "BBBBBBBBBBBB"):
+        host.fw.on_advertisement(adv(tag))
+    host.drain()
+    assert [u.instance_id for u in host.urcs if u.kind == "angle"] == ["AAAAAAAAAAAA"]
+
+
+@pytest.mark.parametrize(("dialect", "limit"), [(Dialect.V1_0, 5), (Dialect.V1_2, 20)])
+def test_tag_limit_and_five_second_drop(dialect: Dialect, limit: int) -> None:
+    h = Host(XplrAoaFirmware(dialect=dialect))
+    for i in range(limit + 3):
+        h.fw.on_advertisement(adv(f"{i:012X}"))
+    h.drain()
+    assert len({u.instance_id for u in h.urcs if u.kind == "angle"}) == limit
+    h.fw.tick(TAG_TIMEOUT_MS + 1)
+    assert h.fw.tags == {}
+    h.fw.on_advertisement(adv("FFFFFFFFFFFF"))
+    h.drain()
+    assert h.urcs[-1].instance_id == "FFFFFFFFFFFF"
+
+
+@pytest.mark.parametrize(("dialect", "fields"), [(Dialect.V1_0, 9), (Dialect.V1_2, 9), (Dialect.V2, 10)])
+def test_dialect_field_count_on_the_wire(dialect: Dialect, fields: int) -> None:
+    fw = XplrAoaFirmware(dialect=dialect)
+    fw.read()
+    fw.on_advertisement(adv())
+    line = fw.read().strip()
+    assert line.startswith(b"+UUDF:") and line.count(b",") + 1 == fields
+
+
+def test_embed_raw_angles_only_with_tag_121() -> None:
+    h = Host(XplrAoaFirmware(dialect=Dialect.EMBED))
+    h.fw.on_advertisement(adv())
+    h.drain()
+    assert h.urcs[-1].azimuth_raw is None and h.urcs[-1].seq == 1
+    h.send(c.set_config(121, 1))
+    h.send(c.store())
+    h.restart()
+    h.fw.on_advertisement(adv(az=40))
+    h.drain()
+    assert h.urcs[-1].azimuth_raw == 40
+
+
+def test_later_dialect_tags_rejected_by_1x(host: Host) -> None:
+    assert not host.send(c.read_config(9)).ok
+    assert not host.send(c.read_config(121)).ok
+
+
+def test_umrs_changes_baud_only_after_store_and_restart(host: Host) -> None:
+    assert host.send(c.set_serial(1000000, False)).ok
+    assert host.send(c.read_serial()).info == ["+UMRS:1000000,0"]
+    assert host.fw.baud == 115200
+    host.send(c.store())
+    host.restart()
+    assert host.fw.baud == 1000000
+
+
+def test_meas_format_is_detectable(host: Host) -> None:
+    host.send(c.set_config(7, 1))
+    host.send(c.store())
+    host.restart()
+    host.fw.on_advertisement(adv())
+    items = host.decoder.feed(host.fw.read())
+    assert items[-1].kind == "unknown" and "unsupported output format" in items[-1].note
+
+
+def test_tx_buffer_is_bounded() -> None:
+    fw = XplrAoaFirmware()
+    for i in range(2000):
+        fw.tick(i * 10)
+        fw.on_advertisement(adv(f"{i % 20:012X}"))
+    assert len(fw.read()) <= 8192 and fw.counters["tx_overflow"] > 0
