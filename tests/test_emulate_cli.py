@@ -1,0 +1,105 @@
+"""Done-when of the emulator: a program that knows nothing of it opens the printed ptys with
+plain pyserial, as it would open /dev/ttyACM0, and the data agrees with --truth."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import serial
+
+from protocol.frames import AntennaSet, FrameDecoder, Odometry, VelocityCommand, encode_frame
+from protocol.uconnect import UConnectDecoder
+
+
+def emulate(*args: str, devices: int) -> tuple[subprocess.Popen, dict[str, dict]]:
+    proc = subprocess.Popen([sys.executable, "-m", "host.cli", "emulate", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    endpoints = {}
+    for _ in range(devices):
+        line = proc.stdout.readline()
+        assert line, proc.stderr.read()
+        endpoint = json.loads(line)
+        endpoints[endpoint["device"]] = endpoint
+    return proc, endpoints
+
+
+def stop(proc: subprocess.Popen) -> int:
+    proc.send_signal(signal.SIGINT)
+    return proc.wait(timeout=10)
+
+
+def read_for(port: serial.Serial, seconds: float) -> bytes:
+    data, end = b"", time.monotonic() + seconds
+    while time.monotonic() < end:
+        data += port.read(4096)
+    return data
+
+
+def command(port: serial.Serial, line: bytes) -> bytes:
+    port.write(line + b"\r")
+    data, end = b"", time.monotonic() + 5
+    while b"OK\r\n" not in data and b"ERROR\r\n" not in data and time.monotonic() < end:
+        data += port.read(4096)
+    return data
+
+
+def test_plain_pyserial_at_session_and_angles_match_truth(tmp_path: Path) -> None:
+    truth_file = tmp_path / "truth.jsonl"
+    proc, endpoints = emulate("s0-open", "--pty", "--seed", "5", "--target", "3,2",
+                              "--truth", str(truth_file), "--link-dir", str(tmp_path), devices=2)
+    try:
+        aoa = endpoints["aoa"]
+        assert aoa["protocol"] == "ublox-aoa" and Path(aoa["path"]).exists()
+        port = serial.Serial(aoa["path"], 115200, rtscts=False, timeout=0.05)
+        assert b"OK\r\n" in command(port, b"AT")
+        assert b"NINA-B411-40B" in command(port, b"AT+GMM")
+        assert b"OK\r\n" in command(port, b"AT+UDFENABLE=1")
+        events = [i for i in UConnectDecoder().feed(read_for(port, 2.0)) if i.kind == "angle"]
+        port.close()
+    finally:
+        assert stop(proc) == 0
+    assert not Path(aoa["path"]).exists()  # symlinks removed on Ctrl-C
+    truth = json.loads(truth_file.read_text().splitlines()[-1])
+    robot, target = truth["robot"], truth["targets"][0]
+    expected = -math.degrees(math.atan2(target["y"] - robot["y"], target["x"] - robot["x"]) - robot["theta"])
+    errors = [e.azimuth - expected for e in events]
+    assert len(errors) > 40
+    assert abs(sum(errors) / len(errors)) < 1.5  # configured noise: σ = 3° at boresight
+    assert max(map(abs, errors)) < 6 * 3.0 + 1
+
+
+def test_rss_node_and_base_over_their_framing(tmp_path: Path) -> None:
+    truth_file = tmp_path / "truth.jsonl"
+    proc, endpoints = emulate("s2-a", "--pty", "--seed", "2", "--truth", str(truth_file),
+                              "--link-dir", str(tmp_path), devices=2)
+    try:
+        rss = serial.Serial(endpoints["rss"]["path"], 115200, timeout=0.05)
+        base = serial.Serial(endpoints["base"]["path"], 115200, timeout=0.05)
+        base.write(encode_frame(VelocityCommand(0, 1, 0, 200, 0, 3000)))
+        sets = [r for r in FrameDecoder().feed(read_for(rss, 1.5)) if isinstance(r, AntennaSet)]
+        odometry = [r for r in FrameDecoder().feed(read_for(base, 1.0)) if isinstance(r, Odometry)]
+        rss.close()
+        base.close()
+    finally:
+        assert stop(proc) == 0
+    assert len(sets) > 10
+    front = sum(s.antennas[0].ed for s in sets) / len(sets)
+    assert all(front > sum(s.antennas[i].ed for s in sets) / len(sets) + 3 for i in (1, 2, 3))
+    truth = [json.loads(line) for line in truth_file.read_text().splitlines()]
+    assert odometry[-1].x_mm > 100
+    moved = truth[-1]["robot"]["x"]
+    assert odometry[-1].x_mm / 1000 == pytest.approx(moved, abs=0.1)
+
+
+def test_bad_arguments_exit_2_with_a_message() -> None:
+    done = subprocess.run([sys.executable, "-m", "host.cli", "emulate", "s0-open", "--target", "x"],
+                          capture_output=True, text=True, env={**os.environ})
+    assert done.returncode == 2 and "--target takes X,Y" in done.stderr

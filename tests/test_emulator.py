@@ -1,0 +1,259 @@
+"""The emulator seen from outside: transports, seeds, faults, clocks, scenarios."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import termios
+
+import pytest
+import serial
+
+from emulator.faults import Fault, FaultError
+from emulator.runtime import Emulator
+from emulator.scenario import ScenarioError, load, presets
+from protocol.frames import FrameDecoder, Odometry, VelocityCommand, encode_frame
+from protocol.uconnect import UConnectDecoder
+
+FAST = math.inf
+
+
+async def drain(end) -> bytes:
+    data = b""
+    while end.pending():
+        data += await end.read()
+    return data
+
+
+def angles(data: bytes) -> list:
+    return [i for i in UConnectDecoder().feed(data) if i.kind == "angle"]
+
+
+def make(scenario: str = "s0-open", seed: int = 1, **kw) -> Emulator:
+    return Emulator(load(scenario, seed=seed, target=(3.0, 2.0) if scenario == "s0-open" else None),
+                    transport=kw.pop("transport", "pipe"), seed=seed, speed=kw.pop("speed", FAST), **kw)
+
+
+@pytest.mark.parametrize("name", presets())
+def test_every_preset_builds_and_runs(name: str) -> None:
+    async def go() -> None:
+        em = make(name)
+        await em.start()
+        await em.run(1.0)
+        assert em.counters["steps"] == 100
+        total = sum(d.link.counters["tx_bytes"] for d in em.devices)
+        assert total > 0
+        await em.close()
+
+    asyncio.run(go())
+
+
+def test_presets_cover_every_paper() -> None:
+    assert {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e", "s3-arena", "s4-survey"} <= set(presets())
+
+
+def test_scenario_errors_say_what_to_fix(tmp_path) -> None:
+    with pytest.raises(ScenarioError, match="presets: .*s0-open"):
+        load("s9-nowhere")
+    bad = tmp_path / "bad.toml"
+    bad.write_text('bounds = [0, 0, 1, 1]\n[radio]\nshadow = 3\n')
+    with pytest.raises(ScenarioError, match="unknown keys \\['shadow'\\]"):
+        load(str(bad))
+    bad.write_text('bounds = [0, 0, 1, 1]\n[devices.x]\ntype = "toaster"\n')
+    with pytest.raises(ScenarioError, match="type must be one of"):
+        load(str(bad))
+    bad.write_text("bounds = [0, 0")
+    with pytest.raises(ScenarioError, match="not valid TOML"):
+        load(str(bad))
+
+
+def test_random_targets_follow_the_seed() -> None:
+    a, b, c = (load("s0-open", seed=s).world.targets[0].position for s in (1, 1, 2))
+    assert a == b != c
+
+
+async def test_identical_seeds_identical_bytes() -> None:
+    async def run(seed: int) -> list[bytes]:
+        em = make(seed=seed)
+        await em.start()
+        base = em.device("base").link.host
+        base.write(encode_frame(VelocityCommand(0, 1, 0, 300, 200, 5000)))
+        await em.run(3.0)
+        out = [await drain(d.link.host) for d in em.devices]
+        await em.close()
+        return out
+
+    first, again, other = await run(5), await run(5), await run(6)
+    assert first == again and first[0] != other[0]
+    assert len(angles(first[0])) > 100
+
+
+async def test_angles_agree_with_truth_within_noise() -> None:
+    em = make()
+    await em.start()
+    await em.run(5.0)
+    events = angles(await drain(em.device("aoa").link.host))
+    truth = -math.degrees(math.atan2(2.0, 3.0))  # board sign: left is negative
+    errors = [e.azimuth - truth for e in events]
+    assert len(errors) > 150
+    assert abs(sum(errors) / len(errors)) < 1.0
+    assert max(map(abs, errors)) < 6 * 3.0 + 1
+    await em.close()
+
+
+async def test_base_moves_the_true_robot_and_reports_odometry() -> None:
+    em = make()
+    await em.start()
+    em.device("base").link.host.write(encode_frame(VelocityCommand(0, 1, 0, 500, 0, 5000)))
+    await em.run(3.0)
+    odometry = [r for r in FrameDecoder().feed(await drain(em.device("base").link.host)) if isinstance(r, Odometry)]
+    assert em.world.robot.x == pytest.approx(0.5 * 3 - 0.5 * 0.5 / 2, abs=0.02)
+    assert odometry[-1].x_mm / 1000 == pytest.approx(em.world.robot.x, abs=0.02)
+    await em.close()
+
+
+async def test_obstacle_stops_the_robot_and_sets_contact() -> None:
+    em = make("s2-b")
+    await em.start()
+    em.device("base").link.host.write(encode_frame(VelocityCommand(0, 1, 0, 500, 0, 60000)))
+    await em.run(8.0)
+    assert em.world.robot.x < 2.0 - em.scenario.robot_radius + 0.05
+    flags = [r.flags for r in FrameDecoder().feed(await drain(em.device("base").link.host)) if isinstance(r, Odometry)]
+    assert flags[-1] & 2
+    scans = em.device("base").firmware.counters
+    assert scans["tx_dropped"] == 0
+    await em.close()
+
+
+async def test_lockstep_waits_for_the_host() -> None:
+    em = make(lockstep=True, lockstep_timeout=0.05)
+    await em.start()
+    task = asyncio.create_task(em.run(1.0))
+    base = em.device("base").link.host
+    for _ in range(5):  # answer five control periods promptly
+        while em.t < (_ + 1) * 0.1 - 1e-9:
+            await asyncio.sleep(0)
+        base.write(encode_frame(VelocityCommand(0, 1, 0, 0, 0, 500)))
+    await task
+    assert em.t == pytest.approx(1.0)
+    assert em.counters["lockstep_timeouts"] == 5  # the five periods nobody answered
+    await em.close()
+
+
+def test_lockstep_needs_a_base() -> None:
+    sc = load("s0-open")
+    sc.devices = [d for d in sc.devices if d.type != "base"]
+    with pytest.raises(ValueError, match="lockstep needs a robot base"):
+        Emulator(sc, transport="pipe", lockstep=True)
+
+
+@pytest.mark.parametrize(
+    ("spec", "words"),
+    [("nope", "unknown fault"), ("ber:x=1", "takes"), ("unplug:for=1", "needs \\['at'\\]"), ("drop:rate=a", "not a number")],
+)
+def test_fault_specs_are_checked(spec: str, words: str) -> None:
+    with pytest.raises(FaultError, match=words):
+        Fault.parse(spec)
+
+
+async def test_fault_on_unknown_device_is_refused() -> None:
+    with pytest.raises(ValueError, match="unknown device"):
+        make(faults=[Fault.parse("reboot@nope:at=1")])
+
+
+@pytest.mark.parametrize("spec", ["ber:rate=2e-4", "drop:rate=2e-3", "garbage:every=0.5,len=40"])
+async def test_byte_faults_cost_drops_never_a_crash(spec: str) -> None:
+    em = make(faults=[Fault.parse(spec)])
+    await em.start()
+    em.device("base").link.host.write(encode_frame(VelocityCommand(0, 1, 0, 100, 0, 60000)))
+    await em.run(6.0)
+    aoa = UConnectDecoder()
+    items = aoa.feed(await drain(em.device("aoa").link.host))
+    frames = FrameDecoder()
+    records = frames.feed(await drain(em.device("base").link.host))
+    aoa_drops = sum(v for k, v in aoa.counters.items() if k.startswith(("drop", "unknown")))
+    frame_drops = sum(v for k, v in frames.counters.items() if k.startswith("drop"))
+    assert aoa_drops + frame_drops > 0
+    assert sum(1 for i in items if i.kind == "angle") > 200
+    assert sum(1 for r in records if r.kind == "odometry") > 250
+    await em.close()
+
+
+async def test_reboot_prints_startup_mid_session() -> None:
+    em = make(faults=[Fault.parse("reboot@aoa:at=1")])
+    await em.start()
+    await em.run(2.0)
+    kinds = [i.kind for i in UConnectDecoder().feed(await drain(em.device("aoa").link.host))]
+    assert kinds.count("startup") == 2 and kinds.index("startup", 1) > 10
+    await em.close()
+
+
+async def _poll(port: serial.Serial, em: Emulator, seconds: float) -> bytes:
+    data = b""
+    end = em.t + seconds
+    while em.t < end:
+        await asyncio.sleep(0.01)
+        data += port.read(65536)
+    return data
+
+
+async def test_pty_unplug_and_replug_at_the_same_path(tmp_path) -> None:
+    em = make(transport="pty", speed=5, faults=[Fault.parse("unplug@aoa:at=1,for=1")], link_dir=tmp_path)
+    (endpoint, _) = await em.start()
+    path = endpoint["path"]
+    port = serial.Serial(path, 115200, timeout=0)
+    task = asyncio.create_task(em.run(3.5))
+    before = await _poll(port, em, 0.9)
+    while em.t < 1.2:
+        await asyncio.sleep(0.01)
+    assert not os.path.exists(path)
+    with pytest.raises(serial.SerialException):
+        port.read(100)  # the device went away under the host
+    port.close()
+    while em.t < 2.1:
+        await asyncio.sleep(0.01)
+    port = serial.Serial(path, 115200, timeout=0)
+    after = await _poll(port, em, 1.0)
+    await task
+    assert len(angles(before)) > 10 and len(angles(after)) > 10
+    assert em.device("aoa").link.counters["unplugs"] == 1
+    port.close()
+    await em.close()
+
+
+async def test_baud_mismatch_is_garbage_until_the_host_follows(tmp_path) -> None:
+    em = make(transport="pty", speed=5, faults=[Fault.parse("baud@aoa:at=0.5,rate=1000000")], link_dir=tmp_path)
+    endpoints = await em.start()
+    port = serial.Serial(endpoints[0]["path"], 115200, timeout=0)
+    task = asyncio.create_task(em.run(3.0))
+    good = await _poll(port, em, 0.45)
+    while em.t < 0.6:
+        await asyncio.sleep(0.01)
+    port.read(65536)
+    garbage = await _poll(port, em, 1.0)
+    port.baudrate = 1000000
+    assert termios.tcgetattr(em.device("aoa").link.master)[5] == termios.B1000000
+    port.read(65536)
+    healed = await _poll(port, em, 1.0)
+    await task
+    assert len(angles(good)) > 5 and angles(garbage) == [] and len(garbage) > 100
+    assert len(angles(healed)) > 20
+    port.close()
+    await em.close()
+
+
+async def test_tcp_transport_serves_pyserial_socket_urls() -> None:
+    em = make(transport="tcp", speed=20)
+    endpoints = await em.start()
+    assert endpoints[0]["url"].startswith("socket://127.0.0.1:")
+    port = serial.serial_for_url(endpoints[0]["url"], timeout=0)
+    task = asyncio.create_task(em.run(1.0))
+    port.write(b"AT+GMI\r")
+    data = await _poll(port, em, 0.9)
+    await task
+    items = UConnectDecoder().feed(data)
+    assert [i.text for i in items if i.kind == "info"] == ['"u-blox"']
+    assert len([i for i in items if i.kind == "angle"]) > 10
+    port.close()
+    await em.close()
