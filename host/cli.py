@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import sys
 from collections.abc import Callable, Iterator
 from typing import BinaryIO
 
+from host.cli_io import add_parsers as add_io_parsers
+from host.cli_io import configure_logging
 from protocol.frames import FrameDecoder
 from protocol.jsonable import as_dict
 from protocol.uconnect import UConnectDecoder
@@ -60,6 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="rfhoming",
         description="Radio homing for mobile robots: device protocols, emulator and host stack.",
     )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     decode = sub.add_parser(
         "decode",
@@ -75,6 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     decode.add_argument("file", nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=cmd_decode)
+    add_io_parsers(sub)
     _add_emulate(sub)
     return parser
 
@@ -88,11 +93,30 @@ def _add_emulate(sub: argparse._SubParsersAction) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(args.verbose)
     try:
         return args.func(args)
     except BrokenPipeError:  # e.g. piped into head
         sys.stderr.close()
         return 0
+
+
+def serve_capture_on_ptys(args: argparse.Namespace) -> int:
+    """``rfhoming replay --pty``: the emulator's pty links serve a recording."""
+    import tempfile
+    from pathlib import Path
+
+    from emulator.playback import serve
+
+    link_dir = args.link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-replay-"))
+    try:
+        stats = asyncio.run(serve(args.capture, link_dir, speed=args.speed or 1.0,
+                                  start_delay=args.start_delay, out=sys.stdout))
+    except (OSError, ValueError) as exc:
+        print(f"rfhoming replay: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps({"kind": "counters", **stats}))
+    return 0
 
 
 if __name__ == "__main__":

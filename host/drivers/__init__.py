@@ -1,0 +1,1 @@
+"""Device drivers: one async state machine per device kind, each over a :class:`HostPort`."""

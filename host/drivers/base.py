@@ -1,0 +1,91 @@
+"""Robot base driver: velocity commands out, odometry and range scans in.
+
+The host sends a stop on shutdown and on any exception (use the driver as an async context
+manager around the work that drives the robot); every command carries a timeout, so the base's
+own watchdog stops it if the host dies outright -- the second line of defence.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Any, NamedTuple
+
+from host.drivers.common import BoundedStream, Driver
+from host.ports import Disconnected, HostPort
+from protocol.frames import FrameDecoder, Odometry, RangeScan, VelocityCommand, encode_frame
+
+log = logging.getLogger(__name__)
+
+
+class Pose2D(NamedTuple):
+    t_host: float
+    x: float
+    y: float
+    theta: float
+    v: float
+    w: float
+    flags: int
+
+
+class Scan(NamedTuple):
+    t_host: float
+    angle_min: float
+    angle_increment: float
+    ranges: tuple[float | None, ...]  # metres, None = no return
+
+
+class BaseDriver(Driver):
+    kind = "base"
+
+    def __init__(self, port: HostPort, *, command_timeout_ms: int = 300, reconnect: bool = True) -> None:
+        super().__init__(port, reconnect=reconnect)
+        self.decoder = FrameDecoder()
+        self.command_timeout_ms = command_timeout_ms
+        self.odometry = BoundedStream[Pose2D](500)
+        self.scans = BoundedStream[Scan](20)
+        self.latest: Pose2D | None = None
+        self.latest_scan: Scan | None = None
+        self.counters.update(commands=0, stops=0, unsent=0)
+        self._seq = 0
+
+    def on_chunk(self, data: bytes, t_host: float) -> None:
+        for record in self.decoder.feed(data):
+            self.emit(t_host, record)
+            if isinstance(record, Odometry):
+                pose = Pose2D(t_host, record.x_mm / 1000, record.y_mm / 1000, record.theta_urad / 1e6,
+                              record.v_mm_s / 1000, record.w_mrad_s / 1000, record.flags)
+                self.latest = pose
+                self.odometry.put(pose)
+            elif isinstance(record, RangeScan):
+                scan = Scan(t_host, record.angle_min_mrad / 1000, record.angle_inc_mrad / 1000,
+                            tuple(r / 1000 if r else None for r in record.ranges_mm))
+                self.latest_scan = scan
+                self.scans.put(scan)
+
+    def send_velocity(self, v: float, w: float) -> bool:
+        """Command (v m/s, ω rad/s); False (counted) when the base is not connected."""
+        self._seq = (self._seq + 1) & 0xFFFF
+        v_mm = max(-32768, min(32767, round(v * 1000)))
+        w_mrad = max(-32768, min(32767, round(w * 1000)))
+        try:
+            self.port.write(encode_frame(VelocityCommand(0, self._seq, 0, v_mm, w_mrad, self.command_timeout_ms)))
+        except Disconnected:
+            self.counters["unsent"] += 1
+            return False
+        self.counters["commands"] += 1
+        return True
+
+    def stop(self) -> bool:
+        self.counters["stops"] += 1
+        return self.send_velocity(0.0, 0.0)
+
+    async def __aenter__(self) -> BaseDriver:
+        return self
+
+    async def __aexit__(self, *exc: Any) -> None:
+        if not self.stop():
+            log.error("%s: could not send the final stop; the base's watchdog stops it within %d ms",
+                      self.port.name, self.command_timeout_ms)
+        await asyncio.sleep(0)
+

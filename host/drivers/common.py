@@ -1,0 +1,127 @@
+"""What every driver shares: the reconnect loop, the chunk reader and the health snapshot."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import deque
+from collections.abc import AsyncIterator, Callable
+from typing import Any, Generic, TypeVar
+
+from host.ports import Disconnected, EndOfInput, HostPort, PortError, reopen
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+
+class BoundedStream(Generic[T]):
+    """A bounded queue of readings: when the consumer lags, the oldest go first (counted)."""
+
+    def __init__(self, size: int) -> None:
+        self._items: deque[T] = deque(maxlen=size)
+        self._ready = asyncio.Event()
+        self.dropped = 0
+
+    def put(self, item: T) -> None:
+        if len(self._items) == self._items.maxlen:
+            self.dropped += 1
+        self._items.append(item)
+        self._ready.set()
+
+    async def get(self) -> T:
+        while not self._items:
+            self._ready.clear()
+            await self._ready.wait()
+        return self._items.popleft()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    async def __aiter__(self) -> AsyncIterator[T]:
+        while True:
+            yield await self.get()
+
+
+class Driver:
+    """Base of the drivers: keeps the port open (re-opening with back-off) and feeds chunks.
+
+    Subclasses implement :meth:`on_chunk` (decode and route) and may extend :meth:`session`
+    (work to do after each open, e.g. the AoA board's set-up).
+    """
+
+    kind = "device"
+
+    def __init__(self, port: HostPort, *, reconnect: bool = True) -> None:
+        self.port = port
+        self.reconnect = reconnect
+        self.state = "closed"
+        self.counters: dict[str, int] = {"reconnects": 0}
+        self.latency: deque[float] = deque(maxlen=1000)  # seconds to handle one chunk
+        self.connected = asyncio.Event()
+        self.listeners: list[Callable[[str, float, Any], None]] = []
+
+    def emit(self, t: float, item: Any) -> Any:
+        """Show one decoded item (record, line or drop) to the listeners; returns it."""
+        for listener in self.listeners:
+            listener(self.port.name, t, item)
+        return item
+
+    def on_chunk(self, data: bytes, t_host: float) -> None:
+        raise NotImplementedError
+
+    async def session(self) -> None:
+        """Called after every successful open, while the reader runs."""
+        self.state = "streaming"
+
+    async def run(self) -> None:
+        """Open, read and route until cancelled; reconnect when the device goes away."""
+        first = True
+        while True:
+            self.state = "opening"
+            try:
+                if first:
+                    await self.port.open()
+                else:
+                    await reopen(self.port)
+            except EndOfInput:
+                self.state = "ended"
+                return
+            except PortError as exc:
+                if first:
+                    raise  # a port that never opened is a user error: say so at once
+                log.warning("%s: %s", self.port.name, exc)
+                continue
+            if not first:
+                self.counters["reconnects"] += 1
+            first = False
+            self.connected.set()
+            reader = asyncio.create_task(self._read())
+            setup = asyncio.create_task(self.session())
+            try:
+                await reader
+            except Disconnected:
+                self.state = "disconnected"
+            except EndOfInput:
+                self.state = "ended"
+                return
+            finally:
+                self.connected.clear()
+                setup.cancel()
+                reader.cancel()
+            if not self.reconnect:
+                return
+
+    async def _read(self) -> None:
+        while True:
+            chunk = await self.port.read()
+            start = time.perf_counter()
+            self.on_chunk(chunk.data, chunk.t)
+            self.latency.append(time.perf_counter() - start)
+
+    def health(self) -> dict[str, Any]:
+        """Counters of the port, the decoder and the driver, plus handling latency."""
+        lat = sorted(self.latency)
+        p = (lambda q: round(lat[min(len(lat) - 1, int(q * len(lat)))] * 1e6, 1)) if lat else (lambda q: None)
+        return {"device": self.port.name, "driver": self.kind, "state": self.state,
+                **self.port.counters, **self.counters, "latency_us_p50": p(0.5), "latency_us_p99": p(0.99)}

@@ -1,0 +1,151 @@
+"""Driver for rfhoming's binary-framed RSS nodes (ESP32 scanner, AT86RF212 node).
+
+- Node time: ``t_us`` is a u32 that wraps every 71.6 min. :class:`NodeClock` unwraps it and
+  maps it to host time with the minimum observed (host arrival − node time) over a window:
+  the arrival with the least transport delay is the best offset estimate.
+- Loss: a per-node gap in the record counter ``seq`` is counted as lost records.
+- Power: ED -> dBm with the base the node reports and the calibrated ED step.
+- Antennas: the four 0x02 records of one emitter frame are associated by ``emitter_seq``
+  within a window; a 0x03 record carries the set already and is used as it is.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any, NamedTuple
+
+from host.drivers.common import BoundedStream, Driver
+from host.ports import HostPort
+from protocol.at86rf212 import DEFAULT_SCALE_DB, ed_to_dbm
+from protocol.frames import AdvReport, AntennaSet, FrameDecoder, RfFrame, Status
+
+WRAP = 1 << 32
+
+
+class BleRssi(NamedTuple):
+    t_host: float
+    node_id: int
+    address: str  # as printed: MSB first, upper-case hex
+    rssi_dbm: int
+
+
+class AntennaPowers(NamedTuple):
+    """One emitter frame on the four antennas (x1, x2, y1, y2); None = not received."""
+
+    t_host: float
+    node_id: int
+    emitter_seq: int
+    dbm: tuple[float | None, float | None, float | None, float | None]
+
+
+class NodeClock:
+    """Unwraps a node's u32 microsecond clock and maps it to host seconds."""
+
+    def __init__(self, window: int = 200) -> None:
+        self._last: int | None = None
+        self._wraps = 0
+        self._offsets: deque[float] = deque(maxlen=window)
+
+    def unwrap(self, t_us: int) -> int:
+        if self._last is not None and t_us < self._last and self._last - t_us > WRAP // 2:
+            self._wraps += 1
+        self._last = t_us
+        return t_us + self._wraps * WRAP
+
+    def to_host(self, t_us: int, t_arrival: float) -> float:
+        node_s = self.unwrap(t_us) / 1e6
+        self._offsets.append(t_arrival - node_s)
+        return node_s + min(self._offsets)
+
+
+class LossCounter:
+    """Records lost per node, from gaps in the 16-bit record counter."""
+
+    def __init__(self) -> None:
+        self._last: dict[int, int] = {}
+        self.lost = 0
+        self.received = 0
+
+    def see(self, node_id: int, seq: int) -> None:
+        last = self._last.get(node_id)
+        if last is not None:
+            gap = (seq - last - 1) & 0xFFFF
+            if gap < 0x8000:  # a jump backwards is a node restart, not a loss
+                self.lost += gap
+        self._last[node_id] = seq
+        self.received += 1
+
+
+class Associator:
+    """Groups per-antenna 0x02 records of one emitter frame; emits when all four arrived or the
+    window after the first one has passed."""
+
+    def __init__(self, window_s: float = 0.05) -> None:
+        self.window_s = window_s
+        self._open: dict[tuple[int, int], tuple[float, list[float | None]]] = {}
+
+    def add(self, node_id: int, emitter_seq: int, antenna: int, dbm: float | None, t: float) -> list[AntennaPowers]:
+        key = (node_id, emitter_seq)
+        t0, powers = self._open.setdefault(key, (t, [None] * 4))
+        powers[antenna] = dbm
+        done = self.expire(t)
+        if key in self._open and all(p is not None for p in powers):
+            del self._open[key]
+            done.append(AntennaPowers(t0, node_id, emitter_seq, tuple(powers)))
+        return done
+
+    def expire(self, now: float) -> list[AntennaPowers]:
+        old = [k for k, (t0, _) in self._open.items() if now - t0 > self.window_s]
+        return [AntennaPowers(self._open[k][0], k[0], k[1], tuple(self._open.pop(k)[1])) for k in old]
+
+
+class RssDriver(Driver):
+    kind = "rss-node"
+
+    def __init__(self, port: HostPort, *, ed_scale_db: float = DEFAULT_SCALE_DB, use_antenna_sets: bool = True,
+                 queue_size: int = 4000, reconnect: bool = True) -> None:
+        super().__init__(port, reconnect=reconnect)
+        self.decoder = FrameDecoder()
+        self.ed_scale_db = ed_scale_db
+        self.use_antenna_sets = use_antenna_sets
+        self.readings = BoundedStream[Any](queue_size)
+        self.clocks: dict[int, NodeClock] = {}
+        self.loss = LossCounter()
+        self.associator = Associator()
+        self.status: dict[int, Status] = {}
+        self.logs: deque[str] = deque(maxlen=100)
+
+    def _host_time(self, record: Any, t_arrival: float) -> float:
+        clock = self.clocks.setdefault(record.node_id, NodeClock())
+        return clock.to_host(record.t_us, t_arrival)
+
+    def _dbm(self, ed: int, base: int) -> float | None:
+        return ed_to_dbm(ed, base, self.ed_scale_db) if ed <= 84 else None
+
+    def on_chunk(self, data: bytes, t_host: float) -> None:
+        for record in self.decoder.feed(data):
+            self.emit(t_host, record)
+            if record.kind == "drop":
+                continue
+            self.loss.see(record.node_id, record.seq)
+            t = self._host_time(record, t_host)
+            if isinstance(record, AdvReport):
+                if record.rssi_dbm != 127:
+                    self.readings.put(BleRssi(t, record.node_id, record.addr[::-1].hex().upper(), record.rssi_dbm))
+            elif isinstance(record, AntennaSet) and self.use_antenna_sets:
+                dbm = tuple(self._dbm(a.ed, record.rssi_base_dbm) if record.valid_mask >> i & 1 else None
+                            for i, a in enumerate(record.antennas))
+                self.readings.put(AntennaPowers(t, record.node_id, record.emitter_seq, dbm))
+            elif isinstance(record, RfFrame) and not self.use_antenna_sets:
+                for done in self.associator.add(record.node_id, record.emitter_seq, record.antenna,
+                                                self._dbm(record.ed, record.rssi_base_dbm), t):
+                    self.readings.put(done)
+            elif isinstance(record, Status):
+                self.status[record.node_id] = record
+            elif record.kind == "log_text":
+                self.logs.append(f"node {record.node_id}: {record.text}")
+
+    def health(self) -> dict[str, Any]:
+        return {**super().health(), "records": self.loss.received, "lost_records": self.loss.lost,
+                "queued": len(self.readings), "queue_dropped": self.readings.dropped,
+                **{f"decoder.{k}": v for k, v in self.decoder.counters.items()}}

@@ -1,0 +1,190 @@
+"""Serial ports for the host: a device path, a pyserial URL or ``auto``, opened with asyncio.
+
+One string opens anything: ``/dev/ttyACM0``, ``COM3``, a pty, ``socket://127.0.0.1:PORT``
+(the emulator's TCP mode), or ``auto`` (the one recognised device of the wanted kind, see
+:mod:`host.discovery`). Every chunk read or written passes the port's taps with a host
+timestamp -- capture and metrics hang there. A failed open raises :class:`PortError` whose
+message says how to fix it; a vanished device ends :meth:`HostPort.read` with
+:class:`Disconnected`, and :func:`reopen` retries with back-off.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import logging
+import time
+from collections.abc import Callable
+
+from typing import NamedTuple
+
+import serial
+import serial_asyncio_fast
+
+log = logging.getLogger(__name__)
+
+Tap = Callable[[str, str, float, bytes], None]
+"""tap(port_name, direction 'in'|'out'|'lost', host time in seconds, bytes)."""
+
+MAX_BACKLOG = 1 << 20
+
+
+class Chunk(NamedTuple):
+    """Bytes as one read returned them, with the host time they arrived."""
+
+    t: float
+    data: bytes
+
+
+class PortError(Exception):
+    """A port that cannot be opened or used; the message says what to do."""
+
+
+class Disconnected(PortError):
+    """The device went away (unplugged, emulator stopped)."""
+
+
+class EndOfInput(Exception):
+    """A recording has nothing more to give: the driver stops instead of reconnecting."""
+
+
+def explain(spec: str, exc: BaseException) -> str:
+    """Turn an OS/pyserial error into a sentence that says how to fix it."""
+    code = getattr(exc, "errno", None)
+    text = str(exc)
+    if spec.startswith("socket://"):
+        return (f"nothing answers at {spec} ({text}); is `rfhoming emulate --tcp` (or the device "
+                "server) running, and is the port the one it printed?")
+    if code == errno.ENOENT or "No such file" in text:
+        return (f"no device at {spec}: is it plugged in? `rfhoming devices` lists the serial ports "
+                "this machine sees")
+    if code == errno.EACCES or "Permission denied" in text:
+        return (f"permission denied on {spec}: add yourself to the group that owns it "
+                "(usually: sudo usermod -aG dialout $USER, then log out and in again)")
+    if code in (errno.EAGAIN, errno.EBUSY) or "lock" in text.lower() or "busy" in text.lower():
+        return (f"{spec} is busy: another program has it open (a terminal such as screen or "
+                "minicom, ModemManager, or another rfhoming); close it and try again")
+    return f"cannot open {spec}: {text}"
+
+
+class _Protocol(asyncio.Protocol):
+    def __init__(self, port: HostPort) -> None:
+        self.port = port
+
+    def data_received(self, data: bytes) -> None:
+        self.port._received(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.port._lost(exc)
+
+
+class HostPort:
+    """One serial connection with taps, counters and a bounded receive backlog."""
+
+    def __init__(self, spec: str, *, baud: int = 115200, rtscts: bool = False,
+                 name: str | None = None, taps: list[Tap] | None = None,
+                 clock: Callable[[], float] = lambda: round(time.time() * 1e6) / 1e6) -> None:
+        self.spec = spec
+        self.name = name or spec
+        self.baud = baud
+        self.rtscts = rtscts
+        self.taps: list[Tap] = list(taps or [])
+        self.clock = clock
+        self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0,
+                         "disconnects": 0, "dropped_bytes": 0}
+        self._transport: serial_asyncio_fast.SerialTransport | None = None
+        self._gone = asyncio.Event()
+        self._queue: asyncio.Queue[Chunk | None] = asyncio.Queue()
+        self._backlog = 0
+
+    @property
+    def is_open(self) -> bool:
+        return self._transport is not None
+
+    async def open(self) -> None:
+        """Open the port; PortError explains a failure."""
+        loop = asyncio.get_running_loop()
+        kwargs = {"baudrate": self.baud, "rtscts": self.rtscts}
+        if not self.spec.startswith(("socket://", "loop://")):
+            kwargs["exclusive"] = True
+        try:
+            transport, _ = await serial_asyncio_fast.create_serial_connection(
+                loop, lambda: _Protocol(self), self.spec, **kwargs)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise PortError(explain(self.spec, exc)) from None
+        self._transport = transport
+        self._gone = asyncio.Event()
+        self._queue = asyncio.Queue()
+        self._backlog = 0
+        self.counters["opens"] += 1
+
+    def set_baud(self, baud: int) -> None:
+        """Change the rate on the open port (probing, or following AT+UMRS)."""
+        self.baud = baud
+        if self._transport is not None:
+            self._transport.serial.baudrate = baud
+
+    def _received(self, data: bytes) -> None:
+        now = self.clock()
+        for tap in self.taps:
+            tap(self.name, "in", now, data)
+        self.counters["bytes_in"] += len(data)
+        self.counters["chunks_in"] += 1
+        if self._backlog + len(data) > MAX_BACKLOG:
+            self.counters["dropped_bytes"] += len(data)
+            log.warning("%s: reader fell %d bytes behind; dropping", self.name, self._backlog)
+            return
+        self._backlog += len(data)
+        self._queue.put_nowait(Chunk(now, data))
+
+    def _lost(self, exc: Exception | None) -> None:
+        if self._transport is not None:
+            self.counters["disconnects"] += 1
+            log.warning("%s: disconnected (%s)", self.name, exc or "closed")
+            for tap in self.taps:
+                tap(self.name, "lost", self.clock(), b"")
+        self._transport = None
+        self._gone.set()
+        self._queue.put_nowait(None)
+
+    async def read(self) -> Chunk:
+        """The next chunk as it arrived; Disconnected when the device has gone."""
+        chunk = await self._queue.get()
+        if chunk is None:
+            raise Disconnected(f"{self.name} disconnected")
+        self._backlog -= len(chunk.data)
+        return chunk
+
+    def write(self, data: bytes) -> None:
+        if self._transport is None:
+            raise Disconnected(f"{self.name} is not open")
+        now = self.clock()
+        for tap in self.taps:
+            tap(self.name, "out", now, data)
+        self.counters["bytes_out"] += len(data)
+        self._transport.write(data)
+
+    async def close(self) -> None:
+        transport, self._transport = self._transport, None
+        if transport is not None:
+            transport.close()  # the fd (and its exclusive lock) goes when connection_lost runs
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(self._gone.wait(), 1.0)
+
+
+async def reopen(port: HostPort, *, first: float = 0.2, longest: float = 5.0,
+                 attempts: int | None = None) -> None:
+    """Open ``port``, retrying with doubling back-off until it works (or ``attempts`` run out)."""
+    delay, tries = first, 0
+    while True:
+        try:
+            await port.open()
+            return
+        except PortError as exc:
+            tries += 1
+            if attempts is not None and tries >= attempts:
+                raise
+            log.info("%s: %s; retrying in %.1f s", port.name, exc, delay)
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, longest)

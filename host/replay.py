@@ -1,0 +1,115 @@
+"""Replay: recorded inbound bytes through the same decoders and drivers as a live run.
+
+:class:`ReplayPort` stands where a :class:`~host.ports.HostPort` stands. It hands the driver
+each recorded inbound chunk with its recorded timestamp, as fast as possible or at the recorded
+pace (``speed``). A recorded answer that followed one of the host's writes is released only
+after the driver has written again, so the driver's commands are answered from the capture in
+the order they were answered live. Writes that differ from the recording are counted
+(``diverged``): the replayed host did not do what the live one did.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+from typing import Any
+
+from host.capture import DISCONNECTED, parse_description
+from host.ports import Chunk, Disconnected, EndOfInput, Tap
+from protocol import pcapng
+
+ANSWER_TIMEOUT = 2.0
+
+
+class ReplayPort:
+    def __init__(self, name: str, packets: list[pcapng.Packet], *, speed: float | None = None) -> None:
+        self.name = self.spec = name
+        self.packets = packets
+        self.speed = speed
+        self.baud = 115200
+        self.taps: list[Tap] = []
+        self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0,
+                         "disconnects": 0, "dropped_bytes": 0, "diverged": 0, "unanswered": 0}
+        self._i = 0
+        self._written = asyncio.Event()
+        self._open = False
+        self._t0: tuple[float, float] | None = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._open
+
+    async def open(self) -> None:
+        if self._i >= len(self.packets):
+            raise EndOfInput(f"{self.name}: end of capture")
+        self._open = True
+        self.counters["opens"] += 1
+
+    def set_baud(self, baud: int) -> None:
+        self.baud = baud
+
+    async def read(self) -> Chunk:
+        while self._i < len(self.packets):
+            p = self.packets[self._i]
+            self._i += 1
+            if p.direction == pcapng.OUTBOUND:
+                await self._await_write(p)
+                continue
+            if p.comment == DISCONNECTED:
+                self._open = False
+                self.counters["disconnects"] += 1
+                raise Disconnected(f"{self.name}: disconnected here in the recording")
+            await self._pace(p.t)
+            for tap in self.taps:
+                tap(self.name, "in", p.t, p.data)
+            self.counters["bytes_in"] += len(p.data)
+            self.counters["chunks_in"] += 1
+            return Chunk(p.t, p.data)
+        self._open = False
+        raise EndOfInput(f"{self.name}: end of capture")
+
+    async def _await_write(self, expected: pcapng.Packet) -> None:
+        """The live host wrote here: wait until the replayed one writes too."""
+        if not self._written.is_set():
+            try:
+                await asyncio.wait_for(self._written.wait(), ANSWER_TIMEOUT)
+            except asyncio.TimeoutError:
+                self.counters["unanswered"] += 1
+                return
+        self._written.clear()
+        if self._last_write != expected.data:
+            self.counters["diverged"] += 1
+
+    _last_write = b""
+
+    def write(self, data: bytes) -> None:
+        self.counters["bytes_out"] += len(data)
+        self._last_write = data
+        self._written.set()
+
+    async def _pace(self, t: float) -> None:
+        if not self.speed:
+            await asyncio.sleep(0)
+            return
+        if self._t0 is None:
+            self._t0 = (t, time.monotonic())
+        due = self._t0[1] + (t - self._t0[0]) / self.speed
+        await asyncio.sleep(max(0.0, due - time.monotonic()))
+
+    async def close(self) -> None:
+        self._open = False
+
+
+def load_capture(path: Path | str) -> tuple[list[pcapng.Interface], dict[int, list[pcapng.Packet]], int]:
+    """Interfaces, packets per interface, and the size of a torn tail (0 if the file is whole)."""
+    data = Path(path).read_bytes()
+    interfaces, packets, torn = pcapng.read_all(data)
+    per: dict[int, list[pcapng.Packet]] = {i: [] for i in range(len(interfaces))}
+    for p in packets:
+        per[p.interface_id].append(p)
+    return interfaces, per, torn
+
+
+def describe(iface: pcapng.Interface) -> dict[str, Any]:
+    return {"protocol": iface.protocol, **parse_description(iface.description)}

@@ -1,0 +1,299 @@
+"""Host I/O against the emulator over ptys and TCP: ports, drivers, capture and replay."""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import math
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from emulator.faults import Fault
+from emulator.runtime import Emulator
+from emulator.scenario import load
+from host.capture import CaptureWriter
+from host.drivers.aoa import AoaDriver, AoaSetup, identify_dialect
+from host.drivers.base import BaseDriver
+from host.drivers.rss import AntennaPowers, Associator, LossCounter, NodeClock, RssDriver
+from host.ports import HostPort, PortError, explain
+from host.replay import ReplayPort, load_capture
+from protocol import pcapng
+from protocol.uconnect import Dialect
+
+
+async def start(tmp_path: Path, scenario: str = "s0-open", *, speed: float = 4.0, faults: list[str] = (),
+                transport: str = "pty", dialect: str | None = None) -> Emulator:
+    sc = load(scenario, seed=3, target=(3.0, 2.0) if scenario == "s0-open" else None)
+    if dialect:
+        next(d for d in sc.devices if d.type == "xplr-aoa").options["dialect"] = dialect
+    em = Emulator(sc, transport=transport, seed=3, speed=speed, link_dir=tmp_path,
+                  faults=[Fault.parse(f) for f in faults])
+    await em.start()
+    em.task = asyncio.create_task(em.run())
+    return em
+
+
+async def stop(em: Emulator, *drivers_tasks: asyncio.Task) -> None:
+    for task in drivers_tasks:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+    em.task.cancel()
+    await asyncio.gather(em.task, return_exceptions=True)
+    await em.close()
+
+
+def where(em: Emulator, device: str) -> str:
+    endpoint = em.device(device).link.describe()
+    return endpoint.get("path") or endpoint["url"]
+
+
+async def until(predicate, timeout: float = 10.0) -> None:
+    async with asyncio.timeout(timeout):
+        while not predicate():
+            await asyncio.sleep(0.02)
+
+
+# -- ports ----------------------------------------------------------------------------------
+async def test_missing_port_says_how_to_find_one() -> None:
+    with pytest.raises(PortError, match="no device at /dev/nope.*rfhoming devices"):
+        await HostPort("/dev/nope").open()
+
+
+async def test_busy_port_says_who_to_close(tmp_path: Path) -> None:
+    em = await start(tmp_path)
+    first = HostPort(where(em, "aoa"))
+    await first.open()
+    with pytest.raises(PortError, match="busy"):
+        await HostPort(where(em, "aoa")).open()
+    await first.close()
+    second = HostPort(where(em, "aoa"))
+    await second.open()  # the lock went with the close
+    await second.close()
+    await stop(em)
+
+
+def test_permission_denied_names_the_dialout_group() -> None:
+    message = explain("/dev/ttyACM0", PermissionError(errno.EACCES, "Permission denied"))
+    assert "dialout" in message and "usermod" in message
+
+
+async def test_nothing_listening_on_tcp_names_the_emulator() -> None:
+    with pytest.raises(PortError, match="rfhoming emulate --tcp"):
+        await HostPort("socket://127.0.0.1:9").open()
+
+
+# -- the AoA driver -------------------------------------------------------------------------
+@pytest.mark.parametrize("dialect", ["1.0", "1.2", "2.x", "embed"])
+async def test_setup_identifies_every_dialect(tmp_path: Path, dialect: str) -> None:
+    em = await start(tmp_path, dialect=dialect)
+    driver = AoaDriver(HostPort(where(em, "aoa")))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.state == "streaming")
+    assert driver.dialect is Dialect(dialect)
+    event = await asyncio.wait_for(driver.events.get(), 10)
+    assert (event.event.seq is not None) == (dialect in ("2.x", "embed"))
+    await stop(em, task)
+
+
+def test_dialect_identification_from_answers() -> None:
+    assert identify_dialect('"NINA-B4-DF"', '"1.0.2-001"', "") is Dialect.V1_0
+    assert identify_dialect("NINA-B411-40B", '"1.2.0-005"', "") is Dialect.V1_2
+    assert identify_dialect("NINA-B411-40B", '"2.1.0-010"', "") is Dialect.V2
+    assert identify_dialect("NINA-B411-40B", '"1.0.0"', '"u-locateEmbed","1.0.0"') is Dialect.EMBED
+
+
+async def test_config_is_applied_stored_and_survives_reboot(tmp_path: Path) -> None:
+    em = await start(tmp_path, faults=["reboot@aoa:at=4"])
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(config={2: "dock-7", 1: 40}))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["reboots"] == 1 and driver.state == "streaming", 15)
+    while len(driver.events):  # events from before the set-up finished
+        await driver.events.get()
+    event = (await asyncio.wait_for(driver.events.get(), 5)).event
+    assert event.user_str == "dock-7"
+    assert driver.counters["setups"] == 2
+    assert em.device("aoa").firmware.saved.udfcfg[1] == 40
+    await stop(em, task)
+
+
+async def test_unplug_replug_reconnects_and_sets_up_again(tmp_path: Path) -> None:
+    em = await start(tmp_path, faults=["unplug@aoa:at=2,for=1"])
+    driver = AoaDriver(HostPort(where(em, "aoa")))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["reconnects"] == 1 and driver.state == "streaming", 15)
+    before = driver.events.dropped + len(driver.events)
+    await until(lambda: driver.events.dropped + len(driver.events) > before + 5)
+    assert driver.counters["setups"] == 2 and driver.port.counters["disconnects"] == 1
+    await stop(em, task)
+
+
+async def test_baud_mismatch_detected_reported_and_probed(tmp_path: Path) -> None:
+    em = await start(tmp_path, faults=["baud@aoa:at=1.5,rate=460800"])
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(garbage_timeout=1.0, probe_baud=True))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["baud_mismatch"] >= 1, 15)
+    assert "only garbage" in (driver.problem or "") and "AT+UMRS" in driver.problem
+    await until(lambda: driver.port.baud == 460800 and driver.state == "streaming", 20)
+    await stop(em, task)
+
+
+async def test_host_side_tag_filter(tmp_path: Path) -> None:
+    em = await start(tmp_path)
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(host_filter=frozenset({"000000000000"})))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["filtered"] > 10)
+    assert len(driver.events) == 0
+    await stop(em, task)
+
+
+async def test_aoa_over_tcp(tmp_path: Path) -> None:
+    em = await start(tmp_path, transport="tcp")
+    driver = AoaDriver(HostPort(where(em, "aoa")))
+    task = asyncio.create_task(driver.run())
+    event = await asyncio.wait_for(driver.events.get(), 10)
+    assert abs(event.event.azimuth + math.degrees(math.atan2(2, 3))) < 15
+    await stop(em, task)
+
+
+# -- RSS nodes and base ---------------------------------------------------------------------
+def test_node_clock_unwraps_and_maps_to_host_time() -> None:
+    clock = NodeClock()
+    assert clock.to_host(4_294_000_000, 1000.010) == pytest.approx(1000.010)
+    t = clock.to_host(32_704, 1001.010)  # 1 s later, across the u32 wrap
+    assert t == pytest.approx(1000.010 + 1.0, abs=1e-6)
+    assert clock.to_host(1_032_704, 1002.5) == pytest.approx(1002.010, abs=1e-6)  # arrived 0.49 s late
+
+
+def test_loss_counter_counts_gaps_not_restarts() -> None:
+    loss = LossCounter()
+    for seq in (1, 2, 5, 6, 7, 65534, 65535, 0, 2):  # 7 -> 65534: a jump of ≥ 2^15 is a restart
+        loss.see(3, seq)
+    assert loss.lost == 2 + 1 and loss.received == 9  # 3, 4 and (across the wrap) 1
+    fresh = LossCounter()
+    for seq in (100, 101, 5, 6):  # the node restarted
+        fresh.see(1, seq)
+    assert fresh.lost == 0
+
+
+def test_associator_groups_four_antennas_and_expires_partial_sets() -> None:
+    a = Associator(window_s=0.05)
+    assert a.add(1, 7, 0, -60.0, 10.0) == []
+    assert a.add(1, 7, 2, -70.0, 10.001) == []
+    assert a.add(1, 7, 1, -80.0, 10.002) == []
+    (done,) = a.add(1, 7, 3, -75.0, 10.003)
+    assert done.dbm == (-60.0, -80.0, -70.0, -75.0)
+    a.add(1, 8, 0, -61.0, 11.0)
+    (partial,) = a.add(1, 9, 0, -62.0, 11.1)
+    assert partial.emitter_seq == 8 and partial.dbm[1:] == (None, None, None)
+
+
+@pytest.mark.parametrize("sets", [True, False])
+async def test_rss_driver_gives_four_antenna_powers(tmp_path: Path, sets: bool) -> None:
+    em = await start(tmp_path, "s2-a")
+    driver = RssDriver(HostPort(where(em, "rss")), use_antenna_sets=sets)
+    task = asyncio.create_task(driver.run())
+    readings = []
+    while len(readings) < 20:
+        r = await asyncio.wait_for(driver.readings.get(), 10)
+        if isinstance(r, AntennaPowers):
+            readings.append(r)
+    front = sum(r.dbm[0] for r in readings) / len(readings)
+    assert all(front > sum(r.dbm[i] for r in readings) / len(readings) for i in (1, 2, 3))
+    assert driver.loss.lost == 0 and driver.status
+    await stop(em, task)
+
+
+async def test_base_driver_stops_the_robot_on_an_exception(tmp_path: Path) -> None:
+    em = await start(tmp_path)
+    driver = BaseDriver(HostPort(where(em, "base")), command_timeout_ms=5000)
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.latest is not None)
+    with pytest.raises(RuntimeError):
+        async with driver:
+            driver.send_velocity(0.4, 0.0)
+            await until(lambda: driver.latest.v > 0.2)
+            raise RuntimeError("controller crashed")
+    await until(lambda: em.device("base").firmware._target == (0.0, 0.0), 5)
+    assert driver.counters["stops"] == 1
+    await stop(em, task)
+
+
+# -- capture and replay ---------------------------------------------------------------------
+async def record(tmp_path: Path, seconds: float, faults: list[str] = ()) -> tuple[Path, dict[str, list]]:
+    em = await start(tmp_path, faults=faults)
+    capture = CaptureWriter(tmp_path / "run.pcapng")
+    live: dict[str, list] = {}
+    drivers = [AoaDriver(HostPort(where(em, "aoa"), taps=[capture.tap])),
+               RssDriver(HostPort(where(em, "base"), taps=[capture.tap]))]
+    capture.describe(drivers[0].port.name, protocol="ublox-aoa", kind="xplr-aoa")
+    capture.describe(drivers[1].port.name, protocol="rss", kind="rss-node")
+    for d in drivers:
+        d.listeners.append(lambda dev, t, item: live.setdefault(dev, []).append((t, item)))
+    tasks = [asyncio.create_task(d.run()) for d in drivers]
+    start_t = em.t
+    await until(lambda: em.t > start_t + seconds, 30)
+    await stop(em, *tasks)
+    capture.close()
+    return capture.path, live
+
+
+async def replay(path: Path) -> dict[str, list]:
+    interfaces, packets, _ = load_capture(path)
+    out: dict[str, list] = {}
+    drivers = []
+    for i, iface in enumerate(interfaces):
+        port = ReplayPort(iface.name, packets[i])
+        d = AoaDriver(port) if iface.protocol == "ublox-aoa" else RssDriver(port)
+        d.listeners.append(lambda dev, t, item: out.setdefault(dev, []).append((t, item)))
+        drivers.append(d)
+    await asyncio.wait_for(asyncio.gather(*(d.run() for d in drivers)), 30)
+    return out
+
+
+async def test_capture_then_replay_gives_identical_records(tmp_path: Path) -> None:
+    path, live = await record(tmp_path, 6.0, faults=["unplug@aoa:at=2,for=1", "reboot@aoa:at=4.5"])
+    replayed = await replay(path)
+    assert set(replayed) == set(live)
+    for device in live:
+        assert replayed[device] == live[device]
+    kinds = [item.kind for _, item in live[str(tmp_path / "aoa")]]
+    assert kinds.count("startup") >= 1 and kinds.count("angle") > 50
+
+
+async def test_truncated_capture_replays_up_to_its_last_complete_block(tmp_path: Path) -> None:
+    path, live = await record(tmp_path, 3.0)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) - 37])  # killed mid-block
+    interfaces, packets, torn = load_capture(path)
+    assert 0 < torn
+    replayed = await replay(path)
+    for device, items in replayed.items():
+        assert items == live[device][: len(items)]
+        assert len(items) >= len(live[device]) - 10
+
+
+async def test_capture_is_flushed_within_a_second(tmp_path: Path) -> None:
+    writer = CaptureWriter(tmp_path / "live.pcapng", {"p": {"protocol": "rss"}})
+    writer.tap("p", "in", 1.0, b"\x00abc\x00")
+    await asyncio.sleep(1.2)
+    _, packets, torn = pcapng.read_all((tmp_path / "live.pcapng").read_bytes())
+    assert [p.data for p in packets] == [b"\x00abc\x00"] and torn == 0
+    writer.close()
+
+
+@pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark is not installed (apt-get install tshark)")
+async def test_tshark_reads_a_capture(tmp_path: Path) -> None:
+    path, live = await record(tmp_path, 2.0)
+    done = subprocess.run(["tshark", "-r", str(path), "-T", "fields", "-e", "frame.interface_name",
+                           "-e", "frame.p2p_dir", "-e", "frame.len"], capture_output=True, text=True,
+                          env={**os.environ, "HOME": str(tmp_path)})
+    assert done.returncode == 0, done.stderr
+    rows = [line.split("\t") for line in done.stdout.splitlines()]
+    _, packets, _ = load_capture(path)
+    assert len(rows) == sum(len(p) for p in packets.values())
+    assert {r[0] for r in rows} == {str(tmp_path / "aoa"), str(tmp_path / "base")}
+    assert {r[1] for r in rows} >= {"0", "1"}  # sent and received
