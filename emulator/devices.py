@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,7 @@ import numpy as np
 from emulator.faults import ByteFaults, scramble
 from emulator.links import Link
 from emulator.radio import AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth
-from emulator.world import World
+from emulator.world import Target, World
 from firmware_py.at86rf212_node import At86rf212NodeFirmware
 from firmware_py.esp32_scanner import Esp32ScannerFirmware
 from firmware_py.robot_base import RobotBaseFirmware
@@ -70,6 +71,17 @@ class DeviceRunner:
 
     def step(self, world: World, t0: float, t1: float) -> None:
         self.firmware.tick(int(t1 * 1e6))
+
+    def transmissions(self, world: World, kind: str, t0: float, t1: float) -> Iterator[tuple[Target, float, tuple[float, float], float, int]]:
+        """(source, time, position, distance to the robot, obstacles crossed) of every
+        transmission of a ``kind`` source in (t0, t1]."""
+        r = world.robot
+        for source in (s for s in world.targets if s.kind == kind):
+            for t in self.schedule.due(source.id, source.interval_ms / 1000, source.jitter_ms / 1000, t0, t1):
+                pos = source.position_at(t)
+                yield source, t, pos, math.hypot(pos[0] - r.x, pos[1] - r.y), world.obstacles_crossed((r.x, r.y), pos)
+
+    schedule: _Schedule
 
     def reboot(self, t: float) -> None:
         """Power-cycle: the firmware loses its state (binary nodes restart their counters)."""
@@ -187,17 +199,12 @@ class Esp32Runner(DeviceRunner):
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: Esp32ScannerFirmware = self.firmware
-        r = world.robot
-        for beacon in (b for b in world.targets if b.kind == "ble_beacon"):
-            for t in self.schedule.due(beacon.id, beacon.interval_ms / 1000, beacon.jitter_ms / 1000, t0, t1):
-                pos = beacon.position_at(t)
-                distance = math.hypot(pos[0] - r.x, pos[1] - r.y)
-                walls = world.obstacles_crossed((r.x, r.y), pos)
-                ad = b"\x02\x01\x06\x03\x03\xaa\xfe"
-                for k, ch in enumerate((37, 38, 39)):
-                    power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
-                    if power is not None:
-                        fw.on_advertisement(int(t * 1e6) + 400 * k, ch, _address(beacon.id), power, ad)
+        ad = b"\x02\x01\x06\x03\x03\xaa\xfe"
+        for beacon, t, _pos, distance, walls in self.transmissions(world, "ble_beacon", t0, t1):
+            for k, ch in enumerate((37, 38, 39)):
+                power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
+                if power is not None:
+                    fw.on_advertisement(int(t * 1e6) + 400 * k, ch, _address(beacon.id), power, ad)
         fw.tick(int(t1 * 1e6))
 
 
@@ -223,18 +230,14 @@ class RssRunner(DeviceRunner):
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: At86rf212NodeFirmware = self.firmware
         r = world.robot
-        for emitter in (e for e in world.targets if e.kind == "rf_emitter"):
-            for t in self.schedule.due(emitter.id, emitter.interval_ms / 1000, emitter.jitter_ms / 1000, t0, t1):
-                pos = emitter.position_at(t)
-                distance = math.hypot(pos[0] - r.x, pos[1] - r.y)
-                walls = world.obstacles_crossed((r.x, r.y), pos)
-                incident = [self.channel.received_dbm((emitter.id, f"{self.name}.{i}"), distance,
-                                                      emitter.tx_power_dbm, walls) for i in range(4)]
-                if any(p is None for p in incident):
-                    continue
-                seq = self.emitter_seq[emitter.id] = (self.emitter_seq.get(emitter.id, 0) + 1) & 0xFFFF
-                bearing = math.atan2(pos[1] - r.y, pos[0] - r.x) - r.theta
-                fw.on_frame(int(t * 1e6), seq, bearing, incident)  # type: ignore[arg-type]
+        for emitter, t, pos, distance, walls in self.transmissions(world, "rf_emitter", t0, t1):
+            incident = [self.channel.received_dbm((emitter.id, f"{self.name}.{i}"), distance,
+                                                  emitter.tx_power_dbm, walls) for i in range(4)]
+            if any(p is None for p in incident):
+                continue
+            seq = self.emitter_seq[emitter.id] = (self.emitter_seq.get(emitter.id, 0) + 1) & 0xFFFF
+            bearing = math.atan2(pos[1] - r.y, pos[0] - r.x) - r.theta
+            fw.on_frame(int(t * 1e6), seq, bearing, incident)  # type: ignore[arg-type]
         fw.tick(int(t1 * 1e6))
 
 
