@@ -20,6 +20,8 @@ import numpy as np
 
 from host.estimation.fixed import INT32, div_round, sat, wrap16, wrap32, wrap_deg
 
+INT32_MIN, INT32_MAX = INT32
+
 # -- moving average (S1: N = 10) --------------------------------------------------------------
 
 
@@ -162,14 +164,23 @@ class ScalarKalman:
 
     def update(self, q8: int) -> int:
         z = q8 << 8
-        if self._x is None:
+        x = self._x
+        if x is None:
             self._x = z
             return q8
-        p = sat(self._p + self.q, 32)
+        p = self._p + self.q
+        if p > INT32_MAX:  # saturate (sat() inlined: this is the per-sample hot path)
+            p = INT32_MAX
         k = (p << 15) // (p + self.r)  # Q0.15, 0 … 32767
-        self._x = sat(self._x + ((k * (z - self._x)) >> 15), 32)
+        x += (k * (z - x)) >> 15
+        if x > INT32_MAX:
+            x = INT32_MAX
+        elif x < INT32_MIN:
+            x = INT32_MIN
+        self._x = x
         self._p = ((32768 - k) * p) >> 15
-        return sat((self._x + 128) >> 8, 16)
+        out = (x + 128) >> 8
+        return 32767 if out > 32767 else -32768 if out < -32768 else out
 
     @property
     def variance(self) -> float:
