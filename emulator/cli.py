@@ -42,7 +42,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pace.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second (default 1; 0 = as fast as possible)")
     pace.add_argument("--lockstep", action="store_true", help="advance a control period only after the host's velocity command")
     p.add_argument("--seed", type=int, default=0, help="seed of every random stream (default 0)")
-    p.add_argument("--target", help="first target's position X,Y in metres (default: the scenario's, random per seed)")
+    p.add_argument("--target", help="first target's position X,Y in metres, e.g. --target=-3.5,2 "
+                   "(default: the scenario's, random per seed)")
     p.add_argument("--aoa-preset", type=int, choices=range(1, 6), help="S0 Table 2 noise configuration 1-5")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
     p.add_argument("--truth", type=Path, help="write the true robot pose and target positions as JSON lines")
@@ -57,7 +58,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         if target is not None and len(target) != 2:
             raise ValueError
     except ValueError:
-        print("rfhoming emulate: --target takes X,Y in metres, e.g. --target 3.5,-2", file=sys.stderr)
+        print("rfhoming emulate: --target takes X,Y in metres, e.g. --target=3.5,-2", file=sys.stderr)
         return 2
     try:
         scenario = load(args.scenario, seed=args.seed, target=target, aoa_preset=args.aoa_preset)

@@ -107,6 +107,10 @@ class Emulator:
     async def start(self) -> list[dict[str, Any]]:
         for d in self.devices:
             await d.link.start()
+        if self.truth is not None:  # a header line: what a plot of the run needs to know
+            header = {"scenario": self.scenario.name, "bounds": list(self.world.bounds),
+                      "obstacles": [o.polygon for o in self.world.obstacles]}
+            self.truth.write(json.dumps(header) + "\n")
         self._write_truth()
         return self.endpoints()
 

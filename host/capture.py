@@ -38,6 +38,8 @@ class CaptureWriter:
             self._comments[port] = " ".join(f"{k}={v}" for k, v in fields.items())
 
     def tap(self, port: str, direction: str, t: float, data: bytes) -> None:
+        if self._file.closed:  # a port still delivering after the capture ended
+            return
         iface = self._ids.get(port)
         if iface is None:
             fields = self.descriptions.get(port, {})

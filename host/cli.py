@@ -11,6 +11,7 @@ from typing import BinaryIO
 
 from host.cli_io import add_parsers as add_io_parsers
 from host.cli_io import configure_logging
+from host.cli_run import add_parsers as add_run_parsers
 from protocol.frames import FrameDecoder
 from protocol.jsonable import as_dict
 from protocol.uconnect import UConnectDecoder
@@ -79,6 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     decode.add_argument("file", nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=cmd_decode)
+    add_run_parsers(sub)
     add_io_parsers(sub)
     _add_emulate(sub)
     return parser

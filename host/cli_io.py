@@ -75,6 +75,7 @@ async def _run_until(drivers: list[Driver], duration: float | None, extra: list[
             with contextlib.suppress(asyncio.CancelledError, PortError):
                 await task
         for d in drivers:
+            d.drain()
             await d.port.close()
 
 

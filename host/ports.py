@@ -156,6 +156,16 @@ class HostPort:
         self._backlog -= len(chunk.data)
         return chunk
 
+    def take_pending(self) -> list[Chunk]:
+        """Chunks that arrived but were not read yet (for a clean shutdown)."""
+        chunks = []
+        while not self._queue.empty():
+            chunk = self._queue.get_nowait()
+            if chunk is not None:
+                self._backlog -= len(chunk.data)
+                chunks.append(chunk)
+        return chunks
+
     def write(self, data: bytes) -> None:
         if self._transport is None:
             raise Disconnected(f"{self.name} is not open")

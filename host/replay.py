@@ -22,8 +22,35 @@ from protocol import pcapng
 ANSWER_TIMEOUT = 2.0
 
 
+class Sequencer:
+    """Releases the inbound chunks of several replay ports in their recorded global order.
+
+    A port's next chunk goes out only when every earlier chunk of every port has been taken
+    and its reader has come back for more (it has handled the previous one). The loop upstairs
+    then sees its inputs in the order the live host did.
+    """
+
+    def __init__(self, packets: dict[str, list[pcapng.Packet]]) -> None:
+        order = sorted((p.t, name, i) for name, ps in packets.items() for i, p in enumerate(ps)
+                       if p.direction != pcapng.OUTBOUND)
+        self._order = [(name, i) for _, name, i in order]
+        self._pos = 0
+        self._moved = asyncio.Event()
+
+    async def turn(self, name: str, index: int) -> None:
+        """Wait until (name, index) is the next inbound chunk to release."""
+        while self._pos < len(self._order) and self._order[self._pos] != (name, index):
+            self._moved.clear()
+            await self._moved.wait()
+
+    def taken(self) -> None:
+        self._pos += 1
+        self._moved.set()
+
+
 class ReplayPort:
-    def __init__(self, name: str, packets: list[pcapng.Packet], *, speed: float | None = None) -> None:
+    def __init__(self, name: str, packets: list[pcapng.Packet], *, speed: float | None = None,
+                 sequencer: Sequencer | None = None) -> None:
         self.name = self.spec = name
         self.packets = packets
         self.speed = speed
@@ -35,6 +62,8 @@ class ReplayPort:
         self._written = asyncio.Event()
         self._open = False
         self._t0: tuple[float, float] | None = None
+        self.sequencer = sequencer
+        self._holding = False
 
     @property
     def is_open(self) -> bool:
@@ -50,16 +79,24 @@ class ReplayPort:
         self.baud = baud
 
     async def read(self) -> Chunk:
+        if self._holding:  # the reader is back: the chunk it had is handled
+            self._holding = False
+            self.sequencer.taken()
         while self._i < len(self.packets):
             p = self.packets[self._i]
             self._i += 1
             if p.direction == pcapng.OUTBOUND:
                 await self._await_write(p)
                 continue
+            if self.sequencer is not None:
+                await self.sequencer.turn(self.name, self._i - 1)
             if p.comment == DISCONNECTED:
+                if self.sequencer is not None:
+                    self.sequencer.taken()
                 self._open = False
                 self.counters["disconnects"] += 1
                 raise Disconnected(f"{self.name}: disconnected here in the recording")
+            self._holding = self.sequencer is not None
             await self._pace(p.t)
             for tap in self.taps:
                 tap(self.name, "in", p.t, p.data)

@@ -237,6 +237,8 @@ async def record(tmp_path: Path, seconds: float, faults: list[str] = ()) -> tupl
     start_t = em.t
     await until(lambda: em.t > start_t + seconds, 30)
     await stop(em, *tasks)
+    for d in drivers:
+        d.drain()
     capture.close()
     return capture.path, live
 

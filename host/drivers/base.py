@@ -12,6 +12,7 @@ import logging
 from typing import Any, NamedTuple
 
 from host.drivers.common import BoundedStream, Driver
+from host.drivers.rss import NodeClock
 from host.ports import Disconnected, HostPort
 from protocol.frames import FrameDecoder, Odometry, RangeScan, VelocityCommand, encode_frame
 
@@ -20,6 +21,7 @@ log = logging.getLogger(__name__)
 
 class Pose2D(NamedTuple):
     t_host: float
+    t_robot: float  # the base's own clock (seconds, unwrapped): the loop's time axis
     x: float
     y: float
     theta: float
@@ -48,12 +50,13 @@ class BaseDriver(Driver):
         self.latest_scan: Scan | None = None
         self.counters.update(commands=0, stops=0, unsent=0)
         self._seq = 0
+        self.clock = NodeClock()
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
         for record in self.decoder.feed(data):
             self.emit(t_host, record)
             if isinstance(record, Odometry):
-                pose = Pose2D(t_host, record.x_mm / 1000, record.y_mm / 1000, record.theta_urad / 1e6,
+                pose = Pose2D(t_host, self.clock.unwrap(record.t_us) / 1e6, record.x_mm / 1000, record.y_mm / 1000, record.theta_urad / 1e6,
                               record.v_mm_s / 1000, record.w_mrad_s / 1000, record.flags)
                 self.latest = pose
                 self.odometry.put(pose)

@@ -75,7 +75,14 @@ class Driver:
         self.state = "streaming"
 
     async def run(self) -> None:
-        """Open, read and route until cancelled; reconnect when the device goes away."""
+        """Open, read and route until cancelled; reconnect when the device goes away.
+        The port is closed when this ends, however it ends."""
+        try:
+            await self._run()
+        finally:
+            await self.port.close()
+
+    async def _run(self) -> None:
         first = True
         while True:
             self.state = "opening"
@@ -111,6 +118,13 @@ class Driver:
                 reader.cancel()
             if not self.reconnect:
                 return
+
+    def drain(self) -> None:
+        """At shutdown: decode what arrived but was not read yet, so nothing that a capture
+        recorded goes undecoded."""
+        take = getattr(self.port, "take_pending", None)
+        for chunk in take() if take else ():
+            self.on_chunk(chunk.data, chunk.t)
 
     async def _read(self) -> None:
         while True:

@@ -1,0 +1,144 @@
+"""The closed loop's speed: simulated seconds per wall second in lockstep, through ptys and
+in-process, and the host's byte-in -> command-out latency (p50/p99).
+
+    python bench/loop_bench.py [--runs 20] [--json]
+
+Each run is a full S0 homing on s0-open (a different seed and target each run); the host is the
+real stack (drivers, decoders, estimator, controller) and the emulator the real one. Through
+ptys the emulator runs in its own process, as in `rfhoming demo` (wall time counted from the
+loop's start, not the interpreter's); in-process both share one process and a byte pipe.
+Simulated time is the robot's clock from its first odometry to the end of the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import platform
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from emulator.links import PipeEnd
+from emulator.runtime import Emulator
+from emulator.scenario import load
+from host.drivers.aoa import AoaDriver
+from host.demo import read_truth, start_emulator
+from host.drivers.base import BaseDriver
+from host.homing.loop import AoaHomingLoop
+from host.ports import Chunk, HostPort
+
+TARGETS = [(6.0, 4.0), (-7.0, 3.0), (-5.0, -8.0), (8.0, -6.0), (3.0, 8.0), (-8.0, -2.0), (9.0, 1.0), (-2.0, 7.0)]
+
+
+class PipePort:
+    """A HostPort-shaped view of the emulator's in-process pipe (the bench wires both sides)."""
+
+    def __init__(self, name: str, end: PipeEnd) -> None:
+        self.name = self.spec = name
+        self.end = end
+        self.baud = 115200
+        self.taps: list = []
+        self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0, "disconnects": 0, "dropped_bytes": 0}
+
+    async def open(self) -> None:
+        self.counters["opens"] += 1
+
+    def set_baud(self, baud: int) -> None:
+        self.baud = baud
+
+    async def read(self) -> Chunk:
+        data = await self.end.read()
+        self.counters["bytes_in"] += len(data)
+        return Chunk(time.time(), data)
+
+    def write(self, data: bytes) -> None:
+        self.counters["bytes_out"] += len(data)
+        self.end.write(data)
+
+    async def close(self) -> None:
+        pass
+
+
+async def pty_run(seed: int, target: tuple[float, float]) -> dict:
+    """As `rfhoming demo` does it: the emulator in its own process, the host here."""
+    out = Path(tempfile.mkdtemp(prefix="rfhoming-bench-"))
+    proc, endpoints = start_emulator("s0-open", seed, out / "truth.jsonl", out, f"{target[0]},{target[1]}")
+    try:
+        base = BaseDriver(HostPort(endpoints["base"]["path"]))
+        aoa = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"]))
+        wall0 = time.perf_counter()
+        outcome = await asyncio.wait_for(AoaHomingLoop(base, aoa).run(), 120)
+        wall = time.perf_counter() - wall0
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=10)
+    _, states = read_truth(out / "truth.jsonl")
+    robot = states[-1]["robot"]
+    return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall,
+            "final_error_m": math.hypot(robot["x"] - target[0], robot["y"] - target[1]),
+            "latency_ms": outcome.latency_ms, "lockstep_timeouts": None}  # counted in the other process
+
+
+async def pipe_run(seed: int, target: tuple[float, float]) -> dict:
+    """Emulator and host in this process, sharing the in-process byte pipe."""
+    transport = "pipe"
+    link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-bench-"))
+    em = Emulator(load("s0-open", seed=seed, target=target), transport=transport, seed=seed, lockstep=True,
+                  link_dir=link_dir, lockstep_timeout=2.0)
+    await em.start()
+    world = asyncio.create_task(em.run())
+    base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
+    wall0 = time.perf_counter()
+    outcome = await asyncio.wait_for(AoaHomingLoop(BaseDriver(base), AoaDriver(aoa)).run(), 120)
+    wall = time.perf_counter() - wall0
+    world.cancel()
+    await asyncio.gather(world, return_exceptions=True)
+    await em.close()
+    robot = em.world.robot
+    return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall,
+            "final_error_m": math.hypot(robot.x - target[0], robot.y - target[1]),
+            "latency_ms": outcome.latency_ms, "lockstep_timeouts": em.counters["lockstep_timeouts"]}
+
+
+def summarise(runs: list[dict]) -> dict:
+    lat = np.concatenate([r["latency_ms"] for r in runs])
+    sim, wall = sum(r["sim_s"] for r in runs), sum(r["wall_s"] for r in runs)
+    return {"runs": len(runs), "arrived": sum(r["arrived"] for r in runs), "sim_s": round(sim, 2),
+            "wall_s": round(wall, 3), "realtime_factor": round(sim / wall, 1),
+            "latency_ms_p50": round(float(np.percentile(lat, 50)), 3),
+            "latency_ms_p99": round(float(np.percentile(lat, 99)), 3),
+            "lockstep_timeouts": None if runs[0]["lockstep_timeouts"] is None
+            else sum(r["lockstep_timeouts"] for r in runs)}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=int, default=20, help="homing runs per transport (default 20)")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    result = {"python": platform.python_version()}
+    for transport in ("pty", "pipe"):
+        run = pty_run if transport == "pty" else pipe_run
+        runs = [asyncio.run(run(seed, TARGETS[seed % len(TARGETS)])) for seed in range(args.runs)]
+        result[transport] = summarise(runs)
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    for transport in ("pty", "pipe"):
+        r = result[transport]
+        print(f"{transport:<5} {r['arrived']}/{r['runs']} arrived  {r['sim_s']:.1f} s simulated in {r['wall_s']:.2f} s wall: "
+              f"{r['realtime_factor']:.0f}x real time   byte-in -> command-out p50 {r['latency_ms_p50']:.2f} ms, "
+              f"p99 {r['latency_ms_p99']:.2f} ms   lockstep timeouts "
+              f"{'n/a (other process)' if r['lockstep_timeouts'] is None else r['lockstep_timeouts']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

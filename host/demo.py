@@ -1,0 +1,145 @@
+"""``rfhoming demo``: the emulator in its own process on ptys, the host homing against it.
+
+The host side is exactly ``rfhoming run``: drivers on the pty paths the emulator printed, the
+loop, the capture. This module never imports the emulator: it starts ``rfhoming emulate`` as a
+subprocess, as a user would, and reads the truth file it writes for the summary and the plot.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from host.capture import CaptureWriter
+from host.drivers.aoa import AoaDriver
+from host.drivers.base import BaseDriver
+from host.homing.config import Config
+from host.homing.loop import AoaHomingLoop, Outcome, RunLog
+from host.ports import HostPort
+
+SUPPORTED = {"s0-open"}  # s0-house waits for the S0 Appendix B obstacle avoidance
+
+
+def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None) -> tuple[subprocess.Popen, dict]:
+    cmd = [sys.executable, "-m", "host.cli", "emulate", scenario, "--pty", "--lockstep", "--seed", str(seed),
+           "--truth", str(truth), "--link-dir", str(link_dir)]
+    if target:
+        cmd.append(f"--target={target}")  # "=": a negative X would read as an option
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    endpoints = {}
+    while len(endpoints) < 2:
+        line = proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the emulator did not start: {proc.stderr.read().strip()}")
+        endpoint = json.loads(line)
+        endpoints[endpoint["type"]] = endpoint
+    return proc, endpoints
+
+
+async def home(endpoints: dict, out: Path, config: Config) -> tuple[Outcome, dict]:
+    capture = CaptureWriter(out / "capture.pcapng")
+    base = BaseDriver(HostPort(endpoints["base"]["path"], taps=[capture.tap]), command_timeout_ms=config.loop.command_timeout_ms)
+    aoa = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], taps=[capture.tap]))
+    capture.describe(base.port.name, protocol="rss", kind="base")
+    capture.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
+    with open(out / "run.jsonl", "w") as runlog:
+        loop = AoaHomingLoop(base, aoa, config, RunLog(runlog))
+        try:
+            outcome = await loop.run()
+        finally:
+            capture.close()
+    links = {"aoa": aoa.health(), "base": base.health()}
+    return outcome, links
+
+
+def read_truth(path: Path) -> tuple[dict, list[dict]]:
+    lines = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return lines[0], [line for line in lines[1:] if "t" in line]
+
+
+def summarise(outcome: Outcome, truth_path: Path, links: dict) -> dict[str, Any]:
+    header, states = read_truth(truth_path)
+    target = states[-1]["targets"][0]
+    start, end = states[0]["robot"], states[-1]["robot"]
+    path = sum(math.dist((a["robot"]["x"], a["robot"]["y"]), (b["robot"]["x"], b["robot"]["y"]))
+               for a, b in zip(states, states[1:]))
+    straight = math.dist((start["x"], start["y"]), (end["x"], end["y"]))
+    final_error = math.dist((end["x"], end["y"]), (target["x"], target["y"]))
+    goal_error = None if outcome.goal is None else math.dist(outcome.goal, (target["x"], target["y"]))
+    return {
+        "scenario": header["scenario"],
+        "success": outcome.arrived and final_error < 1.0,
+        "reason": outcome.reason,
+        "simulated_time_s": round(outcome.robot_time_s, 2),
+        "target": [target["x"], target["y"]],
+        "goal_position_error_m": None if goal_error is None else round(goal_error, 3),
+        "final_position_error_m": round(final_error, 3),
+        "path_efficiency": round(straight / path, 3) if path > 0 else None,
+        "net_velocity_m_s": round(straight / outcome.robot_time_s, 3) if outcome.robot_time_s else None,
+        "stale_stops": outcome.stale_stops,
+        "latency_ms_p50": outcome.summary()["latency_ms_p50"],
+        "latency_ms_p99": outcome.summary()["latency_ms_p99"],
+        "links": {name: {k: h[k] for k in ("bytes_in", "bytes_out", "disconnects", "reconnects") if k in h}
+                  | {k: v for k, v in h.items() if k.startswith("decoder.drop")} for name, h in links.items()},
+    }
+
+
+def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    header, states = read_truth(truth_path)
+    fig, ax = plt.subplots(figsize=(7, 7), dpi=110)
+    for poly in header["obstacles"]:
+        ax.fill(*zip(*poly), color="0.6", zorder=1)
+    xs = [s["robot"]["x"] for s in states]
+    ys = [s["robot"]["y"] for s in states]
+    ax.plot(xs, ys, color="tab:blue", lw=2, label="robot (true path)", zorder=3)
+    goals = [json.loads(line) for line in runlog_path.read_text().splitlines()]
+    goals = [g["goal"] for g in goals if g.get("kind") == "estimate" and g.get("goal")]
+    if goals:
+        gx, gy = zip(*goals)
+        ax.scatter(gx, gy, c=range(len(gx)), cmap="autumn_r", s=8, label="estimated target over time", zorder=2)
+    target = states[-1]["targets"][0]
+    ax.plot(target["x"], target["y"], marker="*", ms=18, color="gold", mec="k", label="tag (truth)", zorder=4)
+    ax.plot(xs[0], ys[0], "ko", label="start", zorder=4)
+    x0, y0, x1, y1 = header["bounds"]
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"rfhoming demo: {header['scenario']}")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out_png)
+    plt.close(fig)
+
+
+def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None) -> dict[str, Any]:
+    out.mkdir(parents=True, exist_ok=True)
+    truth = out / "truth.jsonl"
+    link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
+    proc, endpoints = start_emulator(scenario, seed, truth, link_dir, target)
+    try:
+        outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config), config.loop.max_time_s + 60))
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    summary = summarise(outcome, truth, links)
+    plot(truth, out / "run.jsonl", out / "trajectory.png")
+    summary["files"] = {name: str(out / name) for name in ("trajectory.png", "capture.pcapng", "run.jsonl", "truth.jsonl")}
+    return summary

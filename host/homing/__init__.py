@@ -1,0 +1,1 @@
+"""The homing loop and its controllers: measurements in, velocity commands out."""

@@ -1,0 +1,124 @@
+"""One TOML file for mounting, calibration, controller gains and loop limits.
+
+``rfhoming config --print-default`` prints :data:`DEFAULT_TOML`, commented; every key may be
+left out, and unknown keys are refused with the list of known ones.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from host.estimation.ranging import LogDistance
+from host.homing.s0_aoa import S0Params
+
+
+@dataclass(frozen=True)
+class Mounting:
+    yaw_offset_deg: float = 0.0  # board boresight relative to the robot heading, CCW
+    azimuth_sign: int = -1  # the XPLR-AOA reports left as negative; -1 turns that into CCW
+    upside_down: bool = False  # mirrors the azimuth once more
+
+    def to_robot(self, azimuth_deg: float) -> float:
+        """Board azimuth (degrees, board convention) -> θs in the robot frame (rad, CCW)."""
+        sign = self.azimuth_sign * (-1 if self.upside_down else 1)
+        return math.radians(sign * azimuth_deg + self.yaw_offset_deg)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    p0_dbm: float = -59.0  # RSSI at d0 (log-distance)
+    n: float = 2.2
+    d0_m: float = 1.0
+    ed_scale_db: float = 1.0  # AT86RF212 dB per ED step
+
+    @property
+    def model(self) -> LogDistance:
+        return LogDistance(self.p0_dbm, self.n, self.d0_m)
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    stale_timeout_s: float = 0.5  # stop when a required stream is older than this (robot time)
+    control_period_s: float = 0.1
+    max_time_s: float = 180.0  # give up after this much robot time
+    command_timeout_ms: int = 300  # the base stops by itself if no command follows
+
+
+@dataclass(frozen=True)
+class Config:
+    mounting: Mounting = field(default_factory=Mounting)
+    calibration: Calibration = field(default_factory=Calibration)
+    loop: LoopSettings = field(default_factory=LoopSettings)
+    s0: S0Params = field(default_factory=S0Params)
+
+
+SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params}
+
+
+class ConfigError(ValueError):
+    pass
+
+
+def load(path: Path | str | None) -> Config:
+    if path is None:
+        return Config()
+    try:
+        raw = tomllib.loads(Path(path).read_text())
+    except OSError as exc:
+        raise ConfigError(f"cannot read config {path}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config {path} is not valid TOML: {exc}") from None
+    unknown = set(raw) - set(SECTIONS)
+    if unknown:
+        raise ConfigError(f"unknown sections {sorted(unknown)} in {path}; known: {sorted(SECTIONS)}")
+    config = Config()
+    for name, cls in SECTIONS.items():
+        table: dict[str, Any] = raw.get(name, {})
+        known = {f.name for f in fields(cls)}
+        bad = set(table) - known
+        if bad:
+            raise ConfigError(f"[{name}] has unknown keys {sorted(bad)}; known: {sorted(known)}")
+        config = replace(config, **{name: replace(getattr(config, name), **table)})
+    return config
+
+
+DEFAULT_TOML = """\
+# rfhoming configuration. Every key is optional; these are the defaults.
+
+[mounting]               # how the XPLR-AOA sits on the robot
+yaw_offset_deg = 0.0     # its boresight, degrees CCW from the robot heading
+azimuth_sign = -1        # the board reports left as negative: -1 makes it CCW
+upside_down = false      # mirrors the azimuth once more
+
+[calibration]            # RSSI -> distance, RSSI(d) = p0_dbm - 10 n log10(d / d0_m)
+p0_dbm = -59.0
+n = 2.2
+d0_m = 1.0
+ed_scale_db = 1.0        # AT86RF212: dB per ED step (datasheet 1.03)
+
+[loop]
+stale_timeout_s = 0.5    # stop the robot when a required stream is older than this
+control_period_s = 0.1
+max_time_s = 180.0       # give up after this long
+command_timeout_ms = 300 # the base stops by itself if no newer command arrives
+
+[s0]                     # AoA homing (S0): the paper's values, and what it left open
+k = 0.8                  # parallax (Kohonen) gain
+buffer = 20
+tau = 5.0                # vector-goal time weighting, in readings
+z_threshold = 1.645
+err_threshold = 0.3
+arrival_radius = 0.3     # m
+arrival_agreement = 0.6  # m, |parallax goal - vector goal| at arrival
+v_max = 0.7              # m/s
+w_max = 1.2              # rad/s
+k_w = 1.5                # omega = k_w * goal angle
+k_stop = 0.8             # v <= k_stop * goal distance (no overshoot)
+max_abs_azimuth_deg = 70.0
+disambiguation_s = 1.2   # turn in place this long at the start to tell front from back
+disambiguation_w = 0.8
+"""

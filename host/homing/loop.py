@@ -1,0 +1,173 @@
+"""The homing loop: devices -> decoders -> filters -> estimator -> controller -> base.
+
+Time is the robot's own: each odometry record carries the base's clock, and every decision,
+staleness check and limit is measured on it. So the loop behaves the same at real time and in
+the emulator's lockstep (where wall time means nothing). One velocity command goes out per
+control period, after the odometry that closes the period.
+
+Fail-safes, each logged:
+- a required stream older than ``stale_timeout_s`` (robot time) -> stop, resume when fresh;
+- the base itself silent for ``stale_timeout_s`` of wall time -> stop commands (its watchdog
+  stops it anyway);
+- arrival -> stop, done; ``max_time_s`` -> stop, failed;
+- any exception or cancellation (Ctrl-C) -> stop (the base driver's context manager).
+
+Run log: JSON lines of every measurement, estimate and command with robot time, and the
+byte-in -> command-out latency of every command.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import IO, Any
+
+from host.drivers.aoa import AoaDriver, TimedAngle
+from host.drivers.common import BoundedStream
+from host.drivers.base import BaseDriver, Pose2D
+from host.homing.config import Config
+from host.homing.s0_aoa import S0Homing
+from host.homing.types import Decision, Pose
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Outcome:
+    arrived: bool
+    reason: str
+    robot_time_s: float
+    pose: Pose | None
+    goal: tuple[float, float] | None
+    commands: int
+    stale_stops: int
+    latency_ms: list[float] = field(default_factory=list)
+
+    def summary(self) -> dict[str, Any]:
+        lat = sorted(self.latency_ms)
+        pick = (lambda q: round(lat[min(len(lat) - 1, int(q * len(lat)))], 3)) if lat else (lambda q: None)
+        return {"arrived": self.arrived, "reason": self.reason, "robot_time_s": round(self.robot_time_s, 3),
+                "pose": None if self.pose is None else [round(v, 4) for v in self.pose],
+                "goal": None if self.goal is None else [round(v, 4) for v in self.goal],
+                "commands": self.commands, "stale_stops": self.stale_stops,
+                "latency_ms_p50": pick(0.5), "latency_ms_p99": pick(0.99)}
+
+
+class RunLog:
+    """JSON lines, one per event, flushed as they come (a killed run keeps its log)."""
+
+    def __init__(self, out: IO[str] | None) -> None:
+        self.out = out
+
+    def write(self, kind: str, t: float, **fields: Any) -> None:
+        if self.out is not None:
+            self.out.write(json.dumps({"kind": kind, "t": round(t, 4), **fields}) + "\n")
+            self.out.flush()
+
+
+class AoaHomingLoop:
+    """S0 homing: one XPLR-AOA (required stream ``aoa``) and the base (``odometry``)."""
+
+    def __init__(self, base: BaseDriver, aoa: AoaDriver, config: Config = Config(),
+                 runlog: RunLog | None = None) -> None:
+        self.base, self.aoa, self.config = base, aoa, config
+        # one stream for both drivers: the loop sees odometry and angles in arrival order, so
+        # its decisions depend on the bytes alone (a replay reproduces them exactly)
+        self.inputs = BoundedStream[Any](4000)
+        base.odometry = aoa.events = self.inputs
+        self.controller = S0Homing(config.s0)
+        self.log = runlog or RunLog(None)
+        self.stale_stops = 0
+        self.commands = 0
+        self.latency_ms: list[float] = []
+
+    async def run(self) -> Outcome:
+        tasks = [asyncio.create_task(self.base.run()), asyncio.create_task(self.aoa.run())]
+        try:
+            async with self.base:
+                await self.base.connected.wait()
+                self.base.stop()  # a known state, and the emulator's lockstep gets its first answer
+                return await self._loop()
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+    async def _loop(self) -> Outcome:
+        cfg = self.config.loop
+        last_aoa: float | None = None
+        next_control: float | None = None
+        stale = False
+        t0: float | None = None
+        pose: Pose | None = None
+        decision: Decision | None = None
+        odo: Pose2D | None = None
+        t = 0.0
+        while True:
+            try:
+                item = await asyncio.wait_for(self.inputs.get(), cfg.stale_timeout_s)
+            except asyncio.TimeoutError:
+                self.log.write("event", t, what="no input for the stale timeout (wall time)")
+                continue
+            if not isinstance(item, Pose2D):  # an angle reading: robot time of the latest odometry
+                if pose is not None:
+                    self._reading(t, pose, item)
+                    last_aoa = t
+                continue
+            odo = item
+            t = odo.t_robot
+            t0 = t if t0 is None else t0
+            pose = Pose(odo.x, odo.y, odo.theta)
+            if next_control is None:
+                next_control = t
+            if t + 1e-9 < next_control:
+                continue
+            next_control += cfg.control_period_s
+            if last_aoa is None or t - last_aoa > cfg.stale_timeout_s:
+                if not stale and last_aoa is not None:
+                    self.stale_stops += 1
+                    log.warning("angle stream stale for %.2f s: stopping the robot", t - last_aoa)
+                    self.log.write("event", t, what="aoa stale: stop")
+                stale = True
+                self._send(Decision(0.0, 0.0, None, False, "stale"), t, odo)
+                if t - t0 > cfg.max_time_s:
+                    return self._outcome(False, "time limit", t - t0, pose, None)
+                continue
+            if stale:
+                self.log.write("event", t, what="aoa fresh again: resume")
+            stale = False
+            decision = self.controller.decide(pose)
+            est = self.controller
+            self.log.write("estimate", t, goal=_round(est.reported), g_p=_round(est.g_p), g_v=_round(est.g_v),
+                           phase=est.phase, pose=[round(v, 4) for v in pose])
+            self._send(decision, t, odo)
+            if decision.arrived:
+                return self._outcome(True, "arrived", t - t0, pose, decision.goal)
+            if t - t0 > cfg.max_time_s:
+                return self._outcome(False, "time limit", t - t0, pose, decision.goal)
+
+    def _reading(self, t: float, pose: Pose, reading: TimedAngle) -> None:
+        event = reading.event
+        theta_s = self.config.mounting.to_robot(event.azimuth)
+        distance = float(self.config.calibration.model.distance(event.rssi1))
+        self.controller.on_reading(t, pose, theta_s, distance)
+        self.log.write("measurement", t, source="aoa", azimuth=event.azimuth, rssi=event.rssi1,
+                       theta_s=round(theta_s, 4), distance=round(distance, 3))
+
+    def _send(self, decision: Decision, t: float, odo: Pose2D) -> None:
+        self.base.send_velocity(decision.v, decision.w)
+        self.commands += 1
+        self.latency_ms.append((time.time() - odo.t_host) * 1000)
+        self.log.write("command", t, v=round(decision.v, 4), w=round(decision.w, 4), note=decision.note)
+
+    def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose, goal) -> Outcome:
+        self.base.stop()
+        self.log.write("event", duration, what=reason)
+        return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, self.latency_ms)
+
+
+def _round(v: Any) -> list[float] | None:
+    return None if v is None else [round(float(x), 4) for x in v]

@@ -1,0 +1,215 @@
+"""S0: homing on angle-of-arrival with the vector + parallax hybrid (methods.md §S0).
+
+Inputs: robot pose (odometry, world frame) and XPLR-AOA readings already converted to the
+robot frame (θs CCW from the heading, radians) with an RSSI-derived distance.
+
+Estimates:
+- vector goal: g = r + d(cos α, sin α), α = θr + θs; reported as the time-weighted mean of the
+  last 20 raw vector goals, w_k = exp(−(k−1)/τ), τ = 5 readings (the paper leaves τ open;
+  5 keeps about 80 % of the weight on the last ~8 readings, i.e. 0.8 s at 10 Hz).
+- parallax goal: the first two readings whose rays cross well (baseline ≥ 0.3 m, ≥ 3° apart)
+  give it; afterwards each reading moves it onto its ray by k = 0.8 (Kohonen update).
+- hybrid: err = |g_p − g_v| / (½(d_p + d_v)); below 0.3 report g_p; otherwise z-test the new
+  raw vector goal against the previous 20 (per axis, 1.645): an inlier moves g_p to the mean of
+  g_p and g_v, an outlier is ignored.
+
+What the paper left open, and how it is handled here:
+- the board's ±90° limit and front/back fold: each reading has two world-bearing hypotheses,
+  θr + θs and θr + π − θs. At the start the robot turns in place (``disambiguation``) and keeps
+  the hypothesis whose world bearing stays put; afterwards the hypothesis nearer the current
+  goal is used. Readings beyond ``max_abs_azimuth`` (70°), where the board is least accurate
+  and the fold most ambiguous, only steer (turn toward the target), they do not update goals.
+- mounting (yaw offset, azimuth sign, upside down) is applied by the caller (host.homing.config).
+- the velocity law is eq. (15), v = (2/π) v_max |π/2 − |θg|| for |θg| ≤ π/2, capped by
+  ``k_stop · d_g`` so the robot does not overshoot the 0.3 m arrival circle; ω = k_ω θg.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from host.estimation.bearings import Degenerate, intersect, kohonen_update
+from host.estimation.fixed import wrap_rad
+from host.homing.types import Decision, Pose
+
+
+@dataclass(frozen=True)
+class S0Params:
+    k: float = 0.8
+    buffer: int = 20
+    tau: float = 5.0
+    z_threshold: float = 1.645
+    err_threshold: float = 0.3
+    arrival_radius: float = 0.3
+    arrival_agreement: float = 0.6  # |g_p − g_v| must be below this at arrival (m)
+    min_baseline: float = 0.3
+    min_crossing_deg: float = 3.0
+    v_max: float = 0.7
+    w_max: float = 1.2
+    k_w: float = 1.5
+    k_stop: float = 0.8
+    max_abs_azimuth_deg: float = 70.0
+    unambiguous_deg: float = 60.0  # only readings this near the boresight move the bearing estimate
+    disambiguation_s: float = 1.2
+    disambiguation_w: float = 0.8
+
+
+@dataclass
+class _Ray:
+    x: float
+    y: float
+    alpha: float
+
+
+@dataclass
+class S0Homing:
+    params: S0Params = field(default_factory=S0Params)
+    g_p: np.ndarray | None = None
+    g_v: np.ndarray | None = None
+    reported: np.ndarray | None = None
+    phase: str = "disambiguating"
+    _raw: deque = field(default_factory=lambda: deque(maxlen=20))
+    _first: _Ray | None = None
+    _disamb: list[tuple[float, float, float]] = field(default_factory=list)  # (front α, back α, t)
+    _mirror: bool = False
+    _t0: float | None = None
+    _last_theta_world: float | None = None  # the target's world bearing, steadily estimated
+    _turn_sign: float = 1.0
+
+    def world_bearing(self, pose: Pose, theta_s: float) -> float:
+        """The reading's world bearing under the current front/back choice."""
+        front = wrap_rad(pose.theta + theta_s)
+        back = wrap_rad(pose.theta + math.pi - theta_s)
+        if self.phase == "disambiguating":
+            return back if self._mirror else front
+        reference = self._goal_bearing(pose)
+        if reference is None:
+            return back if self._mirror else front
+        return min((front, back), key=lambda a: abs(wrap_rad(a - reference)))
+
+    def _goal_bearing(self, pose: Pose) -> float | None:
+        goal = self.reported if self.reported is not None else None
+        if goal is None:
+            return self._last_theta_world
+        return math.atan2(goal[1] - pose.y, goal[0] - pose.x)
+
+    def on_reading(self, t: float, pose: Pose, theta_s: float, distance: float) -> None:
+        """One AoA reading in the robot frame (θs CCW, rad) with its RSSI distance (m)."""
+        p = self.params
+        if self._t0 is None:
+            self._t0 = t
+        if self.phase == "disambiguating":
+            self._disamb.append((wrap_rad(pose.theta + theta_s), wrap_rad(pose.theta + math.pi - theta_s), t))
+            if t - self._t0 >= p.disambiguation_s and len(self._disamb) >= 5:
+                self._decide_front_back()
+            return
+        alpha = self.world_bearing(pose, theta_s)
+        relative = wrap_rad(alpha - pose.theta)
+        if abs(math.degrees(relative)) < p.unambiguous_deg:
+            # away from ±90°, where the two hypotheses cross, a reading can move the estimate;
+            # near it a noisy reading could hand the tracker the mirror branch
+            self._last_theta_world = wrap_rad(self._last_theta_world + 0.3 * wrap_rad(alpha - self._last_theta_world))
+        if abs(math.degrees(relative)) > p.max_abs_azimuth_deg:
+            return  # near the array's edge: steer only
+        self._update_vector(pose, alpha, distance)
+        self._update_parallax(pose, alpha)
+        self._hybrid(pose)
+
+    def _decide_front_back(self) -> None:
+        def spread(angles: list[float]) -> float:
+            s, c = sum(math.sin(a) for a in angles), sum(math.cos(a) for a in angles)
+            return 1 - math.hypot(s, c) / len(angles)  # circular variance
+
+        front = spread([a for a, _, _ in self._disamb])
+        back = spread([b for _, b, _ in self._disamb])
+        self._mirror = back < front
+        chosen = [b if self._mirror else a for a, b, _ in self._disamb]
+        self._last_theta_world = math.atan2(sum(math.sin(a) for a in chosen), sum(math.cos(a) for a in chosen))
+        self.phase = "homing"
+
+    def _update_vector(self, pose: Pose, alpha: float, distance: float) -> None:
+        raw = np.array([pose.x + distance * math.cos(alpha), pose.y + distance * math.sin(alpha)])
+        self._z_outlier = self._is_outlier(raw)
+        self._raw.append(raw)
+        goals = np.array(self._raw)[::-1]  # newest first
+        w = np.exp(-np.arange(len(goals)) / self.params.tau)
+        self.g_v = (w[:, None] * goals).sum(axis=0) / w.sum()
+
+    def _is_outlier(self, raw: np.ndarray) -> bool:
+        if len(self._raw) < 5:
+            return False
+        prev = np.array(self._raw)
+        std = prev.std(axis=0)
+        z = np.abs(raw - prev.mean(axis=0)) / np.maximum(std, 1e-3)
+        return bool(np.max(z) > self.params.z_threshold)
+
+    def _update_parallax(self, pose: Pose, alpha: float) -> None:
+        p = self.params
+        if self.g_p is not None:
+            self.g_p = np.array(kohonen_update(self.g_p, (pose.x, pose.y), alpha, p.k))
+            return
+        if self._first is None:
+            self._first = _Ray(pose.x, pose.y, alpha)
+            return
+        first = self._first
+        if math.hypot(pose.x - first.x, pose.y - first.y) < p.min_baseline:
+            return
+        try:
+            point = intersect((first.x, first.y), first.alpha, (pose.x, pose.y), alpha,
+                              math.sin(math.radians(p.min_crossing_deg)))
+        except Degenerate:
+            self._first = _Ray(pose.x, pose.y, alpha)  # slide the baseline forward
+            return
+        self.g_p = np.array(point)
+
+    def _hybrid(self, pose: Pose) -> None:
+        if self.g_v is None:
+            return
+        if self.g_p is None:
+            self.reported = self.g_v
+            return
+        here = np.array([pose.x, pose.y])
+        d_p, d_v = np.linalg.norm(self.g_p - here), np.linalg.norm(self.g_v - here)
+        err = np.linalg.norm(self.g_p - self.g_v) / max(0.5 * (d_p + d_v), 1e-6)
+        if err >= self.params.err_threshold and not self._z_outlier:
+            self.g_p = (self.g_p + self.g_v) / 2
+        self.reported = self.g_p
+
+    def decide(self, pose: Pose) -> Decision:
+        """Velocity command toward the reported goal (eq. 15), or the disambiguation turn."""
+        p = self.params
+        if self.phase == "disambiguating":
+            return Decision(0.0, p.disambiguation_w, None, False, "turning to tell front from back")
+        goal = self.reported
+        if goal is None:
+            if self._last_theta_world is None:
+                return Decision(0.0, 0.0, None, False, "no bearing yet")
+            theta_g = wrap_rad(self._last_theta_world - pose.theta)
+            return Decision(0.0, self._turn(theta_g), None, False, "turning toward the bearing")
+        dx, dy = goal[0] - pose.x, goal[1] - pose.y
+        d_g = math.hypot(dx, dy)
+        agree = self.g_v is not None and self.g_p is not None and np.linalg.norm(self.g_p - self.g_v) < p.arrival_agreement
+        if d_g < p.arrival_radius and (agree or self.g_p is None):
+            return Decision(0.0, 0.0, tuple(goal), True, "arrived")
+        theta_g = wrap_rad(math.atan2(dy, dx) - pose.theta)
+        v = (2 / math.pi) * p.v_max * abs(math.pi / 2 - abs(theta_g)) if abs(theta_g) <= math.pi / 2 else 0.0
+        v = min(v, p.k_stop * d_g)
+        return Decision(v, self._turn(theta_g), tuple(goal), False, "homing")
+
+    def _turn(self, theta_g: float) -> float:
+        """ω = k_ω θg; for a goal nearly behind keep the turning direction (no ±180° dithering)."""
+        p = self.params
+        if abs(theta_g) > math.radians(150):
+            return self._turn_sign * p.w_max
+        w = _clamp(p.k_w * theta_g, p.w_max)
+        if w:
+            self._turn_sign = math.copysign(1.0, w)
+        return w
+
+
+def _clamp(value: float, limit: float) -> float:
+    return max(-limit, min(limit, value))

@@ -1,0 +1,180 @@
+"""S0 homing: the controller alone, then the closed loop through the emulator's ptys."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import math
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from emulator.faults import Fault
+from emulator.runtime import Emulator
+from emulator.scenario import load
+from host.capture import CaptureWriter
+from host.drivers.aoa import AoaDriver
+from host.drivers.base import BaseDriver
+from host.homing.config import DEFAULT_TOML, Config, ConfigError, LoopSettings, Mounting
+from host.homing.config import load as load_config
+from host.homing.loop import AoaHomingLoop, RunLog
+from host.homing.s0_aoa import S0Homing, S0Params
+from host.homing.types import Pose
+from host.ports import HostPort
+from host.replay import ReplayPort, Sequencer, load_capture
+
+
+# -- the controller alone -------------------------------------------------------------------
+def feed(ctrl: S0Homing, target: tuple[float, float], poses: list[Pose], mirror_behind: bool = True,
+         rng: np.random.Generator | None = None) -> None:
+    """Readings as the board gives them: folded into ±90°, CCW robot frame."""
+    rng = rng or np.random.default_rng(0)
+    for k, pose in enumerate(poses):
+        rel = math.remainder(math.atan2(target[1] - pose.y, target[0] - pose.x) - pose.theta, 2 * math.pi)
+        if mirror_behind and abs(rel) > math.pi / 2:
+            rel = math.copysign(math.pi, rel) - rel
+        d = math.hypot(target[0] - pose.x, target[1] - pose.y) * (1 + rng.uniform(-0.1, 0.1))
+        ctrl.on_reading(0.1 * k, pose, rel + rng.normal(0, math.radians(2)), d)
+
+
+@pytest.mark.parametrize("target", [(5.0, 2.0), (-5.0, 2.0), (-4.0, -6.0)])
+def test_turning_in_place_tells_front_from_back(target) -> None:
+    ctrl = S0Homing()
+    spin = [Pose(0, 0, 0.08 * k) for k in range(20)]  # the disambiguation turn
+    feed(ctrl, target, spin)
+    assert ctrl.phase == "homing"
+    true_bearing = math.atan2(target[1], target[0])
+    assert abs(math.remainder(ctrl._last_theta_world - true_bearing, 2 * math.pi)) < math.radians(6)
+
+
+def test_parallax_and_vector_goals_converge_and_arrive() -> None:
+    ctrl = S0Homing()
+    target = (6.0, 3.0)
+    feed(ctrl, target, [Pose(0, 0, 0.08 * k) for k in range(20)])
+    heading = math.atan2(3, 6)
+    path = [Pose(0.05 * k * math.cos(heading) + 0.2 * math.sin(k / 5), 0.05 * k * math.sin(heading), heading) for k in range(100)]
+    feed(ctrl, target, path)
+    assert ctrl.g_p is not None and np.linalg.norm(ctrl.reported - target) < 0.5
+    near = Pose(5.85, 2.95, heading)
+    decision = ctrl.decide(near)
+    assert decision.arrived and decision.v == 0.0
+
+
+def test_velocity_law_eq15() -> None:
+    ctrl = S0Homing(S0Params(v_max=0.6, k_stop=100.0))
+    ctrl.phase, ctrl.reported = "homing", np.array([10.0, 0.0])
+    assert ctrl.decide(Pose(0, 0, 0)).v == pytest.approx(0.6)
+    assert ctrl.decide(Pose(0, 0, math.pi / 4)).v == pytest.approx(0.3)
+    behind = ctrl.decide(Pose(0, 0, math.pi))
+    assert behind.v == 0.0 and abs(behind.w) > 0
+
+
+def test_mounting_conversions() -> None:
+    assert math.degrees(Mounting().to_robot(-30)) == pytest.approx(30)  # board: left is negative
+    assert math.degrees(Mounting(upside_down=True).to_robot(-30)) == pytest.approx(-30)
+    assert math.degrees(Mounting(yaw_offset_deg=90).to_robot(0)) == pytest.approx(90)
+
+
+def test_config_default_and_errors(tmp_path: Path) -> None:
+    path = tmp_path / "robot.toml"
+    path.write_text(DEFAULT_TOML)
+    assert load_config(path) == Config()
+    path.write_text("[s0]\nv_max = 0.5\n[loop]\nstale_timeout_s = 0.3\n")
+    cfg = load_config(path)
+    assert cfg.s0.v_max == 0.5 and cfg.loop.stale_timeout_s == 0.3
+    path.write_text("[s0]\nvmax = 1\n")
+    with pytest.raises(ConfigError, match="unknown keys \\['vmax'\\]"):
+        load_config(path)
+    path.write_text("[motors]\n")
+    with pytest.raises(ConfigError, match="unknown sections"):
+        load_config(path)
+
+
+# -- closed loop through ptys in lockstep ---------------------------------------------------
+async def closed_loop(tmp_path: Path, target: tuple[float, float], seed: int = 1, faults: list[str] = (),
+                      config: Config = Config(), capture: bool = False):
+    scenario = load("s0-open", seed=seed, target=target)
+    em = Emulator(scenario, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path,
+                  faults=[Fault.parse(f) for f in faults], lockstep_timeout=2.0)
+    await em.start()
+    world = asyncio.create_task(em.run())
+    writer = CaptureWriter(tmp_path / "run.pcapng") if capture else None
+    taps = [writer.tap] if writer else []
+    base = BaseDriver(HostPort(str(tmp_path / "base"), taps=taps))
+    aoa = AoaDriver(HostPort(str(tmp_path / "aoa"), taps=taps))
+    if writer:
+        writer.describe(base.port.name, protocol="rss", kind="base")
+        writer.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
+    out = io.StringIO()
+    loop = AoaHomingLoop(base, aoa, config, RunLog(out))
+    try:
+        outcome = await asyncio.wait_for(loop.run(), 90)
+    finally:
+        world.cancel()
+        await asyncio.gather(world, return_exceptions=True)
+        await em.close()
+        if writer:
+            writer.close()
+    robot = em.world.robot
+    error = math.hypot(robot.x - target[0], robot.y - target[1])
+    return outcome, error, [json.loads(line) for line in out.getvalue().splitlines()], em, aoa
+
+
+@pytest.mark.parametrize(("seed", "target"), [(1, (6.0, 4.0)), (2, (-7.0, 3.0)), (3, (-5.0, -8.0)), (4, (8.0, -6.0))])
+async def test_s0_reaches_the_tag_in_every_quadrant(tmp_path: Path, seed: int, target) -> None:
+    outcome, error, log, _, _ = await closed_loop(tmp_path, target, seed)
+    assert outcome.arrived and error < 1.0  # S0's success criterion
+    assert any(e["kind"] == "command" and e["note"] == "turning to tell front from back" for e in log)
+
+
+async def test_killed_angle_stream_stops_the_robot_within_the_stale_timeout(tmp_path: Path) -> None:
+    config = replace(Config(), loop=replace(LoopSettings(), max_time_s=6.0))
+    outcome, _, log, em, _ = await closed_loop(tmp_path, (9.0, 0.5), faults=["unplug@aoa:at=3,for=100"], config=config)
+    assert not outcome.arrived and outcome.reason == "time limit" and outcome.stale_stops == 1
+    last_reading = max(e["t"] for e in log if e["kind"] == "measurement")
+    stop = next(e for e in log if e["kind"] == "event" and e["what"] == "aoa stale: stop")
+    assert stop["t"] - last_reading <= config.loop.stale_timeout_s + config.loop.control_period_s + 1e-6
+    after = [e for e in log if e["kind"] == "command" and e["t"] > stop["t"]]
+    assert after and all(e["v"] == 0 and e["w"] == 0 for e in after)
+    assert em.device("base").firmware.v == 0.0
+
+
+async def test_unplug_mid_run_stops_reconnects_resumes_and_arrives(tmp_path: Path) -> None:
+    outcome, error, log, _, aoa = await closed_loop(tmp_path, (8.0, 2.0), faults=["unplug@aoa:at=3,for=1"])
+    assert outcome.arrived and error < 1.0
+    assert outcome.stale_stops == 1 and aoa.counters["reconnects"] == 1
+    assert any(e["kind"] == "event" and e["what"] == "aoa fresh again: resume" for e in log)
+
+
+async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) -> None:
+    outcome, _, live, _, _ = await closed_loop(tmp_path, (5.0, -3.0), capture=True)
+    interfaces, packets, _ = load_capture(tmp_path / "run.pcapng")
+    sequencer = Sequencer({iface.name: packets[i] for i, iface in enumerate(interfaces)})
+    ports = {i.protocol: ReplayPort(i.name, packets[n], sequencer=sequencer) for n, i in enumerate(interfaces)}
+    out = io.StringIO()
+    replayed = await asyncio.wait_for(
+        AoaHomingLoop(BaseDriver(ports["rss"]), AoaDriver(ports["ublox-aoa"]), Config(), RunLog(out)).run(), 60)
+    assert replayed.arrived == outcome.arrived
+    assert [json.loads(line) for line in out.getvalue().splitlines()] == live
+
+
+# -- the commands ---------------------------------------------------------------------------
+def test_demo_command_succeeds_and_writes_its_files(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "host.cli", "demo", "--json", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["success"] and summary["final_position_error_m"] < 1.0
+    for name in ("trajectory.png", "capture.pcapng", "run.jsonl", "truth.jsonl"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert (tmp_path / "trajectory.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_config_command() -> None:
+    done = subprocess.run([sys.executable, "-m", "host.cli", "config", "--print-default"], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout == DEFAULT_TOML
