@@ -23,6 +23,8 @@ from host.session import DRIVERS, health, open_drivers
 from protocol.jsonable import as_dict
 from protocol.pcapng import CaptureFormatError
 
+log = logging.getLogger(__name__)
+
 ENDPOINT_HELP = "PATH, socket://HOST:PORT or auto; prefix PROTOCOL= (ublox-aoa, rss, base) to skip sniffing"
 
 
@@ -51,8 +53,19 @@ def cmd_devices(args: argparse.Namespace) -> int:
     return 0
 
 
+HEALTH_PERIOD_S = 10.0
+
+
+async def _log_health(drivers: list[Driver]) -> None:
+    while True:
+        await asyncio.sleep(HEALTH_PERIOD_S)
+        for h in health(drivers):
+            log.info("health %s", json.dumps(h))
+
+
 async def _run_until(drivers: list[Driver], duration: float | None, extra: list[asyncio.Task] = ()) -> None:
     tasks = [asyncio.create_task(d.run()) for d in drivers] + list(extra)
+    tasks.append(asyncio.create_task(_log_health(drivers)))
     main = asyncio.current_task()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -93,7 +106,7 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     capture = CaptureWriter(args.output) if getattr(args, "output", None) else None
     try:
         drivers = await open_drivers(args.ports, baud=args.baud, taps=[capture.tap] if capture else [],
-                                     describe=capture.describe if capture else None)
+                                     describe=capture.describe if capture else None, flow=args.flow)
     except (PortError, ValueError) as exc:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
@@ -198,6 +211,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                            formatter_class=raw)
         p.add_argument("ports", nargs="+", metavar="PORT", help=ENDPOINT_HELP)
         p.add_argument("--baud", type=int, default=115200, help="serial rate (default 115200)")
+        p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",
+                       help="RTS/CTS flow control: auto = on for the XPLR-AOA (its default), off for the others")
         p.add_argument("--duration", type=float, help="stop after this many seconds")
         p.add_argument("--json", action="store_true", help="one JSON object per item")
         if name == "capture":

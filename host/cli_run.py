@@ -14,6 +14,7 @@ from host.drivers.base import BaseDriver
 from host.homing.config import DEFAULT_TOML, ConfigError, load
 from host.homing.loop import AoaHomingLoop, RunLog
 from host.ports import HostPort, PortError
+from host.session import flow_control
 
 CONTROLLERS = ("aoa",)
 
@@ -40,7 +41,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     capture = CaptureWriter(args.capture) if args.capture else None
     taps = [capture.tap] if capture else []
     base = BaseDriver(HostPort(args.base, baud=args.baud, taps=taps), command_timeout_ms=config.loop.command_timeout_ms)
-    aoa = AoaDriver(HostPort(args.aoa, baud=args.baud, taps=taps))
+    aoa = AoaDriver(HostPort(args.aoa, baud=args.baud, rtscts=flow_control("ublox-aoa", args.flow), taps=taps))
     if capture:
         capture.describe(base.port.name, protocol="rss", kind="base")
         capture.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
@@ -134,6 +135,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa", help="homing method (default aoa, S0)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--baud", type=int, default=115200)
+    p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",
+                   help="RTS/CTS on the XPLR-AOA port (auto = on, its documented default)")
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
     p.add_argument("--capture", type=Path, help="pcapng capture of every byte")
     p.set_defaults(func=cmd_run)

@@ -46,7 +46,7 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
 async def home(endpoints: dict, out: Path, config: Config) -> tuple[Outcome, dict]:
     capture = CaptureWriter(out / "capture.pcapng")
     base = BaseDriver(HostPort(endpoints["base"]["path"], taps=[capture.tap]), command_timeout_ms=config.loop.command_timeout_ms)
-    aoa = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], taps=[capture.tap]))
+    aoa = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], rtscts=True, taps=[capture.tap]))  # its default
     capture.describe(base.port.name, protocol="rss", kind="base")
     capture.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
     with open(out / "run.jsonl", "w") as runlog:

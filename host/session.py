@@ -73,8 +73,13 @@ async def sniff(spec: str, baud: int) -> str:
     return found
 
 
-async def open_drivers(endpoints: list[str], *, baud: int, taps: list, describe: Callable[..., None] | None = None
-                       ) -> list[Driver]:
+def flow_control(protocol: str, flow: str = "auto") -> bool:
+    """RTS/CTS: 'auto' is on for the XPLR-AOA (its documented default) and off for the others."""
+    return protocol == "ublox-aoa" if flow == "auto" else flow == "on"
+
+
+async def open_drivers(endpoints: list[str], *, baud: int, taps: list, describe: Callable[..., None] | None = None,
+                       flow: str = "auto") -> list[Driver]:
     """Drivers for the endpoints, their protocols sniffed where not given."""
     drivers = []
     for text in endpoints:
@@ -83,7 +88,7 @@ async def open_drivers(endpoints: list[str], *, baud: int, taps: list, describe:
             spec = resolve_auto(AUTO_KIND[protocol or "ublox-aoa"])
         if protocol is None:
             protocol = await sniff(spec, baud)
-        port = HostPort(spec, baud=baud, taps=taps)
+        port = HostPort(spec, baud=baud, rtscts=flow_control(protocol, flow), taps=taps)
         driver = DRIVERS[protocol](port)
         if describe is not None:
             describe(port.name, protocol=WIRE_PROTOCOL[protocol], kind=driver.kind)

@@ -257,3 +257,26 @@ async def test_tcp_transport_serves_pyserial_socket_urls() -> None:
     assert len([i for i in items if i.kind == "angle"]) > 10
     port.close()
     await em.close()
+
+
+async def test_umrs_moves_the_board_and_the_host_must_follow(tmp_path) -> None:
+    em = make(transport="pty", speed=5, link_dir=tmp_path)
+    endpoints = await em.start()
+    task = asyncio.create_task(em.run(4.0))
+    port = serial.Serial(endpoints[0]["path"], 115200, timeout=0)
+    for command in (b"AT+UMRS=460800,0\r", b"AT&W\r", b"AT+CPWROFF\r"):
+        port.write(command)
+        await _poll(port, em, 0.1)
+    await _poll(port, em, 0.5)  # the restart
+    assert em.device("aoa").device_baud() == 460800
+    garbage = await _poll(port, em, 0.6)
+    port.baudrate = 460800
+    port.read(65536)
+    port.write(b"AT\r")
+    healed = await _poll(port, em, 0.6)
+    await task
+    assert angles(garbage) == [] and len(garbage) > 50
+    items = UConnectDecoder().feed(healed)
+    assert any(i.kind == "final" and i.ok for i in items) and len([i for i in items if i.kind == "angle"]) > 5
+    port.close()
+    await em.close()
