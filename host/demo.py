@@ -24,7 +24,7 @@ from host.homing.config import Config
 from host.homing.loop import AoaHomingLoop, Outcome, RunLog
 from host.ports import HostPort
 
-SUPPORTED = {"s0-open"}  # s0-house waits for the S0 Appendix B obstacle avoidance
+SUPPORTED = {"s0-open", "s0-house"}  # the AoA controller (with the grid planner in the house)
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None) -> tuple[subprocess.Popen, dict]:

@@ -145,9 +145,11 @@ async def test_killed_angle_stream_stops_the_robot_within_the_stale_timeout(tmp_
 
 
 async def test_unplug_mid_run_stops_reconnects_resumes_and_arrives(tmp_path: Path) -> None:
-    outcome, error, log, _, aoa = await closed_loop(tmp_path, (8.0, 2.0), faults=["unplug@aoa:at=3,for=1"])
+    # unplugged for 2 s of robot time, four stale timeouts: no reconnect can beat the replug,
+    # however the host's wall-clock back-off falls against lockstep time
+    outcome, error, log, _, aoa = await closed_loop(tmp_path, (8.0, 2.0), faults=["unplug@aoa:at=3,for=2"])
     assert outcome.arrived and error < 1.0
-    assert outcome.stale_stops == 1 and aoa.counters["reconnects"] == 1
+    assert outcome.stale_stops >= 1 and aoa.counters["reconnects"] == 1
     assert any(e["kind"] == "event" and e["what"] == "aoa fresh again: resume" for e in log)
 
 
@@ -161,6 +163,26 @@ async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) 
         AoaHomingLoop(BaseDriver(ports["rss"]), AoaDriver(ports["ublox-aoa"]), Config(), RunLog(out)).run(), 60)
     assert replayed.arrived == outcome.arrived
     assert [json.loads(line) for line in out.getvalue().splitlines()] == live
+
+
+async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int):
+    """Closed loop on a preset with its own (random) target, through ptys in lockstep."""
+    sc = load(scenario, seed=seed)
+    em = Emulator(sc, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path, lockstep_timeout=2.0)
+    await em.start()
+    world = asyncio.create_task(em.run())
+    out = io.StringIO()
+    loop = AoaHomingLoop(BaseDriver(HostPort(str(tmp_path / "base"))), AoaDriver(HostPort(str(tmp_path / "aoa"))),
+                         Config(), RunLog(out))
+    try:
+        outcome = await asyncio.wait_for(loop.run(), 120)
+    finally:
+        world.cancel()
+        await asyncio.gather(world, return_exceptions=True)
+        await em.close()
+    target = sc.world.targets[0].position
+    error = math.hypot(em.world.robot.x - target[0], em.world.robot.y - target[1])
+    return outcome, error, [json.loads(line) for line in out.getvalue().splitlines()]
 
 
 # -- the commands ---------------------------------------------------------------------------

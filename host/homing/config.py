@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from host.estimation.ranging import LogDistance
+from host.homing.avoidance import AvoidParams
+from host.homing.grid import GridParams
 from host.homing.s0_aoa import S0Params
 
 
@@ -49,14 +51,30 @@ class LoopSettings:
 
 
 @dataclass(frozen=True)
+class PlanSettings:
+    enabled: bool = True  # plan on an occupancy grid whenever the base sends range scans
+    replan_s: float = 1.0
+    lookahead_m: float = 0.8
+    integrate_s: float = 0.3  # add a scan to the map at most this often (robot time)
+    grid: GridParams = field(default_factory=GridParams)
+
+
+@dataclass(frozen=True)
 class Config:
     mounting: Mounting = field(default_factory=Mounting)
     calibration: Calibration = field(default_factory=Calibration)
     loop: LoopSettings = field(default_factory=LoopSettings)
     s0: S0Params = field(default_factory=S0Params)
+    avoid: AvoidParams = field(default_factory=AvoidParams)
+    plan: PlanSettings = field(default_factory=PlanSettings)
+
+    @property
+    def avoid_obstacles(self) -> bool:
+        return self.avoid.enabled
 
 
-SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params}
+SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params,
+            "avoid": AvoidParams, "plan": PlanSettings}
 
 
 class ConfigError(ValueError):
@@ -119,6 +137,21 @@ w_max = 1.2              # rad/s
 k_w = 1.5                # omega = k_w * goal angle
 k_stop = 0.8             # v <= k_stop * goal distance (no overshoot)
 max_abs_azimuth_deg = 70.0
+unambiguous_deg = 60.0   # only readings this near the boresight move the bearing estimate
 disambiguation_s = 1.2   # turn in place this long at the start to tell front from back
 disambiguation_w = 0.8
+
+[avoid]                  # S0 Appendix B, on the base's front range scan (when it sends one)
+enabled = true
+obs_threshold1 = 1.5     # m: slow down and steer to the freer side
+obs_threshold2 = 0.35    # m: stop and turn
+side_threshold = 0.4     # m: turn away from a side this close
+w_turn = 1.0             # rad/s
+release_s = 1.5          # keep the chosen side until the centre is clear this long
+
+[plan]                   # occupancy grid + A* (S2's full system), when the base sends scans
+enabled = true
+replan_s = 1.0
+lookahead_m = 0.8        # steer to the path point this far ahead
+integrate_s = 0.3        # add a scan to the map at most this often
 """

@@ -27,8 +27,10 @@ from typing import IO, Any
 
 from host.drivers.aoa import AoaDriver, TimedAngle
 from host.drivers.common import BoundedStream
-from host.drivers.base import BaseDriver, Pose2D
+from host.drivers.base import BaseDriver, Pose2D, Scan
+from host.homing.avoidance import ObstacleAvoidance
 from host.homing.config import Config
+from host.homing.grid import OccupancyGrid, lookahead
 from host.homing.s0_aoa import S0Homing
 from host.homing.types import Decision, Pose
 
@@ -77,7 +79,13 @@ class AoaHomingLoop:
         # one stream for both drivers: the loop sees odometry and angles in arrival order, so
         # its decisions depend on the bytes alone (a replay reproduces them exactly)
         self.inputs = BoundedStream[Any](4000)
-        base.odometry = aoa.events = self.inputs
+        base.odometry = aoa.events = base.scans = self.inputs
+        self.avoidance = ObstacleAvoidance(config.avoid) if config.avoid_obstacles else None
+        self.grid: OccupancyGrid | None = None  # built from the first scan, if the base sends any
+        self._path: list[tuple[float, float]] | None = None
+        self._next_plan = 0.0
+        self._next_integrate = 0.0
+        self.plans = 0
         self.controller = S0Homing(config.s0)
         self.log = runlog or RunLog(None)
         self.stale_stops = 0
@@ -112,6 +120,15 @@ class AoaHomingLoop:
             except asyncio.TimeoutError:
                 self.log.write("event", t, what="no input for the stale timeout (wall time)")
                 continue
+            if isinstance(item, Scan):
+                if self.avoidance is not None:
+                    self.avoidance.on_scan(item)
+                if self.config.plan.enabled and pose is not None and t >= self._next_integrate:
+                    self._next_integrate = t + self.config.plan.integrate_s
+                    if self.grid is None:
+                        self.grid = OccupancyGrid((pose.x, pose.y), self.config.plan.grid)
+                    self.grid.integrate(pose, item)
+                continue
             if not isinstance(item, Pose2D):  # an angle reading: robot time of the latest odometry
                 if pose is not None:
                     self._reading(t, pose, item)
@@ -139,7 +156,10 @@ class AoaHomingLoop:
             if stale:
                 self.log.write("event", t, what="aoa fresh again: resume")
             stale = False
-            decision = self.controller.decide(pose)
+            waypoint = self._waypoint(t, pose)
+            decision = self.controller.decide(pose, steer_to=waypoint)
+            if self.avoidance is not None:
+                decision = self.avoidance.adjust(decision, t, emergency_only=waypoint is not None)
             est = self.controller
             self.log.write("estimate", t, goal=_round(est.reported), g_p=_round(est.g_p), g_v=_round(est.g_v),
                            phase=est.phase, pose=[round(v, 4) for v in pose])
@@ -148,6 +168,22 @@ class AoaHomingLoop:
                 return self._outcome(True, "arrived", t - t0, pose, decision.goal)
             if t - t0 > cfg.max_time_s:
                 return self._outcome(False, "time limit", t - t0, pose, decision.goal)
+
+    def _waypoint(self, t: float, pose: Pose) -> tuple[float, float] | None:
+        """With a map: re-plan to the current goal every replan_s, steer to a point ahead."""
+        goal = self.controller.reported
+        if self.grid is None or goal is None or self.controller.phase != "homing":
+            return None
+        cfg = self.config.plan
+        if t >= self._next_plan or self._path is None:
+            self._next_plan = t + cfg.replan_s
+            self._path = self.grid.plan((pose.x, pose.y), (float(goal[0]), float(goal[1])))
+            self.plans += 1
+            if self._path is not None:
+                self.log.write("plan", t, cells=len(self._path), goal=_round(goal))
+        if not self._path:
+            return None
+        return lookahead(self._path, pose, cfg.lookahead_m)
 
     def _reading(self, t: float, pose: Pose, reading: TimedAngle) -> None:
         event = reading.event

@@ -179,8 +179,11 @@ class S0Homing:
             self.g_p = (self.g_p + self.g_v) / 2
         self.reported = self.g_p
 
-    def decide(self, pose: Pose) -> Decision:
-        """Velocity command toward the reported goal (eq. 15), or the disambiguation turn."""
+    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
+        """Velocity command toward the reported goal (eq. 15), or the disambiguation turn.
+
+        ``steer_to``: a waypoint from a planner; the robot steers to it while arrival is still
+        judged at the goal."""
         p = self.params
         if self.phase == "disambiguating":
             return Decision(0.0, p.disambiguation_w, None, False, "turning to tell front from back")
@@ -195,6 +198,8 @@ class S0Homing:
         agree = self.g_v is not None and self.g_p is not None and np.linalg.norm(self.g_p - self.g_v) < p.arrival_agreement
         if d_g < p.arrival_radius and (agree or self.g_p is None):
             return Decision(0.0, 0.0, tuple(goal), True, "arrived")
+        if steer_to is not None:
+            dx, dy = steer_to[0] - pose.x, steer_to[1] - pose.y
         theta_g = wrap_rad(math.atan2(dy, dx) - pose.theta)
         v = (2 / math.pi) * p.v_max * abs(math.pi / 2 - abs(theta_g)) if abs(theta_g) <= math.pi / 2 else 0.0
         v = min(v, p.k_stop * d_g)
