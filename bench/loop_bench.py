@@ -31,7 +31,7 @@ from emulator.scenario import load
 from host.drivers.aoa import AoaDriver
 from host.demo import read_truth, start_emulator
 from host.drivers.base import BaseDriver
-from host.homing.loop import AoaHomingLoop
+from host.homing.loop import aoa_loop
 from host.ports import Chunk, HostPort
 
 TARGETS = [(6.0, 4.0), (-7.0, 3.0), (-5.0, -8.0), (8.0, -6.0), (3.0, 8.0), (-8.0, -2.0), (9.0, 1.0), (-2.0, 7.0)]
@@ -74,7 +74,7 @@ async def pty_run(seed: int, target: tuple[float, float]) -> dict:
         base = BaseDriver(HostPort(endpoints["base"]["path"]))
         aoa = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"]))
         wall0 = time.perf_counter()
-        outcome = await asyncio.wait_for(AoaHomingLoop(base, aoa).run(), 120)
+        outcome = await asyncio.wait_for(aoa_loop(base, aoa).run(), 120)
         wall = time.perf_counter() - wall0
     finally:
         proc.send_signal(signal.SIGINT)
@@ -96,7 +96,7 @@ async def pipe_run(seed: int, target: tuple[float, float]) -> dict:
     world = asyncio.create_task(em.run())
     base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
     wall0 = time.perf_counter()
-    outcome = await asyncio.wait_for(AoaHomingLoop(BaseDriver(base), AoaDriver(aoa)).run(), 120)
+    outcome = await asyncio.wait_for(aoa_loop(BaseDriver(base), AoaDriver(aoa)).run(), 120)
     wall = time.perf_counter() - wall0
     world.cancel()
     await asyncio.gather(world, return_exceptions=True)

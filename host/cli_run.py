@@ -11,12 +11,13 @@ from pathlib import Path
 from host.capture import CaptureWriter
 from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
+from host.drivers.rss import RssDriver
 from host.homing.config import DEFAULT_TOML, ConfigError, load
-from host.homing.loop import AoaHomingLoop, RunLog
+from host.homing.loop import RunLog, aoa_loop, rss_loop
 from host.ports import HostPort, PortError
 from host.session import flow_control
 
-CONTROLLERS = ("aoa",)
+CONTROLLERS = ("aoa", "rss")
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -38,16 +39,27 @@ def cmd_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
+    sensor_port = args.aoa if args.controller == "aoa" else args.rss
+    if sensor_port is None:
+        print(f"rfhoming run: --controller {args.controller} needs --{'aoa' if args.controller == 'aoa' else 'rss'} PORT",
+              file=sys.stderr)
+        return 2
     capture = CaptureWriter(args.capture) if args.capture else None
     taps = [capture.tap] if capture else []
     base = BaseDriver(HostPort(args.base, baud=args.baud, taps=taps), command_timeout_ms=config.loop.command_timeout_ms)
-    aoa = AoaDriver(HostPort(args.aoa, baud=args.baud, rtscts=flow_control("ublox-aoa", args.flow), taps=taps))
+    if args.controller == "aoa":
+        sensor = AoaDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("ublox-aoa", args.flow), taps=taps))
+        make, protocol = aoa_loop, "ublox-aoa"
+    else:
+        sensor = RssDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("rss", args.flow), taps=taps),
+                           ed_scale_db=config.calibration.ed_scale_db)
+        make, protocol = rss_loop, "rss"
     if capture:
         capture.describe(base.port.name, protocol="rss", kind="base")
-        capture.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
+        capture.describe(sensor.port.name, protocol=protocol, kind=sensor.kind)
     runlog = open(args.log, "w") if args.log else None
     try:
-        outcome = asyncio.run(AoaHomingLoop(base, aoa, config, RunLog(runlog)).run())
+        outcome = asyncio.run(make(base, sensor, config, RunLog(runlog)).run())
     except PortError as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
@@ -113,6 +125,7 @@ arrival, on any error and on Ctrl-C. Exit status: 0 arrived, 1 did not, 2 usage/
 examples:
   rfhoming run --aoa /dev/ttyUSB0 --base /dev/ttyACM0 --log run.jsonl --capture run.pcapng
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
+  rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
 """
 
 
@@ -130,9 +143,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
                        description=RUN_HELP, formatter_class=raw)
-    p.add_argument("--aoa", required=True, metavar="PORT", help="the XPLR-AOA (path, socket:// URL)")
+    p.add_argument("--aoa", metavar="PORT", help="the XPLR-AOA (path, socket:// URL), for --controller aoa")
+    p.add_argument("--rss", metavar="PORT", help="the four-dish AT86RF212 node, for --controller rss")
     p.add_argument("--base", required=True, metavar="PORT", help="the robot base")
-    p.add_argument("--controller", choices=CONTROLLERS, default="aoa", help="homing method (default aoa, S0)")
+    p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
+                   help="homing method: aoa (S0, XPLR-AOA bearings), rss (S2, four dishes + particle filter)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--baud", type=int, default=115200)
     p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",

@@ -20,11 +20,12 @@ from typing import Any
 from host.capture import CaptureWriter
 from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
+from host.drivers.rss import RssDriver
 from host.homing.config import Config
-from host.homing.loop import AoaHomingLoop, Outcome, RunLog
+from host.homing.loop import Outcome, RunLog, aoa_loop, rss_loop
 from host.ports import HostPort
 
-SUPPORTED = {"s0-open", "s0-house"}  # the AoA controller (with the grid planner in the house)
+SUPPORTED = {"s0-open", "s0-house", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e"}  # S0 AoA, S2 RSS controllers
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None) -> tuple[subprocess.Popen, dict]:
@@ -33,7 +34,7 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
     if target:
         cmd.append(f"--target={target}")  # "=": a negative X would read as an option
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    endpoints = {}
+    endpoints: dict[str, dict] = {}
     while len(endpoints) < 2:
         line = proc.stdout.readline()
         if not line:
@@ -46,16 +47,22 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
 async def home(endpoints: dict, out: Path, config: Config) -> tuple[Outcome, dict]:
     capture = CaptureWriter(out / "capture.pcapng")
     base = BaseDriver(HostPort(endpoints["base"]["path"], taps=[capture.tap]), command_timeout_ms=config.loop.command_timeout_ms)
-    aoa = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], rtscts=True, taps=[capture.tap]))  # its default
     capture.describe(base.port.name, protocol="rss", kind="base")
-    capture.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
+    if "xplr-aoa" in endpoints:
+        sensor = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], rtscts=True, taps=[capture.tap]))  # its default
+        capture.describe(sensor.port.name, protocol="ublox-aoa", kind="xplr-aoa")
+        make = aoa_loop
+    else:
+        sensor = RssDriver(HostPort(endpoints["at86rf212"]["path"], taps=[capture.tap]))
+        capture.describe(sensor.port.name, protocol="rss", kind="rss-node")
+        make = rss_loop
     with open(out / "run.jsonl", "w") as runlog:
-        loop = AoaHomingLoop(base, aoa, config, RunLog(runlog))
+        loop = make(base, sensor, config, RunLog(runlog))
         try:
             outcome = await loop.run()
         finally:
             capture.close()
-    links = {"aoa": aoa.health(), "base": base.health()}
+    links = {sensor.kind: sensor.health(), "base": base.health()}
     return outcome, links
 
 

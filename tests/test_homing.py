@@ -20,9 +20,10 @@ from emulator.scenario import load
 from host.capture import CaptureWriter
 from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
+from host.drivers.rss import RssDriver
 from host.homing.config import DEFAULT_TOML, Config, ConfigError, LoopSettings, Mounting
 from host.homing.config import load as load_config
-from host.homing.loop import AoaHomingLoop, RunLog
+from host.homing.loop import RunLog, aoa_loop, rss_loop
 from host.homing.s0_aoa import S0Homing, S0Params
 from host.homing.types import Pose
 from host.ports import HostPort
@@ -111,7 +112,7 @@ async def closed_loop(tmp_path: Path, target: tuple[float, float], seed: int = 1
         writer.describe(base.port.name, protocol="rss", kind="base")
         writer.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
     out = io.StringIO()
-    loop = AoaHomingLoop(base, aoa, config, RunLog(out))
+    loop = aoa_loop(base, aoa, config, RunLog(out))
     try:
         outcome = await asyncio.wait_for(loop.run(), 90)
     finally:
@@ -160,20 +161,24 @@ async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) 
     ports = {i.protocol: ReplayPort(i.name, packets[n], sequencer=sequencer) for n, i in enumerate(interfaces)}
     out = io.StringIO()
     replayed = await asyncio.wait_for(
-        AoaHomingLoop(BaseDriver(ports["rss"]), AoaDriver(ports["ublox-aoa"]), Config(), RunLog(out)).run(), 60)
+        aoa_loop(BaseDriver(ports["rss"]), AoaDriver(ports["ublox-aoa"]), Config(), RunLog(out)).run(), 60)
     assert replayed.arrived == outcome.arrived
     assert [json.loads(line) for line in out.getvalue().splitlines()] == live
 
 
 async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int):
-    """Closed loop on a preset with its own (random) target, through ptys in lockstep."""
+    """Closed loop on a preset with its own target, through ptys in lockstep; the controller
+    follows the scenario's sensor (XPLR-AOA -> S0, AT86RF212 node -> S2)."""
     sc = load(scenario, seed=seed)
     em = Emulator(sc, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path, lockstep_timeout=2.0)
     await em.start()
     world = asyncio.create_task(em.run())
     out = io.StringIO()
-    loop = AoaHomingLoop(BaseDriver(HostPort(str(tmp_path / "base"))), AoaDriver(HostPort(str(tmp_path / "aoa"))),
-                         Config(), RunLog(out))
+    base = BaseDriver(HostPort(str(tmp_path / "base")))
+    if (tmp_path / "aoa").exists():
+        loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), Config(), RunLog(out))
+    else:
+        loop = rss_loop(base, RssDriver(HostPort(str(tmp_path / "rss"))), Config(), RunLog(out))
     try:
         outcome = await asyncio.wait_for(loop.run(), 120)
     finally:

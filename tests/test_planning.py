@@ -86,3 +86,10 @@ async def test_s0_homes_through_the_house(tmp_path, seed: int) -> None:
     outcome, error, log = await closed_loop_scenario(tmp_path, "s0-house", seed)
     assert outcome.arrived and error < 1.0
     assert any(e["kind"] == "plan" for e in log)
+
+
+@pytest.mark.parametrize(("scenario", "seed"), [("s2-a", 0), ("s2-b", 0), ("s2-c", 2)])
+async def test_s2_rss_homing_completes_the_warehouse_scenarios(tmp_path, scenario: str, seed: int) -> None:
+    outcome, error, log = await closed_loop_scenario(tmp_path, scenario, seed)
+    assert outcome.arrived and error < 1.0  # S2 stops at an estimated 0.5 m
+    assert sum(1 for e in log if e["kind"] == "measurement") > 50

@@ -16,6 +16,7 @@ from host.estimation.ranging import LogDistance
 from host.homing.avoidance import AvoidParams
 from host.homing.grid import GridParams
 from host.homing.s0_aoa import S0Params
+from host.homing.s2_rss import S2Params
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,7 @@ class Config:
     s0: S0Params = field(default_factory=S0Params)
     avoid: AvoidParams = field(default_factory=AvoidParams)
     plan: PlanSettings = field(default_factory=PlanSettings)
+    s2: S2Params = field(default_factory=S2Params)
 
     @property
     def avoid_obstacles(self) -> bool:
@@ -74,7 +76,7 @@ class Config:
 
 
 SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params,
-            "avoid": AvoidParams, "plan": PlanSettings}
+            "avoid": AvoidParams, "plan": PlanSettings, "s2": S2Params}
 
 
 class ConfigError(ValueError):
@@ -154,4 +156,17 @@ enabled = true
 replan_s = 1.0
 lookahead_m = 0.8        # steer to the path point this far ahead
 integrate_s = 0.3        # add a scan to the map at most this often
+
+[s2]                     # RSS direction homing (S2): four dishes + particle filter
+p0_dbm = -40.0           # the emitter at 1 m through an isotropic antenna
+n = 2.0
+peak_gain_db = 6.6       # the dishes' peak gain (0.3 m at 915 MHz)
+arrival_range_m = 0.5    # stop when the estimated range is below this (S2)
+min_fixes = 10           # fixes before the first goal
+v_max = 0.4
+w_max = 1.0
+k_w = 1.5
+k_stop = 0.8
+search_w = 0.5           # turn while no fix has come yet
+seed = 0                 # the particle filter's random stream (reproducible runs)
 """

@@ -23,15 +23,16 @@ import json
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 from host.drivers.aoa import AoaDriver, TimedAngle
-from host.drivers.common import BoundedStream
+from host.drivers.common import BoundedStream, Driver
 from host.drivers.base import BaseDriver, Pose2D, Scan
 from host.homing.avoidance import ObstacleAvoidance
 from host.homing.config import Config
 from host.homing.grid import OccupancyGrid, lookahead
 from host.homing.s0_aoa import S0Homing
+from host.homing.s2_rss import RssController
 from host.homing.types import Decision, Pose
 
 log = logging.getLogger(__name__)
@@ -70,30 +71,82 @@ class RunLog:
             self.out.flush()
 
 
-class AoaHomingLoop:
-    """S0 homing: one XPLR-AOA (required stream ``aoa``) and the base (``odometry``)."""
+class Controller(Protocol):
+    """What the loop needs of a homing controller."""
 
-    def __init__(self, base: BaseDriver, aoa: AoaDriver, config: Config = Config(),
+    phase: str
+    reported: Any  # the goal estimate (x, y) or None
+
+    def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
+        """One sensor reading; returns the fields to log, or None if it was not a reading."""
+
+    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision: ...
+
+    def estimate(self) -> dict[str, Any]:
+        """What to log of the current estimate."""
+
+
+class AoaController:
+    """S0 behind the loop's interface: board azimuth -> θs (mounting), RSSI -> distance."""
+
+    source = "aoa"
+
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        self.s0 = S0Homing(config.s0)
+
+    @property
+    def phase(self) -> str:
+        return self.s0.phase
+
+    @property
+    def reported(self) -> Any:
+        return self.s0.reported
+
+    def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
+        if not isinstance(item, TimedAngle):
+            return None
+        event = item.event
+        theta_s = self.config.mounting.to_robot(event.azimuth)
+        distance = float(self.config.calibration.model.distance(event.rssi1))
+        self.s0.on_reading(t, pose, theta_s, distance)
+        return {"azimuth": event.azimuth, "rssi": event.rssi1, "theta_s": round(theta_s, 4), "distance": round(distance, 3)}
+
+    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
+        return self.s0.decide(pose, steer_to)
+
+    def estimate(self) -> dict[str, Any]:
+        return {"goal": _round(self.s0.reported), "g_p": _round(self.s0.g_p), "g_v": _round(self.s0.g_v)}
+
+
+class HomingLoop:
+    """The base plus one sensor driver and a controller."""
+
+    def __init__(self, base: BaseDriver, sensor: Driver, controller: Controller, config: Config = Config(),
                  runlog: RunLog | None = None) -> None:
-        self.base, self.aoa, self.config = base, aoa, config
-        # one stream for both drivers: the loop sees odometry and angles in arrival order, so
+        self.base, self.sensor, self.config = base, sensor, config
+        self.controller = controller
+        self.source = getattr(controller, "source", sensor.kind)
+        self.log = runlog or RunLog(None)
+        self.stale_stops = 0
+        self.commands = 0
+        self.latency_ms: list[float] = []
+        # one stream for both drivers: the loop sees odometry and readings in arrival order, so
         # its decisions depend on the bytes alone (a replay reproduces them exactly)
         self.inputs = BoundedStream[Any](4000)
-        base.odometry = aoa.events = base.scans = self.inputs
+        base.odometry = base.scans = self.inputs
+        for name in ("events", "readings"):
+            if hasattr(sensor, name):
+                setattr(sensor, name, self.inputs)
         self.avoidance = ObstacleAvoidance(config.avoid) if config.avoid_obstacles else None
         self.grid: OccupancyGrid | None = None  # built from the first scan, if the base sends any
         self._path: list[tuple[float, float]] | None = None
         self._next_plan = 0.0
         self._next_integrate = 0.0
         self.plans = 0
-        self.controller = S0Homing(config.s0)
-        self.log = runlog or RunLog(None)
-        self.stale_stops = 0
-        self.commands = 0
-        self.latency_ms: list[float] = []
 
     async def run(self) -> Outcome:
-        tasks = [asyncio.create_task(self.base.run()), asyncio.create_task(self.aoa.run())]
+        tasks = [asyncio.create_task(self.base.run()), asyncio.create_task(self.sensor.run())]
         try:
             async with self.base:
                 await self.base.connected.wait()
@@ -106,7 +159,7 @@ class AoaHomingLoop:
 
     async def _loop(self) -> Outcome:
         cfg = self.config.loop
-        last_aoa: float | None = None
+        last_reading: float | None = None
         next_control: float | None = None
         stale = False
         t0: float | None = None
@@ -129,10 +182,12 @@ class AoaHomingLoop:
                         self.grid = OccupancyGrid((pose.x, pose.y), self.config.plan.grid)
                     self.grid.integrate(pose, item)
                 continue
-            if not isinstance(item, Pose2D):  # an angle reading: robot time of the latest odometry
+            if not isinstance(item, Pose2D):  # a reading: robot time of the latest odometry
                 if pose is not None:
-                    self._reading(t, pose, item)
-                    last_aoa = t
+                    fields = self.controller.on_input(t, pose, item)
+                    if fields is not None:
+                        last_reading = t
+                        self.log.write("measurement", t, source=self.source, **fields)
                 continue
             odo = item
             t = odo.t_robot
@@ -143,26 +198,25 @@ class AoaHomingLoop:
             if t + 1e-9 < next_control:
                 continue
             next_control += cfg.control_period_s
-            if last_aoa is None or t - last_aoa > cfg.stale_timeout_s:
-                if not stale and last_aoa is not None:
+            if last_reading is None or t - last_reading > cfg.stale_timeout_s:
+                if not stale and last_reading is not None:
                     self.stale_stops += 1
-                    log.warning("angle stream stale for %.2f s: stopping the robot", t - last_aoa)
-                    self.log.write("event", t, what="aoa stale: stop")
+                    log.warning("%s stream stale for %.2f s: stopping the robot", self.source, t - last_reading)
+                    self.log.write("event", t, what=f"{self.source} stale: stop")
                 stale = True
                 self._send(Decision(0.0, 0.0, None, False, "stale"), t, odo)
                 if t - t0 > cfg.max_time_s:
                     return self._outcome(False, "time limit", t - t0, pose, None)
                 continue
             if stale:
-                self.log.write("event", t, what="aoa fresh again: resume")
+                self.log.write("event", t, what=f"{self.source} fresh again: resume")
             stale = False
             waypoint = self._waypoint(t, pose)
             decision = self.controller.decide(pose, steer_to=waypoint)
             if self.avoidance is not None:
                 decision = self.avoidance.adjust(decision, t, emergency_only=waypoint is not None)
-            est = self.controller
-            self.log.write("estimate", t, goal=_round(est.reported), g_p=_round(est.g_p), g_v=_round(est.g_v),
-                           phase=est.phase, pose=[round(v, 4) for v in pose])
+            self.log.write("estimate", t, **self.controller.estimate(), phase=self.controller.phase,
+                           pose=[round(v, 4) for v in pose])
             self._send(decision, t, odo)
             if decision.arrived:
                 return self._outcome(True, "arrived", t - t0, pose, decision.goal)
@@ -185,14 +239,6 @@ class AoaHomingLoop:
             return None
         return lookahead(self._path, pose, cfg.lookahead_m)
 
-    def _reading(self, t: float, pose: Pose, reading: TimedAngle) -> None:
-        event = reading.event
-        theta_s = self.config.mounting.to_robot(event.azimuth)
-        distance = float(self.config.calibration.model.distance(event.rssi1))
-        self.controller.on_reading(t, pose, theta_s, distance)
-        self.log.write("measurement", t, source="aoa", azimuth=event.azimuth, rssi=event.rssi1,
-                       theta_s=round(theta_s, 4), distance=round(distance, 3))
-
     def _send(self, decision: Decision, t: float, odo: Pose2D) -> None:
         self.base.send_velocity(decision.v, decision.w)
         self.commands += 1
@@ -203,6 +249,16 @@ class AoaHomingLoop:
         self.base.stop()
         self.log.write("event", duration, what=reason)
         return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, self.latency_ms)
+
+
+def aoa_loop(base: BaseDriver, aoa: AoaDriver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
+    """S0 homing: one XPLR-AOA and the base."""
+    return HomingLoop(base, aoa, AoaController(config), config, runlog)
+
+
+def rss_loop(base: BaseDriver, rss: Driver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
+    """S2 homing: the four-dish AT86RF212 node and the base."""
+    return HomingLoop(base, rss, RssController(config.s2), config, runlog)
 
 
 def _round(v: Any) -> list[float] | None:
