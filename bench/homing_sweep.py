@@ -4,9 +4,10 @@ lockstep, deterministic per seed).
 - s0-open: 40 targets, 10 per quadrant (S0 Experiment 1's layout), the emulator's default
   Gaussian AoA noise;
 - s0-house: 12 seeds (tag in a random room), S0 + occupancy grid + A*;
-- s2-a … s2-e: 3 seeds each, S2 (four dishes + particle filter) + grid + A*.
+- s2-a … s2-e: 3 seeds each, S2 (four dishes + particle filter) + grid + A*;
+- s1-dock: 10 random starts 2.4–3.4 m in front of the station (inside S1's docking stage).
 
-    python bench/homing_sweep.py [--json] [--only s0-open|s0-house|s2]
+    python bench/homing_sweep.py [--json] [--only s0-open|s0-house|s2|s1-dock]
 
 Success = arrived and < 1 m from the target (S0's criterion). The paper-faithful campaigns
 (S0's noise configurations, Table 3's metrics) are `rfhoming campaign`'s job (issue 7).
@@ -30,18 +31,25 @@ from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import Config, LoopSettings
-from host.homing.loop import aoa_loop, rss_loop
+from host.homing.loop import aoa_loop, dock_loop, rss_loop
 
 CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=180.0))
+DOCK_STANDOFF_M = 0.3
+"""s1-dock's radio puts S1's arrival RSSI (−51 dBm) 0.3 m in front of the station."""
 
 
-async def run(scenario: str, seed: int, target: tuple[float, float] | None = None) -> dict:
+async def run(scenario: str, seed: int, target: tuple[float, float] | None = None,
+              start: tuple[float, float, float] | None = None) -> dict:
     sc = load(scenario, seed=seed, target=target)
+    if start is not None:
+        sc.world.robot.x, sc.world.robot.y, sc.world.robot.theta = start
     em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0)
     await em.start()
     world = asyncio.create_task(em.run())
     base = BaseDriver(PipePort("base", em.device("base").link.host))
-    if any(d.type == "xplr-aoa" for d in sc.devices):
+    if scenario.startswith("s1"):
+        loop = dock_loop(base, AoaDriver(PipePort("dock_aoa", em.device("dock_aoa").link.host)), CONFIG)
+    elif any(d.type == "xplr-aoa" for d in sc.devices):
         loop = aoa_loop(base, AoaDriver(PipePort("aoa", em.device("aoa").link.host)), CONFIG)
     else:
         loop = rss_loop(base, RssDriver(PipePort("rss", em.device("rss").link.host)), CONFIG)
@@ -49,11 +57,18 @@ async def run(scenario: str, seed: int, target: tuple[float, float] | None = Non
     world.cancel()
     await asyncio.gather(world, return_exceptions=True)
     await em.close()
-    tx, ty = sc.world.targets[0].position
+    target_ = sc.world.targets[0]
+    tx, ty = target_.position
+    if target_.kind == "dock":  # docked means DOCK_STANDOFF_M in front of the station, facing it
+        tx -= DOCK_STANDOFF_M * math.cos(target_.heading)
+        ty -= DOCK_STANDOFF_M * math.sin(target_.heading)
     error = math.hypot(em.world.robot.x - tx, em.world.robot.y - ty)
-    return {"scenario": scenario, "seed": seed, "target": [round(tx, 2), round(ty, 2)],
-            "success": outcome.arrived and error < 1.0, "time_s": round(outcome.robot_time_s, 2),
-            "final_error_m": round(error, 3)}
+    row = {"scenario": scenario, "seed": seed, "target": [round(tx, 2), round(ty, 2)],
+           "success": outcome.arrived and error < 1.0, "time_s": round(outcome.robot_time_s, 2),
+           "final_error_m": round(error, 3)}
+    if target_.kind == "dock":
+        row["heading_error_deg"] = round(abs(math.degrees(math.remainder(em.world.robot.theta - target_.heading, 2 * math.pi))), 1)
+    return row
 
 
 def s0_open_targets() -> list[tuple[int, tuple[float, float]]]:
@@ -76,20 +91,28 @@ def summary(rows: list[dict]) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true")
-    parser.add_argument("--only", choices=("s0-open", "s0-house", "s2"))
+    parser.add_argument("--only", choices=("s0-open", "s0-house", "s2", "s1-dock"))
     args = parser.parse_args()
     sets: dict[str, list[tuple[str, int, tuple[float, float] | None]]] = {
         "s0-open": [("s0-open", seed, target) for seed, target in s0_open_targets()],
         "s0-house": [("s0-house", seed, None) for seed in range(12)],
         "s2": [(f"s2-{k}", seed, None) for k in "abcde" for seed in range(3)],
+        "s1-dock": [("s1-dock", seed, None) for seed in range(10)],
     }
     result = {}
     for name, jobs in sets.items():
         if args.only and args.only != name:
             continue
         rows = []
+        starts = np.random.default_rng(3)
         for i, (scenario, seed, target) in enumerate(jobs, 1):
-            rows.append(asyncio.run(run(scenario, seed, target)))
+            start = None
+            if scenario == "s1-dock":  # random starts 2.4–3.4 m in front of the station, inside the
+                # docking stage (S1 enters it above −73 dBm, about 3.8 m here; farther out is the
+                # mission controller's job)
+                start = (0.4 + float(starts.uniform(-0.8, 0.8)), float(starts.uniform(0.2, 1.2)),
+                         math.pi / 2 + float(starts.uniform(-0.3, 0.3)))
+            rows.append(asyncio.run(run(scenario, seed, target, start)))
             if not args.json:
                 print(f"\r{name}: {i}/{len(jobs)}", end="", file=sys.stderr, flush=True)
         if not args.json:
@@ -107,6 +130,9 @@ def main() -> int:
         rows_out += list(result["s2"]["per_scenario"].items())
     for name, s in rows_out:
         print(f"| {name} | {s['success']}/{s['runs']} | {s['mean_time_s']} | {s['mean_final_error_m']} |")
+    if "s1-dock" in result:
+        heading = [r["heading_error_deg"] for r in result["s1-dock"]["runs"]]
+        print(f"\ns1-dock heading error: mean {np.mean(heading):.1f}°, max {np.max(heading):.1f}°")
     for name, r in result.items():
         for f in r["summary"]["failures"]:
             print(f"failed: {f['scenario']} seed {f['seed']} target {f['target']}: {f['final_error_m']} m after {f['time_s']} s")

@@ -13,11 +13,11 @@ from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import DEFAULT_TOML, ConfigError, load
-from host.homing.loop import RunLog, aoa_loop, rss_loop
+from host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop
 from host.ports import HostPort, PortError
 from host.session import flow_control
 
-CONTROLLERS = ("aoa", "rss")
+CONTROLLERS = ("aoa", "dock", "rss")
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -39,17 +39,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
-    sensor_port = args.aoa if args.controller == "aoa" else args.rss
+    flag = "rss" if args.controller == "rss" else "aoa"
+    sensor_port = getattr(args, flag)
     if sensor_port is None:
-        print(f"rfhoming run: --controller {args.controller} needs --{'aoa' if args.controller == 'aoa' else 'rss'} PORT",
-              file=sys.stderr)
+        print(f"rfhoming run: --controller {args.controller} needs --{flag} PORT", file=sys.stderr)
         return 2
     capture = CaptureWriter(args.capture) if args.capture else None
     taps = [capture.tap] if capture else []
     base = BaseDriver(HostPort(args.base, baud=args.baud, taps=taps), command_timeout_ms=config.loop.command_timeout_ms)
-    if args.controller == "aoa":
+    if args.controller in ("aoa", "dock"):
         sensor = AoaDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("ublox-aoa", args.flow), taps=taps))
-        make, protocol = aoa_loop, "ublox-aoa"
+        make, protocol = (aoa_loop if args.controller == "aoa" else dock_loop), "ublox-aoa"
     else:
         sensor = RssDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("rss", args.flow), taps=taps),
                            ed_scale_db=config.calibration.ed_scale_db)
@@ -147,7 +147,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rss", metavar="PORT", help="the four-dish AT86RF212 node, for --controller rss")
     p.add_argument("--base", required=True, metavar="PORT", help="the robot base")
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
-                   help="homing method: aoa (S0, XPLR-AOA bearings), rss (S2, four dishes + particle filter)")
+                   help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
+                        "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--baud", type=int, default=115200)
     p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",

@@ -22,10 +22,10 @@ from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import Config
-from host.homing.loop import Outcome, RunLog, aoa_loop, rss_loop
+from host.homing.loop import Outcome, RunLog, aoa_loop, dock_loop, rss_loop
 from host.ports import HostPort
 
-SUPPORTED = {"s0-open", "s0-house", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e"}  # S0 AoA, S2 RSS controllers
+SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e"}  # S0, S1, S2 controllers
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None) -> tuple[subprocess.Popen, dict]:
@@ -44,14 +44,14 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
     return proc, endpoints
 
 
-async def home(endpoints: dict, out: Path, config: Config) -> tuple[Outcome, dict]:
+async def home(endpoints: dict, out: Path, config: Config, docking: bool = False) -> tuple[Outcome, dict]:
     capture = CaptureWriter(out / "capture.pcapng")
     base = BaseDriver(HostPort(endpoints["base"]["path"], taps=[capture.tap]), command_timeout_ms=config.loop.command_timeout_ms)
     capture.describe(base.port.name, protocol="rss", kind="base")
     if "xplr-aoa" in endpoints:
         sensor = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], rtscts=True, taps=[capture.tap]))  # its default
         capture.describe(sensor.port.name, protocol="ublox-aoa", kind="xplr-aoa")
-        make = aoa_loop
+        make = dock_loop if docking else aoa_loop
     else:
         sensor = RssDriver(HostPort(endpoints["at86rf212"]["path"], taps=[capture.tap]))
         capture.describe(sensor.port.name, protocol="rss", kind="rss-node")
@@ -139,7 +139,8 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, target)
     try:
-        outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config), config.loop.max_time_s + 60))
+        outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config, scenario.startswith("s1")),
+                                                      config.loop.max_time_s + 60))
     finally:
         proc.send_signal(signal.SIGINT)
         try:

@@ -23,7 +23,7 @@ from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import DEFAULT_TOML, Config, ConfigError, LoopSettings, Mounting
 from host.homing.config import load as load_config
-from host.homing.loop import RunLog, aoa_loop, rss_loop
+from host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop
 from host.homing.s0_aoa import S0Homing, S0Params
 from host.homing.types import Pose
 from host.ports import HostPort
@@ -175,7 +175,9 @@ async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int):
     world = asyncio.create_task(em.run())
     out = io.StringIO()
     base = BaseDriver(HostPort(str(tmp_path / "base")))
-    if (tmp_path / "aoa").exists():
+    if (tmp_path / "dock_aoa").exists():
+        loop = dock_loop(base, AoaDriver(HostPort(str(tmp_path / "dock_aoa"))), Config(), RunLog(out))
+    elif (tmp_path / "aoa").exists():
         loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), Config(), RunLog(out))
     else:
         loop = rss_loop(base, RssDriver(HostPort(str(tmp_path / "rss"))), Config(), RunLog(out))

@@ -93,3 +93,11 @@ async def test_s2_rss_homing_completes_the_warehouse_scenarios(tmp_path, scenari
     outcome, error, log = await closed_loop_scenario(tmp_path, scenario, seed)
     assert outcome.arrived and error < 1.0  # S2 stops at an estimated 0.5 m
     assert sum(1 for e in log if e["kind"] == "measurement") > 50
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+async def test_s1_docks_at_the_station(tmp_path, seed: int) -> None:
+    outcome, error, log = await closed_loop_scenario(tmp_path, "s1-dock", seed)
+    assert outcome.arrived
+    assert error < 0.3 + 0.2  # error is to the station itself: docked 0.3 m in front of it
+    assert any(e["kind"] == "estimate" and e.get("stage") == "docking" for e in log)

@@ -16,6 +16,7 @@ from host.estimation.ranging import LogDistance
 from host.homing.avoidance import AvoidParams
 from host.homing.grid import GridParams
 from host.homing.s0_aoa import S0Params
+from host.homing.s1_dock import S1Params
 from host.homing.s2_rss import S2Params
 
 
@@ -69,6 +70,7 @@ class Config:
     avoid: AvoidParams = field(default_factory=AvoidParams)
     plan: PlanSettings = field(default_factory=PlanSettings)
     s2: S2Params = field(default_factory=S2Params)
+    s1: S1Params = field(default_factory=S1Params)
 
     @property
     def avoid_obstacles(self) -> bool:
@@ -76,7 +78,7 @@ class Config:
 
 
 SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params,
-            "avoid": AvoidParams, "plan": PlanSettings, "s2": S2Params}
+            "avoid": AvoidParams, "plan": PlanSettings, "s2": S2Params, "s1": S1Params}
 
 
 class ConfigError(ValueError):
@@ -169,4 +171,22 @@ k_w = 1.5
 k_stop = 0.8
 search_w = 0.5           # turn while no fix has come yet
 seed = 0                 # the particle filter's random stream (reproducible runs)
+
+[s1]                     # docking (S1): the station's AoA and RSSI of the robot's tag
+g_a = 0.25               # heading step per dB of RSSI_diff per degree of AoA change
+g_d = 0.08               # m of forward step per dB of RSSI_diff
+alpha_db = 1.0           # docked when RSSI_diff <= alpha
+beta_db = 8.0            # re-align (rotate delta) when RSSI_diff < beta and |AoA| > gamma
+gamma_deg = 20.0
+delta_deg = 30.0
+n = 10                   # moving-average length of RSSI and AoA
+rssi_arrival_dbm = -51.0
+enter_dbm = -73.0        # stage hysteresis: docking above -73, mission below -76
+leave_dbm = -76.0
+v_min = 0.1
+v_max = 0.25
+w_max = 0.52
+max_step_m = 0.4         # cap on one forward step
+heading_tolerance_deg = 3.0
+position_tolerance_m = 0.03
 """

@@ -32,6 +32,7 @@ from host.homing.avoidance import ObstacleAvoidance
 from host.homing.config import Config
 from host.homing.grid import OccupancyGrid, lookahead
 from host.homing.s0_aoa import S0Homing
+from host.homing.s1_dock import DockController
 from host.homing.s2_rss import RssController
 from host.homing.types import Decision, Pose
 
@@ -259,6 +260,11 @@ def aoa_loop(base: BaseDriver, aoa: AoaDriver, config: Config = Config(), runlog
 def rss_loop(base: BaseDriver, rss: Driver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
     """S2 homing: the four-dish AT86RF212 node and the base."""
     return HomingLoop(base, rss, RssController(config.s2), config, runlog)
+
+
+def dock_loop(base: BaseDriver, station: AoaDriver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
+    """S1 docking: the station's AoA/RSSI readings of the robot's tag, and the base."""
+    return HomingLoop(base, station, DockController(config.s1), config, runlog)
 
 
 def _round(v: Any) -> list[float] | None:
