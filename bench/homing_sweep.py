@@ -5,9 +5,10 @@ lockstep, deterministic per seed).
   Gaussian AoA noise;
 - s0-house: 12 seeds (tag in a random room), S0 + occupancy grid + A*;
 - s2-a … s2-e: 3 seeds each, S2 (four dishes + particle filter) + grid + A*;
-- s1-dock: 10 random starts 2.4–3.4 m in front of the station (inside S1's docking stage).
+- s1-dock: 10 random starts 2.4–3.4 m in front of the station (inside S1's docking stage);
+- s3-arena: 6 goals, the robot localised on the four corner beacons (S3 trilateration).
 
-    python bench/homing_sweep.py [--json] [--only s0-open|s0-house|s2|s1-dock]
+    python bench/homing_sweep.py [--json] [--only s0-open|s0-house|s2|s1-dock|s3-arena]
 
 Success = arrived and < 1 m from the target (S0's criterion). The paper-faithful campaigns
 (S0's noise configurations, Table 3's metrics) are `rfhoming campaign`'s job (issue 7).
@@ -31,7 +32,8 @@ from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import Config, LoopSettings
-from host.homing.loop import aoa_loop, dock_loop, rss_loop
+from host.homing.loop import aoa_loop, dock_loop, rss_loop, trilat_loop
+from host.homing.s3_trilat import TrilatParams
 
 CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=180.0))
 DOCK_STANDOFF_M = 0.3
@@ -40,14 +42,18 @@ DOCK_STANDOFF_M = 0.3
 
 async def run(scenario: str, seed: int, target: tuple[float, float] | None = None,
               start: tuple[float, float, float] | None = None) -> dict:
-    sc = load(scenario, seed=seed, target=target)
+    sc = load(scenario, seed=seed, target=None if scenario == "s3-arena" else target)
     if start is not None:
         sc.world.robot.x, sc.world.robot.y, sc.world.robot.theta = start
     em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0)
     await em.start()
     world = asyncio.create_task(em.run())
     base = BaseDriver(PipePort("base", em.device("base").link.host))
-    if scenario.startswith("s1"):
+    if scenario == "s3-arena":  # go to ``target``, localised on the corner beacons
+        config = replace(CONFIG, trilat=TrilatParams(anchors={t.id: list(t.position) for t in sc.world.targets},
+                                                      goal=list(target)))
+        loop = trilat_loop(base, RssDriver(PipePort("ble", em.device("ble").link.host)), config)
+    elif scenario.startswith("s1"):
         loop = dock_loop(base, AoaDriver(PipePort("dock_aoa", em.device("dock_aoa").link.host)), CONFIG)
     elif any(d.type == "xplr-aoa" for d in sc.devices):
         loop = aoa_loop(base, AoaDriver(PipePort("aoa", em.device("aoa").link.host)), CONFIG)
@@ -58,15 +64,15 @@ async def run(scenario: str, seed: int, target: tuple[float, float] | None = Non
     await asyncio.gather(world, return_exceptions=True)
     await em.close()
     target_ = sc.world.targets[0]
-    tx, ty = target_.position
-    if target_.kind == "dock":  # docked means DOCK_STANDOFF_M in front of the station, facing it
+    tx, ty = target if scenario == "s3-arena" else target_.position
+    if scenario != "s3-arena" and target_.kind == "dock":  # docked means DOCK_STANDOFF_M in front of the station, facing it
         tx -= DOCK_STANDOFF_M * math.cos(target_.heading)
         ty -= DOCK_STANDOFF_M * math.sin(target_.heading)
     error = math.hypot(em.world.robot.x - tx, em.world.robot.y - ty)
     row = {"scenario": scenario, "seed": seed, "target": [round(tx, 2), round(ty, 2)],
            "success": outcome.arrived and error < 1.0, "time_s": round(outcome.robot_time_s, 2),
            "final_error_m": round(error, 3)}
-    if target_.kind == "dock":
+    if scenario != "s3-arena" and target_.kind == "dock":
         row["heading_error_deg"] = round(abs(math.degrees(math.remainder(em.world.robot.theta - target_.heading, 2 * math.pi))), 1)
     return row
 
@@ -91,13 +97,15 @@ def summary(rows: list[dict]) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true")
-    parser.add_argument("--only", choices=("s0-open", "s0-house", "s2", "s1-dock"))
+    parser.add_argument("--only", choices=("s0-open", "s0-house", "s2", "s1-dock", "s3-arena"))
     args = parser.parse_args()
     sets: dict[str, list[tuple[str, int, tuple[float, float] | None]]] = {
         "s0-open": [("s0-open", seed, target) for seed, target in s0_open_targets()],
         "s0-house": [("s0-house", seed, None) for seed in range(12)],
         "s2": [(f"s2-{k}", seed, None) for k in "abcde" for seed in range(3)],
         "s1-dock": [("s1-dock", seed, None) for seed in range(10)],
+        "s3-arena": [("s3-arena", seed, goal) for seed, goal in
+                     enumerate([(4.0, 4.0), (1.0, 4.0), (1.0, 1.0), (4.0, 1.0), (3.5, 2.5), (1.5, 3.5)])],
     }
     result = {}
     for name, jobs in sets.items():

@@ -13,11 +13,11 @@ from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import DEFAULT_TOML, ConfigError, load
-from host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop
+from host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from host.ports import HostPort, PortError
 from host.session import flow_control
 
-CONTROLLERS = ("aoa", "dock", "rss")
+CONTROLLERS = ("aoa", "dock", "rss", "trilat")
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -39,7 +39,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
-    flag = "rss" if args.controller == "rss" else "aoa"
+    flag = {"rss": "rss", "trilat": "ble"}.get(args.controller, "aoa")
     sensor_port = getattr(args, flag)
     if sensor_port is None:
         print(f"rfhoming run: --controller {args.controller} needs --{flag} PORT", file=sys.stderr)
@@ -53,13 +53,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         sensor = RssDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("rss", args.flow), taps=taps),
                            ed_scale_db=config.calibration.ed_scale_db)
-        make, protocol = rss_loop, "rss"
+        make, protocol = (rss_loop if args.controller == "rss" else trilat_loop), "rss"
+    try:
+        loop = make(base, sensor, config, None)
+    except ValueError as exc:
+        print(f"rfhoming run: {exc}", file=sys.stderr)
+        return 2
     if capture:
         capture.describe(base.port.name, protocol="rss", kind="base")
         capture.describe(sensor.port.name, protocol=protocol, kind=sensor.kind)
     runlog = open(args.log, "w") if args.log else None
+    loop.log = RunLog(runlog)
     try:
-        outcome = asyncio.run(make(base, sensor, config, RunLog(runlog)).run())
+        outcome = asyncio.run(loop.run())
     except PortError as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
@@ -145,10 +151,12 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                        description=RUN_HELP, formatter_class=raw)
     p.add_argument("--aoa", metavar="PORT", help="the XPLR-AOA (path, socket:// URL), for --controller aoa")
     p.add_argument("--rss", metavar="PORT", help="the four-dish AT86RF212 node, for --controller rss")
+    p.add_argument("--ble", metavar="PORT", help="the ESP32 BLE scanner, for --controller trilat")
     p.add_argument("--base", required=True, metavar="PORT", help="the robot base")
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
-                        "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter)")
+                        "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
+                        "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--baud", type=int, default=115200)
     p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",

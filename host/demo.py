@@ -22,10 +22,10 @@ from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import Config
-from host.homing.loop import Outcome, RunLog, aoa_loop, dock_loop, rss_loop
+from host.homing.loop import Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from host.ports import HostPort
 
-SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e"}  # S0, S1, S2 controllers
+SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e", "s3-arena"}  # S0–S3
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None) -> tuple[subprocess.Popen, dict]:
@@ -48,7 +48,11 @@ async def home(endpoints: dict, out: Path, config: Config, docking: bool = False
     capture = CaptureWriter(out / "capture.pcapng")
     base = BaseDriver(HostPort(endpoints["base"]["path"], taps=[capture.tap]), command_timeout_ms=config.loop.command_timeout_ms)
     capture.describe(base.port.name, protocol="rss", kind="base")
-    if "xplr-aoa" in endpoints:
+    if "esp32" in endpoints:
+        sensor = RssDriver(HostPort(endpoints["esp32"]["path"], taps=[capture.tap]))
+        capture.describe(sensor.port.name, protocol="rss", kind="esp32")
+        make = trilat_loop
+    elif "xplr-aoa" in endpoints:
         sensor = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], rtscts=True, taps=[capture.tap]))  # its default
         capture.describe(sensor.port.name, protocol="ublox-aoa", kind="xplr-aoa")
         make = dock_loop if docking else aoa_loop
@@ -66,14 +70,29 @@ async def home(endpoints: dict, out: Path, config: Config, docking: bool = False
     return outcome, links
 
 
+def trilat_config(config: Config, truth: Path, target: str | None) -> Config:
+    """The arena's beacons as anchors, and the goal (--target, or (4, 4))."""
+    import time
+    from dataclasses import replace
+
+    for _ in range(50):  # the emulator writes the truth file as it starts
+        if truth.exists() and len(truth.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.05)
+    _, states = read_truth(truth)
+    anchors = {t["id"]: [t["x"], t["y"]] for t in states[0]["targets"]}
+    goal = [float(v) for v in target.split(",")] if target else [4.0, 4.0]
+    return replace(config, trilat=replace(config.trilat, anchors=anchors, goal=goal))
+
+
 def read_truth(path: Path) -> tuple[dict, list[dict]]:
     lines = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     return lines[0], [line for line in lines[1:] if "t" in line]
 
 
-def summarise(outcome: Outcome, truth_path: Path, links: dict) -> dict[str, Any]:
+def summarise(outcome: Outcome, truth_path: Path, links: dict, goal: list[float] | None = None) -> dict[str, Any]:
     header, states = read_truth(truth_path)
-    target = states[-1]["targets"][0]
+    target = states[-1]["targets"][0] if goal is None else {"x": goal[0], "y": goal[1]}
     start, end = states[0]["robot"], states[-1]["robot"]
     path = sum(math.dist((a["robot"]["x"], a["robot"]["y"]), (b["robot"]["x"], b["robot"]["y"]))
                for a, b in zip(states, states[1:]))
@@ -137,7 +156,9 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     out.mkdir(parents=True, exist_ok=True)
     truth = out / "truth.jsonl"
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
-    proc, endpoints = start_emulator(scenario, seed, truth, link_dir, target)
+    proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target)
+    if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
+        config = trilat_config(config, truth, target)
     try:
         outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config, scenario.startswith("s1")),
                                                       config.loop.max_time_s + 60))
@@ -147,7 +168,7 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
-    summary = summarise(outcome, truth, links)
+    summary = summarise(outcome, truth, links, config.trilat.goal if scenario == "s3-arena" else None)
     plot(truth, out / "run.jsonl", out / "trajectory.png")
     summary["files"] = {name: str(out / name) for name in ("trajectory.png", "capture.pcapng", "run.jsonl", "truth.jsonl")}
     return summary

@@ -23,8 +23,9 @@ from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import DEFAULT_TOML, Config, ConfigError, LoopSettings, Mounting
 from host.homing.config import load as load_config
-from host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop
+from host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from host.homing.s0_aoa import S0Homing, S0Params
+from host.homing.s3_trilat import TrilatParams
 from host.homing.types import Pose
 from host.ports import HostPort
 from host.replay import ReplayPort, Sequencer, load_capture
@@ -175,7 +176,13 @@ async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int):
     world = asyncio.create_task(em.run())
     out = io.StringIO()
     base = BaseDriver(HostPort(str(tmp_path / "base")))
-    if (tmp_path / "dock_aoa").exists():
+    target = sc.world.targets[0].position
+    if (tmp_path / "ble").exists():  # S3: a goal in the beacons' frame
+        config = replace(Config(), trilat=TrilatParams(anchors={t.id: list(t.position) for t in sc.world.targets},
+                                                       goal=[4.0, 4.0]))
+        loop = trilat_loop(base, RssDriver(HostPort(str(tmp_path / "ble"))), config, RunLog(out))
+        target = (4.0, 4.0)
+    elif (tmp_path / "dock_aoa").exists():
         loop = dock_loop(base, AoaDriver(HostPort(str(tmp_path / "dock_aoa"))), Config(), RunLog(out))
     elif (tmp_path / "aoa").exists():
         loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), Config(), RunLog(out))
@@ -187,7 +194,6 @@ async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int):
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)
         await em.close()
-    target = sc.world.targets[0].position
     error = math.hypot(em.world.robot.x - target[0], em.world.robot.y - target[1])
     return outcome, error, [json.loads(line) for line in out.getvalue().splitlines()]
 

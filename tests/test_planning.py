@@ -101,3 +101,11 @@ async def test_s1_docks_at_the_station(tmp_path, seed: int) -> None:
     assert outcome.arrived
     assert error < 0.3 + 0.2  # error is to the station itself: docked 0.3 m in front of it
     assert any(e["kind"] == "estimate" and e.get("stage") == "docking" for e in log)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+async def test_s3_goes_to_a_goal_localised_on_beacons(tmp_path, seed: int) -> None:
+    outcome, error, log = await closed_loop_scenario(tmp_path, "s3-arena", seed)
+    assert outcome.arrived
+    assert error < 2.16  # S3's published trilateration errors: 0–216 cm
+    assert sum(1 for e in log if e["kind"] == "measurement" and "fix" in e) > 50

@@ -18,6 +18,7 @@ from host.homing.grid import GridParams
 from host.homing.s0_aoa import S0Params
 from host.homing.s1_dock import S1Params
 from host.homing.s2_rss import S2Params
+from host.homing.s3_trilat import TrilatParams
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,7 @@ class Config:
     plan: PlanSettings = field(default_factory=PlanSettings)
     s2: S2Params = field(default_factory=S2Params)
     s1: S1Params = field(default_factory=S1Params)
+    trilat: TrilatParams = field(default_factory=TrilatParams)
 
     @property
     def avoid_obstacles(self) -> bool:
@@ -78,7 +80,8 @@ class Config:
 
 
 SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params,
-            "avoid": AvoidParams, "plan": PlanSettings, "s2": S2Params, "s1": S1Params}
+            "avoid": AvoidParams, "plan": PlanSettings, "s2": S2Params, "s1": S1Params,
+            "trilat": TrilatParams}
 
 
 class ConfigError(ValueError):
@@ -189,4 +192,22 @@ w_max = 0.52
 max_step_m = 0.4         # cap on one forward step
 heading_tolerance_deg = 3.0
 position_tolerance_m = 0.03
+
+[trilat]                 # S3: go to a goal, localised on BLE beacons at known places
+goal = [0.0, 0.0]        # where to go, in the beacons' frame (m)
+p0_dbm = -64.3           # a beacon's RSSI at 1 m (S3 Table I)
+n = 2.7
+kalman_q = 0.05
+kalman_r = 16.0
+fresh_s = 2.0            # use beacons heard within this long
+max_range_m = 10.0       # no range beyond this is believed
+offset_gain = 0.05       # how far each fix pulls the odometry offset
+min_fixes = 10
+arrival_radius = 0.3
+v_max = 0.4
+w_max = 1.0
+k_w = 1.5
+k_stop = 0.8
+
+[trilat.anchors]         # beacon address (as rfhoming listen prints it) = [x, y]; at least three
 """

@@ -34,6 +34,7 @@ from host.homing.grid import OccupancyGrid, lookahead
 from host.homing.s0_aoa import S0Homing
 from host.homing.s1_dock import DockController
 from host.homing.s2_rss import RssController
+from host.homing.s3_trilat import TrilatController
 from host.homing.types import Decision, Pose
 
 log = logging.getLogger(__name__)
@@ -265,6 +266,11 @@ def rss_loop(base: BaseDriver, rss: Driver, config: Config = Config(), runlog: R
 def dock_loop(base: BaseDriver, station: AoaDriver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
     """S1 docking: the station's AoA/RSSI readings of the robot's tag, and the base."""
     return HomingLoop(base, station, DockController(config.s1), config, runlog)
+
+
+def trilat_loop(base: BaseDriver, ble: Driver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
+    """S3: go to a goal, localised by trilateration on BLE beacons at known places."""
+    return HomingLoop(base, ble, TrilatController(config.trilat), config, runlog)
 
 
 def _round(v: Any) -> list[float] | None:
