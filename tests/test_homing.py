@@ -167,7 +167,7 @@ async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) 
     assert [json.loads(line) for line in out.getvalue().splitlines()] == live
 
 
-async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int):
+async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int, config: Config = Config()):
     """Closed loop on a preset with its own target, through ptys in lockstep; the controller
     follows the scenario's sensor (XPLR-AOA -> S0, AT86RF212 node -> S2)."""
     sc = load(scenario, seed=seed)
@@ -178,16 +178,16 @@ async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int):
     base = BaseDriver(HostPort(str(tmp_path / "base")))
     target = sc.world.targets[0].position
     if (tmp_path / "ble").exists():  # S3: a goal in the beacons' frame
-        config = replace(Config(), trilat=TrilatParams(anchors={t.id: list(t.position) for t in sc.world.targets},
+        config = replace(config, trilat=TrilatParams(anchors={t.id: list(t.position) for t in sc.world.targets},
                                                        goal=[4.0, 4.0]))
         loop = trilat_loop(base, RssDriver(HostPort(str(tmp_path / "ble"))), config, RunLog(out))
         target = (4.0, 4.0)
     elif (tmp_path / "dock_aoa").exists():
-        loop = dock_loop(base, AoaDriver(HostPort(str(tmp_path / "dock_aoa"))), Config(), RunLog(out))
+        loop = dock_loop(base, AoaDriver(HostPort(str(tmp_path / "dock_aoa"))), config, RunLog(out))
     elif (tmp_path / "aoa").exists():
-        loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), Config(), RunLog(out))
+        loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), config, RunLog(out))
     else:
-        loop = rss_loop(base, RssDriver(HostPort(str(tmp_path / "rss"))), Config(), RunLog(out))
+        loop = rss_loop(base, RssDriver(HostPort(str(tmp_path / "rss"))), config, RunLog(out))
     try:
         outcome = await asyncio.wait_for(loop.run(), 120)
     finally:

@@ -109,3 +109,15 @@ async def test_s3_goes_to_a_goal_localised_on_beacons(tmp_path, seed: int) -> No
     assert outcome.arrived
     assert error < 2.16  # S3's published trilateration errors: 0–216 cm
     assert sum(1 for e in log if e["kind"] == "measurement" and "fix" in e) > 50
+
+
+async def test_s2_preliminary_rules_reach_the_emitter_in_the_open(tmp_path) -> None:
+    from dataclasses import replace
+
+    from host.homing.config import Config
+    from host.homing.s2_rss import S2Params
+
+    outcome, error, log = await closed_loop_scenario(tmp_path, "s2-a", 0, config=replace(Config(), s2=S2Params(motion="preliminary")))
+    assert outcome.arrived and error < 1.0
+    notes = {e["note"] for e in log if e["kind"] == "command"}
+    assert "target within ±15°: forward" in notes and not any(e["kind"] == "plan" for e in log)

@@ -140,7 +140,9 @@ class HomingLoop:
         for name in ("events", "readings"):
             if hasattr(sensor, name):
                 setattr(sensor, name, self.inputs)
-        self.avoidance = ObstacleAvoidance(config.avoid) if config.avoid_obstacles else None
+        own = getattr(controller, "own_avoidance", False)  # S2's preliminary system has its own rules
+        self.avoidance = ObstacleAvoidance(config.avoid) if config.avoid_obstacles and not own else None
+        self._planning = config.plan.enabled and getattr(controller, "uses_planner", True)
         self.grid: OccupancyGrid | None = None  # built from the first scan, if the base sends any
         self._path: list[tuple[float, float]] | None = None
         self._next_plan = 0.0
@@ -178,7 +180,9 @@ class HomingLoop:
             if isinstance(item, Scan):
                 if self.avoidance is not None:
                     self.avoidance.on_scan(item)
-                if self.config.plan.enabled and pose is not None and t >= self._next_integrate:
+                if hasattr(self.controller, "on_scan"):
+                    self.controller.on_scan(item)
+                if self._planning and pose is not None and t >= self._next_integrate:
                     self._next_integrate = t + self.config.plan.integrate_s
                     if self.grid is None:
                         self.grid = OccupancyGrid((pose.x, pose.y), self.config.plan.grid)

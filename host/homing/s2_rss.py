@@ -5,7 +5,9 @@ the direction θ = atan2(y1 − y2, x1 − x2) (see host.estimation.particle for
 range from the strongest antenna's power with its dish gain removed (log-distance). The
 particle filter (N = 1000, S2's weights) smooths the fixes into the emitter's position; the
 robot steers to it (or to the planner's waypoint) with S0's velocity law and stops when the
-estimated range is below 0.5 m (S2: "stop when front+back RSS says < 50 cm").
+estimated range is below 0.5 m (S2: "stop when front+back RSS says < 50 cm"). With
+``motion = "preliminary"`` it moves by S2's first rule set instead (20 cm, ±15°, ±90°), with no
+map and no planner.
 
 Calibration (config [s2]): the emitter's power at 1 m for an isotropic antenna (p0_dbm), the
 path-loss exponent, and the dishes' peak gain (6.6 dBi for 0.3 m dishes at 915 MHz,
@@ -39,13 +41,21 @@ class S2Params:
     k_stop: float = 0.8
     search_w: float = 0.5
     seed: int = 0
+    motion: str = "full"  # "full": the loop's grid + A*; "preliminary": S2's rule-based motion
+    obstacle_m: float = 0.2  # preliminary: an obstacle this close ahead means turn until clear
 
 
 class RssController:
     source = "rss"
 
     def __init__(self, params: S2Params = S2Params()) -> None:
+        if params.motion not in ("full", "preliminary"):
+            raise ValueError("[s2] motion must be 'full' or 'preliminary'")
         self.params = params
+        # the preliminary system avoids obstacles by its own 20 cm rule: no planner, no S0 avoidance
+        self.uses_planner = params.motion == "full"
+        self.own_avoidance = params.motion == "preliminary"
+        self.front_m = math.inf
         self.pf = ParticleFilter(PfParams(), np.random.default_rng(params.seed))
         self.fixes = 0
         self.incomplete = 0
@@ -77,6 +87,26 @@ class RssController:
         self._last_fix = (pose.x + rng * math.cos(pose.theta + theta), pose.y + rng * math.sin(pose.theta + theta))
         return {"theta": round(theta, 4), "range": round(rng, 3), "diff_db": round(diff_db, 2)}
 
+    def on_scan(self, scan: Any) -> None:
+        """Preliminary motion: the shortest range within ±30° ahead."""
+        ranges = [r for i, r in enumerate(scan.ranges)
+                  if r is not None and abs(scan.angle_min + i * scan.angle_increment) <= math.pi / 6]
+        self.front_m = min(ranges) if ranges else math.inf
+
+    def _preliminary(self, pose: Pose, goal: Any) -> Decision:
+        """S2's rules: an obstacle within 20 cm -> turn until clear; target within ±15° ->
+        forward; otherwise turn toward it while moving forward; beyond ±90° turn in place."""
+        p = self.params
+        _, bearing = self.pf.relative((pose.x, pose.y, pose.theta))
+        g = (float(goal[0]), float(goal[1]))
+        if self.front_m < p.obstacle_m:
+            return Decision(0.0, p.w_max, g, False, "obstacle within 20 cm: turning until clear")
+        if abs(bearing) <= math.radians(15):
+            return Decision(p.v_max, 0.0, g, False, "target within ±15°: forward")
+        if abs(bearing) <= math.pi / 2:
+            return Decision(p.v_max / 2, math.copysign(p.w_max / 2, bearing), g, False, "turning toward the target")
+        return Decision(0.0, math.copysign(p.w_max, bearing), g, False, "target behind: turning")
+
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         p = self.params
         goal = self.reported
@@ -86,6 +116,8 @@ class RssController:
         d_g = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
         if estimated_range < p.arrival_range_m or d_g < p.arrival_range_m:
             return Decision(0.0, 0.0, (float(goal[0]), float(goal[1])), True, "arrived")
+        if p.motion == "preliminary":
+            return self._preliminary(pose, goal)
         aim = steer_to if steer_to is not None else goal
         theta_g = wrap_rad(math.atan2(aim[1] - pose.y, aim[0] - pose.x) - pose.theta)
         v = (2 / math.pi) * p.v_max * abs(math.pi / 2 - abs(theta_g)) if abs(theta_g) <= math.pi / 2 else 0.0
