@@ -141,7 +141,7 @@ def main() -> int:
     if "s1-dock" in result:
         heading = [r["heading_error_deg"] for r in result["s1-dock"]["runs"]]
         print(f"\ns1-dock heading error: mean {np.mean(heading):.1f}°, max {np.max(heading):.1f}°")
-    for name, r in result.items():
+    for r in result.values():
         for f in r["summary"]["failures"]:
             print(f"failed: {f['scenario']} seed {f['seed']} target {f['target']}: {f['final_error_m']} m after {f['time_s']} s")
     return 0

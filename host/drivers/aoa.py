@@ -114,7 +114,7 @@ class AoaDriver(Driver):
     # -- commands ---------------------------------------------------------------------
     async def command(self, command: c.Command) -> Response:
         """Send one command and wait for its answer, retrying on timeout; CommandFailed on ERROR."""
-        for attempt in range(self.setup.retries + 1):
+        for _ in range(self.setup.retries + 1):
             self._answer = asyncio.get_running_loop().create_future()
             self.port.write(self.matcher.send(command))
             try:

@@ -13,7 +13,6 @@ wrap (their float references work in degrees).
 from __future__ import annotations
 
 import bisect
-import math
 from collections import deque
 
 import numpy as np

@@ -34,7 +34,7 @@ import numpy as np
 
 from host.estimation.bearings import Degenerate, intersect, kohonen_update
 from host.estimation.fixed import wrap_rad
-from host.homing.types import Decision, Pose
+from host.homing.types import Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -201,8 +201,7 @@ class S0Homing:
         if steer_to is not None:
             dx, dy = steer_to[0] - pose.x, steer_to[1] - pose.y
         theta_g = wrap_rad(math.atan2(dy, dx) - pose.theta)
-        v = (2 / math.pi) * p.v_max * abs(math.pi / 2 - abs(theta_g)) if abs(theta_g) <= math.pi / 2 else 0.0
-        v = min(v, p.k_stop * d_g)
+        v, _ = velocity_law(theta_g, d_g, p.v_max, p.w_max, p.k_w, p.k_stop)
         return Decision(v, self._turn(theta_g), tuple(goal), False, "homing")
 
     def _turn(self, theta_g: float) -> float:
@@ -210,11 +209,8 @@ class S0Homing:
         p = self.params
         if abs(theta_g) > math.radians(150):
             return self._turn_sign * p.w_max
-        w = _clamp(p.k_w * theta_g, p.w_max)
+        _, w = velocity_law(theta_g, 0.0, p.v_max, p.w_max, p.k_w, p.k_stop)
         if w:
             self._turn_sign = math.copysign(1.0, w)
         return w
 
-
-def _clamp(value: float, limit: float) -> float:
-    return max(-limit, min(limit, value))

@@ -25,7 +25,7 @@ import numpy as np
 from host.drivers.rss import AntennaPowers
 from host.estimation.fixed import wrap_rad
 from host.estimation.particle import ParticleFilter, PfParams, differential_to_range, direction
-from host.homing.types import Decision, Pose
+from host.homing.types import Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -120,9 +120,7 @@ class RssController:
             return self._preliminary(pose, goal)
         aim = steer_to if steer_to is not None else goal
         theta_g = wrap_rad(math.atan2(aim[1] - pose.y, aim[0] - pose.x) - pose.theta)
-        v = (2 / math.pi) * p.v_max * abs(math.pi / 2 - abs(theta_g)) if abs(theta_g) <= math.pi / 2 else 0.0
-        v = min(v, p.k_stop * d_g)
-        w = max(-p.w_max, min(p.w_max, p.k_w * theta_g))
+        v, w = velocity_law(theta_g, d_g, p.v_max, p.w_max, p.k_w, p.k_stop)
         return Decision(v, w, (float(goal[0]), float(goal[1])), False, "homing")
 
     def estimate(self) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from host.estimation.filters import ScalarKalman
 from host.estimation.fixed import from_q8, to_q8, wrap_rad
 from host.estimation.lateration import multilaterate
 from host.estimation.ranging import LogDistance
-from host.homing.types import Decision, Pose
+from host.homing.types import Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -102,13 +102,13 @@ class TrilatController:
         if self.phase != "homing":
             return Decision(0.0, 0.0, tuple(goal), False, "localising")
         here = self.world(pose)
-        aim = np.array(steer_to) + (self.offset if steer_to is not None else 0.0) if steer_to is not None else goal
+        aim = goal if steer_to is None else np.array(steer_to) + self.offset  # waypoints are in odometry
         d_g = float(np.linalg.norm(goal - here))
         if d_g < p.arrival_radius:
             return Decision(0.0, 0.0, tuple(goal), True, "arrived")
         theta_g = wrap_rad(math.atan2(aim[1] - here[1], aim[0] - here[0]) - pose.theta)
-        v = (2 / math.pi) * p.v_max * abs(math.pi / 2 - abs(theta_g)) if abs(theta_g) <= math.pi / 2 else 0.0
-        return Decision(min(v, p.k_stop * d_g), max(-p.w_max, min(p.w_max, p.k_w * theta_g)), tuple(goal), False, "homing")
+        v, w = velocity_law(theta_g, d_g, p.v_max, p.w_max, p.k_w, p.k_stop)
+        return Decision(v, w, tuple(goal), False, "homing")
 
     def estimate(self) -> dict[str, Any]:
         return {"offset": None if self.offset is None else [round(float(v), 3) for v in self.offset],

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 import struct
-import struct
 from collections import Counter
 from collections.abc import Callable
 from typing import Any
