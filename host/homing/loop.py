@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from collections import deque
 import logging
 import time
 from dataclasses import dataclass, field
@@ -132,7 +133,7 @@ class HomingLoop:
         self.log = runlog or RunLog(None)
         self.stale_stops = 0
         self.commands = 0
-        self.latency_ms: list[float] = []
+        self.latency_ms: deque[float] = deque(maxlen=10_000)  # bounded: the latest commands
         # one stream for both drivers: the loop sees odometry and readings in arrival order, so
         # its decisions depend on the bytes alone (a replay reproduces them exactly)
         self.inputs = BoundedStream[Any](4000)
@@ -168,14 +169,21 @@ class HomingLoop:
         stale = False
         t0: float | None = None
         pose: Pose | None = None
-        decision: Decision | None = None
-        odo: Pose2D | None = None
         t = 0.0
+        last_odometry_wall = time.monotonic()
+        odometry_stale = False
         while True:
             try:
                 item = await asyncio.wait_for(self.inputs.get(), cfg.stale_timeout_s)
             except asyncio.TimeoutError:
-                self.log.write("event", t, what="no input for the stale timeout (wall time)")
+                item = None
+            if not isinstance(item, Pose2D) and time.monotonic() - last_odometry_wall > cfg.stale_timeout_s:
+                if not odometry_stale:  # the base's own clock is gone: wall time is all there is
+                    odometry_stale = True
+                    log.warning("odometry stale: stopping the robot (its watchdog stops it too)")
+                    self.log.write("event", t, what="odometry stale: stop")
+                    self.base.stop()
+            if item is None:
                 continue
             if isinstance(item, Scan):
                 if self.avoidance is not None:
@@ -196,6 +204,7 @@ class HomingLoop:
                         self.log.write("measurement", t, source=self.source, **fields)
                 continue
             odo = item
+            last_odometry_wall, odometry_stale = time.monotonic(), False
             t = odo.t_robot
             t0 = t if t0 is None else t0
             pose = Pose(odo.x, odo.y, odo.theta)
@@ -254,7 +263,7 @@ class HomingLoop:
     def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose, goal) -> Outcome:
         self.base.stop()
         self.log.write("event", duration, what=reason)
-        return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, self.latency_ms)
+        return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, list(self.latency_ms))
 
 
 def aoa_loop(base: BaseDriver, aoa: AoaDriver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
