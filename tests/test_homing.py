@@ -213,3 +213,22 @@ def test_demo_command_succeeds_and_writes_its_files(tmp_path: Path) -> None:
 def test_config_command() -> None:
     done = subprocess.run([sys.executable, "-m", "host.cli", "config", "--print-default"], capture_output=True, text=True)
     assert done.returncode == 0 and done.stdout == DEFAULT_TOML
+
+
+async def test_dead_odometry_is_noticed_and_a_stop_sent(tmp_path: Path) -> None:
+    scenario = load("s0-open", seed=5, target=(9.0, 0.0))
+    em = Emulator(scenario, transport="pty", seed=5, speed=4.0, link_dir=tmp_path,
+                  faults=[Fault.parse("unplug@base:at=3,for=100")])
+    await em.start()
+    world = asyncio.create_task(em.run())
+    out = io.StringIO()
+    base = BaseDriver(HostPort(str(tmp_path / "base")))
+    loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), Config(), RunLog(out))
+    with pytest.raises(asyncio.TimeoutError):  # no odometry, no robot time: the loop waits, stopped
+        await asyncio.wait_for(loop.run(), 2.5)
+    world.cancel()
+    await asyncio.gather(world, return_exceptions=True)
+    await em.close()
+    events = [json.loads(line) for line in out.getvalue().splitlines() if '"event"' in line]
+    assert any(e["what"] == "odometry stale: stop" for e in events)
+    assert base.counters["stops"] >= 1
