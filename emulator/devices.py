@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -32,10 +32,11 @@ class DeviceRunner:
 
     protocol = "rss"
 
-    def __init__(self, name: str, firmware: Any, link: Link, faults: ByteFaults,
+    def __init__(self, name: str, make_firmware: Callable[[], Any], link: Link, faults: ByteFaults,
                  rng: np.random.Generator) -> None:
         self.name = name
-        self.firmware = firmware
+        self.make_firmware = make_firmware
+        self.firmware = make_firmware()
         self.link = link
         self.faults = faults
         self.rng = rng
@@ -84,10 +85,8 @@ class DeviceRunner:
     schedule: _Schedule
 
     def reboot(self, t: float) -> None:
-        """Power-cycle: the firmware loses its state (binary nodes restart their counters)."""
-        self.firmware.__init__(*self._init_args)  # type: ignore[misc]
-
-    _init_args: tuple = ()
+        """Power-cycle: fresh firmware, all state lost (binary nodes restart their counters)."""
+        self.firmware = self.make_firmware()
 
 
 class _Schedule:
@@ -119,8 +118,8 @@ class AoaRunner(DeviceRunner):
                  options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
                  robot_tag: tuple[str, float] | None) -> None:
         dialect = Dialect(str(options.get("dialect", "1.2")))
-        self._init_args = (str(options.get("mac", "CCF9578E0D89")), dialect)
-        super().__init__(name, XplrAoaFirmware(*self._init_args), link, faults, rng)
+        mac = str(options.get("mac", "CCF9578E0D89"))
+        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect), link, faults, rng)
         self.aoa = aoa
         self.path_loss = path_loss
         self.channel = RadioChannel(path_loss, rng)
@@ -192,8 +191,7 @@ class Esp32Runner(DeviceRunner):
 
     def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
                  rng: np.random.Generator, path_loss: PathLossModel) -> None:
-        self._init_args = (node_id,)
-        super().__init__(name, Esp32ScannerFirmware(node_id), link, faults, rng)
+        super().__init__(name, lambda: Esp32ScannerFirmware(node_id), link, faults, rng)
         self.channel = RadioChannel(path_loss, rng)
         self.schedule = _Schedule(rng)
 
@@ -217,15 +215,10 @@ class RssRunner(DeviceRunner):
                  rng: np.random.Generator, path_loss: PathLossModel, options: dict[str, Any]) -> None:
         offsets = tuple(float(v) for v in options.get("chip_offsets_db", rng.uniform(-5, 5, 4)))
         kwargs = {"chip_offsets_db": offsets, "dish_diameter_m": float(options.get("dish_diameter_m", 0.3))}
-        self._init_args = (node_id,)
-        self._kwargs = kwargs
-        super().__init__(name, At86rf212NodeFirmware(node_id, **kwargs), link, faults, rng)
+        super().__init__(name, lambda: At86rf212NodeFirmware(node_id, **kwargs), link, faults, rng)
         self.channel = RadioChannel(path_loss, rng)
         self.schedule = _Schedule(rng)
         self.emitter_seq: dict[str, int] = {}
-
-    def reboot(self, t: float) -> None:
-        self.firmware.__init__(*self._init_args, **self._kwargs)
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: At86rf212NodeFirmware = self.firmware
@@ -251,8 +244,7 @@ class BaseRunner(DeviceRunner):
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], start: tuple[float, float, float], radius: float) -> None:
-        self._init_args = (0,)
-        super().__init__(name, RobotBaseFirmware(0, start_pose=start), link, faults, rng)
+        super().__init__(name, lambda: RobotBaseFirmware(0, start_pose=start), link, faults, rng)
         self.scan = bool(options.get("scan", False))
         self.radius = radius
         self.commanded = asyncio.Event()
@@ -266,9 +258,8 @@ class BaseRunner(DeviceRunner):
             self.commanded.set()
 
     def reboot(self, t: float) -> None:
-        r = self.firmware
-        r.v = r.w = 0.0
-        r._target, r._deadline_us = (0.0, 0.0), None
+        """The motor controller restarts: it stops; its odometry (kept in RAM here) survives."""
+        self.firmware.halt()
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: RobotBaseFirmware = self.firmware

@@ -111,9 +111,6 @@ class World:
         hit = (np.abs(denom) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
         return len(np.unique(self._owner[hit]))
 
-    def line_of_sight(self, p: tuple[float, float], q: tuple[float, float]) -> bool:
-        return self.obstacles_crossed(p, q) == 0
-
     def cast(self, origin: tuple[float, float], angles: np.ndarray, max_range: float) -> np.ndarray:
         """Range along each world angle to the nearest obstacle edge; inf beyond ``max_range``."""
         if not len(self._a):

@@ -57,6 +57,11 @@ class RobotBaseFirmware(FramedNode):
         self._next_odometry_us = 0
         self._last_us: int | None = None
 
+    def halt(self) -> None:
+        """Stop now and forget the last command (a controller restart)."""
+        self.v = self.w = 0.0
+        self._target, self._deadline_us = (0.0, 0.0), None
+
     def command(self, cmd: NodeCommand) -> None:
         if cmd.command == 4:
             self.send_status()

@@ -54,16 +54,17 @@ def cmd_run(args: argparse.Namespace) -> int:
         sensor = RssDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("rss", args.flow), taps=taps),
                            ed_scale_db=config.calibration.ed_scale_db)
         make, protocol = (rss_loop if args.controller == "rss" else trilat_loop), "rss"
+    runlog = open(args.log, "w") if args.log else None
     try:
-        loop = make(base, sensor, config, None)
+        loop = make(base, sensor, config, RunLog(runlog))
     except ValueError as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
+        if runlog:
+            runlog.close()
         return 2
     if capture:
         capture.describe(base.port.name, protocol="rss", kind="base")
         capture.describe(sensor.port.name, protocol=protocol, kind=sensor.kind)
-    runlog = open(args.log, "w") if args.log else None
-    loop.log = RunLog(runlog)
     try:
         outcome = asyncio.run(loop.run())
     except PortError as exc:

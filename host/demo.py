@@ -14,6 +14,8 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -72,9 +74,6 @@ async def home(endpoints: dict, out: Path, config: Config, docking: bool = False
 
 def trilat_config(config: Config, truth: Path, target: str | None) -> Config:
     """The arena's beacons as anchors, and the goal (--target, or (4, 4))."""
-    import time
-    from dataclasses import replace
-
     for _ in range(50):  # the emulator writes the truth file as it starts
         if truth.exists() and len(truth.read_text().splitlines()) >= 2:
             break

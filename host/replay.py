@@ -64,6 +64,7 @@ class ReplayPort:
         self._t0: tuple[float, float] | None = None
         self.sequencer = sequencer
         self._holding = False
+        self._last_write = b""
 
     @property
     def is_open(self) -> bool:
@@ -117,8 +118,6 @@ class ReplayPort:
         self._written.clear()
         if self._last_write != expected.data:
             self.counters["diverged"] += 1
-
-    _last_write = b""
 
     def write(self, data: bytes) -> None:
         self.counters["bytes_out"] += len(data)

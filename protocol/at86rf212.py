@@ -3,7 +3,8 @@
 Each received frame carries an ED byte: 0..84, about 1 dB a step above RSSI_BASE_VAL, which
 depends on the PHY mode (page, channel). ED 0 means "at or below the base"; 255 means "no
 measurement". The step (``scale``) is a calibration constant: datasheet-derived 1.03,
-open-source drivers 1.0.
+open-source drivers 1.0. (The 5-bit PHY_RSSI register, 0..28 in about 3.1 dB steps, is coarser;
+rfhoming uses the per-frame ED.)
 """
 
 from __future__ import annotations
@@ -11,8 +12,6 @@ from __future__ import annotations
 ED_MAX = 84
 ED_INVALID = 255
 DEFAULT_SCALE_DB = 1.0
-PHY_RSSI_STEP_DB = 3.1
-"""The 5-bit PHY_RSSI register (0..28) steps about 3.1 dB on the AT86RF212."""
 
 # (page, first channel, last channel) -> RSSI_BASE_VAL dBm. Sources differ by about 1 dB;
 # these are the values of the current datasheet, and every node reports what it used.

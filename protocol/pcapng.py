@@ -11,7 +11,6 @@ Spec: IETF draft-ietf-opsawg-pcapng. Little-endian sections; the reader also rea
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 SHB, IDB, EPB = 0x0A0D0D0A, 0x00000001, 0x00000006
@@ -162,6 +161,3 @@ def read_all(data: bytes) -> tuple[list[Interface], list[Packet], int]:
     items = reader.feed(data)
     return reader.interfaces, [i for i in items if isinstance(i, Packet)], reader.pending
 
-
-def iter_packets(data: bytes) -> Iterator[Packet]:
-    yield from read_all(data)[1]

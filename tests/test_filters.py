@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from host.estimation import filters as f
-from host.estimation.fixed import bam16_to_deg, div_round, from_q8, sat, to_q8, wrap16, wrap_deg
+from host.estimation.fixed import bam16_to_deg, deg_to_bam16, div_round, from_q8, sat, to_q8, wrap16, wrap_deg
 
 rssi_q8 = st.lists(st.integers(to_q8(-110), to_q8(-20)), min_size=1, max_size=120)
 angles_bam = st.lists(st.integers(0, 65535), min_size=1, max_size=120)
@@ -99,11 +99,11 @@ def test_circular_filters_cross_the_wrap() -> None:
     samples = [170, 178, -176, -170, 175, -179]
     cma = f.CircularMovingAverage(6)
     for deg in samples:
-        out = bam16_to_deg(cma.update(round(deg / 360 * 65536) & 0xFFFF))
+        out = bam16_to_deg(cma.update(deg_to_bam16(deg)))
     assert abs(wrap_deg(out - 179.67)) < 0.05  # not ~0°, as a naive mean would say
     med = f.CircularMedian(5)
     for deg in (179, -179, 178, -178, 180):
-        out = bam16_to_deg(med.update(round(deg / 360 * 65536) & 0xFFFF))
+        out = bam16_to_deg(med.update(deg_to_bam16(deg)))
     assert abs(wrap_deg(out - 180)) < 0.01
 
 

@@ -18,10 +18,6 @@ from __future__ import annotations
 
 import math
 
-Q8 = 8
-Q16 = 16
-Q15 = 15
-INT16 = (-(1 << 15), (1 << 15) - 1)
 INT32 = (-(1 << 31), (1 << 31) - 1)
 
 
