@@ -83,12 +83,20 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_parsers(sub)
     add_io_parsers(sub)
     _add_emulate(sub)
+    _add_campaign(sub)
     return parser
 
 
 def _add_emulate(sub: argparse._SubParsersAction) -> None:
     """The emulator's command; the CLI is the one host module that may wire the emulator in."""
     from emulator.cli import add_parser
+
+    add_parser(sub)
+
+
+def _add_campaign(sub: argparse._SubParsersAction) -> None:
+    """Campaigns wire the emulator and the host together in-process (the campaigns package)."""
+    from campaigns.cli import add_parser
 
     add_parser(sub)
 

@@ -132,9 +132,9 @@ max_time_s = 180.0       # give up after this long
 command_timeout_ms = 300 # the base stops by itself if no newer command arrives
 
 [s0]                     # AoA homing (S0): the paper's values, and what it left open
-k = 0.8                  # parallax (Kohonen) gain
+k = 0.3                  # parallax (Kohonen) gain per reading (paper 0.8 per 0.1 s)
 buffer = 20
-tau = 5.0                # vector-goal time weighting, in readings
+tau = 10.0               # vector-goal time weighting, in readings
 z_threshold = 1.645
 err_threshold = 0.3
 arrival_radius = 0.3     # m
@@ -147,6 +147,9 @@ max_abs_azimuth_deg = 70.0
 unambiguous_deg = 60.0   # only readings this near the boresight move the bearing estimate
 disambiguation_s = 1.2   # turn in place this long at the start to tell front from back
 disambiguation_w = 0.8
+folded = true            # the board folds bearings into +-90 deg; false for a 360-degree sensor
+close_fusion_m = 2.0     # nearer than this, vector goals pull the parallax goal (0: paper's rule)
+close_fusion_gain = 0.1
 
 [avoid]                  # S0 Appendix B, on the base's front range scan (when it sends one)
 enabled = true

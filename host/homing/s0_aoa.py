@@ -5,13 +5,21 @@ robot frame (θs CCW from the heading, radians) with an RSSI-derived distance.
 
 Estimates:
 - vector goal: g = r + d(cos α, sin α), α = θr + θs; reported as the time-weighted mean of the
-  last 20 raw vector goals, w_k = exp(−(k−1)/τ), τ = 5 readings (the paper leaves τ open;
-  5 keeps about 80 % of the weight on the last ~8 readings, i.e. 0.8 s at 10 Hz).
+  last 20 raw vector goals, w_k = exp(−(k−1)/τ), τ = 10 readings (the paper leaves τ open;
+  at the board's 50 Hz that is 0.2 s, and the weights still reach across the whole buffer).
 - parallax goal: the first two readings whose rays cross well (baseline ≥ 0.3 m, ≥ 3° apart)
-  give it; afterwards each reading moves it onto its ray by k = 0.8 (Kohonen update).
+  give it; afterwards each reading moves it onto its ray by k (Kohonen update). The paper's
+  k = 0.8 is per reading of its simulation; at 50 Hz, k = 0.3 per reading moves as far in 0.1 s
+  (1 − 0.7⁵ ≈ 0.83) and averages five times as many rays.
 - hybrid: err = |g_p − g_v| / (½(d_p + d_v)); below 0.3 report g_p; otherwise z-test the new
   raw vector goal against the previous 20 (per axis, 1.645): an inlier moves g_p to the mean of
   g_p and g_v, an outlier is ignored.
+
+Beyond the paper (``close_fusion_m``; 0 restores the paper's rule): the parallax goal's error
+along the rays is never corrected once the robot drives straight at it, while near the goal
+the vector goal's relative distance error is small. Within 2 m each inlier vector goal pulls
+g_p by 0.1. Arrival also needs g_p, or a full buffer of vector goals when no parallax formed:
+one noisy first reading must not end a run.
 
 What the paper left open, and how it is handled here:
 - the board's ±90° limit and front/back fold: each reading has two world-bearing hypotheses,
@@ -39,9 +47,9 @@ from host.homing.types import Decision, Pose, velocity_law
 
 @dataclass(frozen=True)
 class S0Params:
-    k: float = 0.8
+    k: float = 0.3  # per reading at 50 Hz: 1 − 0.7⁵ ≈ the paper's 0.8 per 0.1 s
     buffer: int = 20
-    tau: float = 5.0
+    tau: float = 10.0
     z_threshold: float = 1.645
     err_threshold: float = 0.3
     arrival_radius: float = 0.3
@@ -56,6 +64,9 @@ class S0Params:
     unambiguous_deg: float = 60.0  # only readings this near the boresight move the bearing estimate
     disambiguation_s: float = 1.2
     disambiguation_w: float = 0.8
+    folded: bool = True  # the sensor folds bearings into ±90° (the XPLR-AOA); False: a 360° sensor
+    close_fusion_m: float = 2.0  # nearer than this, inlier vector goals pull g_p (0: the paper's rule)
+    close_fusion_gain: float = 0.1
 
 
 @dataclass
@@ -80,9 +91,15 @@ class S0Homing:
     _last_theta_world: float | None = None  # the target's world bearing, steadily estimated
     _turn_sign: float = 1.0
 
+    def __post_init__(self) -> None:
+        if not self.params.folded:  # nothing to tell apart: home from the first reading
+            self.phase = "homing"
+
     def world_bearing(self, pose: Pose, theta_s: float) -> float:
         """The reading's world bearing under the current front/back choice."""
         front = wrap_rad(pose.theta + theta_s)
+        if not self.params.folded:
+            return front
         back = wrap_rad(pose.theta + math.pi - theta_s)
         if self.phase == "disambiguating":
             return back if self._mirror else front
@@ -109,11 +126,13 @@ class S0Homing:
             return
         alpha = self.world_bearing(pose, theta_s)
         relative = wrap_rad(alpha - pose.theta)
-        if abs(math.degrees(relative)) < p.unambiguous_deg:
+        if self._last_theta_world is None:  # an unfolded sensor skips the disambiguation
+            self._last_theta_world = alpha
+        if abs(math.degrees(relative)) < p.unambiguous_deg or not p.folded:
             # away from ±90°, where the two hypotheses cross, a reading can move the estimate;
             # near it a noisy reading could hand the tracker the mirror branch
             self._last_theta_world = wrap_rad(self._last_theta_world + 0.3 * wrap_rad(alpha - self._last_theta_world))
-        if abs(math.degrees(relative)) > p.max_abs_azimuth_deg:
+        if p.folded and abs(math.degrees(relative)) > p.max_abs_azimuth_deg:
             return  # near the array's edge: steer only
         self._update_vector(pose, alpha, distance)
         self._update_parallax(pose, alpha)
@@ -177,6 +196,10 @@ class S0Homing:
         err = np.linalg.norm(self.g_p - self.g_v) / max(0.5 * (d_p + d_v), 1e-6)
         if err >= self.params.err_threshold and not self._z_outlier:
             self.g_p = (self.g_p + self.g_v) / 2
+        elif d_v < self.params.close_fusion_m and not self._z_outlier:
+            # near the goal a relative distance error is small, but the parallax goal's error
+            # along the rays is never corrected: let the vector goal pull it
+            self.g_p = self.g_p + self.params.close_fusion_gain * (self.g_v - self.g_p)
         self.reported = self.g_p
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
@@ -196,7 +219,7 @@ class S0Homing:
         dx, dy = goal[0] - pose.x, goal[1] - pose.y
         d_g = math.hypot(dx, dy)
         agree = self.g_v is not None and self.g_p is not None and np.linalg.norm(self.g_p - self.g_v) < p.arrival_agreement
-        if d_g < p.arrival_radius and (agree or self.g_p is None):
+        if d_g < p.arrival_radius and (agree or (self.g_p is None and len(self._raw) == self._raw.maxlen)):
             return Decision(0.0, 0.0, tuple(goal), True, "arrived")
         if steer_to is not None:
             dx, dy = steer_to[0] - pose.x, steer_to[1] - pose.y

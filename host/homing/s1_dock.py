@@ -9,19 +9,29 @@ between (in "mission" the robot waits: reaching the station's neighbourhood is a
 controller's job). While docking and RSSI_diff > α, steps of
     Δθ = G_a · RSSI_diff · (AoÂ_k − AoÂ_{k−1})   (degrees)
     Δr = G_d · RSSI_diff                          (metres, capped by ``max_step_m``)
-are taken: rotate by Δθ, then drive Δr. Re-alignment: when RSSI_diff < β and |AoÂ| > γ, first
-rotate by δ toward the station's axis. RSSI_diff ≤ α: docked.
+are taken: rotate by Δθ, then drive Δr. Re-alignment: when RSSI_diff < β and |AoÂ| > γ, the
+step's rotation is δ toward the station's axis instead. RSSI_diff ≤ α: docked.
 
 Signs (the paper gives none): the station's array faces the approaching robot and reports
 azimuth negative when the robot is to the station's left; turning toward the station's axis is
 then a turn of −sign(AoA), and a drift of AoA by ΔAoA is corrected by −G_a·RSSI_diff·ΔAoA.
+
+Beyond the paper: final heading. S1's steps steer the robot's position onto the station's
+axis but nothing aligns its heading (the paper's trial ended 12.5° off). Every reading is also a
+point of the robot in the station's frame (range from RSSI with ``path_n`` and the arrival
+RSSI at ``standoff_m``, bearing from AoA) paired with the robot's odometry position; a 2-D
+rigid fit of those pairs (closed-form Procrustes) gives the station's axis in the odometry
+frame. Once RSSI_diff ≤ α the robot turns in place onto that axis, then reports docked.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from host.drivers.aoa import TimedAngle
 from host.estimation.filters import MovingAverage
@@ -47,6 +57,10 @@ class S1Params:
     max_step_m: float = 0.4
     heading_tolerance_deg: float = 3.0
     position_tolerance_m: float = 0.03
+    align: bool = True  # turn onto the station's fitted axis at the end (False: the paper's stop)
+    standoff_m: float = 0.3  # where rssi_arrival_dbm is received (the docked position)
+    path_n: float = 2.0  # path-loss exponent for the fit's RSSI ranges
+    align_min_spread_m: float = 0.5  # the fit needs the robot to have moved this far along the approach
 
 
 class DockController:
@@ -62,8 +76,9 @@ class DockController:
         self.stage = "mission"
         self.readings = 0
         self._step: tuple[float, float, float] | None = None  # target x, y, heading
-        self._rotate_only = False
         self.steps = 0
+        self._pairs: deque[tuple[float, float, float, float]] = deque(maxlen=2000)  # odometry x, y; station-frame x, y
+        self.axis: float | None = None  # the fitted approach heading, set when aligning
 
     @property
     def phase(self) -> str:
@@ -85,6 +100,9 @@ class DockController:
         self.aoa = from_q8(self._aoa.update(to_q8(e.azimuth)))
         self.readings += 1
         p = self.params
+        r = p.standoff_m * 10 ** ((p.rssi_arrival_dbm - e.rssi1) / (10 * p.path_n))
+        phi = -math.radians(e.azimuth)  # board sign: negative = the robot on the station's left
+        self._pairs.append((pose.x, pose.y, r * math.cos(phi), r * math.sin(phi)))
         if self.stage == "mission" and self.rssi > p.enter_dbm and self.readings >= p.n:
             self.stage = "docking"
         elif self.stage == "docking" and self.rssi < p.leave_dbm:
@@ -96,14 +114,14 @@ class DockController:
         diff = self.rssi_diff
         aoa = self.aoa or 0.0
         if diff < p.beta_db and abs(aoa) > p.gamma_deg:
-            turn = -math.copysign(math.radians(p.delta_deg), aoa)  # re-align toward the axis
-            self._step, self._rotate_only = (pose.x, pose.y, wrap_rad(pose.theta + turn)), True
+            # re-align: rotate δ toward the axis *before* the step (a rotation alone leaves the
+            # AoA where it was, and the next step would rotate again: a spin in place)
+            heading = wrap_rad(pose.theta - math.copysign(math.radians(p.delta_deg), aoa))
         else:
             d_aoa = 0.0 if self._aoa_prev_step is None else aoa - self._aoa_prev_step
             heading = wrap_rad(pose.theta - math.radians(p.g_a * diff * d_aoa))
-            step = min(p.g_d * diff, p.max_step_m)
-            self._step = (pose.x + step * math.cos(heading), pose.y + step * math.sin(heading), heading)
-            self._rotate_only = False
+        step = min(p.g_d * diff, p.max_step_m)
+        self._step = (pose.x + step * math.cos(heading), pose.y + step * math.sin(heading), heading)
         self._aoa_prev_step = aoa
         self.steps += 1
 
@@ -111,7 +129,13 @@ class DockController:
         p = self.params
         if self.stage != "docking" or self.rssi is None:
             return Decision(0.0, 0.0, None, False, "waiting: not in the docking stage")
-        if self.rssi_diff <= p.alpha_db:
+        if self.rssi_diff <= p.alpha_db or self.axis is not None:
+            if p.align and self.axis is None:
+                self.axis = self.approach_heading()
+            if self.axis is not None:
+                turn = wrap_rad(self.axis - pose.theta)
+                if abs(math.degrees(turn)) > p.heading_tolerance_deg:
+                    return Decision(0.0, max(-p.w_max, min(p.w_max, 1.5 * turn)), (pose.x, pose.y), False, "aligning")
             return Decision(0.0, 0.0, (pose.x, pose.y), True, "arrived")
         if self._step is None:
             self._next_step(pose)
@@ -120,11 +144,24 @@ class DockController:
         if abs(math.degrees(turn)) > p.heading_tolerance_deg:  # rotate first
             return Decision(0.0, max(-p.w_max, min(p.w_max, 1.5 * turn)), (x, y), False, "rotating")
         remaining = (x - pose.x) * math.cos(heading) + (y - pose.y) * math.sin(heading)
-        if self._rotate_only or remaining < p.position_tolerance_m:
+        if remaining < p.position_tolerance_m:
             self._step = None  # step done: the next one from fresh readings
             return Decision(0.0, 0.0, (x, y), False, "step done")
         v = max(p.v_min, min(p.v_max, remaining))
         return Decision(v, max(-p.w_max, min(p.w_max, 1.5 * turn)), (x, y), False, "driving")
+
+    def approach_heading(self) -> float | None:
+        """The heading that faces the station along its axis, in the odometry frame; None when
+        the robot has not moved far enough for the fit."""
+        if len(self._pairs) < 2 * self.params.n:
+            return None
+        a = np.array(self._pairs)
+        odo, station = a[:, :2] - a[:, :2].mean(axis=0), a[:, 2:] - a[:, 2:].mean(axis=0)
+        if np.ptp(a[:, 0]) ** 2 + np.ptp(a[:, 1]) ** 2 < self.params.align_min_spread_m ** 2:
+            return None
+        h = station.T @ odo  # rotation R (station -> odometry) maximises trace(R h)
+        psi = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])  # the station's boresight
+        return wrap_rad(psi + math.pi)
 
     def estimate(self) -> dict[str, Any]:
         return {"stage": self.stage, "rssi_diff": round(self.rssi_diff, 2), "step": None if self._step is None

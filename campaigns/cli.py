@@ -1,0 +1,103 @@
+"""``rfhoming campaign``: run a campaign, write its JSON, Markdown table and plots."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from campaigns.runner import Campaign, CampaignError, run_jobs
+
+REGISTRY = {  # name -> "module:attribute", imported only when run
+    "s0-table3": "campaigns.s0:TABLE3_CAMPAIGN",
+    "s0-house": "campaigns.s0:HOUSE_CAMPAIGN",
+    "s1-dock": "campaigns.s1:CAMPAIGN",
+    "s2-scenarios": "campaigns.s2:CAMPAIGN",
+    "s3-arena": "campaigns.s3:CAMPAIGN",
+    "s4-montecarlo": "campaigns.s4:CAMPAIGN",
+}
+
+EPILOG = """\
+campaigns (default --runs in brackets):
+  s0-table3      S0 Table 3: 5 noise configurations x targets, idealised and realistic [40]
+  s0-house       S0 Experiment 2: the four-room house, configuration 5 [80]
+  s1-dock        S1 docking trials from random starts [50]
+  s2-scenarios   S2: particle filter vs instantaneous error; scenarios A-E, preliminary and full [3 per scenario]
+  s3-arena       S3: filters on Table I's noise; trilateration vs multilateration [200 trials per point]
+  s4-montecarlo  S4: EKF and UKF on 10,000 simulated beacons, and a filterpy EKF on a subsample [10000]
+
+Each writes OUT/NAME.json (every run and the summary), OUT/NAME.md (the table beside the
+paper's, with the command) and OUT/NAME*.png. Seeds are fixed per job, so a campaign gives the
+same numbers on 1 worker, on K processes or on a Dask cluster.
+
+examples:
+  rfhoming campaign s0-table3                    # all cores, results under docs/results/
+  rfhoming campaign s1-dock --runs 10 --json     # a quick look, JSON on stdout
+  rfhoming campaign s4-montecarlo --dask tcp://10.0.0.5:8786
+"""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("campaign", help="reproduce a seed paper's results over many seeded runs",
+                       description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("name", choices=sorted(REGISTRY), metavar="NAME", help="one of: " + ", ".join(REGISTRY))
+    p.add_argument("--runs", type=int, help="how many runs; what a run is depends on the campaign (see below)")
+    p.add_argument("--seed", type=int, default=0, help="campaign seed; every job derives its own (default 0)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="local worker processes (default: all cores; 1 runs inline)")
+    p.add_argument("--dask", metavar="ADDRESS", help="run the jobs on the Dask scheduler at ADDRESS instead")
+    p.add_argument("--out", type=Path, default=Path("docs/results"), help="output directory (default docs/results)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_campaign)
+
+
+def load(name: str) -> Campaign:
+    module, attribute = REGISTRY[name].split(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    campaign = load(args.name)
+    runs = args.runs if args.runs is not None else campaign.default_runs
+    if runs < 1:
+        print(f"rfhoming campaign: --runs must be at least 1 ({campaign.runs_help})", file=sys.stderr)
+        return 2
+    jobs = campaign.jobs(runs, args.seed)
+    where = f"Dask at {args.dask}" if args.dask else f"{args.workers} worker(s)"
+    t0 = time.perf_counter()
+    with tqdm(total=len(jobs), desc=f"{args.name} ({where})", unit="job", disable=args.quiet,
+              file=sys.stderr, dynamic_ncols=True) as bar:
+        try:
+            rows = run_jobs(jobs, args.workers, args.dask, bar.update)
+        except CampaignError as exc:
+            bar.close()
+            print(f"rfhoming campaign: {exc}", file=sys.stderr)
+            return 2
+    wall = time.perf_counter() - t0
+    report = campaign.report(rows)
+    command = "rfhoming campaign " + " ".join(shlex.quote(a) for a in [args.name, "--runs", str(runs), "--seed", str(args.seed)])
+    meta = {"campaign": args.name, "command": command, "runs": runs, "seed": args.seed, "jobs": len(jobs),
+            "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
+            "machine": platform.machine()}
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / f"{args.name}.json").write_text(json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
+    (args.out / f"{args.name}.md").write_text(
+        f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where})\n\n{report.markdown}\n")
+    for name, write in report.plots.items():
+        write(args.out / name)
+    if args.json:
+        print(json.dumps({**meta, "summary": report.summary}, indent=1))
+    else:
+        print(report.markdown)
+        print(f"\n{len(jobs)} jobs in {wall:.1f} s; wrote {args.out}/{args.name}.json, .md"
+              + "".join(f", {p}" for p in report.plots))
+    return 0

@@ -1,0 +1,139 @@
+"""One closed-loop homing run: the emulator and the real host stack in one process, joined by
+the emulator's byte pipe, stepped in lockstep (deterministic per seed, ~100x real time)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from emulator.links import PipeEnd
+from emulator.runtime import Emulator
+from emulator.scenario import Scenario
+from host.drivers.aoa import AoaDriver
+from host.drivers.base import BaseDriver
+from host.drivers.rss import RssDriver
+from host.homing.config import Config
+from host.homing.loop import HomingLoop, Outcome, aoa_loop, dock_loop, rss_loop, trilat_loop
+from host.ports import Chunk
+
+
+class PipePort:
+    """A HostPort-shaped view of one end of the emulator's in-process pipe."""
+
+    def __init__(self, name: str, end: PipeEnd) -> None:
+        self.name = self.spec = name
+        self.end = end
+        self.baud = 115200
+        self.taps: list = []
+        self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0, "disconnects": 0, "dropped_bytes": 0}
+
+    async def open(self) -> None:
+        self.counters["opens"] += 1
+
+    def set_baud(self, baud: int) -> None:
+        self.baud = baud
+
+    async def read(self) -> Chunk:
+        data = await self.end.read()
+        self.counters["bytes_in"] += len(data)
+        return Chunk(time.time(), data)
+
+    def write(self, data: bytes) -> None:
+        self.counters["bytes_out"] += len(data)
+        self.end.write(data)
+
+    async def close(self) -> None:
+        pass
+
+
+class Trajectory:
+    """The emulator's truth stream, kept in memory: the robot's true path for the metrics."""
+
+    def __init__(self) -> None:
+        self.points: list[tuple[float, float, float, float]] = []  # t, x, y, theta
+
+    def write(self, line: str) -> None:
+        record = json.loads(line)
+        if "robot" in record:
+            r = record["robot"]
+            self.points.append((record["t"], r["x"], r["y"], r["theta"]))
+
+    def flush(self) -> None:
+        pass
+
+    @property
+    def length_m(self) -> float:
+        return sum(math.dist(a[1:3], b[1:3]) for a, b in zip(self.points, self.points[1:]))
+
+
+@dataclass
+class Run:
+    outcome: Outcome
+    trajectory: Trajectory
+    emulator: Emulator
+    wall_s: float
+
+    @property
+    def robot(self) -> tuple[float, float, float]:
+        r = self.emulator.world.robot
+        return r.x, r.y, r.theta
+
+
+def make_loop(scenario: Scenario, em: Emulator, config: Config) -> HomingLoop:
+    """The host side a scenario's devices call for, wired to the emulator's pipes."""
+    def port(name: str) -> PipePort:
+        return PipePort(name, em.device(name).link.host)
+
+    base = BaseDriver(port("base"))
+    names = {d.name: d.type for d in scenario.devices}
+    if "dock_aoa" in names:
+        return dock_loop(base, AoaDriver(port("dock_aoa")), config)
+    if "aoa" in names:
+        return aoa_loop(base, AoaDriver(port("aoa")), config)
+    if "rss" in names:
+        return rss_loop(base, RssDriver(port("rss")), config)
+    if "ble" in names:
+        return trilat_loop(base, RssDriver(port("ble")), config)
+    raise ValueError(f"scenario {scenario.name} has no device a homing loop can use: {sorted(names)}")
+
+
+async def _run(scenario: Scenario, config: Config, seed: int, timeout_s: float) -> Run:
+    trajectory = Trajectory()
+    em = Emulator(scenario, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=trajectory)  # type: ignore[arg-type]
+    await em.start()
+    world = asyncio.create_task(em.run())
+    wall0 = time.perf_counter()
+    try:
+        outcome = await asyncio.wait_for(make_loop(scenario, em, config).run(), timeout_s)
+    finally:
+        world.cancel()
+        await asyncio.gather(world, return_exceptions=True)
+        await em.close()
+    em._write_truth()  # the final pose
+    return Run(outcome, trajectory, em, time.perf_counter() - wall0)
+
+
+def run(scenario: Scenario, config: Config, seed: int, timeout_s: float = 600.0) -> Run:
+    """Run one homing to its end (arrival or the config's time limit)."""
+    return asyncio.run(_run(scenario, config, seed, timeout_s))
+
+
+def metrics(run_: Run, target: tuple[float, float]) -> dict[str, Any]:
+    """S0 Table 3's metrics of one run against the true ``target``."""
+    start = run_.trajectory.points[0]
+    x, y, _ = run_.robot
+    straight = math.dist(start[1:3], (x, y))
+    travelled = run_.trajectory.length_m
+    final = math.dist((x, y), target)
+    goal = run_.outcome.goal
+    t = run_.outcome.robot_time_s
+    return {"arrived": run_.outcome.arrived, "success": run_.outcome.arrived and final < 1.0,
+            "time_s": round(t, 3), "net_velocity_mps": round(straight / t, 4) if t > 0 else None,
+            "goal_error_m": None if goal is None else round(math.dist(goal, target), 4),
+            "final_error_m": round(final, 4),
+            "path_efficiency": round(straight / travelled, 4) if travelled > 0 else None,
+            "wall_s": round(run_.wall_s, 3)}

@@ -1,0 +1,140 @@
+"""S0 (Robotics 2023): Table 3 (five noise configurations, open area) and Experiment 2 (house)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from campaigns import closed_loop, kinematic
+from campaigns.report import figure, grouped_bars, mean, save, table
+from campaigns.runner import Campaign, Job, Report
+from emulator.radio import S0_PRESETS
+from emulator.scenario import load
+from host.homing.config import Config, LoopSettings
+
+METRICS = ("success_pct", "time_s", "net_velocity_mps", "goal_error_m", "final_error_m", "path_efficiency")
+HEADER = ["success %", "time to target s", "net velocity m/s", "goal error m", "final error m", "path efficiency"]
+TABLE3 = {  # methods.md, S0 Table 3
+    1: (100, 14.24, 0.62, 0.05, 0.25, 0.90),
+    2: (100, 12.68, 0.57, 0.05, 0.24, 0.88),
+    3: (100, 12.10, 0.60, 0.06, 0.25, 0.90),
+    4: (100, 12.85, 0.60, 0.06, 0.25, 0.89),
+    5: (100, 12.27, 0.57, 0.11, 0.15, 0.91),
+}
+HOUSE = (96, 44.91, 0.22, 0.12, 0.23, 0.69)  # Experiment 2
+MODES = ("idealised", "realistic")
+
+
+def targets(runs: int, seed: int) -> list[tuple[float, float]]:
+    """``runs`` targets spread evenly over the four quadrants of the −10…10 m square."""
+    rng = np.random.default_rng([seed, 0x50])
+    signs = [(1, 1), (-1, 1), (-1, -1), (1, -1)]
+    return [(signs[k % 4][0] * float(rng.uniform(1, 9.5)), signs[k % 4][1] * float(rng.uniform(1, 9.5)))
+            for k in range(runs)]
+
+
+def table3_run(config: int, mode: str, target: tuple[float, float], seed: int) -> dict[str, Any]:
+    """One homing: idealised (the paper's measurements, a kinematic robot) or realistic (the
+    emulator's XPLR-AOA with the fold and integer fields, RSSI through the calibration)."""
+    if mode == "idealised":
+        row = kinematic.home(target, *S0_PRESETS[config], seed=seed)
+    else:
+        scenario = load("s0-open", seed=seed, target=target, aoa_preset=config)
+        run = closed_loop.run(scenario, Config(), seed)
+        row = closed_loop.metrics(run, target)
+    return {"config": config, "mode": mode, "target": [round(v, 3) for v in target], **row}
+
+
+def table3_jobs(runs: int, seed: int) -> list[Job]:
+    jobs = []
+    for config in range(1, 6):
+        for mode in MODES:
+            for k, target in enumerate(targets(runs, seed)):
+                jobs.append(Job(len(jobs), "campaigns.s0:table3_run",
+                                {"config": config, "mode": mode, "target": target, "seed": seed * 100_000 + k}))
+    return jobs
+
+
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    ok = [r for r in rows if r["success"]]
+    return {"runs": len(rows), "success_pct": round(100 * len(ok) / len(rows), 1) if rows else None,
+            **{k: mean(ok, k) for k in METRICS[1:]}}
+
+
+def table3_report(rows: list[dict[str, Any]]) -> Report:
+    summary: dict[str, Any] = {}
+    lines = []
+    for config in range(1, 6):
+        lines.append([config, "paper", *TABLE3[config]])
+        for mode in MODES:
+            s = summarise([r for r in rows if r["config"] == config and r["mode"] == mode])
+            summary[f"{config}/{mode}"] = s
+            lines.append([config, f"ours, {mode} ({s['runs']} runs)", *(s[k] for k in METRICS)])
+    failures = [r for r in rows if not r["success"]]
+    md = table(["config", "source", *HEADER], lines)
+    if failures:
+        md += "\n\nFailed runs: " + "; ".join(f"config {r['config']} {r['mode']} target {r['target']} "
+                                               f"({r['final_error_m']} m after {r['time_s']} s)" for r in failures)
+
+    def plot(path):
+        fig, axes = figure(path, 3)
+        groups = [str(c) for c in range(1, 6)]
+        for ax, key, i, title in ((axes[0], "goal_error_m", 3, "goal error (m)"),
+                                  (axes[1], "final_error_m", 4, "final error (m)"),
+                                  (axes[2], "path_efficiency", 5, "path efficiency")):
+            grouped_bars(ax, groups, {"paper": [TABLE3[c][i] for c in range(1, 6)],
+                                      **{m: [summary[f"{c}/{m}"][key] for c in range(1, 6)] for m in MODES}}, title)
+            ax.set_xlabel("noise configuration")
+        axes[0].legend()
+        save(fig, path)
+
+    return Report({"configurations": summary, "failures": failures}, md, {"s0-table3.png": plot})
+
+
+HOUSE_CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=240.0))
+
+
+def house_run(seed: int) -> dict[str, Any]:
+    """Experiment 2: the four-room house, configuration 5, a random tag room per seed."""
+    scenario = load("s0-house", seed=seed)
+    target = scenario.world.targets[0].position
+    run = closed_loop.run(scenario, HOUSE_CONFIG, seed)
+    return {"seed": seed, "target": [round(v, 3) for v in target], **closed_loop.metrics(run, target)}
+
+
+def house_jobs(runs: int, seed: int) -> list[Job]:
+    return [Job(k, "campaigns.s0:house_run", {"seed": seed * 100_000 + k}) for k in range(runs)]
+
+
+def house_report(rows: list[dict[str, Any]]) -> Report:
+    s = summarise(rows)
+    md = table(["source", *HEADER], [["paper, Experiment 2 (80 runs)", *HOUSE],
+                                     [f"ours ({s['runs']} runs)", *(s[k] for k in METRICS)]])
+    failures = [r for r in rows if not r["success"]]
+    if failures:
+        md += "\n\nFailed runs: " + "; ".join(f"seed {r['seed']} target {r['target']} ({r['final_error_m']} m "
+                                               f"after {r['time_s']} s)" for r in failures)
+
+    def plot(path):
+        fig, axes = figure(path, 2)
+        ok = [r for r in rows if r["success"]]
+        axes[0].hist([r["time_s"] for r in ok], bins=20)
+        axes[0].axvline(HOUSE[1], color="k", ls="--", label="paper mean")
+        axes[0].set_title("time to target (s)")
+        axes[0].legend()
+        axes[1].hist([r["path_efficiency"] for r in ok], bins=20)
+        axes[1].axvline(HOUSE[5], color="k", ls="--", label="paper mean")
+        axes[1].set_title("path efficiency")
+        save(fig, path)
+
+    return Report({"summary": s, "failures": failures}, md, {"s0-house.png": plot})
+
+
+TABLE3_CAMPAIGN = Campaign(
+    "s0-table3", "S0 Table 3: 5 noise configurations x targets, idealised and realistic",
+    "targets per configuration (split evenly over the quadrants)", 40, table3_jobs, table3_report)
+HOUSE_CAMPAIGN = Campaign(
+    "s0-house", "S0 Experiment 2: four-room house, configuration 5, avoidance and A*",
+    "runs (a random tag room each)", 80, house_jobs, house_report)
