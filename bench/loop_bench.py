@@ -25,45 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
-from emulator.links import PipeEnd
+from campaigns.closed_loop import PipePort
 from emulator.runtime import Emulator
 from emulator.scenario import load
 from host.drivers.aoa import AoaDriver
 from host.demo import read_truth, start_emulator
 from host.drivers.base import BaseDriver
 from host.homing.loop import aoa_loop
-from host.ports import Chunk, HostPort
+from host.ports import HostPort
 
 TARGETS = [(6.0, 4.0), (-7.0, 3.0), (-5.0, -8.0), (8.0, -6.0), (3.0, 8.0), (-8.0, -2.0), (9.0, 1.0), (-2.0, 7.0)]
-
-
-class PipePort:
-    """A HostPort-shaped view of the emulator's in-process pipe (the bench wires both sides)."""
-
-    def __init__(self, name: str, end: PipeEnd) -> None:
-        self.name = self.spec = name
-        self.end = end
-        self.baud = 115200
-        self.taps: list = []
-        self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0, "disconnects": 0, "dropped_bytes": 0}
-
-    async def open(self) -> None:
-        self.counters["opens"] += 1
-
-    def set_baud(self, baud: int) -> None:
-        self.baud = baud
-
-    async def read(self) -> Chunk:
-        data = await self.end.read()
-        self.counters["bytes_in"] += len(data)
-        return Chunk(time.time(), data)
-
-    def write(self, data: bytes) -> None:
-        self.counters["bytes_out"] += len(data)
-        self.end.write(data)
-
-    async def close(self) -> None:
-        pass
 
 
 async def pty_run(seed: int, target: tuple[float, float]) -> dict:

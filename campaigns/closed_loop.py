@@ -7,7 +7,7 @@ import asyncio
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from emulator.links import PipeEnd
@@ -17,7 +17,7 @@ from host.drivers.aoa import AoaDriver
 from host.drivers.base import BaseDriver
 from host.drivers.rss import RssDriver
 from host.homing.config import Config
-from host.homing.loop import HomingLoop, Outcome, aoa_loop, dock_loop, rss_loop, trilat_loop
+from host.homing.loop import HomingLoop, Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from host.ports import Chunk
 
 
@@ -83,7 +83,7 @@ class Run:
         return r.x, r.y, r.theta
 
 
-def make_loop(scenario: Scenario, em: Emulator, config: Config) -> HomingLoop:
+def make_loop(scenario: Scenario, em: Emulator, config: Config, runlog: RunLog | None = None) -> HomingLoop:
     """The host side a scenario's devices call for, wired to the emulator's pipes."""
     def port(name: str) -> PipePort:
         return PipePort(name, em.device(name).link.host)
@@ -91,24 +91,24 @@ def make_loop(scenario: Scenario, em: Emulator, config: Config) -> HomingLoop:
     base = BaseDriver(port("base"))
     names = {d.name: d.type for d in scenario.devices}
     if "dock_aoa" in names:
-        return dock_loop(base, AoaDriver(port("dock_aoa")), config)
+        return dock_loop(base, AoaDriver(port("dock_aoa")), config, runlog)
     if "aoa" in names:
-        return aoa_loop(base, AoaDriver(port("aoa")), config)
+        return aoa_loop(base, AoaDriver(port("aoa")), config, runlog)
     if "rss" in names:
-        return rss_loop(base, RssDriver(port("rss")), config)
+        return rss_loop(base, RssDriver(port("rss")), config, runlog)
     if "ble" in names:
-        return trilat_loop(base, RssDriver(port("ble")), config)
+        return trilat_loop(base, RssDriver(port("ble")), config, runlog)
     raise ValueError(f"scenario {scenario.name} has no device a homing loop can use: {sorted(names)}")
 
 
-async def _run(scenario: Scenario, config: Config, seed: int, timeout_s: float) -> Run:
+async def _run(scenario: Scenario, config: Config, seed: int, timeout_s: float, runlog: RunLog | None) -> Run:
     trajectory = Trajectory()
     em = Emulator(scenario, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=trajectory)  # type: ignore[arg-type]
     await em.start()
     world = asyncio.create_task(em.run())
     wall0 = time.perf_counter()
     try:
-        outcome = await asyncio.wait_for(make_loop(scenario, em, config).run(), timeout_s)
+        outcome = await asyncio.wait_for(make_loop(scenario, em, config, runlog).run(), timeout_s)
     finally:
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)
@@ -117,9 +117,13 @@ async def _run(scenario: Scenario, config: Config, seed: int, timeout_s: float) 
     return Run(outcome, trajectory, em, time.perf_counter() - wall0)
 
 
-def run(scenario: Scenario, config: Config, seed: int, timeout_s: float = 600.0) -> Run:
-    """Run one homing to its end (arrival or the config's time limit)."""
-    return asyncio.run(_run(scenario, config, seed, timeout_s))
+def run(scenario: Scenario, config: Config, seed: int, timeout_s: float = 600.0, runlog: RunLog | None = None) -> Run:
+    """Run one homing to its end (arrival or the config's time limit).
+
+    In lockstep wall time means nothing (the world waits for the host), so the loop's wall-clock
+    check on the base is switched off: a loaded machine must not change a run's result."""
+    config = replace(config, loop=replace(config.loop, odometry_wall_timeout_s=math.inf))
+    return asyncio.run(_run(scenario, config, seed, timeout_s, runlog))
 
 
 def metrics(run_: Run, target: tuple[float, float]) -> dict[str, Any]:

@@ -174,10 +174,10 @@ class HomingLoop:
         odometry_stale = False
         while True:
             try:
-                item = await asyncio.wait_for(self.inputs.get(), cfg.stale_timeout_s)
+                item = await asyncio.wait_for(self.inputs.get(), min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s))
             except asyncio.TimeoutError:
                 item = None
-            if not isinstance(item, Pose2D) and time.monotonic() - last_odometry_wall > cfg.stale_timeout_s:
+            if not isinstance(item, Pose2D) and time.monotonic() - last_odometry_wall > cfg.odometry_wall_timeout_s:
                 if not odometry_stale:  # the base's own clock is gone: wall time is all there is
                     odometry_stale = True
                     log.warning("odometry stale: stopping the robot (its watchdog stops it too)")

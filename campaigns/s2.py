@@ -1,0 +1,128 @@
+"""S2 (Sensors 2018): the four-dish RSS homing in scenarios A–E, preliminary (rule-based) and
+full (occupancy grid + A*) motion, and the particle filter's error against the instantaneous
+fixes it filters.
+
+Success: arrived and within 1 m of the emitter (S2 stops at an estimated 0.5 m).
+Filter error: over a run, every instantaneous fix (dish powers -> bearing and range, placed
+from the robot's odometry pose) and every control step's particle-filter estimate are compared
+with the true emitter; each run's median, averaged over runs, is reported.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from campaigns import closed_loop
+from campaigns.report import figure, grouped_bars, mean, save, table
+from campaigns.runner import Campaign, Job, Report
+from emulator.scenario import load
+from host.homing.config import Config, LoopSettings
+from host.homing.loop import RunLog
+
+SCENARIOS = "abcde"
+SYSTEMS = ("preliminary", "full")
+PAPER_TIME_S = {"a": (89, 90), "b": (126, 230), "c": (252, 225), "d": (391, 222), "e": (None, 455)}
+"""S2's mean times (s), preliminary / full; E failed with the preliminary system."""
+PAPER_DESCRIPTION = {"a": "straight 4 m", "b": "blocked", "c": "partly blocked right angle",
+                     "d": "blocked right angle", "e": "U-turn"}
+MAX_TIME_S = 600.0
+
+
+def filter_errors(log_text: str, target: tuple[float, float]) -> tuple[float | None, float | None]:
+    """Median error (m) of the instantaneous fixes and of the particle filter's estimates over a
+    run (medians: behind a wall a fix's range can be off by a hundred metres)."""
+    instant, filtered = [], []
+    pose = None
+    for line in log_text.splitlines():
+        e = json.loads(line)
+        if e["kind"] == "estimate":
+            pose = e["pose"]
+            if e.get("goal") is not None:
+                filtered.append(math.dist(e["goal"], target))
+        elif e["kind"] == "measurement" and pose is not None and "range" in e:
+            bearing = pose[2] + e["theta"]
+            fix = (pose[0] + e["range"] * math.cos(bearing), pose[1] + e["range"] * math.sin(bearing))
+            instant.append(math.dist(fix, target))
+    return (float(np.median(instant)) if instant else None, float(np.median(filtered)) if filtered else None)
+
+
+def run(scenario: str, system: str, seed: int) -> dict[str, Any]:
+    config = replace(Config(), s2=replace(Config().s2, motion=system, seed=seed),
+                     loop=replace(LoopSettings(), max_time_s=MAX_TIME_S))
+    sc = load(f"s2-{scenario}", seed=seed)
+    target = sc.world.targets[0].position
+    log = io.StringIO()
+    result = closed_loop.run(sc, config, seed, timeout_s=3600, runlog=RunLog(log))
+    instant, filtered = filter_errors(log.getvalue(), target)
+    x, y, _ = result.robot
+    final = math.dist((x, y), target)
+    return {"scenario": scenario, "system": system, "seed": seed, "arrived": result.outcome.arrived,
+            "success": result.outcome.arrived and final < 1.0, "time_s": round(result.outcome.robot_time_s, 2),
+            "final_error_m": round(final, 3), "path_m": round(result.trajectory.length_m, 2),
+            "instant_error_m": None if instant is None else round(instant, 3),
+            "filtered_error_m": None if filtered is None else round(filtered, 3)}
+
+
+def jobs(runs: int, seed: int) -> list[Job]:
+    out = []
+    for scenario in SCENARIOS:
+        for system in SYSTEMS:
+            for k in range(runs):
+                out.append(Job(len(out), "campaigns.s2:run", {"scenario": scenario, "system": system,
+                                                              "seed": seed * 100_000 + k}))
+    return out
+
+
+def report(rows: list[dict[str, Any]]) -> Report:
+    summary: dict[str, Any] = {}
+    lines = []
+    for sc in SCENARIOS:
+        for i, system in enumerate(SYSTEMS):
+            rs = [r for r in rows if r["scenario"] == sc and r["system"] == system]
+            ok = [r for r in rs if r["success"]]
+            s = {"runs": len(rs), "success": len(ok), "time_s": mean(ok, "time_s", 1),
+                 "final_error_m": mean(ok, "final_error_m"), "instant_error_m": mean(rs, "instant_error_m"),
+                 "filtered_error_m": mean(rs, "filtered_error_m")}
+            summary[f"{sc}/{system}"] = s
+            paper = PAPER_TIME_S[sc][i]
+            lines.append([f"{sc.upper()} {PAPER_DESCRIPTION[sc]}", system, "failed" if paper is None else paper,
+                          f"{s['success']}/{s['runs']}", s["time_s"], s["final_error_m"],
+                          s["instant_error_m"], s["filtered_error_m"]])
+    inst = mean(rows, "instant_error_m")
+    filt = mean(rows, "filtered_error_m")
+    summary["instant_error_m"], summary["filtered_error_m"] = inst, filt
+    summary["filter_reduction_pct"] = round(100 * (1 - filt / inst), 1) if inst and filt else None
+    md = table(["scenario", "system", "paper time s", "ours success", "ours time s", "final error m",
+                "instantaneous fix error m (median)", "particle filter error m (median)"], lines)
+    md += (f"\n\nAveraged over all runs, the particle filter's median error is {filt} m against {inst} m for "
+           f"the instantaneous fixes: {summary['filter_reduction_pct']} % lower (S2: up to 50 % lower).")
+    failures = [r for r in rows if not r["success"]]
+    if failures:
+        md += "\n\nFailed runs: " + "; ".join(f"{r['scenario'].upper()} {r['system']} seed {r['seed']} "
+                                               f"({r['final_error_m']} m after {r['time_s']} s)" for r in failures)
+
+    def plot(path):
+        fig, axes = figure(path, 2)
+        groups = [s.upper() for s in SCENARIOS]
+        grouped_bars(axes[0], groups, {
+            "paper prelim.": [PAPER_TIME_S[s][0] for s in SCENARIOS], "paper full": [PAPER_TIME_S[s][1] for s in SCENARIOS],
+            **{f"ours {m}": [summary[f"{s}/{m}"]["time_s"] for s in SCENARIOS] for m in SYSTEMS}}, "time to target (s)")
+        axes[0].legend(fontsize=7)
+        grouped_bars(axes[1], groups, {
+            "instantaneous": [mean([r for r in rows if r["scenario"] == s], "instant_error_m") for s in SCENARIOS],
+            "particle filter": [mean([r for r in rows if r["scenario"] == s], "filtered_error_m") for s in SCENARIOS]},
+            "median estimate error (m)")
+        axes[1].legend()
+        save(fig, path)
+
+    return Report(summary, md, {"s2-scenarios.png": plot})
+
+
+CAMPAIGN = Campaign("s2-scenarios", "S2: scenarios A-E, preliminary and full system; particle filter vs instantaneous fixes",
+                    "runs per scenario and system", 3, jobs, report)

@@ -1,0 +1,107 @@
+"""Campaigns: the same numbers inline, on processes and on Dask; each campaign's report
+reduces real runs (small --runs; the full campaigns live in docs/RESULTS.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from campaigns import kinematic, s1, s3, s4
+from campaigns.cli import REGISTRY, load
+from campaigns.runner import Job, execute, run_jobs
+from host.cli import main
+from host.homing.s0_aoa import S0Params
+
+
+def test_inline_process_and_dask_give_identical_results() -> None:
+    distributed = pytest.importorskip("distributed")
+    jobs = load("s0-table3").jobs(2, 7)[:6]  # configuration 1: two idealised, two realistic, …
+
+    def results(rows):  # everything but the wall time
+        return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
+
+    inline = results(run_jobs(jobs, workers=1))
+    pooled = results(run_jobs(jobs, workers=2))
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        on_dask = results(run_jobs(jobs, dask_address=cluster.scheduler_address))
+    assert {r["mode"] for r in inline} == {"idealised", "realistic"}
+    assert inline == pooled == on_dask
+    assert [r["index"] for r in inline] == list(range(6))
+
+
+def test_a_job_failure_is_raised_not_swallowed() -> None:
+    with pytest.raises(KeyError):
+        run_jobs([Job(0, "campaigns.s0:table3_run", {"config": 9, "mode": "idealised", "target": (1, 1), "seed": 0})],
+                 workers=1)
+
+
+def test_unreachable_dask_scheduler_is_a_clear_error(tmp_path, capsys) -> None:
+    pytest.importorskip("distributed")
+    code = main(["campaign", "s3-arena", "--runs", "1", "--dask", "tcp://127.0.0.1:9", "--out", str(tmp_path), "--quiet"])
+    assert code == 2
+    assert "no Dask scheduler" in capsys.readouterr().err
+
+
+def test_every_campaign_is_registered_and_loads() -> None:
+    for name in REGISTRY:
+        campaign = load(name)
+        assert campaign.name == name and campaign.default_runs > 0
+        assert campaign.jobs(1, 0)
+
+
+def test_idealised_s0_homes_and_reports_table3_metrics() -> None:
+    row = kinematic.home((6.0, -4.0), 10.0, 0.2, 0.0, seed=3)
+    assert row["success"] and row["final_error_m"] < 0.5
+    assert row["net_velocity_mps"] == pytest.approx(math.hypot(6, 4) / row["time_s"], rel=0.1)
+    assert 0.9 < row["path_efficiency"] <= 1.0
+
+
+def test_a_single_noisy_reading_does_not_end_a_run() -> None:
+    """Configuration 5's ±1 m can put the first vector goal under the robot: no arrival on it."""
+    for seed in range(20):
+        row = kinematic.home((0.06, -1.14), 20.0, 0.2, 1.0, seed=seed)
+        assert row["time_s"] > 0.5
+
+
+def test_paper_gain_is_reproducible_with_the_unfolded_sensor() -> None:
+    row = kinematic.home((-5.0, 5.0), 5.0, 0.05, 0.0, seed=1, params=S0Params(folded=False, k=0.8, tau=5.0,
+                                                                              close_fusion_m=0.0))
+    assert row["success"]
+
+
+def test_s1_trial_docks_and_alignment_fixes_the_heading() -> None:
+    start = (0.9, 0.6, math.pi / 2 + 0.25)
+    plain = s1.trial("paper", start, seed=5)
+    aligned = s1.trial("aligned", start, seed=5)
+    assert plain["docked"] and aligned["docked"]
+    assert aligned["final_error_m"] < 0.25 and aligned["heading_error_deg"] < 5.0
+
+
+def test_s3_filters_reduce_the_spread_and_kalman_most() -> None:
+    row = s3.filters_run(seed=1)
+    raw, kal, med = np.array(row["raw"]), np.array(row["kalman"]), np.array(row["median"])
+    assert np.all(kal[1:] < raw[1:] / 2) and np.all(kal[1:] < med[1:])
+    assert np.allclose(raw[1:], s3.TABLE1_STD[1:], rtol=0.25)  # the simulation follows Table I
+
+
+def test_s4_our_filter_matches_filterpy_on_the_same_data() -> None:
+    pytest.importorskip("filterpy")
+    z, u, rssi, beacons = s4.flights(1, seed=2)
+    ours, _, _ = s4.run_filter("ekf", z, u, rssi)
+    theirs, _, _ = s4.filterpy_ekf(z, u, rssi, 3)
+    assert np.allclose(ours[:3], theirs, atol=1e-9)
+    assert np.median(np.linalg.norm(ours - beacons, axis=1)) < 1.0
+
+
+def test_cli_writes_json_markdown_and_plot(tmp_path, capsys) -> None:
+    code = main(["campaign", "s3-arena", "--runs", "3", "--workers", "1", "--out", str(tmp_path), "--json", "--quiet"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["command"] == "rfhoming campaign s3-arena --runs 3 --seed 0"
+    saved = json.loads((tmp_path / "s3-arena.json").read_text())
+    assert len(saved["rows"]) == 1 + 9 * 3
+    assert "| trilateration |" in (tmp_path / "s3-arena.md").read_text()
+    assert (tmp_path / "s3-arena.png").stat().st_size > 1000
