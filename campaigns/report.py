@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,14 @@ def table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
     return "\n".join(lines)
+
+
+def failed_runs(failures: list[dict[str, Any]], describe: Callable[[dict[str, Any]], str]) -> str:
+    """A Markdown paragraph naming each failed run, or nothing when none failed."""
+    if not failures:
+        return ""
+    return "\n\nFailed runs: " + "; ".join(f"{describe(r)} ({r['final_error_m']} m after {r['time_s']} s)"
+                                            for r in failures)
 
 
 def figure(path: Path, panels: int, width: float = 4.0):

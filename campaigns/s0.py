@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from campaigns import closed_loop, kinematic
-from campaigns.report import figure, grouped_bars, mean, save, table
+from campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
 from campaigns.runner import Campaign, Job, Report
 from emulator.radio import S0_PRESETS
 from emulator.scenario import load
@@ -74,9 +74,7 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
             lines.append([config, f"ours, {mode} ({s['runs']} runs)", *(s[k] for k in METRICS)])
     failures = [r for r in rows if not r["success"]]
     md = table(["config", "source", *HEADER], lines)
-    if failures:
-        md += "\n\nFailed runs: " + "; ".join(f"config {r['config']} {r['mode']} target {r['target']} "
-                                               f"({r['final_error_m']} m after {r['time_s']} s)" for r in failures)
+    md += failed_runs(failures, lambda r: f"config {r['config']} {r['mode']} target {r['target']}")
 
     def plot(path):
         fig, axes = figure(path, 3)
@@ -113,9 +111,7 @@ def house_report(rows: list[dict[str, Any]]) -> Report:
     md = table(["source", *HEADER], [["paper, Experiment 2 (80 runs)", *HOUSE],
                                      [f"ours ({s['runs']} runs)", *(s[k] for k in METRICS)]])
     failures = [r for r in rows if not r["success"]]
-    if failures:
-        md += "\n\nFailed runs: " + "; ".join(f"seed {r['seed']} target {r['target']} ({r['final_error_m']} m "
-                                               f"after {r['time_s']} s)" for r in failures)
+    md += failed_runs(failures, lambda r: f"seed {r['seed']} target {r['target']}")
 
     def plot(path):
         fig, axes = figure(path, 2)

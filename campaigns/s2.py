@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from campaigns import closed_loop
-from campaigns.report import figure, grouped_bars, mean, save, table
+from campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
 from campaigns.runner import Campaign, Job, Report
 from emulator.scenario import load
 from host.homing.config import Config, LoopSettings
@@ -103,9 +103,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
     md += (f"\n\nAveraged over all runs, the particle filter's median error is {filt} m against {inst} m for "
            f"the instantaneous fixes: {summary['filter_reduction_pct']} % lower (S2: up to 50 % lower).")
     failures = [r for r in rows if not r["success"]]
-    if failures:
-        md += "\n\nFailed runs: " + "; ".join(f"{r['scenario'].upper()} {r['system']} seed {r['seed']} "
-                                               f"({r['final_error_m']} m after {r['time_s']} s)" for r in failures)
+    md += failed_runs(failures, lambda r: f"{r['scenario'].upper()} {r['system']} seed {r['seed']}")
 
     def plot(path):
         fig, axes = figure(path, 2)
