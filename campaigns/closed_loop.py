@@ -113,7 +113,7 @@ async def _run(scenario: Scenario, config: Config, seed: int, timeout_s: float, 
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)
         await em.close()
-    em._write_truth()  # the final pose
+    em.write_truth()  # the final pose
     return Run(outcome, trajectory, em, time.perf_counter() - wall0)
 
 

@@ -13,11 +13,13 @@ from typing import Any
 
 import numpy as np
 
+from emulator.world import Pose as WorldPose
+from firmware_py.robot_base import BaseLimits
 from host.estimation.fixed import wrap_rad
 from host.homing.s0_aoa import S0Homing, S0Params
 from host.homing.types import Pose
 
-V_MAX, W_MAX, A_MAX, ALPHA_MAX = 0.7, 1.5, 1.0, 4.0  # firmware_py.robot_base.BaseLimits
+LIMITS = BaseLimits()  # the emulated base's speed and acceleration limits
 READING_S, CONTROL_S = 0.02, 0.1  # the tag's 50 Hz, the loop's 10 Hz
 
 
@@ -30,7 +32,8 @@ def home(target: tuple[float, float], angle_deg: float, distance_rel: float, dis
     """One idealised homing from (0, 0) facing +x; S0 Table 3's metrics."""
     rng = np.random.default_rng(seed)
     s0 = S0Homing(params or replace(S0Params(), folded=False))
-    x = y = theta = v = w = 0.0
+    robot = WorldPose(0.0, 0.0, 0.0)
+    v = w = 0.0
     cmd_v = cmd_w = 0.0
     travelled, t = 0.0, 0.0
     per_control = round(CONTROL_S / READING_S)
@@ -38,9 +41,9 @@ def home(target: tuple[float, float], angle_deg: float, distance_rel: float, dis
     arrived = False
     for step in range(int(max_time_s / READING_S)):
         t = step * READING_S
-        pose = Pose(x, y, theta)
-        d = math.hypot(target[0] - x, target[1] - y)
-        bearing = math.atan2(target[1] - y, target[0] - x) - theta
+        pose = Pose(robot.x, robot.y, robot.theta)
+        d = math.hypot(target[0] - robot.x, target[1] - robot.y)
+        bearing = math.atan2(target[1] - robot.y, target[0] - robot.x) - robot.theta
         theta_s = wrap_rad(bearing + math.radians(rng.uniform(-angle_deg, angle_deg)))
         noisy_d = d * (1 + rng.uniform(-distance_rel, distance_rel)) + rng.uniform(-distance_abs_m, distance_abs_m)
         s0.on_reading(t, pose, theta_s, max(noisy_d, 0.05))
@@ -50,22 +53,15 @@ def home(target: tuple[float, float], angle_deg: float, distance_rel: float, dis
             if decision.arrived:
                 arrived = True
                 break
-            cmd_v = max(-V_MAX, min(V_MAX, decision.v))
-            cmd_w = max(-W_MAX, min(W_MAX, decision.w))
-        v = _toward(v, cmd_v, A_MAX * READING_S)
-        w = _toward(w, cmd_w, ALPHA_MAX * READING_S)
-        x0, y0 = x, y
-        if abs(w) < 1e-9:
-            x += v * READING_S * math.cos(theta)
-            y += v * READING_S * math.sin(theta)
-        else:
-            th2 = theta + w * READING_S
-            x += v / w * (math.sin(th2) - math.sin(theta))
-            y -= v / w * (math.cos(th2) - math.cos(theta))
-            theta = wrap_rad(th2)
-        travelled += math.hypot(x - x0, y - y0)
-    straight = math.hypot(x, y)
-    final = math.dist((x, y), target)
+            cmd_v = max(-LIMITS.v_max, min(LIMITS.v_max, decision.v))
+            cmd_w = max(-LIMITS.w_max, min(LIMITS.w_max, decision.w))
+        v = _toward(v, cmd_v, LIMITS.a_max * READING_S)
+        w = _toward(w, cmd_w, LIMITS.alpha_max * READING_S)
+        x0, y0 = robot.x, robot.y
+        robot.advance(v, w, READING_S)
+        travelled += math.hypot(robot.x - x0, robot.y - y0)
+    straight = math.hypot(robot.x, robot.y)
+    final = math.dist((robot.x, robot.y), target)
     return {"arrived": arrived, "success": arrived and final < 1.0, "time_s": round(t, 3),
             "net_velocity_mps": round(straight / t, 4) if t > 0 else None,
             "goal_error_m": None if goal is None else round(math.dist(goal, target), 4),

@@ -111,7 +111,7 @@ class Emulator:
             header = {"scenario": self.scenario.name, "bounds": list(self.world.bounds),
                       "obstacles": [o.polygon for o in self.world.obstacles]}
             self.truth.write(json.dumps(header) + "\n")
-        self._write_truth()
+        self.write_truth()
         return self.endpoints()
 
     async def close(self) -> None:
@@ -133,7 +133,7 @@ class Emulator:
             d.pump(t1)
         self.counters["steps"] += 1
         if t1 + 1e-9 >= self._next_truth:
-            self._write_truth()
+            self.write_truth()
 
     async def _timed_faults(self) -> None:
         while self._replugs and self._replugs[0][0] <= self.t:
@@ -153,7 +153,8 @@ class Emulator:
                 elif fault.kind == "baud":
                     d.forced_baud = int(fault.params["rate"])
 
-    def _write_truth(self) -> None:
+    def write_truth(self) -> None:
+        """One truth line now (also called by in-process users for the final pose)."""
         if self.truth is None:
             return
         r = self.world.robot

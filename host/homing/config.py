@@ -199,6 +199,10 @@ w_max = 0.52
 max_step_m = 0.4         # cap on one forward step
 heading_tolerance_deg = 3.0
 position_tolerance_m = 0.03
+align = true             # at the end, turn onto the station's axis fitted from the readings
+standoff_m = 0.3         # where rssi_arrival_dbm is received (the docked position)
+path_n = 2.0             # path-loss exponent for the fit's RSSI ranges
+align_min_spread_m = 0.5 # the fit needs this much movement along the approach
 
 [trilat]                 # S3: go to a goal, localised on BLE beacons at known places
 goal = [0.0, 0.0]        # where to go, in the beacons' frame (m)
