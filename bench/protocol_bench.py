@@ -7,6 +7,7 @@ interpreted (COBS decode + construct parse with its CRC check).
     python bench/protocol_bench.py            # table
     python bench/protocol_bench.py --json     # one JSON object
     python bench/protocol_bench.py --mb 2     # quicker, smaller streams
+    python bench/protocol_bench.py --pure     # the pure-Python decoders, C accelerator built or not
 
 Needs the bench extra: pip install -e '.[bench]'
 """
@@ -25,6 +26,7 @@ from typing import Any
 
 from cobs import cobs
 
+from protocol import accel
 from protocol.frames import (
     AdvReport,
     AntennaReading,
@@ -88,14 +90,14 @@ def nmea_stream(target_bytes: int) -> tuple[bytes, int]:
     return line * reps, reps
 
 
-def bench_uudf(mb: float, runs: int, nmea_mb: float) -> dict[str, Any]:
+def bench_uudf(mb: float, runs: int, nmea_mb: float, pure: bool) -> dict[str, Any]:
     from pynmeagps import NMEAReader
 
     stream, n = uudf_stream(int(mb * 1e6), random.Random(1))
     pieces = chunks(stream)
 
     def ours() -> None:
-        d = UConnectDecoder()
+        d = UConnectDecoder(pure=pure)
         for p in pieces:
             d.feed(p)
         assert d.counters["angle"] == n, d.counters
@@ -140,7 +142,7 @@ def sample_records(rng: random.Random) -> dict[str, Callable[[int], Any]]:
     }
 
 
-def bench_records(mb: float, runs: int, reference_records: int) -> dict[str, Any]:
+def bench_records(mb: float, runs: int, reference_records: int, pure: bool) -> dict[str, Any]:
     rng = random.Random(2)
     results: dict[str, Any] = {}
     for kind, make in sample_records(rng).items():
@@ -152,7 +154,7 @@ def bench_records(mb: float, runs: int, reference_records: int) -> dict[str, Any
         pieces = chunks(stream)
 
         def ours() -> None:
-            d = FrameDecoder()
+            d = FrameDecoder(pure=pure)
             for p in pieces:
                 d.feed(p)
             assert d.counters[kind] == n, d.counters
@@ -182,6 +184,7 @@ def main() -> int:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--mb", type=float, default=10.0, help="stream size per case, MB (default 10)")
     parser.add_argument("--runs", type=int, default=5, help="alternating rounds per case, best kept (default 5)")
+    parser.add_argument("--pure", action="store_true", help="measure the pure-Python decoders even where the C accelerator is built")
     args = parser.parse_args()
     try:
         import pynmeagps  # noqa: F401
@@ -190,17 +193,20 @@ def main() -> int:
         return 2
     if not args.json:
         print(f"decoding {args.mb:g} MB per case in {CHUNK}-byte chunks, best of {args.runs} ...", file=sys.stderr)
+    implementation = "pure Python (--pure)" if args.pure else accel.describe()
     result = {
         "python": platform.python_version(),
         "machine": platform.machine(),
         "chunk_bytes": CHUNK,
-        "uudf": bench_uudf(args.mb, args.runs, nmea_mb=min(args.mb, 1.0)),
-        "records": bench_records(args.mb, args.runs, reference_records=2000),
+        "implementation": implementation,
+        "uudf": bench_uudf(args.mb, args.runs, nmea_mb=min(args.mb, 1.0), pure=args.pure),
+        "records": bench_records(args.mb, args.runs, reference_records=2000, pure=args.pure),
     }
     if args.json:
         print(json.dumps(result, indent=1))
         return 0
     u = result["uudf"]
+    print(f"decoders: {implementation}")
     print(f"+UUDF  {u['us_per_line']:.2f} us/line  {u['lines_per_s']:,.0f} lines/s  {u['mb_per_s']:.1f} MB/s  "
           f"(pynmeagps {u['pynmeagps_us_per_line']:.1f} us/line: {u['speedup_vs_pynmeagps']:.1f}x)")
     print(f"{'record':<17}{'bytes':>6}{'us/rec':>8}{'rec/s':>11}{'MB/s':>7}{'construct us':>14}{'speedup':>9}")

@@ -4,7 +4,8 @@
 A zero byte ends every frame, so garbage costs at most the frame it touches and the next
 intact frame is never lost. Every rejected frame is a :class:`~protocol.drop.Drop`, counted
 by reason; a record is returned only after COBS, length, CRC, version, type, body length and
-field checks all pass.
+field checks all pass. Where the C accelerator is built (:mod:`protocol.accel`), its
+``scan_frames`` splits the chunk and checks COBS and CRC; the rest happens here either way.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 
 from cobs import cobs
 
+from protocol.accel import ACCEL
 from protocol.drop import Drop
 from protocol.frames.fast import CRC_STRUCT, DECODERS, ENCODERS, HEADER_SIZE, HEADER_STRUCT
 from protocol.frames.records import MAX_INNER, RECORD_TYPES, VERSION, crc16
@@ -35,14 +37,19 @@ def _ed_ok(ed: int) -> bool:
     return ed <= ED_MAX or ed == ED_INVALID
 
 
+def _antennas_problem(antennas: Any) -> str | None:
+    for ed, _lqi, _dt in antennas:
+        if ed > ED_MAX and ed != ED_INVALID:
+            return f"ed {ed} not in 0..84 or 255"
+    return None
+
+
 VALIDATORS: dict[int, Callable[[Any], str | None]] = {
     0x02: lambda r: (
         f"antenna {r.antenna} not in 0..3" if r.antenna > 3
         else None if _ed_ok(r.ed) else f"ed {r.ed} not in 0..84 or 255"
     ),
-    0x03: lambda r: next(
-        (f"ed {a.ed} not in 0..84 or 255" for a in r.antennas if not _ed_ok(a.ed)), None
-    ),
+    0x03: lambda r: _antennas_problem(r.antennas),
     0x20: lambda r: (
         None if -THETA_MAX_URAD <= r.theta_urad <= THETA_MAX_URAD
         else f"theta_urad {r.theta_urad} outside ±π·10⁶"
@@ -69,6 +76,45 @@ def encode_frame(record: Any) -> bytes:
     return b"\0" + cobs.encode(encode_inner(record)) + b"\0"
 
 
+def _decode_frame(frame: bytes) -> Any:
+    """One COBS frame (no zeros) -> record or Drop: the pure-Python path, and the C path's
+    fallback for the frames it hands back."""
+    if len(frame) > MAX_ENCODED:
+        return Drop("oversize", f"frame longer than {MAX_INNER} bytes", frame[:64])
+    try:
+        inner = cobs.decode(frame)
+    except cobs.DecodeError as exc:
+        return Drop("cobs", str(exc), frame)
+    end = len(inner) - 2
+    if end < HEADER_SIZE:
+        return Drop("short", f"{len(inner)} bytes, a frame has at least {MIN_INNER}", frame)
+    if CRC_STRUCT.unpack_from(inner, end)[0] != crc16(inner[:end]):
+        return Drop("crc", "CRC-16 mismatch", frame)
+    return _decode_inner(inner)
+
+
+def _decode_inner(inner: bytes) -> Any:
+    """The checks after COBS and CRC. A drop from here on carries the decoded inner frame
+    (header | body | crc), which says more than its COBS encoding."""
+    end = len(inner) - 2
+    version, code, node, seq, t_us = HEADER_STRUCT.unpack_from(inner)
+    if version != VERSION:
+        return Drop("version", f"version {version}, expected {VERSION}", inner)
+    decode = DECODERS.get(code)
+    if decode is None:
+        return Drop("type", f"unknown record type 0x{code:02X}", inner)
+    record = decode(inner, end, node, seq, t_us)
+    if record is None:
+        kind = RECORD_TYPES[code].kind
+        return Drop("length", f"{kind} body length {end - HEADER_SIZE} does not fit", inner)
+    check = VALIDATORS.get(code)
+    if check is not None:
+        problem = check(record)
+        if problem is not None:
+            return Drop("field", problem, inner)
+    return record
+
+
 class FrameDecoder:
     """Incremental decoder: ``feed(bytes) -> list[record | Drop]``, bounded memory.
 
@@ -76,13 +122,30 @@ class FrameDecoder:
     ``short``, ``crc``, ``version``, ``type``, ``length``, ``field``, ``oversize``.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, *, pure: bool = False) -> None:
+        """``pure=True`` keeps to the Python path even where the C accelerator is built."""
         self._rest = b""
         self._discarding = False
+        self._scan = None if pure or ACCEL is None else ACCEL.scan_frames
         self.counters: Counter[str] = Counter()
 
     def feed(self, data: bytes) -> list[Any]:
         """Decode every frame that ``data`` completes; keep the unfinished one."""
+        if self._scan is None or self._discarding:
+            return self._feed_python(data)
+        scanned = self._scan(self._rest, data, MAX_ENCODED)
+        if scanned is None:  # the unfinished frame grows past MAX_ENCODED
+            return self._feed_python(data)
+        frames, self._rest = scanned
+        if not frames:
+            return frames
+        # inner bytes passed COBS and CRC in C; a 1-tuple is a raw frame that did not
+        inner, raw = _decode_inner, _decode_frame
+        out = [inner(f) if f.__class__ is bytes else raw(f[0]) for f in frames]
+        self._count(out)
+        return out
+
+    def _feed_python(self, data: bytes) -> list[Any]:
         if self._discarding:
             zero = data.find(b"\0")
             if zero < 0:
@@ -90,17 +153,17 @@ class FrameDecoder:
             data, self._discarding = data[zero:], False
         parts = (self._rest + data).split(b"\0") if self._rest else data.split(b"\0")
         self._rest = parts.pop()
-        out: list[Any] = []
         if len(self._rest) > MAX_ENCODED:
             parts.append(self._rest)
             self._rest, self._discarding = b"", True
-        counters = self.counters
-        for frame in parts:
-            if frame:
-                item = self._decode(frame)
-                out.append(item)
-                counters["drop." + item.reason if item.kind == "drop" else item.kind] += 1
+        out = [_decode_frame(frame) for frame in parts if frame]
+        self._count(out)
         return out
+
+    def _count(self, items: list[Any]) -> None:
+        counters = self.counters
+        for item in items:
+            counters["drop." + item.reason if item.kind == "drop" else item.kind] += 1
 
     def flush(self) -> list[Any]:
         """End of input: an unterminated tail is a torn frame."""
@@ -109,33 +172,3 @@ class FrameDecoder:
             return []
         self.counters["drop.torn"] += 1
         return [Drop("torn", "input ended inside a frame", rest[:64])]
-
-    @staticmethod
-    def _decode(frame: bytes) -> Any:
-        if len(frame) > MAX_ENCODED:
-            return Drop("oversize", f"frame longer than {MAX_INNER} bytes", frame[:64])
-        try:
-            inner = cobs.decode(frame)
-        except cobs.DecodeError as exc:
-            return Drop("cobs", str(exc), frame)
-        end = len(inner) - 2
-        if end < HEADER_SIZE:
-            return Drop("short", f"{len(inner)} bytes, a frame has at least {MIN_INNER}", frame)
-        if CRC_STRUCT.unpack_from(inner, end)[0] != crc16(inner[:end]):
-            return Drop("crc", "CRC-16 mismatch", frame)
-        version, code, node, seq, t_us = HEADER_STRUCT.unpack_from(inner)
-        if version != VERSION:
-            return Drop("version", f"version {version}, expected {VERSION}", frame)
-        decode = DECODERS.get(code)
-        if decode is None:
-            return Drop("type", f"unknown record type 0x{code:02X}", frame)
-        record = decode(inner, end, node, seq, t_us)
-        if record is None:
-            kind = RECORD_TYPES[code].kind
-            return Drop("length", f"{kind} body length {end - HEADER_SIZE} does not fit", frame)
-        check = VALIDATORS.get(code)
-        if check is not None:
-            problem = check(record)
-            if problem is not None:
-                return Drop("field", problem, frame)
-        return record

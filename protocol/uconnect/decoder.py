@@ -10,13 +10,16 @@ reason -- never a half-parsed event.
 The ``+UUDF`` hot path splits on quotes and commas and converts the small integers with
 dictionary look-ups that are also the range checks (a value ``%d`` would never print, such as
 ``+5`` or ``020``, is not in the table and is rejected). Anything the fast path refuses goes
-to :func:`parse_angle_event`, the strict quote-aware parser that also says why.
+to :func:`parse_angle_event`, the strict quote-aware parser that also says why. Where the C
+accelerator is built (:mod:`protocol.accel`), its ``scan_uudf`` does the splitting and the
+common ``+UUDF`` lines and hands every other line back here as bytes.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 
+from protocol.accel import ACCEL
 from protocol.uconnect.items import (
     AngleEvent,
     Drop,
@@ -219,14 +222,31 @@ class UConnectDecoder:
     ``counters`` counts every item by kind and every drop as ``drop.<reason>``.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, *, pure: bool = False) -> None:
+        """``pure=True`` keeps to the Python path even where the C accelerator is built."""
         self._rest = b""
         self._discarding = False
         self._in_answer = False
+        self._scan = None if pure or ACCEL is None else ACCEL.scan_uudf
         self.counters: Counter[str] = Counter()
 
     def feed(self, data: bytes) -> list[Item]:
         """Decode every complete line that ``data`` finishes; keep the unfinished tail."""
+        if self._scan is None or self._discarding:
+            return self._feed_python(data)
+        scanned = self._scan(self._rest, data, AngleEvent)
+        if scanned is None:  # the held line grows past MAX_LINE
+            return self._feed_python(data)
+        out, angles, self._rest = scanned
+        if angles:
+            self.counters["angle"] += angles
+        if angles != len(out):  # lines the C path left to us, in order
+            out = [x if x.__class__ is not bytes else self._count(self._classify(x)) for x in out]
+        if len(self._rest) > MAX_LINE:
+            out.extend(self._hold(b""))
+        return out
+
+    def _feed_python(self, data: bytes) -> list[Item]:
         cut = max(data.rfind(b"\n"), data.rfind(b"\r")) + 1
         if not cut:
             return self._hold(data)
@@ -248,7 +268,8 @@ class UConnectDecoder:
                     continue
             if line:
                 append(self._count(self._classify(line)))
-        self.counters["angle"] += angles
+        if angles:
+            self.counters["angle"] += angles
         if len(self._rest) > MAX_LINE:
             out.extend(self._hold(b""))
         return out
