@@ -7,7 +7,9 @@ Each run is a full S0 homing on s0-open (a different seed and target each run); 
 real stack (drivers, decoders, estimator, controller) and the emulator the real one. Through
 ptys the emulator runs in its own process, as in `rfhoming demo` (wall time counted from the
 loop's start, not the interpreter's); in-process both share one process and a byte pipe.
-Simulated time is the robot's clock from its first odometry to the end of the run.
+Simulated time is the robot's clock from its first odometry to the end of the run. The host
+keeps its real fail-safes, the 0.5 s wall-clock odometry check included: a stop that check
+makes when the machine stalls is counted as a stale-data stop (and logged).
 """
 
 from __future__ import annotations
@@ -54,7 +56,8 @@ async def pty_run(seed: int, target: tuple[float, float]) -> dict:
     robot = states[-1]["robot"]
     return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall,
             "final_error_m": math.hypot(robot["x"] - target[0], robot["y"] - target[1]),
-            "latency_ms": outcome.latency_ms, "lockstep_timeouts": None}  # counted in the other process
+            "latency_ms": outcome.latency_ms, "stale_stops": outcome.stale_stops,
+            "lockstep_timeouts": None}  # counted in the other process
 
 
 async def pipe_run(seed: int, target: tuple[float, float]) -> dict:
@@ -75,7 +78,8 @@ async def pipe_run(seed: int, target: tuple[float, float]) -> dict:
     robot = em.world.robot
     return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall,
             "final_error_m": math.hypot(robot.x - target[0], robot.y - target[1]),
-            "latency_ms": outcome.latency_ms, "lockstep_timeouts": em.counters["lockstep_timeouts"]}
+            "latency_ms": outcome.latency_ms, "stale_stops": outcome.stale_stops,
+            "lockstep_timeouts": em.counters["lockstep_timeouts"]}
 
 
 def summarise(runs: list[dict]) -> dict:
@@ -85,6 +89,7 @@ def summarise(runs: list[dict]) -> dict:
             "wall_s": round(wall, 3), "realtime_factor": round(sim / wall, 1),
             "latency_ms_p50": round(float(np.percentile(lat, 50)), 3),
             "latency_ms_p99": round(float(np.percentile(lat, 99)), 3),
+            "stale_stops": sum(r["stale_stops"] for r in runs),
             "lockstep_timeouts": None if runs[0]["lockstep_timeouts"] is None
             else sum(r["lockstep_timeouts"] for r in runs)}
 
@@ -106,7 +111,7 @@ def main() -> int:
         r = result[transport]
         print(f"{transport:<5} {r['arrived']}/{r['runs']} arrived  {r['sim_s']:.1f} s simulated in {r['wall_s']:.2f} s wall: "
               f"{r['realtime_factor']:.0f}x real time   byte-in -> command-out p50 {r['latency_ms_p50']:.2f} ms, "
-              f"p99 {r['latency_ms_p99']:.2f} ms   lockstep timeouts "
+              f"p99 {r['latency_ms_p99']:.2f} ms   stale-data stops {r['stale_stops']}   lockstep timeouts "
               f"{'n/a (other process)' if r['lockstep_timeouts'] is None else r['lockstep_timeouts']}")
     return 0
 
