@@ -55,6 +55,17 @@ static PyObject *py_crc16(PyObject *self, PyObject *arg)
     return PyLong_FromLong(crc);
 }
 
+/* a + b as a new bytes object: the held tail joined to the new chunk */
+static PyObject *concat(const void *a, Py_ssize_t an, const void *b, Py_ssize_t bn)
+{
+    PyObject *joined = PyBytes_FromStringAndSize(NULL, an + bn);
+    if (joined != NULL) {
+        memcpy(PyBytes_AS_STRING(joined), a, an);
+        memcpy(PyBytes_AS_STRING(joined) + an, b, bn);
+    }
+    return joined;
+}
+
 /* ---- +UUDF lines -------------------------------------------------------------------------- */
 
 #define MAX_LINE 512
@@ -223,8 +234,7 @@ static PyObject *scan_uudf(PyObject *self, PyObject *const *args, Py_ssize_t nar
     Py_ssize_t n = buf.len;
     const char *rest = PyBytes_AS_STRING(args[0]);
     Py_ssize_t rest_n = PyBytes_GET_SIZE(args[0]);
-    PyObject *result = NULL, *items = NULL, *tail = NULL;
-    char *joined = NULL;
+    PyObject *result = NULL, *items = NULL, *tail = NULL, *joined = NULL;
 
     Py_ssize_t cut = n;
     while (cut > 0 && data[cut - 1] != '\n' && data[cut - 1] != '\r')
@@ -234,13 +244,9 @@ static PyObject *scan_uudf(PyObject *self, PyObject *const *args, Py_ssize_t nar
             PyBuffer_Release(&buf);
             Py_RETURN_NONE;
         }
-        tail = PyBytes_FromStringAndSize(NULL, rest_n + n);
-        if (tail == NULL)
-            goto done;
-        memcpy(PyBytes_AS_STRING(tail), rest, rest_n);
-        memcpy(PyBytes_AS_STRING(tail) + rest_n, data, n);
+        tail = concat(rest, rest_n, data, n);
         items = PyList_New(0);
-        if (items != NULL)
+        if (tail != NULL && items != NULL)
             result = Py_BuildValue("(OiO)", items, 0, tail);
         goto done;
     }
@@ -248,14 +254,9 @@ static PyObject *scan_uudf(PyObject *self, PyObject *const *args, Py_ssize_t nar
     const char *seg = data;
     Py_ssize_t seg_n = cut;
     if (rest_n) {
-        joined = PyMem_Malloc(rest_n + cut);
-        if (joined == NULL) {
-            PyErr_NoMemory();
+        if ((joined = concat(rest, rest_n, data, cut)) == NULL)
             goto done;
-        }
-        memcpy(joined, rest, rest_n);
-        memcpy(joined + rest_n, data, cut);
-        seg = joined;
+        seg = PyBytes_AS_STRING(joined);
         seg_n = rest_n + cut;
     }
     items = PyList_New(0);
@@ -288,7 +289,7 @@ static PyObject *scan_uudf(PyObject *self, PyObject *const *args, Py_ssize_t nar
     if (tail != NULL)
         result = Py_BuildValue("(OiO)", items, angles, tail);
 done:
-    PyMem_Free(joined);
+    Py_XDECREF(joined);
     Py_XDECREF(items);
     Py_XDECREF(tail);
     PyBuffer_Release(&buf);
@@ -374,13 +375,9 @@ static PyObject *scan_frames(PyObject *self, PyObject *const *args, Py_ssize_t n
             PyBuffer_Release(&buf);
             Py_RETURN_NONE;
         }
-        tail = PyBytes_FromStringAndSize(NULL, rest_n + n);
-        if (tail == NULL)
-            goto done;
-        memcpy(PyBytes_AS_STRING(tail), rest, rest_n);
-        memcpy(PyBytes_AS_STRING(tail) + rest_n, data, n);
+        tail = concat(rest, rest_n, data, n);
         items = PyList_New(0);
-        if (items != NULL)
+        if (tail != NULL && items != NULL)
             result = PyTuple_Pack(2, items, tail);
         goto done;
     }
@@ -400,11 +397,9 @@ static PyObject *scan_frames(PyObject *self, PyObject *const *args, Py_ssize_t n
     const uint8_t *p = data;
     if (rest_n) { /* the frame held from earlier chunks ends at the first zero */
         const uint8_t *z = memchr(data, 0, n);
-        PyObject *first = PyBytes_FromStringAndSize(NULL, rest_n + (z - data));
+        PyObject *first = concat(rest, rest_n, data, z - data);
         if (first == NULL)
             goto done;
-        memcpy(PyBytes_AS_STRING(first), rest, rest_n);
-        memcpy(PyBytes_AS_STRING(first) + rest_n, data, z - data);
         int taken = take_frame(items, (const uint8_t *)PyBytes_AS_STRING(first),
                                PyBytes_GET_SIZE(first), max_encoded, scratch);
         Py_DECREF(first);
