@@ -7,6 +7,7 @@ import asyncio
 import json
 import sys
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import BinaryIO
 
 from host.cli_io import add_parsers as add_io_parsers
@@ -59,6 +60,35 @@ examples:
 """
 
 
+DISSECTOR_HELP = """\
+Write a Wireshark/tshark Lua dissector for rfhoming's pcapng captures. It is generated from the
+record declarations, so it always matches this version's decoder. Interfaces with link type
+148 (binary records) are reassembled per direction, COBS-decoded, CRC-checked and shown field
+by field, with drops marked by reason; link type 147 (XPLR-AOA text) shows as text lines.
+
+examples:
+  rfhoming dissector -o ~/.local/lib/wireshark/plugins/rfhoming.lua   # install for Wireshark
+  rfhoming dissector -o rfhoming.lua && tshark -X lua_script:rfhoming.lua -r run.pcapng -O rfhoming
+"""
+
+
+def cmd_dissector(args: argparse.Namespace) -> int:
+    from protocol.frames.wireshark import lua_dissector
+
+    if args.output == "-":
+        sys.stdout.write(lua_dissector())
+        return 0
+    try:
+        path = Path(args.output).expanduser()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(lua_dissector())
+    except OSError as exc:
+        print(f"rfhoming dissector: cannot write {args.output}: {exc.strerror}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rfhoming",
@@ -80,6 +110,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     decode.add_argument("file", nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=cmd_decode)
+    dissector = sub.add_parser(
+        "dissector",
+        help="write the Wireshark Lua dissector for the binary records",
+        description=DISSECTOR_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    dissector.add_argument("-o", "--output", default="-", help="file to write (default: stdout)")
+    dissector.set_defaults(func=cmd_dissector)
     add_run_parsers(sub)
     add_io_parsers(sub)
     _add_emulate(sub)
