@@ -7,7 +7,7 @@ import asyncio
 import json
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from emulator.links import PipeEnd
@@ -122,8 +122,7 @@ def run(scenario: Scenario, config: Config, seed: int, timeout_s: float = 600.0,
 
     In lockstep wall time means nothing (the world waits for the host), so the loop's wall-clock
     check on the base is switched off: a loaded machine must not change a run's result."""
-    config = replace(config, loop=replace(config.loop, odometry_wall_timeout_s=math.inf))
-    return asyncio.run(_run(scenario, config, seed, timeout_s, runlog))
+    return asyncio.run(_run(scenario, config.for_lockstep(), seed, timeout_s, runlog))
 
 
 def metrics(run_: Run, target: tuple[float, float]) -> dict[str, Any]:

@@ -113,7 +113,7 @@ async def closed_loop(tmp_path: Path, target: tuple[float, float], seed: int = 1
         writer.describe(base.port.name, protocol="rss", kind="base")
         writer.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
     out = io.StringIO()
-    loop = aoa_loop(base, aoa, config, RunLog(out))
+    loop = aoa_loop(base, aoa, config.for_lockstep(), RunLog(out))
     try:
         outcome = await asyncio.wait_for(loop.run(), 90)
     finally:
@@ -162,7 +162,7 @@ async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) 
     ports = {i.protocol: ReplayPort(i.name, packets[n], sequencer=sequencer) for n, i in enumerate(interfaces)}
     out = io.StringIO()
     replayed = await asyncio.wait_for(
-        aoa_loop(BaseDriver(ports["rss"]), AoaDriver(ports["ublox-aoa"]), Config(), RunLog(out)).run(), 60)
+        aoa_loop(BaseDriver(ports["rss"]), AoaDriver(ports["ublox-aoa"]), Config().for_lockstep(), RunLog(out)).run(), 60)
     assert replayed.arrived == outcome.arrived
     assert [json.loads(line) for line in out.getvalue().splitlines()] == live
 
@@ -171,6 +171,7 @@ async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int, config:
     """Closed loop on a preset with its own target, through ptys in lockstep; the controller
     follows the scenario's sensor (XPLR-AOA -> S0, AT86RF212 node -> S2)."""
     sc = load(scenario, seed=seed)
+    config = config.for_lockstep()
     em = Emulator(sc, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path, lockstep_timeout=2.0)
     await em.start()
     world = asyncio.create_task(em.run())

@@ -79,6 +79,12 @@ class Config:
     def avoid_obstacles(self) -> bool:
         return self.avoid.enabled
 
+    def for_lockstep(self) -> Config:
+        """This config for a simulation whose world waits for the host (lockstep). There wall
+        time means nothing, so the wall-clock odometry check is off: a loaded machine must not
+        change a run. Every robot-time fail-safe stays."""
+        return replace(self, loop=replace(self.loop, odometry_wall_timeout_s=math.inf))
+
 
 SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params,
             "avoid": AvoidParams, "plan": PlanSettings, "s2": S2Params, "s1": S1Params,
