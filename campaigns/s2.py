@@ -26,7 +26,8 @@ from host.homing.config import Config, LoopSettings
 from host.homing.loop import RunLog
 
 SCENARIOS = "abcde"
-SYSTEMS = ("preliminary", "full")
+SYSTEMS = ("preliminary", "full", "full-bounded")
+"""S2's two systems, and ours: full motion with the particle filter's bounded-range weights."""
 PAPER_TIME_S = {"a": (89, 90), "b": (126, 230), "c": (252, 225), "d": (391, 222), "e": (None, 455)}
 """S2's mean times (s), preliminary / full; E failed with the preliminary system."""
 PAPER_DESCRIPTION = {"a": "straight 4 m", "b": "blocked", "c": "partly blocked right angle",
@@ -52,9 +53,14 @@ def filter_errors(log_text: str, target: tuple[float, float]) -> tuple[float | N
     return (float(np.median(instant)) if instant else None, float(np.median(filtered)) if filtered else None)
 
 
+def paper_time(scenario: str, system: str) -> float | None:
+    return PAPER_TIME_S[scenario][0 if system == "preliminary" else 1]
+
+
 def run(scenario: str, system: str, seed: int) -> dict[str, Any]:
-    config = replace(Config(), s2=replace(Config().s2, motion=system, seed=seed),
-                     loop=replace(LoopSettings(), max_time_s=MAX_TIME_S))
+    motion, _, likelihood = system.partition("-")
+    s2 = replace(Config().s2, motion=motion, seed=seed, likelihood=likelihood or "s2")
+    config = replace(Config(), s2=s2, loop=replace(LoopSettings(), max_time_s=MAX_TIME_S))
     sc = load(f"s2-{scenario}", seed=seed)
     target = sc.world.targets[0].position
     log = io.StringIO()
@@ -83,25 +89,28 @@ def report(rows: list[dict[str, Any]]) -> Report:
     summary: dict[str, Any] = {}
     lines = []
     for sc in SCENARIOS:
-        for i, system in enumerate(SYSTEMS):
+        for system in SYSTEMS:
             rs = [r for r in rows if r["scenario"] == sc and r["system"] == system]
             ok = [r for r in rs if r["success"]]
             s = {"runs": len(rs), "success": len(ok), "time_s": mean(ok, "time_s", 1),
                  "final_error_m": mean(ok, "final_error_m"), "instant_error_m": mean(rs, "instant_error_m"),
                  "filtered_error_m": mean(rs, "filtered_error_m")}
             summary[f"{sc}/{system}"] = s
-            paper = PAPER_TIME_S[sc][i]
+            paper = paper_time(sc, system)
             lines.append([f"{sc.upper()} {PAPER_DESCRIPTION[sc]}", system, "failed" if paper is None else paper,
                           f"{s['success']}/{s['runs']}", s["time_s"], s["final_error_m"],
                           s["instant_error_m"], s["filtered_error_m"]])
-    inst = mean(rows, "instant_error_m")
-    filt = mean(rows, "filtered_error_m")
-    summary["instant_error_m"], summary["filtered_error_m"] = inst, filt
-    summary["filter_reduction_pct"] = round(100 * (1 - filt / inst), 1) if inst and filt else None
     md = table(["scenario", "system", "paper time s", "ours success", "ours time s", "final error m",
                 "instantaneous fix error m (median)", "particle filter error m (median)"], lines)
-    md += (f"\n\nAveraged over all runs, the particle filter's median error is {filt} m against {inst} m for "
-           f"the instantaneous fixes: {summary['filter_reduction_pct']} % lower (S2: up to 50 % lower).")
+    md += "\n"
+    for weights, rs in (("s2", [r for r in rows if not r["system"].endswith("bounded")]),
+                        ("bounded", [r for r in rows if r["system"].endswith("bounded")])):
+        inst, filt = mean(rs, "instant_error_m"), mean(rs, "filtered_error_m")
+        cut = round(100 * (1 - filt / inst), 1) if inst and filt else None
+        summary[f"filter/{weights}"] = {"instant_error_m": inst, "filtered_error_m": filt, "reduction_pct": cut}
+        md += (f"\nWith {'S2' if weights == 's2' else 'the bounded'} weights, averaged over runs, the particle "
+               f"filter's median error is {filt} m against {inst} m for the instantaneous fixes: {cut} % lower "
+               f"(S2: up to 50 % lower).")
     failures = [r for r in rows if not r["success"]]
     md += failed_runs(failures, lambda r: f"{r['scenario'].upper()} {r['system']} seed {r['seed']}")
 
@@ -109,7 +118,8 @@ def report(rows: list[dict[str, Any]]) -> Report:
         fig, axes = figure(path, 2)
         groups = [s.upper() for s in SCENARIOS]
         grouped_bars(axes[0], groups, {
-            "paper prelim.": [PAPER_TIME_S[s][0] for s in SCENARIOS], "paper full": [PAPER_TIME_S[s][1] for s in SCENARIOS],
+            "paper prelim.": [paper_time(s, "preliminary") for s in SCENARIOS],
+            "paper full": [paper_time(s, "full") for s in SCENARIOS],
             **{f"ours {m}": [summary[f"{s}/{m}"]["time_s"] for s in SCENARIOS] for m in SYSTEMS}}, "time to target (s)")
         axes[0].legend(fontsize=7)
         grouped_bars(axes[1], groups, {

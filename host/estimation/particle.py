@@ -17,6 +17,16 @@ relative distance p_r and bearing p_θ (degrees) against the instantaneous senso
 w_r = 1 − t_r (|p_r − s_r| − c_r), w_θ = 1 − t_θ (|p_θ − s_θ| − c_θ), each clamped to [0.1, 1];
 weight = √(w_r w_θ), normalised; estimate = weighted mean (circular for headings); systematic
 resampling when N_eff = 1 / Σ w² < N / 2.
+
+``likelihood = "bounded"`` is ours. Obstacles only attenuate, and a dish off its axis only loses
+gain, so a fix's range reads long, almost never short: behind one 8 dB wall it is 2.5 times
+the truth. S2's weights pull the cloud out to that phantom. The bounded weights take the range
+as an upper bound: every distance up to ``range_slack`` times the fix's range weighs the same;
+beyond that, the weight falls as a Gaussian in ln(distance / range). Bearings (Gaussian,
+``bearing_sigma_deg``) place the emitter along the ray, and the robot's own motion
+triangulates it. The emitter is static (positions diffuse slowly, no velocity). A floor keeps
+one outlier from ruling a particle out. When the cloud explains a fix badly on average, a
+tenth of it is redrawn from the fix (sensor resetting).
 """
 
 from __future__ import annotations
@@ -47,6 +57,14 @@ class PfParams:
     c_theta: float = 15.0
     accel_sigma: float = 0.2  # m/s², std of the emitter's random acceleration (uniform draws)
     init_sigma: float = 1.0  # m around the first fix
+    likelihood: str = "s2"  # "s2": the weights above; "bounded": range as an upper bound (ours)
+    bearing_sigma_deg: float = 20.0  # bounded: Gaussian bearing error
+    range_slack: float = 1.3  # bounded: any distance up to this factor times the fix's range is as
+    range_sigma_far: float = 0.15  # likely as any other; beyond, Gaussian in ln(distance / range)
+    floor: float = 1e-3  # bounded: no fix can rule a particle out alone (outliers)
+    diffusion: float = 0.05  # bounded: a static emitter; positions diffuse by this many m per √s
+    inject_below: float = 0.05  # bounded: when the cloud explains a fix this badly on average,
+    inject_fraction: float = 0.1  # redraw this share of particles from the fix itself
 
 
 class ParticleFilter:
@@ -63,6 +81,7 @@ class ParticleFilter:
         self.w = np.full(params.n, 1.0 / params.n)
         self.initialised = False
         self.resamples = 0
+        self.injections = 0
         self._t_theta = params.t_theta * 180.0 / math.pi  # per radian
         self._c_theta = math.radians(params.c_theta)
         self._grid = np.arange(params.n) / params.n
@@ -71,6 +90,9 @@ class ParticleFilter:
     def predict(self, dt: float) -> None:
         """Random acceleration, uniform with variance accel_sigma² (a quarter of the cost of
         Gaussian draws; summed over steps the motion noise is Gaussian all the same)."""
+        if self.params.likelihood == "bounded":
+            self.x[:2] += self.rng.normal(0, self.params.diffusion * math.sqrt(dt), (2, self.params.n))
+            return
         a = self.rng.random((2, self.params.n))
         a -= 0.5
         a *= 2 * self._accel_half_width
@@ -81,24 +103,54 @@ class ParticleFilter:
         """One instantaneous fix: range s_r (m), bearing s_theta (rad) relative to the robot."""
         p = self.params
         if not self.initialised:
-            bearing = robot[2] + s_theta
-            self.x[0] = robot[0] + s_r * math.cos(bearing) + self.rng.normal(0, p.init_sigma, p.n)
-            self.x[1] = robot[1] + s_r * math.sin(bearing) + self.rng.normal(0, p.init_sigma, p.n)
-            self.x[2:] = 0.0
-            self.initialised = True
+            self._initialise(robot, s_r, s_theta)
             return
         dx = self.x[0] - robot[0]
         dy = self.x[1] - robot[1]
-        err_r = np.abs(np.hypot(dx, dy) - s_r)
+        dist = np.hypot(dx, dy)
         err_t = np.arctan2(dy, dx) - (robot[2] + s_theta + math.pi)
         err_t %= 2 * math.pi
         err_t -= math.pi  # wrapped to [−π, π)
-        w_r = np.minimum(np.maximum(1 - p.t_r * (err_r - p.c_r), 0.1), 1.0)
-        w_t = np.minimum(np.maximum(1 - self._t_theta * (np.abs(err_t) - self._c_theta), 0.1), 1.0)
-        self.w *= np.sqrt(w_r * w_t)
+        if p.likelihood == "s2":
+            w_r = np.minimum(np.maximum(1 - p.t_r * (np.abs(dist - s_r) - p.c_r), 0.1), 1.0)
+            w_t = np.minimum(np.maximum(1 - self._t_theta * (np.abs(err_t) - self._c_theta), 0.1), 1.0)
+            self.w *= np.sqrt(w_r * w_t)
+        else:
+            far = np.maximum(np.log(np.maximum(dist, 0.05) / s_r) - math.log(p.range_slack), 0.0)
+            far /= p.range_sigma_far
+            z = err_t / math.radians(p.bearing_sigma_deg)
+            likelihood = p.floor + np.exp(-0.5 * (z * z + far * far))
+            if float(self.w @ likelihood) < p.inject_below:  # the cloud is lost: reseed part of it
+                k = int(p.inject_fraction * p.n)
+                idx = self.rng.choice(p.n, k, replace=False)
+                self.x[:2, idx] = self._from_fix(robot, s_r, s_theta, k)
+                likelihood[idx] = 1.0
+                self.w[idx] = 1.0 / p.n
+                self.injections += 1
+            self.w *= likelihood
         self.w /= self.w.sum()
         if 1.0 / np.dot(self.w, self.w) < p.n / 2:
             self.resample()
+
+    def _initialise(self, robot: tuple[float, float, float], s_r: float, s_theta: float) -> None:
+        """S2: a cloud around the first fix. Bounded: spread along the fix's ray up to its range,
+        since walls and off-axis dishes only ever make a range read long."""
+        p = self.params
+        bearing = robot[2] + s_theta
+        if p.likelihood == "s2":
+            self.x[0] = robot[0] + s_r * math.cos(bearing) + self.rng.normal(0, p.init_sigma, p.n)
+            self.x[1] = robot[1] + s_r * math.sin(bearing) + self.rng.normal(0, p.init_sigma, p.n)
+        else:
+            self.x[:2] = self._from_fix(robot, s_r, s_theta, p.n)
+        self.x[2:] = 0.0
+        self.initialised = True
+
+    def _from_fix(self, robot: tuple[float, float, float], s_r: float, s_theta: float, k: int) -> np.ndarray:
+        """k positions drawn from one fix: along its ray, at or inside its range."""
+        p = self.params
+        r = self.rng.uniform(min(0.2, s_r), s_r, k)
+        a = robot[2] + s_theta + self.rng.normal(0, math.radians(p.bearing_sigma_deg), k)
+        return np.stack([robot[0] + r * np.cos(a), robot[1] + r * np.sin(a)])
 
     def resample(self) -> None:
         """Systematic resampling: one random offset, N evenly spaced pointers."""

@@ -9,6 +9,10 @@ estimated range is below 0.5 m (S2: "stop when front+back RSS says < 50 cm"). Wi
 ``motion = "preliminary"`` it moves by S2's first rule set instead (20 cm, ±15°, ±90°), with no
 map and no planner.
 
+With ``likelihood = "bounded"`` (ours; see host.estimation.particle) the robot stops only when
+the dishes agree as well: the median range of the last five fixes must be below 0.5 m, the
+nearest to S2's rule, since such a range reads long and almost never short.
+
 Calibration (config [s2]): the emitter's power at 1 m for an isotropic antenna (p0_dbm), the
 path-loss exponent, and the dishes' peak gain (6.6 dBi for 0.3 m dishes at 915 MHz,
 10 log10(0.55 (π d / λ)²)).
@@ -17,6 +21,8 @@ path-loss exponent, and the dishes' peak gain (6.6 dBi for 0.3 m dishes at 915 M
 from __future__ import annotations
 
 import math
+import statistics
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,6 +49,7 @@ class S2Params:
     seed: int = 0
     motion: str = "full"  # "full": the loop's grid + A*; "preliminary": S2's rule-based motion
     obstacle_m: float = 0.2  # preliminary: an obstacle this close ahead means turn until clear
+    likelihood: str = "s2"  # the particle filter's weights: "s2" or "bounded" (host.estimation.particle)
 
 
 class RssController:
@@ -56,11 +63,14 @@ class RssController:
         self.uses_planner = params.motion == "full"
         self.own_avoidance = params.motion == "preliminary"
         self.front_m = math.inf
-        self.pf = ParticleFilter(PfParams(), np.random.default_rng(params.seed))
+        if params.likelihood not in ("s2", "bounded"):
+            raise ValueError("[s2] likelihood must be 's2' or 'bounded'")
+        self.pf = ParticleFilter(PfParams(likelihood=params.likelihood), np.random.default_rng(params.seed))
         self.fixes = 0
         self.incomplete = 0
         self._last_t: float | None = None
         self._last_fix: tuple[float, float] | None = None
+        self._ranges: deque[float] = deque(maxlen=5)
 
     @property
     def phase(self) -> str:
@@ -84,6 +94,7 @@ class RssController:
         self._last_t = t
         self.pf.update((pose.x, pose.y, pose.theta), rng, theta)
         self.fixes += 1
+        self._ranges.append(rng)
         self._last_fix = (pose.x + rng * math.cos(pose.theta + theta), pose.y + rng * math.sin(pose.theta + theta))
         return {"theta": round(theta, 4), "range": round(rng, 3), "diff_db": round(diff_db, 2)}
 
@@ -114,7 +125,10 @@ class RssController:
             return Decision(0.0, p.search_w if self.fixes == 0 else 0.0, None, False, "waiting for fixes")
         estimated_range, _ = self.pf.relative((pose.x, pose.y, pose.theta))
         d_g = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
-        if estimated_range < p.arrival_range_m or d_g < p.arrival_range_m:
+        close = estimated_range < p.arrival_range_m or d_g < p.arrival_range_m
+        if close and p.likelihood == "bounded":  # the dishes must say so too: a fix's range reads long, never short
+            close = statistics.median(self._ranges) < p.arrival_range_m
+        if close:
             return Decision(0.0, 0.0, (float(goal[0]), float(goal[1])), True, "arrived")
         if p.motion == "preliminary":
             return self._preliminary(pose, goal)
