@@ -88,8 +88,9 @@ class ParticleFilter:
         self._accel_half_width = params.accel_sigma * math.sqrt(3.0)
 
     def predict(self, dt: float) -> None:
-        """Random acceleration, uniform with variance accel_sigma² (a quarter of the cost of
-        Gaussian draws; summed over steps the motion noise is Gaussian all the same)."""
+        """S2: random acceleration, uniform with variance accel_sigma² (a quarter of the cost of
+        Gaussian draws; summed over steps the motion noise is Gaussian all the same). Bounded:
+        a static emitter, positions diffusing by ``diffusion`` m/√s."""
         if self.params.likelihood == "bounded":
             self.x[:2] += self.rng.normal(0, self.params.diffusion * math.sqrt(dt), (2, self.params.n))
             return

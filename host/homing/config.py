@@ -187,7 +187,7 @@ search_w = 0.5           # turn while no fix has come yet
 seed = 0                 # the particle filter's random stream (reproducible runs)
 motion = "full"          # "full": grid + A* (when scans come); "preliminary": S2's rules
 obstacle_m = 0.2         # preliminary: turn until clear when an obstacle is this close ahead
-likelihood = "s2"        # particle weights: "s2" (the paper's), "bounded" (a fix's range reads long, never short)
+likelihood = "s2"        # particle weights: "s2" (the paper's); "bounded": a range as an upper bound (walls)
 
 [s1]                     # docking (S1): the station's AoA and RSSI of the robot's tag
 g_a = 0.25               # heading step per dB of RSSI_diff per degree of AoA change

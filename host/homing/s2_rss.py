@@ -126,7 +126,7 @@ class RssController:
         estimated_range, _ = self.pf.relative((pose.x, pose.y, pose.theta))
         d_g = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
         close = estimated_range < p.arrival_range_m or d_g < p.arrival_range_m
-        if close and p.likelihood == "bounded":  # the dishes must say so too: a fix's range reads long, never short
+        if close and p.likelihood == "bounded":  # the dishes must say so too (their range seldom reads short)
             close = statistics.median(self._ranges) < p.arrival_range_m
         if close:
             return Decision(0.0, 0.0, (float(goal[0]), float(goal[1])), True, "arrived")
