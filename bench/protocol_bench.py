@@ -8,6 +8,7 @@ interpreted (COBS decode + construct parse with its CRC check).
     python bench/protocol_bench.py --json     # one JSON object
     python bench/protocol_bench.py --mb 2     # quicker, smaller streams
     python bench/protocol_bench.py --pure     # the pure-Python decoders, C accelerator built or not
+    python bench/protocol_bench.py --parts    # also time the pieces BENCHMARKS.md explains with
 
 Needs the bench extra: pip install -e '.[bench]'
 """
@@ -21,6 +22,7 @@ import platform
 import random
 import sys
 import time
+import timeit
 from collections.abc import Callable
 from typing import Any
 
@@ -40,6 +42,7 @@ from protocol.frames import (
     Status,
     VelocityCommand,
     encode_frame,
+    encode_inner,
     parse_inner,
 )
 from protocol.uconnect import AngleEvent, Dialect, UConnectDecoder, encode_angle_event
@@ -179,11 +182,37 @@ def bench_records(mb: float, runs: int, reference_records: int, pure: bool) -> d
     return results
 
 
+def bench_parts(rng: random.Random) -> dict[str, float]:
+    """µs per call of the pieces the record figures are made of (best of 5 timeit runs)."""
+    from protocol.frames.codec import VALIDATORS
+    from protocol.frames.fast import DECODERS
+    from protocol.frames.records import crc16
+
+    def us(fn: Callable[[], Any], number: int = 100_000) -> float:
+        return min(timeit.repeat(fn, number=number, repeat=5)) / number * 1e6
+
+    makers = sample_records(rng)
+    scan = makers["range_scan"](1)
+    inner = encode_inner(scan)
+    antennas = makers["antenna_set"](1)
+    held = FrameDecoder()
+    parts = {
+        "crc16_binascii_379_bytes": us(lambda: crc16(inner[:-2])),
+        "range_scan_body_decode": us(lambda: DECODERS[0x22](inner, len(inner) - 2, 7, 1, 1)),
+        "antenna_set_ed_check": us(lambda: VALIDATORS[0x03](antennas)),
+        "feed_64_bytes_no_frame_end": us(lambda: (setattr(held, "_rest", b"\x02" * 100), held.feed(b"\x01" * 64))),
+    }
+    if accel.ACCEL is not None:
+        parts["crc16_accel_379_bytes"] = us(lambda: accel.ACCEL.crc16(inner[:-2]))
+    return parts
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--mb", type=float, default=10.0, help="stream size per case, MB (default 10)")
     parser.add_argument("--runs", type=int, default=5, help="alternating rounds per case, best kept (default 5)")
+    parser.add_argument("--parts", action="store_true", help="also time the pieces (CRC, range_scan body, ED check, a chunk with no frame end)")
     parser.add_argument("--pure", action="store_true", help="measure the pure-Python decoders even where the C accelerator is built")
     args = parser.parse_args()
     try:
@@ -202,6 +231,8 @@ def main() -> int:
         "uudf": bench_uudf(args.mb, args.runs, nmea_mb=min(args.mb, 1.0), pure=args.pure),
         "records": bench_records(args.mb, args.runs, reference_records=2000, pure=args.pure),
     }
+    if args.parts:
+        result["parts_us"] = bench_parts(random.Random(3))
     if args.json:
         print(json.dumps(result, indent=1))
         return 0
@@ -213,6 +244,8 @@ def main() -> int:
     for kind, r in result["records"].items():
         print(f"{kind:<17}{r['frame_bytes']:>6.0f}{r['us_per_record']:>8.2f}{r['records_per_s']:>11,.0f}"
               f"{r['mb_per_s']:>7.1f}{r['construct_us_per_record']:>14.1f}{r['speedup_vs_construct']:>8.1f}x")
+    for part, us in result.get("parts_us", {}).items():
+        print(f"part {part:<30}{us:>8.2f} us")
     return 0
 
 
