@@ -24,10 +24,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from host.estimation.beacon import BeaconEkf, S4Model, jacobian, measure
-from host.estimation.filters import ScalarKalman, kalman_batch
-from host.estimation.fixed import to_q8
-from host.estimation.particle import ParticleFilter, PfParams
+from rfhoming.host.estimation.beacon import BeaconEkf, S4Model, jacobian, measure
+from rfhoming.host.estimation.filters import ScalarKalman, kalman_batch
+from rfhoming.host.estimation.fixed import to_q8
+from rfhoming.host.estimation.particle import ParticleFilter, PfParams
 
 
 def best(fn: Callable[[], None], repeats: int = 5) -> float:

@@ -27,14 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from campaigns.closed_loop import PipePort
-from emulator.runtime import Emulator
-from emulator.scenario import load
-from host.drivers.aoa import AoaDriver
-from host.demo import read_truth, start_emulator
-from host.drivers.base import BaseDriver
-from host.homing.loop import aoa_loop
-from host.ports import HostPort
+from rfhoming.campaigns.closed_loop import PipePort
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import load
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.demo import read_truth, start_emulator
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.homing.loop import aoa_loop
+from rfhoming.host.ports import HostPort
 
 TARGETS = [(6.0, 4.0), (-7.0, 3.0), (-5.0, -8.0), (8.0, -6.0), (3.0, 8.0), (-8.0, -2.0), (9.0, 1.0), (-2.0, 7.0)]
 

@@ -28,8 +28,8 @@ from typing import Any
 
 from cobs import cobs
 
-from protocol import accel
-from protocol.frames import (
+from rfhoming.protocol import accel
+from rfhoming.protocol.frames import (
     AdvReport,
     AntennaReading,
     AntennaSet,
@@ -45,7 +45,7 @@ from protocol.frames import (
     encode_inner,
     parse_inner,
 )
-from protocol.uconnect import AngleEvent, Dialect, UConnectDecoder, encode_angle_event
+from rfhoming.protocol.uconnect import AngleEvent, Dialect, UConnectDecoder, encode_angle_event
 
 CHUNK = 64
 
@@ -184,9 +184,9 @@ def bench_records(mb: float, runs: int, reference_records: int, pure: bool) -> d
 
 def bench_parts(rng: random.Random) -> dict[str, float]:
     """µs per call of the pieces the record figures are made of (best of 5 timeit runs)."""
-    from protocol.frames.codec import VALIDATORS
-    from protocol.frames.fast import DECODERS
-    from protocol.frames.records import crc16
+    from rfhoming.protocol.frames.codec import VALIDATORS
+    from rfhoming.protocol.frames.fast import DECODERS
+    from rfhoming.protocol.frames.records import crc16
 
     def us(fn: Callable[[], Any], number: int = 100_000) -> float:
         return min(timeit.repeat(fn, number=number, repeat=5)) / number * 1e6

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from host.estimation import filters as f
-from host.estimation.bearings import Degenerate
-from host.estimation.fixed import from_q8, to_q8
-from host.estimation.lateration import multilaterate, strongest_three, trilaterate
-from host.estimation.ranging import S3_TABLE, Exponential, LogDistance, fit_exponential, fit_log_distance
+from rfhoming.host.estimation import filters as f
+from rfhoming.host.estimation.bearings import Degenerate
+from rfhoming.host.estimation.fixed import from_q8, to_q8
+from rfhoming.host.estimation.lateration import multilaterate, strongest_three, trilaterate
+from rfhoming.host.estimation.ranging import S3_TABLE, Exponential, LogDistance, fit_exponential, fit_log_distance
 
 WARMUP = 20
 SITE_DIAGONAL_M = 27.0

@@ -10,15 +10,15 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from emulator.links import PipeEnd
-from emulator.runtime import Emulator
-from emulator.scenario import Scenario
-from host.drivers.aoa import AoaDriver
-from host.drivers.base import BaseDriver
-from host.drivers.rss import RssDriver
-from host.homing.config import Config
-from host.homing.loop import HomingLoop, Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
-from host.ports import Chunk
+from rfhoming.emulator.links import PipeEnd
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import Scenario
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.drivers.rss import RssDriver
+from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.loop import HomingLoop, Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
+from rfhoming.host.ports import Chunk
 
 
 class PipePort:

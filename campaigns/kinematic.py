@@ -2,7 +2,7 @@
 S0 Table 2's uniform noise handed straight to the controller (no fold, no codec, no RSSI).
 
 This is the paper's own set-up; the realistic mode runs the same controller through the
-emulator and the host stack instead (:mod:`campaigns.closed_loop`).
+emulator and the host stack instead (:mod:`rfhoming.campaigns.closed_loop`).
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from emulator.world import Pose as WorldPose
-from firmware_py.robot_base import BaseLimits
-from host.estimation.fixed import wrap_rad
-from host.homing.s0_aoa import S0Homing, S0Params
-from host.homing.types import Pose
+from rfhoming.emulator.world import Pose as WorldPose
+from rfhoming.firmware.robot_base import BaseLimits
+from rfhoming.host.estimation.fixed import wrap_rad
+from rfhoming.host.homing.s0_aoa import S0Homing, S0Params
+from rfhoming.host.homing.types import Pose
 
 LIMITS = BaseLimits()  # the emulated base's speed and acceleration limits
 READING_S, CONTROL_S = 0.02, 0.1  # the tag's 50 Hz, the loop's 10 Hz

@@ -7,12 +7,12 @@ from typing import Any
 
 import numpy as np
 
-from campaigns import closed_loop, kinematic
-from campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
-from campaigns.runner import Campaign, Job, Report
-from emulator.radio import S0_PRESETS
-from emulator.scenario import load
-from host.homing.config import Config, LoopSettings
+from rfhoming.campaigns import closed_loop, kinematic
+from rfhoming.campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
+from rfhoming.campaigns.runner import Campaign, Job, Report
+from rfhoming.emulator.radio import S0_PRESETS
+from rfhoming.emulator.scenario import load
+from rfhoming.host.homing.config import Config, LoopSettings
 
 METRICS = ("success_pct", "time_s", "net_velocity_mps", "goal_error_m", "final_error_m", "path_efficiency")
 HEADER = ["success %", "time to target s", "net velocity m/s", "goal error m", "final error m", "path efficiency"]
@@ -52,7 +52,7 @@ def table3_jobs(runs: int, seed: int) -> list[Job]:
     for config in range(1, 6):
         for mode in MODES:
             for k, target in enumerate(targets(runs, seed)):
-                jobs.append(Job(len(jobs), "campaigns.s0:table3_run",
+                jobs.append(Job(len(jobs), "rfhoming.campaigns.s0:table3_run",
                                 {"config": config, "mode": mode, "target": target, "seed": seed * 100_000 + k}))
     return jobs
 
@@ -103,7 +103,7 @@ def house_run(seed: int) -> dict[str, Any]:
 
 
 def house_jobs(runs: int, seed: int) -> list[Job]:
-    return [Job(k, "campaigns.s0:house_run", {"seed": seed * 100_000 + k}) for k in range(runs)]
+    return [Job(k, "rfhoming.campaigns.s0:house_run", {"seed": seed * 100_000 + k}) for k in range(runs)]
 
 
 def house_report(rows: list[dict[str, Any]]) -> Report:

@@ -9,11 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from campaigns import closed_loop
-from campaigns.report import figure, mean, save, table
-from campaigns.runner import Campaign, Job, Report
-from emulator.scenario import load
-from host.homing.config import Config
+from rfhoming.campaigns import closed_loop
+from rfhoming.campaigns.report import figure, mean, save, table
+from rfhoming.campaigns.runner import Campaign, Job, Report
+from rfhoming.emulator.scenario import load
+from rfhoming.host.homing.config import Config
 
 PAPER = {"docked_pct": 100, "trials": 5, "final_error_m": 0.48, "heading_error_deg": 12.5}
 """S1's trial: final pose (0.5149, 3.1324, 102.49°) for the station at (0.4, 3.6, 90°)."""
@@ -42,7 +42,7 @@ def jobs(runs: int, seed: int) -> list[Job]:
     rng = np.random.default_rng([seed, 0x51])
     starts = [(0.4 + float(rng.uniform(-0.8, 0.8)), float(rng.uniform(0.2, 1.2)),
                math.pi / 2 + float(rng.uniform(-0.3, 0.3))) for _ in range(runs)]
-    return [Job(i * len(MODES) + j, "campaigns.s1:trial", {"mode": mode, "start": start, "seed": seed * 100_000 + i})
+    return [Job(i * len(MODES) + j, "rfhoming.campaigns.s1:trial", {"mode": mode, "start": start, "seed": seed * 100_000 + i})
             for i, start in enumerate(starts) for j, mode in enumerate(MODES)]
 
 

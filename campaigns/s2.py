@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from campaigns import closed_loop
-from campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
-from campaigns.runner import Campaign, Job, Report
-from emulator.scenario import load
-from host.homing.config import Config, LoopSettings
-from host.homing.loop import RunLog
+from rfhoming.campaigns import closed_loop
+from rfhoming.campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
+from rfhoming.campaigns.runner import Campaign, Job, Report
+from rfhoming.emulator.scenario import load
+from rfhoming.host.homing.config import Config, LoopSettings
+from rfhoming.host.homing.loop import RunLog
 
 SCENARIOS = "abcde"
 SYSTEMS = ("preliminary", "full", "full-bounded")
@@ -80,7 +80,7 @@ def jobs(runs: int, seed: int) -> list[Job]:
     for scenario in SCENARIOS:
         for system in SYSTEMS:
             for k in range(runs):
-                out.append(Job(len(out), "campaigns.s2:run", {"scenario": scenario, "system": system,
+                out.append(Job(len(out), "rfhoming.campaigns.s2:run", {"scenario": scenario, "system": system,
                                                               "seed": seed * 100_000 + k}))
     return out
 

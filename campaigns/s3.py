@@ -14,12 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from campaigns.report import figure, save, table
-from campaigns.runner import Campaign, Job, Report
-from host.estimation.bearings import Degenerate
-from host.estimation.filters import ema_batch, kalman_batch, running_median_batch
-from host.estimation.lateration import multilaterate, strongest_three, trilaterate
-from host.estimation.ranging import LogDistance
+from rfhoming.campaigns.report import figure, save, table
+from rfhoming.campaigns.runner import Campaign, Job, Report
+from rfhoming.host.estimation.bearings import Degenerate
+from rfhoming.host.estimation.filters import ema_batch, kalman_batch, running_median_batch
+from rfhoming.host.estimation.lateration import multilaterate, strongest_three, trilaterate
+from rfhoming.host.estimation.ranging import LogDistance
 
 TABLE1_D = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0])
 TABLE1_MEAN = np.array([-17.04, -44.80, -64.30, -69.48, -75.62, -76.92, -79.44, -79.60, -83.84, -79.45, -87.23])
@@ -74,10 +74,10 @@ def point_run(point: int, seed: int) -> dict[str, Any]:
 
 
 def jobs(runs: int, seed: int) -> list[Job]:
-    out = [Job(0, "campaigns.s3:filters_run", {"seed": seed})]
+    out = [Job(0, "rfhoming.campaigns.s3:filters_run", {"seed": seed})]
     for p in range(len(POINTS)):
         for k in range(runs):
-            out.append(Job(len(out), "campaigns.s3:point_run", {"point": p, "seed": seed * 100_000 + p * 10_000 + k}))
+            out.append(Job(len(out), "rfhoming.campaigns.s3:point_run", {"point": p, "seed": seed * 100_000 + p * 10_000 + k}))
     return out
 
 

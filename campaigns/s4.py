@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from campaigns.report import figure, save, table
-from campaigns.runner import Campaign, Job, Report
-from host.estimation.beacon import BeaconEkf, BeaconUkf, CircleInitializer, S4Model, initial_state, jacobian, measure
+from rfhoming.campaigns.report import figure, save, table
+from rfhoming.campaigns.runner import Campaign, Job, Report
+from rfhoming.host.estimation.beacon import BeaconEkf, BeaconUkf, CircleInitializer, S4Model, initial_state, jacobian, measure
 
 PAPER = {"ekf": {"mean_m": 0.234, "p95_m": 0.65, "max_m": 2.0, "total_s": 868},
          "ukf": {"mean_m": 0.243, "p95_m": 0.65, "max_m": 2.0, "total_s": 1658}}
@@ -170,7 +170,7 @@ def jobs(runs: int, seed: int) -> list[Job]:
     n_flights = math.ceil(runs / BEACONS_PER_FLIGHT)
     out = []
     for i, start in enumerate(range(0, n_flights, FLIGHTS_PER_JOB)):
-        out.append(Job(i, "campaigns.s4:batch", {"index": i, "seed": seed * 100_000 + i,
+        out.append(Job(i, "rfhoming.campaigns.s4:batch", {"index": i, "seed": seed * 100_000 + i,
                                                  "flights_": min(FLIGHTS_PER_JOB, n_flights - start),
                                                  "reference": 20 if i == 0 else 0}))
     return out

@@ -13,15 +13,15 @@ from typing import Any
 
 import numpy as np
 
-from emulator.faults import ByteFaults, scramble
-from emulator.links import Link
-from emulator.radio import AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth
-from emulator.world import Target, World
-from firmware_py.at86rf212_node import At86rf212NodeFirmware
-from firmware_py.esp32_scanner import Esp32ScannerFirmware
-from firmware_py.robot_base import RobotBaseFirmware
-from firmware_py.xplr_aoa import Advertisement, XplrAoaFirmware
-from protocol.uconnect import Dialect
+from rfhoming.emulator.faults import ByteFaults, scramble
+from rfhoming.emulator.links import Link
+from rfhoming.emulator.radio import AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth
+from rfhoming.emulator.world import Target, World
+from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
+from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware
+from rfhoming.firmware.robot_base import RobotBaseFirmware
+from rfhoming.firmware.xplr_aoa import Advertisement, XplrAoaFirmware
+from rfhoming.protocol.uconnect import Dialect
 
 BOARD_HEIGHT_M = 0.2
 DEFAULT_BAUD = 115200

@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 from typing import IO
 
-from emulator.links import PtyLink
-from protocol import pcapng
+from rfhoming.emulator.links import PtyLink
+from rfhoming.protocol import pcapng
 
 
 async def serve(capture: Path, link_dir: Path, *, speed: float = 1.0, start_delay: float = 1.0,

@@ -24,10 +24,10 @@ from typing import IO, Any
 
 import numpy as np
 
-from emulator.devices import AoaRunner, BaseRunner, DeviceRunner, Esp32Runner, RssRunner, target_positions
-from emulator.faults import ByteFaults, Fault
-from emulator.links import Link, PipeLink, PtyLink, TcpLink
-from emulator.scenario import Scenario
+from rfhoming.emulator.devices import AoaRunner, BaseRunner, DeviceRunner, Esp32Runner, RssRunner, target_positions
+from rfhoming.emulator.faults import ByteFaults, Fault
+from rfhoming.emulator.links import Link, PipeLink, PtyLink, TcpLink
+from rfhoming.emulator.scenario import Scenario
 
 TRANSPORTS = ("pty", "tcp", "pipe")
 

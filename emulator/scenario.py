@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from emulator.radio import AoaModel, PathLossModel
-from emulator.world import Obstacle, Pose, Target, World
+from rfhoming.emulator.radio import AoaModel, PathLossModel
+from rfhoming.emulator.world import Obstacle, Pose, Target, World
 
 DEVICE_TYPES = ("xplr-aoa", "esp32", "at86rf212", "base")
 
@@ -46,7 +46,7 @@ class Scenario:
 
 
 def presets() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("emulator.scenarios").iterdir() if p.name.endswith(".toml"))
+    return sorted(p.name[:-5] for p in resources.files("rfhoming.emulator.scenarios").iterdir() if p.name.endswith(".toml"))
 
 
 def _read(name_or_path: str) -> dict[str, Any]:
@@ -55,7 +55,7 @@ def _read(name_or_path: str) -> dict[str, Any]:
         if path.suffix == ".toml" or path.exists():
             text = path.read_text()
         else:
-            resource = resources.files("emulator.scenarios") / f"{name_or_path}.toml"
+            resource = resources.files("rfhoming.emulator.scenarios") / f"{name_or_path}.toml"
             if not resource.is_file():
                 raise ScenarioError(f"no scenario {name_or_path!r}; presets: {', '.join(presets())}, or a .toml path")
             text = resource.read_text()

@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from protocol.at86rf212 import dbm_to_ed, rssi_base_dbm
-from firmware_py.framed_node import FramedNode
-from protocol.frames import AntennaReading, AntennaSet, NodeCommand, RfFrame
+from rfhoming.protocol.at86rf212 import dbm_to_ed, rssi_base_dbm
+from rfhoming.firmware.framed_node import FramedNode
+from rfhoming.protocol.frames import AntennaReading, AntennaSet, NodeCommand, RfFrame
 
 WAVELENGTH_M = 0.3276
 BORESIGHT_RAD = (0.0, math.pi, math.pi / 2, -math.pi / 2)

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from firmware_py.framed_node import FramedNode
-from protocol.frames import AdvReport, NodeCommand
+from rfhoming.firmware.framed_node import FramedNode
+from rfhoming.protocol.frames import AdvReport, NodeCommand
 
 AIR_US_PER_BYTE = 8
 """1 Mb/s LE 1M PHY."""

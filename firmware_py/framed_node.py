@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from protocol.frames import FrameDecoder, LogText, NodeCommand, Status, encode_frame
+from rfhoming.protocol.frames import FrameDecoder, LogText, NodeCommand, Status, encode_frame
 
 TX_BUFFER = 16384
 STATUS_PERIOD_US = 1_000_000

@@ -17,8 +17,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from firmware_py.framed_node import FramedNode
-from protocol.frames import NodeCommand, Odometry, RangeScan, VelocityCommand
+from rfhoming.firmware.framed_node import FramedNode
+from rfhoming.protocol.frames import NodeCommand, Odometry, RangeScan, VelocityCommand
 
 ODOMETRY_PERIOD_US = 20_000
 FLAG_WATCHDOG, FLAG_CONTACT, FLAG_MOTORS = 1, 2, 4

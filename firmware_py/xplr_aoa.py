@@ -17,8 +17,8 @@ import copy
 from collections import deque
 from dataclasses import dataclass, field
 
-from protocol.uconnect import AngleEvent, Dialect, encode_angle_event, encode_answer, encode_startup
-from protocol.uconnect.commands import BAUD_RATES, STRING_TAGS, UDFCFG_RANGES
+from rfhoming.protocol.uconnect import AngleEvent, Dialect, encode_angle_event, encode_answer, encode_startup
+from rfhoming.protocol.uconnect.commands import BAUD_RATES, STRING_TAGS, UDFCFG_RANGES
 
 TX_BUFFER = 8192
 """UART TX buffer, bytes; a URC that does not fit is dropped whole and counted."""

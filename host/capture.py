@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import BinaryIO
 
-from protocol import pcapng
+from rfhoming.protocol import pcapng
 
 FLUSH_INTERVAL = 1.0
 DISCONNECTED = "disconnected"

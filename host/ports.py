@@ -2,7 +2,7 @@
 
 One string opens anything: ``/dev/ttyACM0``, ``COM3``, a pty, ``socket://127.0.0.1:PORT``
 (the emulator's TCP mode), or ``auto`` (the one recognised device of the wanted kind, see
-:mod:`host.discovery`). Every chunk read or written passes the port's taps with a host
+:mod:`rfhoming.host.discovery`). Every chunk read or written passes the port's taps with a host
 timestamp -- capture and metrics hang there. A failed open raises :class:`PortError` whose
 message says how to fix it; a vanished device ends :meth:`HostPort.read` with
 :class:`Disconnected`, and :func:`reopen` retries with back-off.

@@ -15,9 +15,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from host.capture import DISCONNECTED, parse_description
-from host.ports import Chunk, Disconnected, EndOfInput, Tap
-from protocol import pcapng
+from rfhoming.host.capture import DISCONNECTED, parse_description
+from rfhoming.host.ports import Chunk, Disconnected, EndOfInput, Tap
+from rfhoming.protocol import pcapng
 
 ANSWER_TIMEOUT = 2.0
 

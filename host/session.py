@@ -11,14 +11,14 @@ import contextlib
 from collections.abc import Callable
 from typing import Any
 
-from host.discovery import resolve_auto
-from host.drivers.aoa import AoaDriver
-from host.drivers.base import BaseDriver
-from host.drivers.common import Driver
-from host.drivers.rss import RssDriver
-from host.ports import HostPort, PortError
-from protocol.frames import FrameDecoder
-from protocol.uconnect import UConnectDecoder
+from rfhoming.host.discovery import resolve_auto
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.drivers.common import Driver
+from rfhoming.host.drivers.rss import RssDriver
+from rfhoming.host.ports import HostPort, PortError
+from rfhoming.protocol.frames import FrameDecoder
+from rfhoming.protocol.uconnect import UConnectDecoder
 
 DRIVERS: dict[str, Callable[..., Driver]] = {"ublox-aoa": AoaDriver, "rss": RssDriver, "base": BaseDriver}
 WIRE_PROTOCOL = {"ublox-aoa": "ublox-aoa", "rss": "rss", "base": "rss"}

@@ -6,7 +6,7 @@ extension, three hot paths run in C instead: the CRC-16 (slice-by-8), splitting 
 takes the common case and hands everything else back to the Python decoder, so both paths
 give the same items, drops and counters (tests/test_accel.py holds them to that).
 
-Set ``RFHOMING_PURE_PYTHON=1`` to run without it. ``python -m protocol.accel`` says which one
+Set ``RFHOMING_PURE_PYTHON=1`` to run without it. ``python -m rfhoming.protocol.accel`` says which one
 is in use.
 """
 
@@ -22,7 +22,7 @@ def _load() -> ModuleType | None:
     if os.environ.get(PURE_ENV, "") not in ("", "0"):
         return None
     try:
-        from protocol import _accel
+        from rfhoming.protocol import _accel
     except ImportError:
         return None
     return _accel

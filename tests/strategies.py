@@ -8,8 +8,8 @@ from typing import Any
 import construct as cs
 from hypothesis import strategies as st
 
-from protocol.frames.records import RECORD_TYPES, AntennaReading, RecordType
-from protocol.uconnect import AngleEvent, Dialect
+from rfhoming.protocol.frames.records import RECORD_TYPES, AntennaReading, RecordType
+from rfhoming.protocol.uconnect import AngleEvent, Dialect
 
 
 def _int_range(fmt: str) -> st.SearchStrategy[int]:

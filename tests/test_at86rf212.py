@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from protocol.at86rf212 import (
+from rfhoming.protocol.at86rf212 import (
     ED_MAX,
     channel_frequency_mhz,
     dbm_to_ed,

@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from campaigns import kinematic, s1, s3, s4
-from campaigns.cli import REGISTRY, load
-from campaigns.runner import Job, execute, run_jobs
-from host.cli import main
-from host.homing.s0_aoa import S0Params
+from rfhoming.campaigns import kinematic, s1, s3, s4
+from rfhoming.cli.campaign import REGISTRY, load
+from rfhoming.campaigns.runner import Job, execute, run_jobs
+from rfhoming.cli.main import main
+from rfhoming.host.homing.s0_aoa import S0Params
 
 
 def test_inline_process_and_dask_give_identical_results() -> None:
@@ -34,7 +34,7 @@ def test_inline_process_and_dask_give_identical_results() -> None:
 
 def test_a_job_failure_is_raised_not_swallowed() -> None:
     with pytest.raises(KeyError):
-        run_jobs([Job(0, "campaigns.s0:table3_run", {"config": 9, "mode": "idealised", "target": (1, 1), "seed": 0})],
+        run_jobs([Job(0, "rfhoming.campaigns.s0:table3_run", {"config": 9, "mode": "idealised", "target": (1, 1), "seed": 0})],
                  workers=1)
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from host.cli import main
+from rfhoming.cli.main import main
 
 GOLDEN = Path(__file__).parent / "golden"
 
@@ -35,7 +35,7 @@ def test_counters_line_sums_every_item(capsys) -> None:
 def test_stdin_and_installed_entry_point() -> None:
     raw = (GOLDEN / "xplr_aoa_session.raw").read_bytes()
     done = subprocess.run(
-        [sys.executable, "-m", "host.cli", "decode", "--protocol", "ublox-aoa", "-"],
+        [sys.executable, "-m", "rfhoming", "decode", "--protocol", "ublox-aoa", "-"],
         input=raw, capture_output=True, check=True,
     )
     assert done.stdout.decode() == (GOLDEN / "xplr_aoa_session.jsonl").read_text()

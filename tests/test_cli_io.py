@@ -12,9 +12,9 @@ from pathlib import Path
 
 import serial
 
-from protocol.uconnect import UConnectDecoder
+from rfhoming.protocol.uconnect import UConnectDecoder
 
-RFHOMING = [sys.executable, "-m", "host.cli"]
+RFHOMING = [sys.executable, "-m", "rfhoming"]
 
 
 def lines(text: str) -> list[dict]:
@@ -56,7 +56,7 @@ def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None
 
 
 def test_replay_serves_a_capture_on_ptys(tmp_path: Path) -> None:
-    from protocol import pcapng
+    from rfhoming.protocol import pcapng
 
     data = b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869\r\n'
     blob = pcapng.section_header() + pcapng.interface("/dev/ttyACM0", "protocol=ublox-aoa", 147)

@@ -15,12 +15,12 @@ from pathlib import Path
 import pytest
 import serial
 
-from protocol.frames import AntennaSet, FrameDecoder, Odometry, VelocityCommand, encode_frame
-from protocol.uconnect import UConnectDecoder
+from rfhoming.protocol.frames import AntennaSet, FrameDecoder, Odometry, VelocityCommand, encode_frame
+from rfhoming.protocol.uconnect import UConnectDecoder
 
 
 def emulate(*args: str, devices: int) -> tuple[subprocess.Popen, dict[str, dict]]:
-    proc = subprocess.Popen([sys.executable, "-m", "host.cli", "emulate", *args],
+    proc = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     endpoints = {}
     for _ in range(devices):
@@ -100,6 +100,6 @@ def test_rss_node_and_base_over_their_framing(tmp_path: Path) -> None:
 
 
 def test_bad_arguments_exit_2_with_a_message() -> None:
-    done = subprocess.run([sys.executable, "-m", "host.cli", "emulate", "s0-open", "--target", "x"],
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--target", "x"],
                           capture_output=True, text=True, env={**os.environ})
     assert done.returncode == 2 and "--target takes X,Y" in done.stderr

@@ -10,11 +10,11 @@ import termios
 import pytest
 import serial
 
-from emulator.faults import Fault, FaultError
-from emulator.runtime import Emulator
-from emulator.scenario import ScenarioError, load, presets
-from protocol.frames import FrameDecoder, Odometry, VelocityCommand, encode_frame
-from protocol.uconnect import UConnectDecoder
+from rfhoming.emulator.faults import Fault, FaultError
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import ScenarioError, load, presets
+from rfhoming.protocol.frames import FrameDecoder, Odometry, VelocityCommand, encode_frame
+from rfhoming.protocol.uconnect import UConnectDecoder
 
 FAST = math.inf
 

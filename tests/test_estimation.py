@@ -9,11 +9,11 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from host.estimation import ranging
-from host.estimation.beacon import BeaconEkf, BeaconUkf, CircleInitializer, S4Model, initial_state, jacobian, measure
-from host.estimation.bearings import Degenerate, intersect, kohonen_update, triangulate
-from host.estimation.lateration import multilaterate, strongest_three, trilaterate
-from host.estimation.particle import ParticleFilter, PfParams, direction
+from rfhoming.host.estimation import ranging
+from rfhoming.host.estimation.beacon import BeaconEkf, BeaconUkf, CircleInitializer, S4Model, initial_state, jacobian, measure
+from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update, triangulate
+from rfhoming.host.estimation.lateration import multilaterate, strongest_three, trilaterate
+from rfhoming.host.estimation.particle import ParticleFilter, PfParams, direction
 
 coord = st.floats(-20, 20)
 

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from host.estimation import filters as f
-from host.estimation.fixed import bam16_to_deg, deg_to_bam16, div_round, from_q8, sat, to_q8, wrap16, wrap_deg
+from rfhoming.host.estimation import filters as f
+from rfhoming.host.estimation.fixed import bam16_to_deg, deg_to_bam16, div_round, from_q8, sat, to_q8, wrap16, wrap_deg
 
 rssi_q8 = st.lists(st.integers(to_q8(-110), to_q8(-20)), min_size=1, max_size=120)
 angles_bam = st.lists(st.integers(0, 65535), min_size=1, max_size=120)

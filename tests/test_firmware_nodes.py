@@ -8,11 +8,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from firmware_py.at86rf212_node import At86rf212NodeFirmware, beam_width_deg, dish_gain_db
-from firmware_py.esp32_scanner import Esp32ScannerFirmware, ScanConfig
-from firmware_py.robot_base import BaseLimits, RobotBaseFirmware, Slip
-from protocol.at86rf212 import ed_to_dbm
-from protocol.frames import AntennaSet, FrameDecoder, NodeCommand, Odometry, RfFrame, VelocityCommand, encode_frame
+from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware, beam_width_deg, dish_gain_db
+from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware, ScanConfig
+from rfhoming.firmware.robot_base import BaseLimits, RobotBaseFirmware, Slip
+from rfhoming.protocol.at86rf212 import ed_to_dbm
+from rfhoming.protocol.frames import AntennaSet, FrameDecoder, NodeCommand, Odometry, RfFrame, VelocityCommand, encode_frame
 
 
 def records(fw) -> list:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_py.xplr_aoa import RESTART_MS, TAG_TIMEOUT_MS, Advertisement, XplrAoaFirmware
-from protocol.uconnect import CommandMatcher, Dialect, Response, UConnectDecoder
-from protocol.uconnect import commands as c
+from rfhoming.firmware.xplr_aoa import RESTART_MS, TAG_TIMEOUT_MS, Advertisement, XplrAoaFirmware
+from rfhoming.protocol.uconnect import CommandMatcher, Dialect, Response, UConnectDecoder
+from rfhoming.protocol.uconnect import commands as c
 
 
 class Host:

@@ -9,8 +9,8 @@ from cobs import cobs
 from hypothesis import given
 from hypothesis import strategies as st
 
-from protocol.drop import Drop
-from protocol.frames import (
+from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.frames import (
     MAX_ENCODED,
     MAX_INNER,
     RECORD_TYPES,
@@ -28,7 +28,7 @@ from protocol.frames import (
     encode_inner,
     parse_inner,
 )
-from protocol.frames.codec import VALIDATORS
+from rfhoming.protocol.frames.codec import VALIDATORS
 from tests.strategies import chunked, record_of, records
 
 ODO = Odometry(7, 1, 123456, 1500, -250, 1570796, 300, -100, 0b100)

@@ -14,21 +14,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from emulator.faults import Fault
-from emulator.runtime import Emulator
-from emulator.scenario import load
-from host.capture import CaptureWriter
-from host.drivers.aoa import AoaDriver
-from host.drivers.base import BaseDriver
-from host.drivers.rss import RssDriver
-from host.homing.config import DEFAULT_TOML, Config, ConfigError, LoopSettings, Mounting
-from host.homing.config import load as load_config
-from host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
-from host.homing.s0_aoa import S0Homing, S0Params
-from host.homing.s3_trilat import TrilatParams
-from host.homing.types import Pose
-from host.ports import HostPort
-from host.replay import ReplayPort, Sequencer, load_capture
+from rfhoming.emulator.faults import Fault
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import load
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.drivers.rss import RssDriver
+from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, LoopSettings, Mounting
+from rfhoming.host.homing.config import load as load_config
+from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
+from rfhoming.host.homing.s0_aoa import S0Homing, S0Params
+from rfhoming.host.homing.s3_trilat import TrilatParams
+from rfhoming.host.homing.types import Pose
+from rfhoming.host.ports import HostPort
+from rfhoming.host.replay import ReplayPort, Sequencer, load_capture
 
 
 # -- the controller alone -------------------------------------------------------------------
@@ -201,7 +201,7 @@ async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int, config:
 
 # -- the commands ---------------------------------------------------------------------------
 def test_demo_command_succeeds_and_writes_its_files(tmp_path: Path) -> None:
-    done = subprocess.run([sys.executable, "-m", "host.cli", "demo", "--json", "--out", str(tmp_path)],
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--json", "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
@@ -212,7 +212,7 @@ def test_demo_command_succeeds_and_writes_its_files(tmp_path: Path) -> None:
 
 
 def test_config_command() -> None:
-    done = subprocess.run([sys.executable, "-m", "host.cli", "config", "--print-default"], capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "config", "--print-default"], capture_output=True, text=True)
     assert done.returncode == 0 and done.stdout == DEFAULT_TOML
 
 

@@ -12,17 +12,17 @@ from pathlib import Path
 
 import pytest
 
-from emulator.faults import Fault
-from emulator.runtime import Emulator
-from emulator.scenario import load
-from host.capture import CaptureWriter
-from host.drivers.aoa import AoaDriver, AoaSetup, identify_dialect
-from host.drivers.base import BaseDriver
-from host.drivers.rss import AntennaPowers, Associator, LossCounter, NodeClock, RssDriver
-from host.ports import HostPort, PortError, explain
-from host.replay import ReplayPort, load_capture
-from protocol import pcapng
-from protocol.uconnect import Dialect
+from rfhoming.emulator.faults import Fault
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import load
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup, identify_dialect
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.drivers.rss import AntennaPowers, Associator, LossCounter, NodeClock, RssDriver
+from rfhoming.host.ports import HostPort, PortError, explain
+from rfhoming.host.replay import ReplayPort, load_capture
+from rfhoming.protocol import pcapng
+from rfhoming.protocol.uconnect import Dialect
 
 
 async def start(tmp_path: Path, scenario: str = "s0-open", *, speed: float = 4.0, faults: list[str] = (),

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from host.drivers.base import Scan
-from host.homing.avoidance import AvoidParams, ObstacleAvoidance, sectors
-from host.homing.grid import FREE_COST, OCCUPIED_COST, UNKNOWN_COST, GridParams, OccupancyGrid, lookahead
-from host.homing.types import Decision, Pose
+from rfhoming.host.drivers.base import Scan
+from rfhoming.host.homing.avoidance import AvoidParams, ObstacleAvoidance, sectors
+from rfhoming.host.homing.grid import FREE_COST, OCCUPIED_COST, UNKNOWN_COST, GridParams, OccupancyGrid, lookahead
+from rfhoming.host.homing.types import Decision, Pose
 from tests.test_homing import closed_loop_scenario
 
 
@@ -115,7 +115,7 @@ async def test_s3_goes_to_a_goal_localised_on_beacons(tmp_path, seed: int) -> No
 async def test_s2_bounded_weights_home_around_blocked_corners(tmp_path, scenario: str) -> None:
     from dataclasses import replace
 
-    from host.homing.config import Config
+    from rfhoming.host.homing.config import Config
 
     config = replace(Config(), s2=replace(Config().s2, likelihood="bounded", seed=1))
     outcome, error, _ = await closed_loop_scenario(tmp_path, scenario, 1, config)
@@ -125,8 +125,8 @@ async def test_s2_bounded_weights_home_around_blocked_corners(tmp_path, scenario
 async def test_s2_preliminary_rules_reach_the_emitter_in_the_open(tmp_path) -> None:
     from dataclasses import replace
 
-    from host.homing.config import Config
-    from host.homing.s2_rss import S2Params
+    from rfhoming.host.homing.config import Config
+    from rfhoming.host.homing.s2_rss import S2Params
 
     outcome, error, log = await closed_loop_scenario(tmp_path, "s2-a", 0, config=replace(Config(), s2=S2Params(motion="preliminary")))
     assert outcome.arrived and error < 1.0

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from emulator.radio import AoaModel, PathLossModel, RadioChannel, fold_front, idealised_rssi, measure_azimuth
-from firmware_py.xplr_aoa import Advertisement, XplrAoaFirmware
-from protocol.uconnect import UConnectDecoder
-from protocol.uconnect import commands as c
+from rfhoming.emulator.radio import AoaModel, PathLossModel, RadioChannel, fold_front, idealised_rssi, measure_azimuth
+from rfhoming.firmware.xplr_aoa import Advertisement, XplrAoaFirmware
+from rfhoming.protocol.uconnect import UConnectDecoder
+from rfhoming.protocol.uconnect import commands as c
 
 
 @pytest.mark.parametrize(("true", "folded"), [(0, 0), (45, 45), (90, 90), (120, 60), (-150, -30), (180, 0), (270, -90)])

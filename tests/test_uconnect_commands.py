@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from protocol.uconnect import CommandMatcher, UConnectDecoder, encode_answer, encode_startup
-from protocol.uconnect import commands as c
+from rfhoming.protocol.uconnect import CommandMatcher, UConnectDecoder, encode_answer, encode_startup
+from rfhoming.protocol.uconnect import commands as c
 
 OFFICIAL = b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869\r\n'
 

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from protocol.uconnect import (
+from rfhoming.protocol.uconnect import (
     MAX_LINE,
     AngleEvent,
     Dialect,
@@ -20,7 +20,7 @@ from protocol.uconnect import (
     UnknownLine,
     encode_angle_event,
 )
-from protocol.uconnect.decoder import _fast_angle_event, parse_angle_event
+from rfhoming.protocol.uconnect.decoder import _fast_angle_event, parse_angle_event
 from tests.strategies import angle_events, chunked
 
 OFFICIAL = b'+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869'

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from protocol.uconnect import (
+from rfhoming.protocol.uconnect import (
     AngleEvent,
     Dialect,
     Echo,
@@ -17,7 +17,7 @@ from protocol.uconnect import (
     encode_answer,
     encode_startup,
 )
-from protocol.uconnect.encoder import encode_tag_data
+from rfhoming.protocol.uconnect.encoder import encode_tag_data
 from tests.strategies import angle_events
 
 EVENT = AngleEvent("CCF9578E0D8A", -42, 20, 0, -43, 37, "CCF9578E0D89", "", 15869, 23, -5, 3)

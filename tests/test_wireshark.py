@@ -11,10 +11,10 @@ from pathlib import Path
 import construct as cs
 import pytest
 
-from protocol import pcapng
-from protocol.frames import RECORD_TYPES, FrameDecoder, encode_frame
-from protocol.frames.records import AntennaReading
-from protocol.frames.wireshark import lua_dissector
+from rfhoming.protocol import pcapng
+from rfhoming.protocol.frames import RECORD_TYPES, FrameDecoder, encode_frame
+from rfhoming.protocol.frames.records import AntennaReading
+from rfhoming.protocol.frames.wireshark import lua_dissector
 from tests.strategies import chunked
 
 

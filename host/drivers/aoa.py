@@ -21,10 +21,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from host.drivers.common import BoundedStream, Driver
-from host.ports import HostPort
-from protocol.uconnect import AngleEvent, CommandMatcher, Dialect, Response, UConnectDecoder
-from protocol.uconnect import commands as c
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.ports import HostPort
+from rfhoming.protocol.uconnect import AngleEvent, CommandMatcher, Dialect, Response, UConnectDecoder
+from rfhoming.protocol.uconnect import commands as c
 
 log = logging.getLogger(__name__)
 

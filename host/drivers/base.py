@@ -11,10 +11,10 @@ import asyncio
 import logging
 from typing import Any, NamedTuple
 
-from host.drivers.common import BoundedStream, Driver
-from host.drivers.rss import NodeClock
-from host.ports import Disconnected, HostPort
-from protocol.frames import FrameDecoder, Odometry, RangeScan, VelocityCommand, encode_frame
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.rss import NodeClock
+from rfhoming.host.ports import Disconnected, HostPort
+from rfhoming.protocol.frames import FrameDecoder, Odometry, RangeScan, VelocityCommand, encode_frame
 
 log = logging.getLogger(__name__)
 

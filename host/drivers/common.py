@@ -9,7 +9,7 @@ from collections import deque
 from collections.abc import AsyncIterator, Callable
 from typing import Any, Generic, TypeVar
 
-from host.ports import Disconnected, EndOfInput, HostPort, PortError, reopen
+from rfhoming.host.ports import Disconnected, EndOfInput, HostPort, PortError, reopen
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")

@@ -14,10 +14,10 @@ from __future__ import annotations
 from collections import deque
 from typing import Any, NamedTuple
 
-from host.drivers.common import BoundedStream, Driver
-from host.ports import HostPort
-from protocol.at86rf212 import DEFAULT_SCALE_DB, ed_to_dbm
-from protocol.frames import AdvReport, AntennaSet, FrameDecoder, RfFrame, Status
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.ports import HostPort
+from rfhoming.protocol.at86rf212 import DEFAULT_SCALE_DB, ed_to_dbm
+from rfhoming.protocol.frames import AdvReport, AntennaSet, FrameDecoder, RfFrame, Status
 
 WRAP = 1 << 32
 

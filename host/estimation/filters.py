@@ -1,7 +1,7 @@
 """Fixed-point filters for RSSI and angles, each with a float reference and a numpy batch form.
 
 Scalar classes keep integer state exactly as firmware would (formats in
-:mod:`host.estimation.fixed`): ``update(sample) -> output``. The ``*_float`` classes are the
+:mod:`rfhoming.host.estimation.fixed`): ``update(sample) -> output``. The ``*_float`` classes are the
 references the tests bound the error against. The ``*_batch`` functions run many independent
 series at once (columns of a (T, M) array) for campaigns and give bit-identical results to the
 scalar classes.
@@ -17,7 +17,7 @@ from collections import deque
 
 import numpy as np
 
-from host.estimation.fixed import INT32, div_round, sat, wrap16, wrap32, wrap_deg
+from rfhoming.host.estimation.fixed import INT32, div_round, sat, wrap16, wrap32, wrap_deg
 
 INT32_MIN, INT32_MAX = INT32
 

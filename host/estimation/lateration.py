@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from host.estimation.bearings import Degenerate
+from rfhoming.host.estimation.bearings import Degenerate
 
 MIN_AREA_M2 = 0.05
 """Anchors spanning a smaller triangle are treated as collinear."""

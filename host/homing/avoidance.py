@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from host.drivers.base import Scan
-from host.homing.types import Decision
+from rfhoming.host.drivers.base import Scan
+from rfhoming.host.homing.types import Decision
 
 
 @dataclass(frozen=True)

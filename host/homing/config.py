@@ -12,13 +12,13 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from host.estimation.ranging import LogDistance
-from host.homing.avoidance import AvoidParams
-from host.homing.grid import GridParams
-from host.homing.s0_aoa import S0Params
-from host.homing.s1_dock import S1Params
-from host.homing.s2_rss import S2Params
-from host.homing.s3_trilat import TrilatParams
+from rfhoming.host.estimation.ranging import LogDistance
+from rfhoming.host.homing.avoidance import AvoidParams
+from rfhoming.host.homing.grid import GridParams
+from rfhoming.host.homing.s0_aoa import S0Params
+from rfhoming.host.homing.s1_dock import S1Params
+from rfhoming.host.homing.s2_rss import S2Params
+from rfhoming.host.homing.s3_trilat import TrilatParams
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from host.drivers.base import Scan
-from host.homing.types import Pose
+from rfhoming.host.drivers.base import Scan
+from rfhoming.host.homing.types import Pose
 
 UNKNOWN_COST, FREE_COST, OCCUPIED_COST = 2, 1, 100
 MOVES = ((1, 0), (0, 1), (-1, 0), (0, -1))

@@ -26,17 +26,17 @@ import time
 from dataclasses import dataclass, field
 from typing import IO, Any, Protocol
 
-from host.drivers.aoa import AoaDriver, TimedAngle
-from host.drivers.common import BoundedStream, Driver
-from host.drivers.base import BaseDriver, Pose2D, Scan
-from host.homing.avoidance import ObstacleAvoidance
-from host.homing.config import Config
-from host.homing.grid import OccupancyGrid, lookahead
-from host.homing.s0_aoa import S0Homing
-from host.homing.s1_dock import DockController
-from host.homing.s2_rss import RssController
-from host.homing.s3_trilat import TrilatController
-from host.homing.types import Decision, Pose
+from rfhoming.host.drivers.aoa import AoaDriver, TimedAngle
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.base import BaseDriver, Pose2D, Scan
+from rfhoming.host.homing.avoidance import ObstacleAvoidance
+from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.grid import OccupancyGrid, lookahead
+from rfhoming.host.homing.s0_aoa import S0Homing
+from rfhoming.host.homing.s1_dock import DockController
+from rfhoming.host.homing.s2_rss import RssController
+from rfhoming.host.homing.s3_trilat import TrilatController
+from rfhoming.host.homing.types import Decision, Pose
 
 log = logging.getLogger(__name__)
 

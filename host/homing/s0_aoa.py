@@ -40,9 +40,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from host.estimation.bearings import Degenerate, intersect, kohonen_update
-from host.estimation.fixed import wrap_rad
-from host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update
+from rfhoming.host.estimation.fixed import wrap_rad
+from rfhoming.host.homing.types import Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)

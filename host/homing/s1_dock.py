@@ -33,10 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from host.drivers.aoa import TimedAngle
-from host.estimation.filters import MovingAverage
-from host.estimation.fixed import from_q8, to_q8, wrap_rad
-from host.homing.types import Decision, Pose
+from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.estimation.filters import MovingAverage
+from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
+from rfhoming.host.homing.types import Decision, Pose
 
 
 @dataclass(frozen=True)

@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from host.drivers.rss import AntennaPowers
-from host.estimation.fixed import wrap_rad
-from host.estimation.particle import ParticleFilter, PfParams, differential_to_range, direction
-from host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.drivers.rss import AntennaPowers
+from rfhoming.host.estimation.fixed import wrap_rad
+from rfhoming.host.estimation.particle import ParticleFilter, PfParams, differential_to_range, direction
+from rfhoming.host.homing.types import Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)

@@ -19,13 +19,13 @@ from typing import Any
 
 import numpy as np
 
-from host.drivers.rss import BleRssi
-from host.estimation.bearings import Degenerate
-from host.estimation.filters import ScalarKalman
-from host.estimation.fixed import from_q8, to_q8, wrap_rad
-from host.estimation.lateration import multilaterate
-from host.estimation.ranging import LogDistance
-from host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.drivers.rss import BleRssi
+from rfhoming.host.estimation.bearings import Degenerate
+from rfhoming.host.estimation.filters import ScalarKalman
+from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
+from rfhoming.host.estimation.lateration import multilaterate
+from rfhoming.host.estimation.ranging import LogDistance
+from rfhoming.host.homing.types import Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """rfhoming's COBS-framed binary records: RSS nodes and the robot base (protocols.md §3)."""
 
-from protocol.frames.codec import MAX_ENCODED, FrameDecoder, encode_frame, encode_inner
-from protocol.frames.records import (
+from rfhoming.protocol.frames.codec import MAX_ENCODED, FrameDecoder, encode_frame, encode_inner
+from rfhoming.protocol.frames.records import (
     MAX_INNER,
     RECORD_TYPES,
     AdvReport,

@@ -4,7 +4,7 @@
 A zero byte ends every frame, so garbage costs at most the frame it touches and the next
 intact frame is never lost. Every rejected frame is a :class:`~protocol.drop.Drop`, counted
 by reason; a record is returned only after COBS, length, CRC, version, type, body length and
-field checks all pass. Where the C accelerator is built (:mod:`protocol.accel`), its
+field checks all pass. Where the C accelerator is built (:mod:`rfhoming.protocol.accel`), its
 ``scan_frames`` splits the chunk and checks COBS and CRC; the rest happens here either way.
 """
 
@@ -18,10 +18,10 @@ from typing import Any
 
 from cobs import cobs
 
-from protocol.accel import ACCEL
-from protocol.drop import Drop
-from protocol.frames.fast import CRC_STRUCT, DECODERS, ENCODERS, HEADER_SIZE, HEADER_STRUCT
-from protocol.frames.records import MAX_INNER, RECORD_TYPES, VERSION, crc16
+from rfhoming.protocol.accel import ACCEL
+from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.frames.fast import CRC_STRUCT, DECODERS, ENCODERS, HEADER_SIZE, HEADER_STRUCT
+from rfhoming.protocol.frames.records import MAX_INNER, RECORD_TYPES, VERSION, crc16
 
 MAX_ENCODED = MAX_INNER + math.ceil(MAX_INNER / 254)
 """Longest COBS-encoded frame; a longer run without a zero is dropped as oversize."""

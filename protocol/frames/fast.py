@@ -1,4 +1,4 @@
-"""Hot-path codecs derived from the construct declarations in :mod:`protocol.frames.records`.
+"""Hot-path codecs derived from the construct declarations in :mod:`rfhoming.protocol.frames.records`.
 
 Each body is a fixed little-endian prefix, optionally followed by one variable tail whose
 length is the last fixed field (``ad``, ``psdu``, ``ranges_mm``) or the rest of the frame
@@ -16,7 +16,7 @@ from typing import Any
 
 import construct as cs
 
-from protocol.frames.records import HEADER, RECORD_TYPES, AntennaReading, RecordType
+from rfhoming.protocol.frames.records import HEADER, RECORD_TYPES, AntennaReading, RecordType
 
 HEADER_STRUCT = struct.Struct("<BBBHI")
 CRC_STRUCT = struct.Struct("<H")

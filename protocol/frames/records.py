@@ -4,7 +4,7 @@ These declarations are the single source of truth. From them this module derives
 
 - the record classes (NamedTuples: header fields ``node_id, seq, t_us``, then the body fields,
   without the length fields that only describe a tail),
-- the ``struct`` layouts of the hot path (:mod:`protocol.frames.fast`), so the decoder never
+- the ``struct`` layouts of the hot path (:mod:`rfhoming.protocol.frames.fast`), so the decoder never
   interprets a declaration per field,
 - the reference parser and builder used by tests and benchmarks (:func:`parse_inner`,
   :func:`build_inner`).

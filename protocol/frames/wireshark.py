@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import construct as cs
 
-from protocol.frames.codec import MAX_ENCODED
-from protocol.frames.records import MAX_INNER, RECORD_TYPES, VERSION
-from protocol.pcapng import LINKTYPE_FRAMES, LINKTYPE_UCONNECT
+from rfhoming.protocol.frames.codec import MAX_ENCODED
+from rfhoming.protocol.frames.records import MAX_INNER, RECORD_TYPES, VERSION
+from rfhoming.protocol.pcapng import LINKTYPE_FRAMES, LINKTYPE_UCONNECT
 
 _INT_TYPES = {"B": "uint8", "b": "int8", "H": "uint16", "h": "int16", "L": "uint32", "l": "int32", "I": "uint32", "i": "int32"}
 

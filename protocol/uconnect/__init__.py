@@ -1,9 +1,9 @@
 """u-connectLocate (u-blox XPLR-AOA) AT commands, answers and ``+UUDF`` angle events."""
 
-from protocol.uconnect.commands import Command, CommandMatcher, Response
-from protocol.uconnect.decoder import MAX_LINE, UConnectDecoder
-from protocol.uconnect.encoder import Dialect, encode_angle_event, encode_answer, encode_startup
-from protocol.uconnect.items import (
+from rfhoming.protocol.uconnect.commands import Command, CommandMatcher, Response
+from rfhoming.protocol.uconnect.decoder import MAX_LINE, UConnectDecoder
+from rfhoming.protocol.uconnect.encoder import Dialect, encode_angle_event, encode_answer, encode_startup
+from rfhoming.protocol.uconnect.items import (
     AngleEvent,
     Drop,
     Echo,

@@ -11,7 +11,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from protocol.uconnect.items import Item
+from rfhoming.protocol.uconnect.items import Item
 
 BAUD_RATES = (19200, 38400, 57600, 115200, 230400, 460800, 921600, 1000000)
 """Rates AT+UMRS accepts (protocols.md §1); also the list a host probes on garbage."""

@@ -11,7 +11,7 @@ The ``+UUDF`` hot path splits on quotes and commas and converts the small intege
 dictionary look-ups that are also the range checks (a value ``%d`` would never print, such as
 ``+5`` or ``020``, is not in the table and is rejected). Anything the fast path refuses goes
 to :func:`parse_angle_event`, the strict quote-aware parser that also says why. Where the C
-accelerator is built (:mod:`protocol.accel`), its ``scan_uudf`` does the splitting and the
+accelerator is built (:mod:`rfhoming.protocol.accel`), its ``scan_uudf`` does the splitting and the
 common ``+UUDF`` lines and hands every other line back here as bytes.
 """
 
@@ -19,8 +19,8 @@ from __future__ import annotations
 
 from collections import Counter
 
-from protocol.accel import ACCEL
-from protocol.uconnect.items import (
+from rfhoming.protocol.accel import ACCEL
+from rfhoming.protocol.uconnect.items import (
     AngleEvent,
     Drop,
     Echo,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Sequence
 
-from protocol.uconnect.decoder import (
+from rfhoming.protocol.uconnect.decoder import (
     AZIMUTH_RANGE,
     CHANNEL_RANGE,
     MAX_STRING,
@@ -19,7 +19,7 @@ from protocol.uconnect.decoder import (
     SEQ_RANGE,
     TIMESTAMP_RANGE,
 )
-from protocol.uconnect.items import AngleEvent
+from rfhoming.protocol.uconnect.items import AngleEvent
 
 
 class Dialect(enum.Enum):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import NamedTuple, Optional, Union
 
-from protocol.drop import Drop
+from rfhoming.protocol.drop import Drop
 
 
 class AngleEvent(NamedTuple):

@@ -11,9 +11,9 @@ import signal
 import sys
 from pathlib import Path
 
-from emulator.faults import Fault, FaultError
-from emulator.runtime import Emulator
-from emulator.scenario import ScenarioError, load, presets
+from rfhoming.emulator.faults import Fault, FaultError
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import ScenarioError, load, presets
 
 HELP = """\
 Run an emulated world and serve each device where a host opens it like real hardware:

@@ -12,15 +12,15 @@ import sys
 import time
 from pathlib import Path
 
-from campaigns.runner import Campaign, CampaignError, run_jobs
+from rfhoming.campaigns.runner import Campaign, CampaignError, run_jobs
 
 REGISTRY = {  # name -> "module:attribute", imported only when run
-    "s0-table3": "campaigns.s0:TABLE3_CAMPAIGN",
-    "s0-house": "campaigns.s0:HOUSE_CAMPAIGN",
-    "s1-dock": "campaigns.s1:CAMPAIGN",
-    "s2-scenarios": "campaigns.s2:CAMPAIGN",
-    "s3-arena": "campaigns.s3:CAMPAIGN",
-    "s4-montecarlo": "campaigns.s4:CAMPAIGN",
+    "s0-table3": "rfhoming.campaigns.s0:TABLE3_CAMPAIGN",
+    "s0-house": "rfhoming.campaigns.s0:HOUSE_CAMPAIGN",
+    "s1-dock": "rfhoming.campaigns.s1:CAMPAIGN",
+    "s2-scenarios": "rfhoming.campaigns.s2:CAMPAIGN",
+    "s3-arena": "rfhoming.campaigns.s3:CAMPAIGN",
+    "s4-montecarlo": "rfhoming.campaigns.s4:CAMPAIGN",
 }
 
 EPILOG = """\

@@ -13,15 +13,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from host.capture import CaptureWriter
-from host.discovery import candidates
-from host.drivers.aoa import AoaDriver
-from host.drivers.common import Driver
-from host.ports import PortError
-from host.replay import ReplayPort, describe, load_capture
-from host.session import DRIVERS, health, open_drivers
-from protocol.jsonable import as_dict
-from protocol.pcapng import CaptureFormatError
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.discovery import candidates
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.common import Driver
+from rfhoming.host.ports import PortError
+from rfhoming.host.replay import ReplayPort, describe, load_capture
+from rfhoming.host.session import DRIVERS, health, open_drivers
+from rfhoming.protocol.jsonable import as_dict
+from rfhoming.protocol.pcapng import CaptureFormatError
 
 log = logging.getLogger(__name__)
 
@@ -166,7 +166,7 @@ async def _replay(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     if args.pty:
-        from host.cli import serve_capture_on_ptys  # the CLI wires the emulator's pty server in
+        from rfhoming.cli.main import serve_capture_on_ptys  # the CLI wires the emulator's pty server in
 
         return serve_capture_on_ptys(args)
     return asyncio.run(_replay(args))

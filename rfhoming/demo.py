@@ -19,19 +19,19 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from host.capture import CaptureWriter
-from host.drivers.aoa import AoaDriver
-from host.drivers.base import BaseDriver
-from host.drivers.rss import RssDriver
-from host.homing.config import Config
-from host.homing.loop import Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
-from host.ports import HostPort
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.drivers.rss import RssDriver
+from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.loop import Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
+from rfhoming.host.ports import HostPort
 
 SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e", "s3-arena"}  # S0–S3
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None) -> tuple[subprocess.Popen, dict]:
-    cmd = [sys.executable, "-m", "host.cli", "emulate", scenario, "--pty", "--lockstep", "--seed", str(seed),
+    cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", "--lockstep", "--seed", str(seed),
            "--truth", str(truth), "--link-dir", str(link_dir)]
     if target:
         cmd.append(f"--target={target}")  # "=": a negative X would read as an option

@@ -10,12 +10,12 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-from host.cli_io import add_parsers as add_io_parsers
-from host.cli_io import configure_logging
-from host.cli_run import add_parsers as add_run_parsers
-from protocol.frames import FrameDecoder
-from protocol.jsonable import as_dict
-from protocol.uconnect import UConnectDecoder
+from rfhoming.cli.io import add_parsers as add_io_parsers
+from rfhoming.cli.io import configure_logging
+from rfhoming.cli.run import add_parsers as add_run_parsers
+from rfhoming.protocol.frames import FrameDecoder
+from rfhoming.protocol.jsonable import as_dict
+from rfhoming.protocol.uconnect import UConnectDecoder
 
 DECODERS: dict[str, Callable[[], UConnectDecoder | FrameDecoder]] = {
     "ublox-aoa": UConnectDecoder,
@@ -73,7 +73,7 @@ examples:
 
 
 def cmd_dissector(args: argparse.Namespace) -> int:
-    from protocol.frames.wireshark import lua_dissector
+    from rfhoming.protocol.frames.wireshark import lua_dissector
 
     if args.output == "-":
         sys.stdout.write(lua_dissector())
@@ -127,14 +127,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_emulate(sub: argparse._SubParsersAction) -> None:
     """The emulator's command; the CLI is the one host module that may wire the emulator in."""
-    from emulator.cli import add_parser
+    from rfhoming.cli.emulate import add_parser
 
     add_parser(sub)
 
 
 def _add_campaign(sub: argparse._SubParsersAction) -> None:
     """Campaigns wire the emulator and the host together in-process (the campaigns package)."""
-    from campaigns.cli import add_parser
+    from rfhoming.cli.campaign import add_parser
 
     add_parser(sub)
 
@@ -154,7 +154,7 @@ def serve_capture_on_ptys(args: argparse.Namespace) -> int:
     import tempfile
     from pathlib import Path
 
-    from emulator.playback import serve
+    from rfhoming.emulator.playback import serve
 
     link_dir = args.link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-replay-"))
     try:

@@ -8,14 +8,14 @@ import json
 import sys
 from pathlib import Path
 
-from host.capture import CaptureWriter
-from host.drivers.aoa import AoaDriver
-from host.drivers.base import BaseDriver
-from host.drivers.rss import RssDriver
-from host.homing.config import DEFAULT_TOML, ConfigError, load
-from host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
-from host.ports import HostPort, PortError
-from host.session import flow_control
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.drivers.rss import RssDriver
+from rfhoming.host.homing.config import DEFAULT_TOML, ConfigError, load
+from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
+from rfhoming.host.ports import HostPort, PortError
+from rfhoming.host.session import flow_control
 
 CONTROLLERS = ("aoa", "dock", "rss", "trilat")
 
@@ -83,7 +83,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from host.demo import SUPPORTED, run_demo
+    from rfhoming.demo import SUPPORTED, run_demo
 
     if args.scenario not in SUPPORTED:
         print(f"rfhoming demo: scenario {args.scenario!r} is not wired to a controller yet; "
