@@ -41,6 +41,7 @@ class DeviceRunner:
         self.faults = faults
         self.rng = rng
         self.forced_baud: int | None = None
+        self.baud = DEFAULT_BAUD  # the UART rate the device was set to (scenario option ``baud``)
         link.on_receive = self.on_host_bytes
 
     def describe(self) -> dict[str, Any]:
@@ -49,7 +50,7 @@ class DeviceRunner:
     kind = "device"
 
     def device_baud(self) -> int:
-        return self.forced_baud or DEFAULT_BAUD
+        return self.forced_baud or self.baud
 
     def mismatched(self) -> bool:
         host = self.link.host_baud()
@@ -119,7 +120,8 @@ class AoaRunner(DeviceRunner):
                  robot_tag: tuple[str, float] | None) -> None:
         dialect = Dialect(str(options.get("dialect", "1.2")))
         mac = str(options.get("mac", "CCF9578E0D89"))
-        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect), link, faults, rng)
+        baud = int(options.get("baud", DEFAULT_BAUD))
+        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect, baud), link, faults, rng)
         self.aoa = aoa
         self.path_loss = path_loss
         self.channel = RadioChannel(path_loss, rng)
@@ -245,6 +247,7 @@ class BaseRunner(DeviceRunner):
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], start: tuple[float, float, float], radius: float) -> None:
         super().__init__(name, lambda: RobotBaseFirmware(0, start_pose=start), link, faults, rng)
+        self.baud = int(options.get("baud", DEFAULT_BAUD))
         self.scan = bool(options.get("scan", False))
         self.radius = radius
         self.commanded = asyncio.Event()

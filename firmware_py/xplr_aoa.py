@@ -79,12 +79,14 @@ class _Tag:
 class XplrAoaFirmware:
     """The anchor board. Times are integer milliseconds since the emulator started."""
 
-    def __init__(self, mac: str = "CCF9578E0D89", dialect: Dialect = Dialect.V1_2) -> None:
+    def __init__(self, mac: str = "CCF9578E0D89", dialect: Dialect = Dialect.V1_2, baud: int = 115200) -> None:
+        """``baud``: the stored UART rate, as if set by AT+UMRS and AT&W before this boot."""
         if len(mac) != 12:
             raise ValueError("mac must be 12 hex digits")
         self.mac = mac
         self.dialect = dialect
         self.saved = factory_settings(mac)
+        self.saved.baud = baud
         self.counters: dict[str, int] = {"events": 0, "tx_overflow": 0, "rx_overflow": 0}
         self._out = bytearray()
         self._line = bytearray()

@@ -16,6 +16,7 @@ from rfhoming.protocol import pcapng
 
 FLUSH_INTERVAL = 1.0
 DISCONNECTED = "disconnected"
+SNIFFED = "sniffed"  # the comment on bytes exchanged while sniffing the protocol (no driver saw them)
 
 
 class CaptureWriter:
@@ -50,8 +51,9 @@ class CaptureWriter:
         if direction == "lost":  # an empty packet marks where the device went away
             self._file.write(pcapng.packet(iface, t, b"", 0, DISCONNECTED))
         else:
-            flag = pcapng.INBOUND if direction == "in" else pcapng.OUTBOUND
-            self._file.write(pcapng.packet(iface, t, data, flag, self._comments.pop(port, "")))
+            flag = pcapng.INBOUND if direction in ("in", "sniff-in") else pcapng.OUTBOUND
+            comment = SNIFFED if direction.startswith("sniff") else self._comments.pop(port, "")
+            self._file.write(pcapng.packet(iface, t, data, flag, comment))
         self.packets += 1
         self._schedule_flush()
 

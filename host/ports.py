@@ -25,7 +25,9 @@ import serial_asyncio_fast
 log = logging.getLogger(__name__)
 
 Tap = Callable[[str, str, float, bytes], None]
-"""tap(port_name, direction 'in'|'out'|'lost', host time in seconds, bytes)."""
+"""tap(port_name, direction, host time in seconds, bytes). Directions: 'in', 'out', 'lost' (the
+device went away), and 'sniff-in'/'sniff-out' for the bytes exchanged while the host was finding
+out what protocol the port speaks, before its driver opened it."""
 
 MAX_BACKLOG = 1 << 20
 

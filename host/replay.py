@@ -5,7 +5,8 @@ each recorded inbound chunk with its recorded timestamp, as fast as possible or 
 pace (``speed``). A recorded answer that followed one of the host's writes is released only
 after the driver has written again, so the driver's commands are answered from the capture in
 the order they were answered live. Writes that differ from the recording are counted
-(``diverged``): the replayed host did not do what the live one did.
+(``diverged``): the replayed host did not do what the live one did. Bytes recorded while the
+live host sniffed the port's protocol reached no driver, so they are skipped (``sniffed``).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rfhoming.host.capture import DISCONNECTED, parse_description
+from rfhoming.host.capture import DISCONNECTED, SNIFFED, parse_description
 from rfhoming.host.ports import Chunk, Disconnected, EndOfInput, Tap
 from rfhoming.protocol import pcapng
 
@@ -57,7 +58,7 @@ class ReplayPort:
         self.baud = 115200
         self.taps: list[Tap] = []
         self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0,
-                         "disconnects": 0, "dropped_bytes": 0, "diverged": 0, "unanswered": 0}
+                         "disconnects": 0, "dropped_bytes": 0, "diverged": 0, "unanswered": 0, "sniffed": 0}
         self._i = 0
         self._written = asyncio.Event()
         self._open = False
@@ -86,6 +87,12 @@ class ReplayPort:
         while self._i < len(self.packets):
             p = self.packets[self._i]
             self._i += 1
+            if p.comment == SNIFFED:
+                self.counters["sniffed"] += len(p.data)
+                if self.sequencer is not None and p.direction != pcapng.OUTBOUND:
+                    await self.sequencer.turn(self.name, self._i - 1)
+                    self.sequencer.taken()
+                continue
             if p.direction == pcapng.OUTBOUND:
                 await self._await_write(p)
                 continue

@@ -1,22 +1,30 @@
-"""Wiring shared by ``rfhoming listen``, ``capture`` and ``replay``: endpoints -> drivers.
+"""Port specs -> drivers: the one place where a spec string becomes a running device.
 
-An endpoint is ``PATH`` (its protocol sniffed from what it says) or ``PROTOCOL=PATH`` with
-PROTOCOL one of ``ublox-aoa`` (XPLR-AOA), ``rss`` (ESP32/AT86RF212 node) or ``base``.
+A spec (:mod:`rfhoming.host.portspec`) names its kind -- ``ublox-aoa`` (XPLR-AOA), ``rss``
+(ESP32/AT86RF212 node), ``base`` -- or leaves it out to have the protocol sniffed from what the
+port says; ``capture:FILE`` replays a recording as the devices it holds. Used by ``listen``,
+``capture``, ``replay``, ``run`` and the Python API alike.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
+from rfhoming.host import portspec
 from rfhoming.host.discovery import resolve_auto
-from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup
 from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.rss import RssDriver
-from rfhoming.host.ports import HostPort, PortError
+from rfhoming.host.portspec import PortSpec, PortSpecError
+from rfhoming.host.ports import HostPort, PortError, Tap
+from rfhoming.host.replay import ReplayPort, Sequencer, load_capture
+from rfhoming.host.replay import describe as describe_interface
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.uconnect import UConnectDecoder
 
@@ -24,15 +32,9 @@ DRIVERS: dict[str, Callable[..., Driver]] = {"ublox-aoa": AoaDriver, "rss": RssD
 WIRE_PROTOCOL = {"ublox-aoa": "ublox-aoa", "rss": "rss", "base": "rss"}
 AUTO_KIND = {"ublox-aoa": "xplr-aoa", "rss": "esp32", "base": "stm32"}
 SNIFF_SECONDS = 1.5
+DEFAULT_BAUD = 115200
 
-
-def parse_endpoint(text: str) -> tuple[str | None, str]:
-    head, eq, tail = text.partition("=")
-    if eq and head in DRIVERS:
-        return head, tail
-    if eq:
-        raise ValueError(f"unknown protocol {head!r} in {text!r}; use one of {', '.join(DRIVERS)}")
-    return None, text
+log = logging.getLogger(__name__)
 
 
 def what_speaks(data: bytes) -> str | None:
@@ -46,9 +48,10 @@ def what_speaks(data: bytes) -> str | None:
     return None
 
 
-async def sniff(spec: str, baud: int) -> str:
-    """Listen (and, if silent, say AT) to tell which protocol a port speaks."""
-    port = HostPort(spec, baud=baud)
+async def sniff(spec: PortSpec, tap: Tap) -> str:
+    """Listen (and, if silent, say AT) to tell which protocol a port speaks; every byte both
+    ways passes ``tap``, so that a capture can hold them too."""
+    port = HostPort(spec.where, baud=spec.baud or DEFAULT_BAUD, name=spec.name or spec.where, taps=[tap])
     await port.open()
     data = b""
     try:
@@ -68,31 +71,94 @@ async def sniff(spec: str, baud: int) -> str:
         await port.close()
     found = what_speaks(data)
     if found is None:
-        raise PortError(f"could not tell what speaks on {spec} ({len(data)} bytes, none valid): "
-                        f"name it, e.g. ublox-aoa={spec} or rss={spec}; if it is garbage, check --baud")
+        raise PortError(f"could not tell what speaks on {spec.where} ({len(data)} bytes, none valid): "
+                        f"name it, e.g. ublox-aoa:{spec.where} or rss:{spec.where}; if it is garbage, "
+                        "the baud rate is probably wrong (add ,baud=RATE)")
     return found
 
 
-def flow_control(protocol: str, flow: str = "auto") -> bool:
+def flow_control(protocol: str, flow: str | None = "auto") -> bool:
     """RTS/CTS: 'auto' is on for the XPLR-AOA (its documented default) and off for the others."""
-    return protocol == "ublox-aoa" if flow == "auto" else flow == "on"
+    return protocol == "ublox-aoa" if flow in (None, "auto") else flow in ("rtscts", "on")
 
 
-async def open_drivers(endpoints: list[str], *, baud: int, taps: list, describe: Callable[..., None] | None = None,
-                       flow: str = "auto") -> list[Driver]:
-    """Drivers for the endpoints, their protocols sniffed where not given."""
+def make_driver(spec: PortSpec, taps: list[Tap], **options: Any) -> Driver:
+    """The driver for a spec whose kind is known (``options`` go to the driver)."""
+    kind = spec.kind
+    assert kind in DRIVERS, kind
+    port = HostPort(spec.where, baud=spec.baud or DEFAULT_BAUD, rtscts=flow_control(kind, spec.flow),
+                    name=spec.name or spec.where, taps=taps)
+    if kind == "ublox-aoa":
+        setup = options.pop("setup", AoaSetup())
+        if spec.tags:
+            setup = replace(setup, host_filter=frozenset(spec.tags))
+        if spec.timeout:
+            setup = replace(setup, command_timeout=spec.timeout)
+        return AoaDriver(port, setup, **options)
+    return DRIVERS[kind](port, **options)
+
+
+async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | None = None,
+                  taps: list[Tap] = (), kind: str | None = None,
+                  describe: Callable[..., None] | None = None) -> PortSpec:
+    """A spec made concrete: ``auto`` found, the protocol sniffed where not given, defaults
+    (``baud``, ``flow`` from the command line) under the spec's own settings.
+
+    ``describe(name, protocol=, kind=)`` is told what the port is (a capture's interface), and
+    only then do the bytes that sniffing exchanged reach ``taps``: nothing that crossed the
+    port is missing from a capture, and its interface carries the right protocol."""
+    spec = portspec.parse(text).with_defaults(baud=baud, flow=flow)
+    if kind is not None and spec.kind is None:
+        spec = spec.with_kind(kind)
+    elif kind is not None and spec.kind != kind:
+        raise PortSpecError(f"{spec} is a {spec.kind} port where a {kind} port is wanted")
+    if spec.where == "auto":
+        spec = replace(spec, where=resolve_auto(AUTO_KIND[spec.kind or "ublox-aoa"]))
+    sniffed: list[tuple[str, str, float, bytes]] = []
+    if spec.kind is None:
+        spec = spec.with_kind(await sniff(spec, lambda *event: sniffed.append(event)))
+    if describe is not None:
+        describe(spec.name or spec.where, protocol=WIRE_PROTOCOL[spec.kind], kind=DRIVERS[spec.kind].kind)
+    for name, direction, t, data in sniffed:
+        for tap in taps:
+            tap(name, f"sniff-{direction}", t, data)
+    return spec
+
+
+async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, flow: str | None = None,
+                       taps: list[Tap] = (), describe: Callable[..., None] | None = None) -> list[Driver]:
+    """Drivers for the specs (a ``capture:`` spec gives one per recorded device)."""
+    drivers: list[Driver] = []
+    for text in specs:
+        spec = portspec.parse(text)
+        if spec.kind == "capture":
+            drivers += replay_drivers(spec)
+            continue
+        spec = await resolve(spec, baud=baud, flow=flow, taps=taps, describe=describe)
+        drivers.append(make_driver(spec, list(taps)))
+    return drivers
+
+
+def replay_drivers(spec: PortSpec) -> list[Driver]:
+    """One driver per device recorded in a capture (``device=`` picks one), released in the
+    recorded global order; CaptureFormatError / OSError when the file cannot be read."""
+    interfaces, packets, torn = load_capture(spec.where)
+    if torn:
+        log.warning("%s ends in a torn block (%d bytes, a killed writer); replaying up to the last "
+                    "complete block", spec.where, torn)
+    chosen = [i for i, iface in enumerate(interfaces) if spec.settings.get("device") in (None, iface.name)]
+    if not chosen:
+        names = ", ".join(iface.name for iface in interfaces) or "none"
+        raise PortSpecError(f"{spec.where} has no device {spec.settings['device']!r}; it holds: {names}")
+    sequencer = Sequencer({interfaces[i].name: packets[i] for i in chosen})
     drivers = []
-    for text in endpoints:
-        protocol, spec = parse_endpoint(text)
-        if spec == "auto":
-            spec = resolve_auto(AUTO_KIND[protocol or "ublox-aoa"])
-        if protocol is None:
-            protocol = await sniff(spec, baud)
-        port = HostPort(spec, baud=baud, rtscts=flow_control(protocol, flow), taps=taps)
-        driver = DRIVERS[protocol](port)
-        if describe is not None:
-            describe(port.name, protocol=WIRE_PROTOCOL[protocol], kind=driver.kind)
-        drivers.append(driver)
+    for i in chosen:
+        port = ReplayPort(interfaces[i].name, packets[i], speed=spec.settings.get("speed") or None,
+                          sequencer=sequencer)
+        fields = describe_interface(interfaces[i])
+        kind = "ublox-aoa" if fields.get("kind") == "xplr-aoa" or fields.get("protocol") == "ublox-aoa" else (
+            "base" if fields.get("kind") == "base" else "rss")
+        drivers.append(DRIVERS[kind](port))
     return drivers
 
 

@@ -30,7 +30,7 @@ def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None
         endpoints = {e["device"]: e for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}
         capture = tmp_path / "run.pcapng"
         live = subprocess.run(
-            [*RFHOMING, "capture", endpoints["aoa"]["path"], f"rss={endpoints['base']['path']}",
+            [*RFHOMING, "capture", endpoints["aoa"]["path"], f"base:{endpoints['base']['path']}",
              "-o", str(capture), "--duration", "8", "--show", "--json"],
             capture_output=True, text=True, timeout=60)
     finally:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from rfhoming.host import portspec
 from rfhoming.host.estimation.ranging import LogDistance
 from rfhoming.host.homing.avoidance import AvoidParams
 from rfhoming.host.homing.grid import GridParams
@@ -74,6 +75,7 @@ class Config:
     s2: S2Params = field(default_factory=S2Params)
     s1: S1Params = field(default_factory=S1Params)
     trilat: TrilatParams = field(default_factory=TrilatParams)
+    devices: dict[str, portspec.PortSpec] = field(default_factory=dict)  # [devices.NAME]: port specs
 
     @property
     def avoid_obstacles(self) -> bool:
@@ -104,6 +106,7 @@ def load(path: Path | str | None) -> Config:
         raise ConfigError(f"cannot read config {path}: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config {path} is not valid TOML: {exc}") from None
+    devices = raw.pop("devices", {})
     unknown = set(raw) - set(SECTIONS)
     if unknown:
         raise ConfigError(f"unknown sections {sorted(unknown)} in {path}; known: {sorted(SECTIONS)}")
@@ -115,7 +118,24 @@ def load(path: Path | str | None) -> Config:
         if bad:
             raise ConfigError(f"[{name}] has unknown keys {sorted(bad)}; known: {sorted(known)}")
         config = replace(config, **{name: replace(getattr(config, name), **table)})
-    return config
+    return replace(config, devices=_devices(devices, path))
+
+
+DEVICE_ROLES = ("aoa", "base", "rss", "ble")
+
+
+def _devices(tables: dict[str, Any], path: Path | str) -> dict[str, portspec.PortSpec]:
+    """``[devices.ROLE]`` tables -> port specs; the command line's --ROLE overrides them."""
+    out = {}
+    for role, table in tables.items():
+        if role not in DEVICE_ROLES or not isinstance(table, dict):
+            raise ConfigError(f"[devices.{role}] in {path}: the devices are {', '.join(DEVICE_ROLES)}, "
+                              "each a table with port = \"KIND:WHERE\" and optional settings")
+        try:
+            out[role] = portspec.from_table(table, f"devices.{role}")
+        except portspec.PortSpecError as exc:
+            raise ConfigError(f"{path}: [devices.{role}]: {exc}") from None
+    return out
 
 
 DEFAULT_TOML = """\
@@ -228,4 +248,15 @@ k_w = 1.5
 k_stop = 0.8
 
 [trilat.anchors]         # beacon address (as rfhoming listen prints it) = [x, y]; at least three
+
+# [devices.ROLE]: the ports of `rfhoming run` (ROLE: aoa, base, rss, ble), each a port spec
+# plus any of its settings; --aoa/--base/--rss/--ble on the command line override them.
+# [devices.aoa]
+# port = "ublox-aoa:/dev/ttyUSB0"
+# baud = 1000000
+# flow = "rtscts"
+# tags = ["CCF9578E0D8A"]
+# [devices.base]
+# port = "base:/dev/ttyACM0"
+# baud = 115200
 """

@@ -18,14 +18,16 @@ from rfhoming.host.discovery import candidates
 from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.ports import PortError
-from rfhoming.host.replay import ReplayPort, describe, load_capture
-from rfhoming.host.session import DRIVERS, health, open_drivers
+from rfhoming.host.portspec import PortSpec
+from rfhoming.host.session import health, open_drivers, replay_drivers
 from rfhoming.protocol.jsonable import as_dict
 from rfhoming.protocol.pcapng import CaptureFormatError
 
 log = logging.getLogger(__name__)
 
-ENDPOINT_HELP = "PATH, socket://HOST:PORT or auto; prefix PROTOCOL= (ublox-aoa, rss, base) to skip sniffing"
+ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket://HOST:PORT or auto; KIND "
+                 "(ublox-aoa, rss, base) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
+                 "capture:FILE replays a recording (see docs/usage.md)")
 
 
 def printer(json_lines: bool, out=sys.stdout) -> Callable[[str, float, Any], None]:
@@ -105,9 +107,9 @@ async def _describe_dialects(drivers: list[Driver], capture: CaptureWriter) -> N
 async def _listen(args: argparse.Namespace, show: bool) -> int:
     capture = CaptureWriter(args.output) if getattr(args, "output", None) else None
     try:
-        drivers = await open_drivers(args.ports, baud=args.baud, taps=[capture.tap] if capture else [],
-                                     describe=capture.describe if capture else None, flow=args.flow)
-    except (PortError, ValueError) as exc:
+        drivers = await open_drivers(args.ports, baud=args.baud, flow=args.flow, taps=[capture.tap] if capture else [],
+                                     describe=capture.describe if capture else None)
+    except (PortError, ValueError, OSError, CaptureFormatError) as exc:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
     if show:
@@ -136,28 +138,14 @@ def cmd_capture(args: argparse.Namespace) -> int:
     return asyncio.run(_listen(args, show=args.show))
 
 
-def _driver_for(fields: dict[str, Any], port: ReplayPort) -> Driver:
-    kind = fields.get("kind")
-    if kind == "xplr-aoa" or fields.get("protocol") == "ublox-aoa":
-        return AoaDriver(port)
-    return DRIVERS["base" if kind == "base" else "rss"](port)
-
-
 async def _replay(args: argparse.Namespace) -> int:
     try:
-        interfaces, packets, torn = load_capture(args.capture)
+        drivers = replay_drivers(PortSpec("capture", str(args.capture), {"speed": args.speed}))
     except (OSError, CaptureFormatError) as exc:
         print(f"rfhoming replay: cannot read {args.capture}: {exc}", file=sys.stderr)
         return 2
-    if torn:
-        print(f"rfhoming replay: the capture ends in a torn block ({torn} bytes, a killed writer); "
-              "replaying up to the last complete block", file=sys.stderr)
-    drivers = []
-    for i, iface in enumerate(interfaces):
-        port = ReplayPort(iface.name, packets[i], speed=args.speed or None)
-        driver = _driver_for(describe(iface), port)
+    for driver in drivers:
         driver.listeners.append(printer(args.json))
-        drivers.append(driver)
     await _run_until(drivers, None)
     for h in health(drivers):
         print(json.dumps({"kind": "counters", **h}))
@@ -179,8 +167,10 @@ On exit (Ctrl-C or --duration) one counters line per device.
 
 examples:
   rfhoming listen /dev/ttyACM0
-  rfhoming listen ublox-aoa=/tmp/rfhoming-x/aoa rss=socket://127.0.0.1:40123 --json
+  rfhoming listen ublox-aoa:/dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A
+  rfhoming listen ublox-aoa:/tmp/rfhoming-x/aoa rss:socket://127.0.0.1:40123 --json
   rfhoming listen auto --duration 10
+  rfhoming listen capture:run.pcapng --json
 """
 
 REPLAY_HELP = """\
@@ -207,12 +197,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         p = sub.add_parser(name, help=helptext, description=LISTEN_HELP if name == "listen" else
                            "Like listen, but record every byte both ways, raw, with µs timestamps, to a "
                            "pcapng file (one interface per device; opens in tshark/Wireshark).\n\n"
-                           "example:\n  rfhoming capture /tmp/rfhoming-x/aoa rss=/tmp/rfhoming-x/base -o run.pcapng",
+                           "example:\n  rfhoming capture /tmp/rfhoming-x/aoa base:/tmp/rfhoming-x/base -o run.pcapng",
                            formatter_class=raw)
         p.add_argument("ports", nargs="+", metavar="PORT", help=ENDPOINT_HELP)
-        p.add_argument("--baud", type=int, default=115200, help="serial rate (default 115200)")
-        p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",
-                       help="RTS/CTS flow control: auto = on for the XPLR-AOA (its default), off for the others")
+        add_port_defaults(p)
         p.add_argument("--duration", type=float, help="stop after this many seconds")
         p.add_argument("--json", action="store_true", help="one JSON object per item")
         if name == "capture":
@@ -232,6 +220,15 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--start-delay", type=float, default=1.0,
                    help="with --pty: seconds to wait before playing, so consumers can open the ptys (default 1)")
     p.set_defaults(func=cmd_replay)
+
+
+def add_port_defaults(p: argparse.ArgumentParser) -> None:
+    """--baud and --flow: defaults for every port whose spec does not set its own."""
+    p.add_argument("--baud", type=int, metavar="RATE",
+                   help="serial rate for ports whose spec gives no baud= (default 115200)")
+    p.add_argument("--flow", choices=("auto", "rtscts", "none"),
+                   help="RTS/CTS for ports whose spec gives no flow=: auto (default) = on for the XPLR-AOA "
+                        "(its documented default), off for the others")
 
 
 def configure_logging(verbose: int) -> None:

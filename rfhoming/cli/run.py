@@ -8,14 +8,12 @@ import json
 import sys
 from pathlib import Path
 
+from rfhoming.cli.io import add_port_defaults
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver
-from rfhoming.host.drivers.base import BaseDriver
-from rfhoming.host.drivers.rss import RssDriver
-from rfhoming.host.homing.config import DEFAULT_TOML, ConfigError, load
+from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
 from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
-from rfhoming.host.ports import HostPort, PortError
-from rfhoming.host.session import flow_control
+from rfhoming.host.ports import PortError
+from rfhoming.host.session import make_driver, resolve
 
 CONTROLLERS = ("aoa", "dock", "rss", "trilat")
 
@@ -33,41 +31,28 @@ def cmd_config(args: argparse.Namespace) -> int:
     return 0
 
 
+SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble"}
+ROLE_KIND = {"aoa": "ublox-aoa", "base": "base", "rss": "rss", "ble": "rss"}
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     try:
         config = load(args.config)
     except ConfigError as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
-    flag = {"rss": "rss", "trilat": "ble"}.get(args.controller, "aoa")
-    sensor_port = getattr(args, flag)
-    if sensor_port is None:
-        print(f"rfhoming run: --controller {args.controller} needs --{flag} PORT", file=sys.stderr)
-        return 2
+    role = SENSOR_ROLE[args.controller]
+    specs = {r: getattr(args, r) or config.devices.get(r) for r in (role, "base")}
+    for r, spec in specs.items():
+        if spec is None:
+            print(f"rfhoming run: --controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)",
+                  file=sys.stderr)
+            return 2
     capture = CaptureWriter(args.capture) if args.capture else None
-    taps = [capture.tap] if capture else []
-    base = BaseDriver(HostPort(args.base, baud=args.baud, taps=taps), command_timeout_ms=config.loop.command_timeout_ms)
-    if args.controller in ("aoa", "dock"):
-        sensor = AoaDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("ublox-aoa", args.flow), taps=taps))
-        make, protocol = (aoa_loop if args.controller == "aoa" else dock_loop), "ublox-aoa"
-    else:
-        sensor = RssDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("rss", args.flow), taps=taps),
-                           ed_scale_db=config.calibration.ed_scale_db)
-        make, protocol = (rss_loop if args.controller == "rss" else trilat_loop), "rss"
     runlog = open(args.log, "w") if args.log else None
     try:
-        loop = make(base, sensor, config, RunLog(runlog))
-    except ValueError as exc:
-        print(f"rfhoming run: {exc}", file=sys.stderr)
-        if runlog:
-            runlog.close()
-        return 2
-    if capture:
-        capture.describe(base.port.name, protocol="rss", kind="base")
-        capture.describe(sensor.port.name, protocol=protocol, kind=sensor.kind)
-    try:
-        outcome = asyncio.run(loop.run())
-    except PortError as exc:
+        return asyncio.run(_run(args, config, role, specs, capture, runlog))
+    except (PortError, ValueError) as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -78,6 +63,23 @@ def cmd_run(args: argparse.Namespace) -> int:
             runlog.close()
         if capture:
             capture.close()
+
+
+async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict, capture: CaptureWriter | None,
+               runlog) -> int:
+    taps = [capture.tap] if capture else []
+    describe = capture.describe if capture else None
+    resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=ROLE_KIND[r], describe=describe)
+                for r, spec in specs.items()}
+    base = make_driver(resolved["base"], taps, command_timeout_ms=config.loop.command_timeout_ms)
+    if role == "aoa":
+        sensor = make_driver(resolved["aoa"], taps)
+        make = aoa_loop if args.controller == "aoa" else dock_loop
+    else:
+        sensor = make_driver(resolved[role], taps, ed_scale_db=config.calibration.ed_scale_db)
+        make = rss_loop if args.controller == "rss" else trilat_loop
+    loop = make(base, sensor, config, RunLog(runlog))
+    outcome = await loop.run()
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
 
@@ -131,7 +133,9 @@ arrival, on any error and on Ctrl-C. Exit status: 0 arrived, 1 did not, 2 usage/
 
 examples:
   rfhoming run --aoa /dev/ttyUSB0 --base /dev/ttyACM0 --log run.jsonl --capture run.pcapng
+  rfhoming run --aoa /dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A --base /dev/ttyACM0,baud=115200
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
+  rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
 """
 
@@ -150,18 +154,17 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
                        description=RUN_HELP, formatter_class=raw)
-    p.add_argument("--aoa", metavar="PORT", help="the XPLR-AOA (path, socket:// URL), for --controller aoa")
-    p.add_argument("--rss", metavar="PORT", help="the four-dish AT86RF212 node, for --controller rss")
-    p.add_argument("--ble", metavar="PORT", help="the ESP32 BLE scanner, for --controller trilat")
-    p.add_argument("--base", required=True, metavar="PORT", help="the robot base")
+    p.add_argument("--aoa", metavar="SPEC", help="the XPLR-AOA, for --controller aoa and dock: a port spec "
+                   "WHERE[,baud=,flow=,tags=] (e.g. /dev/ttyUSB0,baud=1000000)")
+    p.add_argument("--rss", metavar="SPEC", help="the four-dish AT86RF212 node, for --controller rss")
+    p.add_argument("--ble", metavar="SPEC", help="the ESP32 BLE scanner, for --controller trilat")
+    p.add_argument("--base", metavar="SPEC", help="the robot base (e.g. /dev/ttyACM0,baud=115200)")
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
                         "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
                         "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
-    p.add_argument("--baud", type=int, default=115200)
-    p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",
-                   help="RTS/CTS on the XPLR-AOA port (auto = on, its documented default)")
+    add_port_defaults(p)
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
     p.add_argument("--capture", type=Path, help="pcapng capture of every byte")
     p.set_defaults(func=cmd_run)

@@ -1,0 +1,203 @@
+"""Port specs: one string names a device, where it is, and how to talk to it.
+
+In the spirit of bumble's transport strings, ``KIND:WHERE[,key=value...]``::
+
+    ublox-aoa:/dev/ttyUSB0,baud=1000000,flow=rtscts,tags=CCF9578E0D8A+CCF9578E0D8B
+    rss:socket://127.0.0.1:5001
+    base:/dev/ttyACM1,baud=115200
+    auto                      (the one recognised device; ublox-aoa:auto for a kind)
+    /dev/ttyACM0              (no KIND: the protocol is sniffed from what the port says)
+    capture:run.pcapng        (a recorded capture, wherever a live port is accepted)
+
+WHERE is a device path, a pyserial URL (``socket://HOST:PORT``) or ``auto``; commas inside it
+that are not followed by ``key=`` stay part of it. Unknown kinds and keys, and bad values, raise
+:class:`PortSpecError`, whose one-line message names the key and the allowed values.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+
+class PortSpecError(ValueError):
+    """A port spec that cannot be understood; the message says what is allowed."""
+
+
+TAG_ID = re.compile(r"[0-9A-F]{12}")
+FLOWS = ("rtscts", "none", "auto")
+
+
+def _baud(text: str) -> int:
+    if not text.isdigit() or not 300 <= int(text) <= 4_000_000:
+        raise ValueError("a whole number of baud from 300 to 4000000, e.g. baud=115200")
+    return int(text)
+
+
+def _flow(text: str) -> str:
+    if text not in FLOWS:
+        raise ValueError("rtscts (hardware flow control), none, or auto (on for the XPLR-AOA only)")
+    return text
+
+
+def _tags(text: str) -> tuple[str, ...]:
+    tags = tuple(t.upper() for t in text.split("+") if t)
+    if not tags or not all(TAG_ID.fullmatch(t) for t in tags):
+        raise ValueError("12-hex-digit tag ids joined by +, e.g. tags=CCF9578E0D8A+CCF9578E0D8B")
+    return tags
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0 < value < 3600:
+        raise ValueError("seconds, more than 0, e.g. timeout=5")
+    return value
+
+
+def _speed(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if value < 0:
+        raise ValueError("0 (as fast as possible) or a pace factor, e.g. speed=1")
+    return value
+
+
+def _name(text: str) -> str:
+    if not re.fullmatch(r"[A-Za-z0-9_.-]{1,32}", text):
+        raise ValueError("letters, digits, '_', '.' or '-', at most 32")
+    return text
+
+
+SERIAL_KEYS: dict[str, Callable[[str], Any]] = {"baud": _baud, "flow": _flow, "name": _name, "timeout": _seconds}
+
+KINDS: dict[str, dict[str, Callable[[str], Any]]] = {
+    "ublox-aoa": {**SERIAL_KEYS, "tags": _tags},  # u-blox XPLR-AOA (u-connectLocate text)
+    "rss": dict(SERIAL_KEYS),  # rfhoming's framed records from an RSS node (ESP32, AT86RF212)
+    "base": dict(SERIAL_KEYS),  # rfhoming's framed records from the robot base
+    "capture": {"device": _name, "speed": _speed},  # a pcapng capture replayed as live ports
+}
+"""Each kind's settings and their parsers (text -> value; ValueError says what is allowed)."""
+
+SNIFFED_KEYS = KINDS["ublox-aoa"]  # without a KIND any serial setting may be given
+
+
+@dataclass(frozen=True)
+class PortSpec:
+    """A parsed port spec. ``kind`` is None when the protocol is to be sniffed."""
+
+    kind: str | None
+    where: str
+    settings: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def baud(self) -> int | None:
+        return self.settings.get("baud")
+
+    @property
+    def flow(self) -> str | None:
+        return self.settings.get("flow")
+
+    @property
+    def tags(self) -> tuple[str, ...]:
+        return self.settings.get("tags", ())
+
+    @property
+    def name(self) -> str | None:
+        return self.settings.get("name")
+
+    @property
+    def timeout(self) -> float | None:
+        return self.settings.get("timeout")
+
+    def with_defaults(self, **defaults: Any) -> PortSpec:
+        """This spec with ``defaults`` filling the settings it does not give (None is skipped)."""
+        filled = {k: v for k, v in defaults.items() if v is not None and k not in self.settings}
+        return replace(self, settings={**filled, **self.settings}) if filled else self
+
+    def with_kind(self, kind: str) -> PortSpec:
+        """The spec once its protocol is known (sniffed); its settings must suit that kind."""
+        allowed = KINDS[kind]
+        bad = sorted(set(self.settings) - set(allowed))
+        if bad:
+            raise PortSpecError(f"{self.where} speaks {kind}, which has no setting {', '.join(bad)}; "
+                                f"its settings are {', '.join(sorted(allowed))}")
+        return replace(self, kind=kind)
+
+    def __str__(self) -> str:
+        head = f"{self.kind}:{self.where}" if self.kind else self.where
+        tail = "".join(f",{k}={_text(v)}" for k, v in self.settings.items())
+        return head + tail
+
+
+def _text(value: Any) -> str:
+    return "+".join(value) if isinstance(value, tuple) else str(value)
+
+
+def parse(text: str | PortSpec) -> PortSpec:
+    """``KIND:WHERE[,key=value...]`` -> :class:`PortSpec`; PortSpecError says what is wrong."""
+    if isinstance(text, PortSpec):
+        return text
+    text = text.strip()
+    if not text:
+        raise PortSpecError("an empty port spec; give a path, socket://HOST:PORT, auto or KIND:WHERE")
+    head, eq, tail = text.partition("=")
+    if eq and head in KINDS and "," not in head:
+        raise PortSpecError(f"{text!r}: write {head}:{tail} (KIND:WHERE) instead of {head}={tail}")
+    kind, colon, rest = text.partition(":")
+    if colon and kind in KINDS:
+        body = rest
+    elif colon and re.fullmatch(r"[a-z][a-z0-9-]*", kind) and not rest.startswith("//") and len(kind) > 1:
+        raise PortSpecError(f"unknown device kind {kind!r} in {text!r}; the kinds are {', '.join(KINDS)} "
+                            "(or leave KIND: out to sniff the protocol)")
+    else:
+        kind, body = None, text
+    where, settings = _split(body, text)
+    if not where:
+        raise PortSpecError(f"{text!r} names no device: give a path, socket://HOST:PORT or auto after the kind")
+    allowed = KINDS[kind] if kind else SNIFFED_KEYS
+    values: dict[str, Any] = {}
+    for key, raw in settings:
+        if key not in allowed:
+            raise PortSpecError(f"unknown setting {key!r} in {text!r}; "
+                                f"{kind or 'a serial port'} takes {', '.join(sorted(allowed))}")
+        try:
+            values[key] = allowed[key](raw)
+        except ValueError as exc:
+            raise PortSpecError(f"bad {key}={raw!r} in {text!r}: expected {exc}") from None
+    return PortSpec(kind, where, values)
+
+
+def _split(body: str, text: str) -> tuple[str, list[tuple[str, str]]]:
+    """WHERE, then the trailing ``key=value`` settings."""
+    parts = body.split(",")
+    where: list[str] = []
+    settings: list[tuple[str, str]] = []
+    for part in parts:
+        key, eq, value = part.partition("=")
+        if eq and re.fullmatch(r"[a-z_]+", key) and where:
+            settings.append((key, value))
+        elif settings:
+            raise PortSpecError(f"{part!r} in {text!r} is not key=value; settings come after the device, "
+                                "each as ,key=value")
+        else:
+            where.append(part)
+    return ",".join(where), settings
+
+
+def from_table(table: Mapping[str, Any], where: str = "config") -> PortSpec:
+    """A ``[devices.NAME]`` table of the TOML config -> PortSpec (``port`` plus settings)."""
+    if "port" not in table:
+        raise PortSpecError(f"[{where}] needs port = \"KIND:WHERE\" (e.g. \"ublox-aoa:/dev/ttyUSB0\")")
+    spec = parse(str(table["port"]))
+    extra = ",".join(f"{k}={_text(tuple(v) if isinstance(v, list) else v)}" for k, v in table.items() if k != "port")
+    if not extra:
+        return spec
+    merged = parse(f"{spec.kind}:{spec.where},{extra}" if spec.kind else f"{spec.where},{extra}")
+    return replace(merged, settings={**merged.settings, **spec.settings})
