@@ -121,6 +121,13 @@ class PortSpec:
         filled = {k: v for k, v in defaults.items() if v is not None and k not in self.settings}
         return replace(self, settings={**filled, **self.settings}) if filled else self
 
+    def over(self, base: PortSpec | None) -> PortSpec:
+        """This spec (e.g. from the command line) over ``base`` (the config's): its kind, place
+        and settings win; settings it leaves out come from ``base``."""
+        if base is None:
+            return self
+        return replace(self, kind=self.kind or base.kind, settings={**base.settings, **self.settings})
+
     def with_kind(self, kind: str) -> PortSpec:
         """The spec once its protocol is known (sniffed); its settings must suit that kind."""
         allowed = KINDS[kind]

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from rfhoming.protocol.jsonable import as_dict
+
 
 class Drop(NamedTuple):
     """Input that was rejected: never half-parsed, always counted under ``reason``.
@@ -17,3 +19,4 @@ class Drop(NamedTuple):
     raw: bytes
 
     kind = "drop"
+    to_dict = as_dict

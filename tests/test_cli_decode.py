@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
 import pytest
 
-from rfhoming.cli.main import main
+from rfhoming.cli.main import build_parser, main
 
 GOLDEN = Path(__file__).parent / "golden"
 
@@ -51,3 +53,24 @@ def test_help_teaches_with_examples(capsys) -> None:
         main(["decode", "--help"])
     out = capsys.readouterr().out
     assert "examples:" in out and "ublox-aoa" in out
+
+
+def _actions(parser: argparse.ArgumentParser, path: str = "rfhoming"):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            helps = {a.dest: a.help for a in action._choices_actions}
+            for name, sub in action.choices.items():
+                yield f"{path} {name}", "(subcommand)", helps.get(name)
+                yield from _actions(sub, f"{path} {name}")
+        else:
+            yield path, "/".join(action.option_strings) or action.dest, action.help
+
+
+def test_every_subcommand_and_option_has_a_help_line() -> None:
+    missing = [f"{where} {what}" for where, what, text in _actions(build_parser()) if not text]
+    assert not missing, f"no help text: {missing}"
+
+
+def test_version_is_the_installed_one() -> None:
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "--version"], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout.strip() == f"rfhoming {version('rfhoming')}"

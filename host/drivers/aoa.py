@@ -89,17 +89,19 @@ class AoaDriver(Driver):
     # -- reading ----------------------------------------------------------------------
     def on_chunk(self, data: bytes, t_host: float) -> None:
         for item in self.decoder.feed(data):
-            self.emit(t_host, item)
             kind = item.kind
+            if kind == "angle" and self.setup.host_filter and item.instance_id not in self.setup.host_filter:
+                self.counters["filtered"] += 1  # another tag: counted, neither shown nor used
+                self._last_valid = time.monotonic()
+                self._bytes_at_valid = self.port.counters["bytes_in"]
+                continue
+            self.emit(t_host, item)
             if kind in ("drop", "unknown"):
                 continue
             self._last_valid = time.monotonic()
             self._bytes_at_valid = self.port.counters["bytes_in"]
             if kind == "angle":
-                if self.setup.host_filter and item.instance_id not in self.setup.host_filter:
-                    self.counters["filtered"] += 1
-                else:
-                    self.events.put(TimedAngle(t_host, item))
+                self.events.put(TimedAngle(t_host, item))
                 continue
             if kind == "startup":
                 self._startup.set()

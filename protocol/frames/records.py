@@ -40,6 +40,7 @@ from construct import (
     len_,
     this,
 )
+from rfhoming.protocol.jsonable import as_dict
 
 VERSION = 1
 MAX_INNER = 1024
@@ -161,7 +162,7 @@ def _body_fields(body: Struct) -> list[str]:
 
 def _declare(code: int, kind: str, class_name: str, body: Struct) -> RecordType:
     base = namedtuple(class_name, [*HEADER_FIELDS, *_body_fields(body)])
-    cls = type(class_name, (base,), {"__slots__": (), "kind": kind, "type_code": code})
+    cls = type(class_name, (base,), {"__slots__": (), "kind": kind, "type_code": code, "to_dict": as_dict})
     return RecordType(code, kind, body, cls)
 
 

@@ -1,7 +1,7 @@
 """What the u-connectLocate decoder yields, one type per kind of line.
 
 Items are NamedTuples: cheap to build on the hot path, immutable, comparable, and
-``_asdict()`` gives the JSON form. ``kind`` is a class attribute, not a field.
+``to_dict()`` gives the JSON form. ``kind`` is a class attribute, not a field.
 """
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import NamedTuple, Optional, Union
 
 from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.jsonable import as_dict
 
 
 class AngleEvent(NamedTuple):
@@ -33,6 +34,7 @@ class AngleEvent(NamedTuple):
     elevation_raw: Optional[int] = None
 
     kind = "angle"
+    to_dict = as_dict
 
 
 class TagData(NamedTuple):
@@ -42,12 +44,14 @@ class TagData(NamedTuple):
     payload: bytes
 
     kind = "tag_data"
+    to_dict = as_dict
 
 
 class Startup(NamedTuple):
     """``+STARTUP``: the board booted; a host must send its set-up again."""
 
     kind = "startup"
+    to_dict = as_dict
 
 
 class Echo(NamedTuple):
@@ -56,6 +60,7 @@ class Echo(NamedTuple):
     text: str
 
     kind = "echo"
+    to_dict = as_dict
 
 
 class InfoLine(NamedTuple):
@@ -64,6 +69,7 @@ class InfoLine(NamedTuple):
     text: str
 
     kind = "info"
+    to_dict = as_dict
 
 
 class FinalCode(NamedTuple):
@@ -72,6 +78,7 @@ class FinalCode(NamedTuple):
     ok: bool
 
     kind = "final"
+    to_dict = as_dict
 
 
 class UnknownLine(NamedTuple):
@@ -81,6 +88,7 @@ class UnknownLine(NamedTuple):
     note: str = ""
 
     kind = "unknown"
+    to_dict = as_dict
 
 
 Item = Union[AngleEvent, TagData, Startup, Echo, InfoLine, FinalCode, UnknownLine, Drop]

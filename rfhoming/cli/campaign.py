@@ -37,7 +37,8 @@ paper's, with the command) and OUT/NAME*.png. Seeds are fixed per job, so a camp
 same numbers on 1 worker, on K processes or on a Dask cluster.
 
 examples:
-  rfhoming campaign s0-table3                    # all cores, results under docs/results/
+  rfhoming campaign s0-table3                    # all cores, results in ./rfhoming-s0-table3-DATE-TIME/
+  rfhoming campaign s0-table3 --out docs/results # refresh the committed tables (from the repository)
   rfhoming campaign s1-dock --runs 10 --json     # a quick look, JSON on stdout
   rfhoming campaign s4-montecarlo --dask tcp://10.0.0.5:8786
 """
@@ -52,10 +53,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: all cores; 1 runs inline)")
     p.add_argument("--dask", metavar="ADDRESS", help="run the jobs on the Dask scheduler at ADDRESS instead")
-    p.add_argument("--out", type=Path, default=Path("docs/results"), help="output directory (default docs/results)")
+    p.add_argument("--out", type=Path, help="output directory (default: a new ./rfhoming-NAME-DATE-TIME; "
+                   "docs/results to refresh the repository's committed tables)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_campaign)
+
+
+def fresh_folder(name: str) -> Path:
+    """A folder under the current directory that no earlier run wrote."""
+    stem = f"rfhoming-{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    path, k = Path(stem), 1
+    while path.exists():
+        path, k = Path(f"{stem}-{k}"), k + 1
+    return path
 
 
 def load(name: str) -> Campaign:
@@ -88,6 +99,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     meta = {"campaign": args.name, "command": command, "runs": runs, "seed": args.seed, "jobs": len(jobs),
             "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
             "machine": platform.machine()}
+    args.out = args.out or fresh_folder(args.name)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / f"{args.name}.json").write_text(json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
     (args.out / f"{args.name}.md").write_text(

@@ -188,8 +188,10 @@ examples:
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     raw = argparse.RawDescriptionHelpFormatter
-    p = sub.add_parser("devices", help="list serial ports and what each seems to be")
-    p.add_argument("--json", action="store_true")
+    p = sub.add_parser("devices", help="list serial ports and what each seems to be",
+                       description="List the serial ports this machine sees and what each probably is, from "
+                                   "its USB ids (the XPLR-AOA's FTDI bridge, ESP32 bridges, ST's VCP).")
+    p.add_argument("--json", action="store_true", help="one JSON object per port")
     p.set_defaults(func=cmd_devices)
 
     for name, helptext in (("listen", "show live decoded records from devices"),
@@ -212,7 +214,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("replay", help="replay a pcapng capture through the drivers, or on ptys",
                        description=REPLAY_HELP, formatter_class=raw)
-    p.add_argument("capture", type=Path)
+    p.add_argument("capture", type=Path, help="the pcapng file (from rfhoming capture or run --capture)")
     p.add_argument("--speed", type=float, default=0.0, help="1 = recorded pace, 0 = as fast as possible (default)")
     p.add_argument("--json", action="store_true", help="one JSON object per item")
     p.add_argument("--pty", action="store_true", help="serve the capture on pseudo-terminals")

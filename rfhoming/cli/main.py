@@ -10,6 +10,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
+from rfhoming import __version__
 from rfhoming.cli.io import add_parsers as add_io_parsers
 from rfhoming.cli.io import configure_logging
 from rfhoming.cli.run import add_parsers as add_run_parsers
@@ -95,6 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Radio homing for mobile robots: device protocols, emulator and host stack.",
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("--version", action="version", version=f"rfhoming {__version__}",
+                        help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     decode = sub.add_parser(
         "decode",

@@ -13,6 +13,8 @@ from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
 from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from rfhoming.host.ports import PortError
+from rfhoming.host.portspec import PortSpecError
+from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.session import make_driver, resolve
 
 CONTROLLERS = ("aoa", "dock", "rss", "trilat")
@@ -42,7 +44,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
     role = SENSOR_ROLE[args.controller]
-    specs = {r: getattr(args, r) or config.devices.get(r) for r in (role, "base")}
+    try:
+        specs = {r: parse_spec(getattr(args, r)).over(config.devices.get(r)) if getattr(args, r)
+                 else config.devices.get(r) for r in (role, "base")}
+    except PortSpecError as exc:
+        print(f"rfhoming run: {exc}", file=sys.stderr)
+        return 2
     for r, spec in specs.items():
         if spec is None:
             print(f"rfhoming run: --controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)",
@@ -155,7 +162,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
                        description=RUN_HELP, formatter_class=raw)
     p.add_argument("--aoa", metavar="SPEC", help="the XPLR-AOA, for --controller aoa and dock: a port spec "
-                   "WHERE[,baud=,flow=,tags=] (e.g. /dev/ttyUSB0,baud=1000000)")
+                   "WHERE[,baud=,flow=,tags=] (e.g. /dev/ttyUSB0,baud=1000000); settings it leaves out come "
+                   "from the config's [devices.aoa]")
     p.add_argument("--rss", metavar="SPEC", help="the four-dish AT86RF212 node, for --controller rss")
     p.add_argument("--ble", metavar="SPEC", help="the ESP32 BLE scanner, for --controller trilat")
     p.add_argument("--base", metavar="SPEC", help="the robot base (e.g. /dev/ttyACM0,baud=115200)")

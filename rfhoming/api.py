@@ -1,0 +1,199 @@
+"""The public Python API: devices by port spec, decoded items as plain typed objects.
+
+``rfhoming.open(spec)`` gives a :class:`Devices` handle, ``rfhoming.read(spec)`` iterates its
+items; both work with ``for``/``with`` and with ``async for``/``async with``. A handle owns the
+same drivers as ``rfhoming listen`` (set-up, reconnect, reboot recovery), so a program gets what
+the command line prints. docs/api.md is the guide; every example there runs in the tests.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import queue
+import threading
+from collections.abc import AsyncIterator, Iterable, Iterator
+from typing import Any, NamedTuple
+
+from rfhoming.host.drivers.common import Driver
+from rfhoming.host.portspec import PortSpec
+from rfhoming.host.session import health, open_drivers
+
+QUEUE_SIZE = 10_000
+"""Items held for a slow reader; beyond this the oldest wait and new ones are counted as dropped."""
+
+CHATTER = frozenset({"echo", "info", "final"})
+"""The AT conversation the driver holds with the board: not yielded unless asked for."""
+
+
+class Received(NamedTuple):
+    """One decoded item, with the host time its bytes arrived and the device it came from."""
+
+    t: float
+    device: str
+    item: Any
+
+    @property
+    def kind(self) -> str:
+        return self.item.kind
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"device", "t", "kind", <fields>}``: the form ``rfhoming listen --json`` prints."""
+        return {"device": self.device, "t": self.t, **self.item.to_dict()}
+
+
+class Devices:
+    """Open devices: iterate to get :class:`Received` items; ``health()`` for counters.
+
+    ``specs`` are port specs (``ublox-aoa:/dev/ttyUSB0,baud=1000000,tags=...``,
+    ``capture:run.pcapng``, ``auto`` ...). ``kinds`` keeps only those item kinds (``"angle"``,
+    ``"rss_report"``, ``"drop"`` ...); by default everything but the AT conversation.
+    ``duration`` ends the stream after that many seconds; a capture ends by itself.
+    """
+
+    def __init__(self, *specs: str | PortSpec, kinds: Iterable[str] | None = None,
+                 duration: float | None = None, baud: int | None = None, flow: str | None = None) -> None:
+        if not specs:
+            raise ValueError("give at least one port spec, e.g. rfhoming.open('ublox-aoa:/dev/ttyUSB0')")
+        self.specs = specs
+        self.kinds = frozenset(kinds) if kinds is not None else None
+        self.duration = duration
+        self.baud, self.flow = baud, flow
+        self.drivers: list[Driver] = []
+        self.dropped = 0
+        self._thread: threading.Thread | None = None
+        self._stop: asyncio.Event | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    def wanted(self, kind: str) -> bool:
+        return kind in self.kinds if self.kinds is not None else kind not in CHATTER
+
+    def health(self) -> list[dict[str, Any]]:
+        """Per device: state, port/decoder/driver counters, handling latency."""
+        return health(self.drivers)
+
+    # -- asynchronous -------------------------------------------------------------------
+    async def stream(self) -> AsyncIterator[Received]:
+        """Open the devices, yield their items until ``duration``, the end of a capture, or
+        until the consumer stops; the devices are closed however it ends. PortError / ValueError
+        say why a device could not be opened."""
+        items: asyncio.Queue[Received | None] = asyncio.Queue(QUEUE_SIZE)
+
+        def listener(device: str, t: float, item: Any) -> None:
+            if self.wanted(item.kind):
+                try:
+                    items.put_nowait(Received(t, device, item))
+                except asyncio.QueueFull:
+                    self.dropped += 1
+
+        self.drivers = await open_drivers(list(self.specs), baud=self.baud, flow=self.flow)
+        for driver in self.drivers:
+            driver.listeners.append(listener)
+        tasks = [asyncio.create_task(d.run()) for d in self.drivers]
+        self._stop = asyncio.Event()
+
+        async def watch() -> None:
+            """End the stream on stop, at ``duration``, when a driver fails or all have ended."""
+            stop = asyncio.create_task(self._stop.wait())
+            clock = asyncio.get_running_loop()
+            end = None if self.duration is None else clock.time() + self.duration
+            try:
+                while True:
+                    timeout = None if end is None else max(0.0, end - clock.time())
+                    done, _ = await asyncio.wait([*tasks, stop], timeout=timeout,
+                                                 return_when=asyncio.FIRST_COMPLETED)
+                    failed = any(t.done() and not t.cancelled() and t.exception() for t in tasks)
+                    if not done or stop in done or failed or all(t.done() for t in tasks):
+                        return
+            finally:
+                stop.cancel()
+                await items.put(None)
+
+        watcher = asyncio.create_task(watch())
+        try:
+            while (got := await items.get()) is not None:
+                yield got
+            for task in tasks:
+                if task.done() and not task.cancelled() and task.exception() is not None:
+                    raise task.exception()
+        finally:
+            watcher.cancel()
+            for task in tasks:
+                task.cancel()
+            for task in tasks:
+                with contextlib.suppress(BaseException):
+                    await task
+            for driver in self.drivers:
+                await driver.port.close()
+
+    def __aiter__(self) -> AsyncIterator[Received]:
+        return self.stream()
+
+    async def __aenter__(self) -> Devices:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        if self._stop is not None:
+            self._stop.set()
+
+    # -- synchronous --------------------------------------------------------------------
+    def __iter__(self) -> Iterator[Received]:
+        """The same stream from a background event loop, for programs without asyncio."""
+        out: queue.Queue[tuple[str, Any]] = queue.Queue(QUEUE_SIZE)
+
+        async def pump() -> None:
+            try:
+                async for got in self.stream():
+                    try:
+                        out.put_nowait(("item", got))
+                    except queue.Full:
+                        self.dropped += 1
+                out.put(("end", None))
+            except BaseException as exc:  # handed to the caller's thread below
+                out.put(("error", exc))
+
+        def run() -> None:
+            self._loop = asyncio.new_event_loop()
+            try:
+                self._loop.run_until_complete(pump())
+            finally:
+                self._loop.close()
+
+        self._thread = threading.Thread(target=run, name="rfhoming-devices", daemon=True)
+        self._thread.start()
+        try:
+            while True:
+                what, value = out.get()
+                if what == "item":
+                    yield value
+                elif what == "error":
+                    raise value
+                else:
+                    return
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Stop the stream and close the devices (also on leaving ``with``)."""
+        loop, stop = self._loop, self._stop
+        if loop is not None and stop is not None and not loop.is_closed():
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(stop.set)
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5)
+
+    def __enter__(self) -> Devices:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open(*specs: str | PortSpec, **options: Any) -> Devices:  # noqa: A001 - the API's verb
+    """Devices by port spec; see :class:`Devices` for the options."""
+    return Devices(*specs, **options)
+
+
+def read(*specs: str | PortSpec, **options: Any) -> Devices:
+    """``for item in rfhoming.read(spec)`` / ``async for``: the devices' items as they arrive."""
+    return Devices(*specs, **options)

@@ -1,0 +1,174 @@
+"""Docs that run: every ```python and ```sh example in README.md and docs/*.md.
+
+Rules, so that a reader can trust an example (docs/api.md says the same for users):
+- ```python blocks of one file run in order in one fresh interpreter (later blocks see earlier
+  names), in a scratch folder that holds ``tests`` and ``bench`` of this checkout.
+- ```sh blocks run line by line in bash in that folder. ``$ CMD`` lines are followed by the
+  output CMD must print (``...`` matches anything); other lines must just succeed. ``CMD &``
+  starts CMD in the background (stopped at the end of the block).
+- ``pip install`` lines must install this project (``.`` or ``'.[extra]'``); they are checked,
+  not re-run: the suite runs on that installation. The test command itself (README) is checked
+  to be the one .ci/run runs, not run inside itself.
+- A comment line ``<!-- long-running -->`` right before a block: each command must still be
+  running (or have succeeded) after a few seconds; it is then interrupted (servers, campaigns,
+  benchmarks: their results are checked by their own tests and recorded in docs/).
+- ``<!-- not-run: needs ... -->`` right before a block: not run, for what the machine cannot
+  have (hardware, a cluster); the reason must say what is needed.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import os
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+FENCE = re.compile(r"(?:^<!-- (?P<mark>[^>]*?) -->\n)?^```(?P<lang>python|sh)\n(?P<body>.*?)^```$", re.M | re.S)
+LONG_S = 6.0
+TIMEOUT_S = 120.0
+
+
+def blocks(path: Path) -> list[tuple[str, str, str, int]]:
+    """(language, marker, body, line) of every runnable fence."""
+    text = path.read_text()
+    return [(m["lang"], m["mark"] or "", m["body"], text.count("\n", 0, m.start("body")) + 1)
+            for m in FENCE.finditer(text)]
+
+
+def scratch(tmp_path: Path) -> Path:
+    for name in ("tests", "bench"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    return tmp_path
+
+
+def env() -> dict[str, str]:
+    return {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "100"}
+
+
+def strip_comment(line: str) -> str:
+    """A trailing `` # comment`` outside quotes goes."""
+    cut = line.find(" #")
+    while cut != -1:
+        head = line[:cut]
+        if head.count("'") % 2 == 0 and head.count('"') % 2 == 0:
+            return head.rstrip()
+        cut = line.find(" #", cut + 1)
+    return line.rstrip()
+
+
+def check_pip(line: str) -> None:
+    words = shlex.split(line)
+    targets = [w for w in words[2:] if not w.startswith("-")]
+    assert words[:2] == ["pip", "install"] and targets and all(t == "." or t.startswith(".[") for t in targets), \
+        f"an install example must install this project: {line}"
+
+
+def matches(expected: list[str], got: list[str]) -> bool:
+    pattern = "\n".join(expected).replace("[", "[[]").replace("...", "*")
+    return fnmatch.fnmatchcase("\n".join(got).strip(), pattern.strip())
+
+
+def run_sh(body: str, cwd: Path, long: bool) -> None:
+    lines = body.splitlines()
+    background: list[subprocess.Popen] = []
+    try:
+        i = 0
+        while i < len(lines):
+            raw = lines[i]
+            i += 1
+            shown = raw.startswith("$ ")
+            command = strip_comment(raw[2:] if shown else raw)
+            expected = []
+            if shown:
+                while i < len(lines) and not lines[i].startswith("$ "):
+                    expected.append(lines[i])
+                    i += 1
+            if not command.strip():
+                continue
+            if command.startswith("pip install"):
+                for part in command.split("&&"):
+                    if part.strip().startswith("pip install"):
+                        check_pip(part.strip())
+                command = "&&".join(p for p in command.split("&&") if not p.strip().startswith("pip install")).strip()
+                if not command:
+                    continue
+            if command == "python -m pytest":
+                assert raw in (ROOT / ".ci" / "run").read_text(), f".ci/run must run the README's {raw!r}"
+                continue
+            if command.endswith("&") or long:
+                proc = subprocess.Popen(["bash", "-c", f"exec {command.rstrip('&')}"], cwd=cwd, env=env(), text=True,
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+                background.append(proc)
+                got = [proc.stdout.readline().rstrip("\n") for _ in expected]
+                assert matches(expected, got), f"{command!r} printed {got}, the doc shows {expected}"
+                if command.endswith("&"):
+                    continue
+                try:
+                    proc.wait(timeout=LONG_S)
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, signal.SIGINT)
+                out, err = proc.communicate(timeout=60)
+                assert proc.returncode in (0, 1, 130, -signal.SIGINT) and "Traceback" not in err, \
+                    f"{command!r} failed ({proc.returncode}): {err[-2000:]}"
+                continue
+            done = subprocess.run(["bash", "-c", f"set -o pipefail; {command}"], cwd=cwd, env=env(), text=True,
+                                  capture_output=True, timeout=TIMEOUT_S)
+            assert done.returncode == 0, f"{command!r} failed ({done.returncode}): {done.stderr[-2000:]}"
+            if expected:
+                got = done.stdout.splitlines()
+                assert matches(expected, got), f"{command!r} printed {got[:5]}..., the doc shows {expected}"
+    finally:
+        for proc in background:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGINT)
+            try:
+                proc.communicate(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.communicate()
+
+
+CASES = [(doc, k) for doc in DOCS for k, b in enumerate(blocks(doc)) if b[0] == "sh"]
+
+
+@pytest.mark.parametrize("doc,index", CASES, ids=[f"{d.relative_to(ROOT)}:{blocks(d)[k][3]}" for d, k in CASES])
+def test_sh_example_runs(doc: Path, index: int, tmp_path: Path) -> None:
+    _, mark, body, _ = blocks(doc)[index]
+    if mark.startswith("not-run:"):
+        assert re.match(r"not-run: needs \w+", mark), f"say what the example needs: {mark}"
+        pytest.skip(mark)
+    assert mark in ("", "long-running"), f"unknown marker <!-- {mark} -->"
+    run_sh(body, scratch(tmp_path), long=mark == "long-running")
+
+
+PY_DOCS = [doc for doc in DOCS if any(b[0] == "python" for b in blocks(doc))]
+
+
+@pytest.mark.parametrize("doc", PY_DOCS, ids=[str(d.relative_to(ROOT)) for d in PY_DOCS])
+def test_python_examples_run(doc: Path, tmp_path: Path) -> None:
+    runnable = [b for b in blocks(doc) if b[0] == "python" and not b[1].startswith("not-run:")]
+    for lang, mark, body, line in blocks(doc):
+        if lang == "python" and mark:
+            assert re.match(r"not-run: needs \w+", mark), f"{doc.name}:{line}: unknown marker <!-- {mark} -->"
+    script = "\n".join(body for _, _, body, _ in runnable)
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", script], cwd=scratch(tmp_path), env=env(), text=True,
+                          capture_output=True, timeout=TIMEOUT_S)
+    assert done.returncode == 0, f"{doc.name}'s examples failed after {time.monotonic() - started:.1f} s:\n{done.stderr[-3000:]}"
+
+
+def test_every_doc_example_is_run_or_says_what_it_needs() -> None:
+    """A fence the runner does not know (```bash, ```console) would silently escape it."""
+    for doc in DOCS:
+        for lang in re.findall(r"^```(\w+)", doc.read_text(), re.M):
+            assert lang in ("python", "sh", "text", "toml", "json", "lua", "c"), \
+                f"{doc.name}: ```{lang} examples are not run; use ```sh or ```python (or ```text for output)"
