@@ -10,7 +10,7 @@ Rules, so that a reader can trust an example (docs/api.md says the same for user
   not re-run: the suite runs on that installation. The test command itself (README) is checked
   to be the one .ci/run runs, not run inside itself.
 - A comment line ``<!-- long-running -->`` right before a block: each command must still be
-  running (or have succeeded) after a few seconds; it is then interrupted (servers, campaigns,
+  running (or have succeeded) after a few seconds; it is then terminated (servers, campaigns,
   benchmarks: their results are checked by their own tests and recorded in docs/).
 - ``<!-- not-run: needs ... -->`` right before a block: not run, for what the machine cannot
   have (hardware, a cluster); the reason must say what is needed.
@@ -102,7 +102,8 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
                 if not command:
                     continue
             if command == "python -m pytest":
-                assert raw in (ROOT / ".ci" / "run").read_text(), f".ci/run must run the README's {raw!r}"
+                ci = (ROOT / ".ci" / "run").read_text()
+                assert "pip install -q -e '.[test]' && python -m pytest" in ci, f".ci/run must run the README's {raw!r}"
                 continue
             if command.endswith("&") or long:
                 proc = subprocess.Popen(["bash", "-c", f"exec {command.rstrip('&')}"], cwd=cwd, env=env(), text=True,
@@ -115,9 +116,9 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
                 try:
                     proc.wait(timeout=LONG_S)
                 except subprocess.TimeoutExpired:
-                    os.killpg(proc.pid, signal.SIGINT)
+                    os.killpg(proc.pid, signal.SIGTERM)
                 out, err = proc.communicate(timeout=60)
-                assert proc.returncode in (0, 1, 130, -signal.SIGINT) and "Traceback" not in err, \
+                assert proc.returncode in (0, -signal.SIGTERM) and "Traceback" not in err, \
                     f"{command!r} failed ({proc.returncode}): {err[-2000:]}"
                 continue
             done = subprocess.run(["bash", "-c", f"set -o pipefail; {command}"], cwd=cwd, env=env(), text=True,
@@ -129,7 +130,7 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
     finally:
         for proc in background:
             if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGINT)
+                os.killpg(proc.pid, signal.SIGTERM)
             try:
                 proc.communicate(timeout=10)
             except subprocess.TimeoutExpired:
