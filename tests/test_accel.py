@@ -21,7 +21,7 @@ from rfhoming.protocol.accel import ACCEL, PURE_ENV, describe
 from rfhoming.protocol.frames import MAX_ENCODED, FrameDecoder, Odometry, encode_frame, encode_inner
 from rfhoming.protocol.uconnect import MAX_LINE, AngleEvent, Dialect, FinalCode, UConnectDecoder, encode_angle_event
 from rfhoming.protocol.uconnect.decoder import parse_angle_event
-from tests.strategies import angle_events, chunked, records
+from strategies import angle_events, chunked, records
 
 needs_accel = pytest.mark.skipif(ACCEL is None, reason=describe())
 

@@ -29,7 +29,7 @@ from rfhoming.protocol.frames import (
     parse_inner,
 )
 from rfhoming.protocol.frames.codec import VALIDATORS
-from tests.strategies import chunked, record_of, records
+from strategies import chunked, record_of, records
 
 ODO = Odometry(7, 1, 123456, 1500, -250, 1570796, 300, -100, 0b100)
 

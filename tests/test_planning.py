@@ -11,7 +11,7 @@ from rfhoming.host.drivers.base import Scan
 from rfhoming.host.homing.avoidance import AvoidParams, ObstacleAvoidance, sectors
 from rfhoming.host.homing.grid import FREE_COST, OCCUPIED_COST, UNKNOWN_COST, GridParams, OccupancyGrid, lookahead
 from rfhoming.host.homing.types import Decision, Pose
-from tests.test_homing import closed_loop_scenario
+from test_homing import closed_loop_scenario
 
 
 def wall_scan(distance: float, beams: int = 181, width: float = 20.0) -> Scan:

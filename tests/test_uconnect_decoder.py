@@ -21,7 +21,7 @@ from rfhoming.protocol.uconnect import (
     encode_angle_event,
 )
 from rfhoming.protocol.uconnect.decoder import _fast_angle_event, parse_angle_event
-from tests.strategies import angle_events, chunked
+from strategies import angle_events, chunked
 
 OFFICIAL = b'+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869'
 OFFICIAL_EVENT = AngleEvent("CCF9578E0D8A", -42, 20, 0, -43, 37, "CCF9578E0D89", "", 15869)

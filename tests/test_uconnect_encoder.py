@@ -18,7 +18,7 @@ from rfhoming.protocol.uconnect import (
     encode_startup,
 )
 from rfhoming.protocol.uconnect.encoder import encode_tag_data
-from tests.strategies import angle_events
+from strategies import angle_events
 
 EVENT = AngleEvent("CCF9578E0D8A", -42, 20, 0, -43, 37, "CCF9578E0D89", "", 15869, 23, -5, 3)
 

@@ -15,7 +15,7 @@ from rfhoming.protocol import pcapng
 from rfhoming.protocol.frames import RECORD_TYPES, FrameDecoder, encode_frame
 from rfhoming.protocol.frames.records import AntennaReading
 from rfhoming.protocol.frames.wireshark import lua_dissector
-from tests.strategies import chunked
+from strategies import chunked
 
 
 def body_fields(rt) -> list[str]:
