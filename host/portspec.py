@@ -77,10 +77,44 @@ def _name(text: str) -> str:
 
 SERIAL_KEYS: dict[str, Callable[[str], Any]] = {"baud": _baud, "flow": _flow, "name": _name, "timeout": _seconds}
 
+
+def _scan_ms(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 2.5 <= value <= 10_240:
+        raise ValueError("milliseconds from 2.5 to 10240, e.g. interval=100")
+    return value
+
+
+def _yes_no(text: str) -> bool:
+    if text not in ("yes", "no", "1", "0", "true", "false"):
+        raise ValueError("yes or no")
+    return text in ("yes", "1", "true")
+
+
+def _mac(text: str) -> str:
+    if not re.fullmatch(r"[0-9A-Fa-f]{2}(:[0-9A-Fa-f]{2}){5}", text):
+        raise ValueError("an address as aa:bb:cc:dd:ee:ff, e.g. mac=24:0a:c4:96:e6:88")
+    return text.upper()
+
+
+def _ad_name(text: str) -> str:
+    if not 1 <= len(text) <= 29 or '"' in text:
+        raise ValueError("an advertised local name, 1 to 29 characters, no quotes")
+    return text
+
+
+SCAN_KEYS: dict[str, Callable[[str], Any]] = {"active": _yes_no, "interval": _scan_ms, "window": _scan_ms,
+                                               "mac": _mac, "adname": _ad_name}
+"""BLE scanning settings of the RSSI receivers (esp-at, hci): scan type, timing, filter."""
+
 KINDS: dict[str, dict[str, Callable[[str], Any]]] = {
     "ublox-aoa": {**SERIAL_KEYS, "tags": _tags},  # u-blox XPLR-AOA (u-connectLocate text)
     "rss": dict(SERIAL_KEYS),  # rfhoming's framed records from an RSS node (ESP32, AT86RF212)
     "base": dict(SERIAL_KEYS),  # rfhoming's framed records from the robot base
+    "esp-at": {**SERIAL_KEYS, **SCAN_KEYS},  # ESP32 with Espressif's ESP-AT firmware (BLE scan)
     "capture": {"device": _name, "speed": _speed},  # a pcapng capture replayed as live ports
 }
 """Each kind's settings and their parsers (text -> value; ValueError says what is allowed)."""

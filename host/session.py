@@ -20,6 +20,7 @@ from rfhoming.host.discovery import resolve_auto
 from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup
 from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.common import Driver
+from rfhoming.host.drivers.espat import EspAtDriver, EspAtSetup
 from rfhoming.host.drivers.rss import RssDriver
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.ports import HostPort, PortError, Tap
@@ -28,9 +29,10 @@ from rfhoming.host.replay import describe as describe_interface
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.uconnect import UConnectDecoder
 
-DRIVERS: dict[str, Callable[..., Driver]] = {"ublox-aoa": AoaDriver, "rss": RssDriver, "base": BaseDriver}
-WIRE_PROTOCOL = {"ublox-aoa": "ublox-aoa", "rss": "rss", "base": "rss"}
-AUTO_KIND = {"ublox-aoa": "xplr-aoa", "rss": "esp32", "base": "stm32"}
+DRIVERS: dict[str, Callable[..., Driver]] = {"ublox-aoa": AoaDriver, "rss": RssDriver, "base": BaseDriver,
+                                             "esp-at": EspAtDriver}
+WIRE_PROTOCOL = {"ublox-aoa": "ublox-aoa", "rss": "rss", "base": "rss", "esp-at": "esp-at"}
+AUTO_KIND = {"ublox-aoa": "xplr-aoa", "rss": "esp32", "base": "stm32", "esp-at": "esp32"}
 SNIFF_SECONDS = 1.5
 DEFAULT_BAUD = 115200
 
@@ -95,7 +97,22 @@ def make_driver(spec: PortSpec, taps: list[Tap], **options: Any) -> Driver:
         if spec.timeout:
             setup = replace(setup, command_timeout=spec.timeout)
         return AoaDriver(port, setup, **options)
+    if kind == "esp-at":
+        return EspAtDriver(port, esp_at_setup(spec, options.pop("setup", EspAtSetup())), **options)
     return DRIVERS[kind](port, **options)
+
+
+def esp_at_setup(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
+    """The spec's scan settings (active, interval, window, mac, adname) over ``setup``."""
+    s = spec.settings
+    interval = s.get("interval", setup.interval_ms)
+    try:
+        return replace(setup, active=s.get("active", setup.active), interval_ms=interval,
+                       window_ms=s.get("window", min(setup.window_ms, interval)),
+                       filter_mac=s.get("mac", setup.filter_mac), filter_name=s.get("adname", setup.filter_name),
+                       command_timeout=spec.timeout or setup.command_timeout)
+    except ValueError as exc:
+        raise PortSpecError(f"{spec}: {exc}") from None
 
 
 async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | None = None,
@@ -157,7 +174,8 @@ def replay_drivers(spec: PortSpec) -> list[Driver]:
                           sequencer=sequencer)
         fields = describe_interface(interfaces[i])
         kind = "ublox-aoa" if fields.get("kind") == "xplr-aoa" or fields.get("protocol") == "ublox-aoa" else (
-            "base" if fields.get("kind") == "base" else "rss")
+            "base" if fields.get("kind") == "base" else fields.get("protocol") if fields.get("protocol") in DRIVERS
+            else "rss")
         drivers.append(DRIVERS[kind](port))
     return drivers
 
