@@ -18,7 +18,7 @@ import numpy as np
 from rfhoming.emulator.radio import AoaModel, PathLossModel
 from rfhoming.emulator.world import Obstacle, Pose, Target, World
 
-DEVICE_TYPES = ("xplr-aoa", "esp32", "esp-at", "at86rf212", "base")
+DEVICE_TYPES = ("xplr-aoa", "esp32", "esp-at", "hci", "at86rf212", "base")
 
 
 class ScenarioError(ValueError):
@@ -83,7 +83,7 @@ def _random_free_point(bounds, obstacles, rng: np.random.Generator, margin: floa
     raise ScenarioError("no free point for a random target: the bounds are full of obstacles")
 
 
-BLE_RECEIVERS = ("esp32", "esp-at")
+BLE_RECEIVERS = ("esp32", "esp-at", "hci")
 """Interchangeable BLE RSSI receivers: ``receiver=`` puts one in place of the scenario's."""
 
 

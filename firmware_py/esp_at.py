@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import re
 
+from rfhoming.protocol.ad import local_name
 from rfhoming.protocol.espat import ScanReport, encode_scan
 
 TX_BUFFER = 16384
@@ -21,19 +22,6 @@ MAX_COMMAND = 256
 AIR_US_PER_BYTE = 8
 SENSITIVITY_DBM = -97.0
 UNIT_US = 625
-
-
-def local_name(ad: bytes) -> str | None:
-    """The Complete (0x09) or Shortened (0x08) Local Name in AD structures, if any."""
-    i = 0
-    while i + 1 < len(ad):
-        n = ad[i]
-        if n == 0 or i + 1 + n > len(ad):
-            return None
-        if ad[i + 1] in (0x08, 0x09):
-            return ad[i + 2 : i + 1 + n].decode("utf-8", "replace")
-        i += 1 + n
-    return None
 
 
 class EspAtFirmware:

@@ -4,6 +4,8 @@ In the spirit of bumble's transport strings, ``KIND:WHERE[,key=value...]``::
 
     ublox-aoa:/dev/ttyUSB0,baud=1000000,flow=rtscts,tags=CCF9578E0D8A+CCF9578E0D8B
     rss:socket://127.0.0.1:5001
+    esp-at:/dev/ttyUSB0,active=yes,interval=100,window=50
+    hci:serial:/dev/ttyACM0,1000000,extended=auto     (any bumble transport: hci:usb:0, hci:tcp-client:H:P)
     base:/dev/ttyACM1,baud=115200
     auto                      (the one recognised device; ublox-aoa:auto for a kind)
     /dev/ttyACM0              (no KIND: the protocol is sniffed from what the port says)
@@ -106,6 +108,18 @@ def _ad_name(text: str) -> str:
     return text
 
 
+def _extended(text: str) -> str:
+    if text not in ("auto", "on", "off"):
+        raise ValueError("auto (extended scanning where the controller has it), on or off")
+    return text
+
+
+def _content(text: str) -> str:
+    if text not in ("ibeacon", "eddystone"):
+        raise ValueError("ibeacon or eddystone")
+    return text
+
+
 SCAN_KEYS: dict[str, Callable[[str], Any]] = {"active": _yes_no, "interval": _scan_ms, "window": _scan_ms,
                                                "mac": _mac, "adname": _ad_name}
 """BLE scanning settings of the RSSI receivers (esp-at, hci): scan type, timing, filter."""
@@ -115,6 +129,9 @@ KINDS: dict[str, dict[str, Callable[[str], Any]]] = {
     "rss": dict(SERIAL_KEYS),  # rfhoming's framed records from an RSS node (ESP32, AT86RF212)
     "base": dict(SERIAL_KEYS),  # rfhoming's framed records from the robot base
     "esp-at": {**SERIAL_KEYS, **SCAN_KEYS},  # ESP32 with Espressif's ESP-AT firmware (BLE scan)
+    # a Bluetooth controller through a bumble transport: hci:serial:/dev/ttyACM0,1000000, hci:usb:0
+    "hci": {"name": _name, "timeout": _seconds, **SCAN_KEYS, "extended": _extended, "content": _content,
+            "dedup": _yes_no},
     "capture": {"device": _name, "speed": _speed},  # a pcapng capture replayed as live ports
 }
 """Each kind's settings and their parsers (text -> value; ValueError says what is allowed)."""

@@ -25,6 +25,7 @@ examples:
   rfhoming emulate s0-open --seed 3 --truth truth.jsonl
   rfhoming emulate s2-c --tcp --speed 10
   rfhoming emulate s3-arena --receiver esp-at     (the robot's scanner is an ESP32 with ESP-AT)
+  rfhoming emulate s3-arena --receiver hci        (... a Bluetooth controller: hci:serial:PATH)
   rfhoming emulate s0-open --lockstep --fault unplug@aoa:at=5,for=2 --fault ber:rate=1e-5
 
 faults (repeatable): KIND[@DEVICE][:key=value,...]
@@ -46,8 +47,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--target", help="first target's position X,Y in metres, e.g. --target=-3.5,2 "
                    "(default: the scenario's, random per seed)")
     p.add_argument("--receiver", choices=BLE_RECEIVERS,
-                   help="serve every BLE RSSI receiver as this device: esp32 (rfhoming frames) or esp-at "
-                   "(Espressif's AT firmware)")
+                   help="serve every BLE RSSI receiver as this device: esp32 (rfhoming frames), esp-at "
+                   "(Espressif's AT firmware) or hci (a Bluetooth controller over H4, needs rfhoming[hci])")
     p.add_argument("--aoa-preset", type=int, choices=range(1, 6), help="S0 Table 2 noise configuration 1-5")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
     p.add_argument("--truth", type=Path, help="write the true robot pose and target positions as JSON lines")
