@@ -4,6 +4,9 @@ closed-loop S3 trilateration on HCI advertising reports (live and replayed)."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import asyncio
 import math
 from pathlib import Path
@@ -166,3 +169,23 @@ async def test_s3_homes_on_hci_reports_and_the_capture_replays_them_exactly(tmp_
     replayed = await s3_replay(tmp_path, live, HciDriver, "hci")
     assert replayed["readings"] == live["readings"]
     assert replayed["log"] == live["log"]
+
+
+def test_demo_runs_s3_on_an_hci_controller(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--scenario", "s3-arena", "--receiver", "hci",
+                           "--json", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["success"] and "hci" in summary["links"]
+
+
+def test_hci_items_print_as_json_lines() -> None:
+    """The items the driver shows ``listen``/``replay``: plain JSON, bytes as hex."""
+    from rfhoming.host.drivers.hci import Advertisement, HciPacket
+    from rfhoming.protocol.jsonable import as_dict
+
+    rows = [as_dict(Advertisement("AC0000000001", 0, -61, True, b"\x02\x01\x06")),
+            as_dict(HciPacket("HCI_COMMAND_COMPLETE_EVENT", b"\x04\x0e\x04\x01\x03\x0c\x00"))]
+    assert rows == [{"kind": "advertisement", "address": "AC0000000001", "address_type": 0, "rssi_dbm": -61,
+                     "extended": True, "data": "020106"},
+                    {"kind": "hci", "name": "HCI_COMMAND_COMPLETE_EVENT", "raw": "040e0401030c00"}]

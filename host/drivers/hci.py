@@ -20,7 +20,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from bumble import hci
 
@@ -37,6 +37,25 @@ LE_EVENT_MASK = (1 << 1) | (1 << 12)  # LE Advertising Report, LE Extended Adver
 RSSI_NOT_AVAILABLE = 127
 HARDWARE_ERROR_EVENT = 0x10  # the controller lost its state: set it up again
 CONTENT_FILTERS = {"ibeacon": adv.is_ibeacon, "eddystone": adv.is_eddystone}
+
+
+class Advertisement(NamedTuple):
+    """One advertising report, as ``listen`` shows it (and as listeners get it)."""
+
+    kind = "advertisement"
+    address: str  # 12 hex digits, MSB first
+    address_type: int
+    rssi_dbm: int  # 127 = not available
+    extended: bool
+    data: bytes
+
+
+class HciPacket(NamedTuple):
+    """Any other HCI packet: bumble's name for it and its bytes (H4 indicator included)."""
+
+    kind = "hci"
+    name: str
+    raw: bytes
 
 
 class CommandFailed(RuntimeError):
@@ -102,14 +121,16 @@ class HciDriver(Driver):
             except Exception:  # bumble raises several types on a malformed packet  # noqa: BLE001
                 self.counters["bad_packets"] += 1
                 continue
-            self.emit(t_host, packet)
-            self._on_packet(packet, t_host)
+            self._on_packet(packet, item, t_host)
 
-    def _on_packet(self, packet: hci.HCI_Packet, t_host: float) -> None:
-        if isinstance(packet, (hci.HCI_LE_Advertising_Report_Event, hci.HCI_LE_Extended_Advertising_Report_Event)):
+    def _on_packet(self, packet: hci.HCI_Packet, raw: bytes, t_host: float) -> None:
+        extended = isinstance(packet, hci.HCI_LE_Extended_Advertising_Report_Event)
+        if extended or isinstance(packet, hci.HCI_LE_Advertising_Report_Event):
             for report in packet.reports:
-                self._report(report, t_host)
-        elif isinstance(packet, (hci.HCI_Command_Complete_Event, hci.HCI_Command_Status_Event)):
+                self._report(report, extended, t_host)
+            return
+        self.emit(t_host, HciPacket(packet.name, raw))
+        if isinstance(packet, (hci.HCI_Command_Complete_Event, hci.HCI_Command_Status_Event)):
             if self._pending is not None and packet.command_opcode == self._pending[0] and not self._pending[1].done():
                 self._pending[1].set_result(packet)
         elif getattr(packet, "event_code", None) == HARDWARE_ERROR_EVENT:
@@ -117,9 +138,10 @@ class HciDriver(Driver):
             log.warning("%s: controller hardware error; setting it up again", self.port.name)
             self._needs_setup.set()
 
-    def _report(self, report: Any, t_host: float) -> None:
+    def _report(self, report: Any, extended: bool, t_host: float) -> None:
         self.counters["reports"] += 1
         address = address_text(report.address)
+        self.emit(t_host, Advertisement(address, report.address_type, report.rssi, extended, bytes(report.data)))
         if report.rssi == RSSI_NOT_AVAILABLE:
             self.counters["no_rssi"] += 1
         elif not self.setup.keeps(address, bytes(report.data)):
