@@ -10,9 +10,10 @@ approximate. What bumble's controller lacks for a receiver model is added here:
   window, only on the channel of the current interval (37, 38, 39 in turn), not when two
   packets collide, not below the sensitivity;
 - the scan interval and window the host set (bumble ignores the extended ones), and
-  HCI_Reset stops scanning (bumble's Reset leaves it on);
-- the event masks gate the reports (LE Meta event bit 61; LE Advertising Report bit 1, LE
-  Extended Advertising Report bit 12), so a host that forgets them hears nothing;
+  HCI_Reset stops scanning and restores the default event masks (bumble's Reset leaves both);
+- the event masks gate the reports (LE Meta event bit 61, off by default; LE Advertising
+  Report bit 1; LE Extended Advertising Report bit 12, off by default), so a host that forgets
+  them hears nothing;
 - duplicate filtering when the host enables it: one report per address per scan enable;
 - reports are sent at once (bumble schedules them with ``call_soon``), so bytes follow the
   emulator's clock deterministically; the TX buffer is bounded (drops counted).
@@ -37,6 +38,7 @@ SENSITIVITY_DBM = -97.0
 UNIT_US = 625
 LE_META_EVENT_BIT = 1 << 61
 LE_ADV_REPORT_BIT, LE_EXT_ADV_REPORT_BIT = 1 << 1, 1 << 12
+DEFAULT_EVENT_MASK, DEFAULT_LE_EVENT_MASK = 0x00001FFFFFFFFFFF, 0x1F  # Core v5.4 Vol 4 Part E 7.3.1, 7.8.1
 
 
 class _ScanningController(Controller):
@@ -50,14 +52,14 @@ class _ScanningController(Controller):
         self.active = False
         self.extended = False
         self.reported: set[str] = set()
+        self.event_mask, self.le_event_mask = DEFAULT_EVENT_MASK, DEFAULT_LE_EVENT_MASK  # as after a reset
 
     def send_hci_packet(self, packet: hci.HCI_Packet) -> None:
         self._out(bytes(packet))
 
     def on_hci_reset_command(self, command: hci.HCI_Reset_Command) -> Any:
         self.le_scan_enable = False
-        self.event_mask = 0
-        self.le_event_mask = 0
+        self.event_mask, self.le_event_mask = DEFAULT_EVENT_MASK, DEFAULT_LE_EVENT_MASK
         return super().on_hci_reset_command(command)
 
     def on_hci_le_set_scan_parameters_command(self, command: hci.HCI_LE_Set_Scan_Parameters_Command) -> Any:
