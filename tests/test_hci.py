@@ -122,6 +122,9 @@ def test_port_specs_name_bumble_transports_and_scan_settings() -> None:
     assert setup.addresses == {"AC0000000001"} and setup.content == "ibeacon"
     port = open_port(spec.where)
     assert (port.spec, port.baud) == ("/dev/ttyACM0", 1_000_000)
+    assert open_port("serial:/dev/ttyACM0,115200,rtscts").rtscts
+    with pytest.raises(ValueError, match="SPEED and rtscts"):
+        open_port("serial:/dev/ttyACM0,fast")
     assert open_port("tcp-client:127.0.0.1:9000").spec == "socket://127.0.0.1:9000"
     assert isinstance(open_port("usb:0"), BumbleTransportPort)
     with pytest.raises(portspec.PortSpecError, match="extended"):

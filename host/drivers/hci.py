@@ -257,10 +257,16 @@ class BumbleTransportPort(HostPort):
 def open_port(where: str, *, name: str | None = None, taps: list[Tap] | None = None) -> HostPort:
     """The port for a bumble-style transport name (see the module docstring)."""
     if where.startswith("serial:") or where.startswith("/"):
-        path, _, baud = where.removeprefix("serial:").partition(",")
-        if baud and not baud.isdigit():
-            raise ValueError(f"{where}: the baud rate after the comma must be a number, e.g. serial:/dev/ttyACM0,1000000")
-        return HostPort(path, baud=int(baud or 1_000_000), name=name or path, taps=taps)
+        path, *options = where.removeprefix("serial:").split(",")
+        baud, rtscts = 1_000_000, False  # bumble's defaults
+        for option in options:
+            if option.isdigit():
+                baud = int(option)
+            elif option == "rtscts":
+                rtscts = True
+            else:
+                raise ValueError(f"{where}: after the path come SPEED and rtscts, e.g. serial:/dev/ttyACM0,1000000,rtscts")
+        return HostPort(path, baud=baud, rtscts=rtscts, name=name or path, taps=taps)
     if where.startswith("tcp-client:"):
         host_port = where.removeprefix("tcp-client:")
         return HostPort(f"socket://{host_port}", name=name or where, taps=taps)
