@@ -243,3 +243,17 @@ def test_oversize_run_is_dropped_once_and_the_next_frame_survives(lib: C.CDLL) -
 def test_antenna_readings_survive(lib: C.CDLL) -> None:
     rec = RECORD_TYPES[0x03].cls(9, 1, 2, 3, 11, 0, -97, 0b1011, tuple(AntennaReading(i, 255 - i, -i) for i in range(4)))
     assert FrameDecoder(pure=True).feed(c_encode(lib, rec)) == [rec]
+
+
+@given(records)
+def test_a_buffer_of_exactly_the_frame_size_is_enough_and_one_byte_less_is_refused(lib: C.CDLL, record: Any) -> None:
+    expected = py_frame(record)
+    if expected is None:
+        return
+    struct, _keep = to_c(record)
+    header = Header(record.node_id, record.seq, record.t_us)
+    fn = getattr(lib, "rfh_encode_" + record.kind)
+    for cap, want in ((len(expected), expected), (len(expected) - 1, b"")):
+        out = (U8 * cap)()
+        n = fn(out, C.c_size_t(cap), C.byref(header), C.byref(struct))
+        assert bytes(out[:n]) == want
