@@ -14,11 +14,12 @@ from typing import Any
 import numpy as np
 
 from rfhoming.emulator.faults import ByteFaults, scramble
-from rfhoming.emulator.links import Link
+from rfhoming.emulator.links import Link, TcpLink
 from rfhoming.emulator.radio import AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth
 from rfhoming.emulator.world import Target, World
 from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
 from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware
+from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.firmware.robot_base import RobotBaseFirmware
 from rfhoming.firmware.xplr_aoa import Advertisement, XplrAoaFirmware
 from rfhoming.protocol.uconnect import Dialect
@@ -199,12 +200,70 @@ class Esp32Runner(DeviceRunner):
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: Esp32ScannerFirmware = self.firmware
-        ad = b"\x02\x01\x06\x03\x03\xaa\xfe"
+        ad = BEACON_AD
         for beacon, t, _pos, distance, walls in self.transmissions(world, "ble_beacon", t0, t1):
             for k, ch in enumerate((37, 38, 39)):
                 power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
                 if power is not None:
                     fw.on_advertisement(int(t * 1e6) + 400 * k, ch, _address(beacon.id), power, ad)
+        fw.tick(int(t1 * 1e6))
+
+
+BEACON_AD = b"\x02\x01\x06\x03\x03\xaa\xfe"
+"""What the emulated beacons advertise: flags, and the Eddystone service UUID."""
+
+
+class EspAtRunner(DeviceRunner):
+    """An ESP32 with Espressif's ESP-AT firmware on the robot, scanning when the host says so."""
+
+    protocol = "esp-at"
+    kind = "esp-at"
+
+    def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
+                 path_loss: PathLossModel, options: dict[str, Any]) -> None:
+        super().__init__(name, EspAtFirmware, link, faults, rng)
+        self.baud = int(options.get("baud", DEFAULT_BAUD))
+        self.channel = RadioChannel(path_loss, rng)
+        self.schedule = _Schedule(rng)
+
+    def step(self, world: World, t0: float, t1: float) -> None:
+        fw: EspAtFirmware = self.firmware
+        for beacon, t, _pos, distance, walls in self.transmissions(world, "ble_beacon", t0, t1):
+            for k, ch in enumerate((37, 38, 39)):
+                power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
+                if power is not None:
+                    fw.on_advertisement(int(t * 1e6) + 400 * k, ch, beacon.id.rjust(12, "0")[-12:], power, BEACON_AD)
+        fw.tick(int(t1 * 1e6))
+
+
+class HciRunner(DeviceRunner):
+    """A Bluetooth controller in HCI-UART mode on the robot (H4, 1 Mbaud by default), scanning
+    when the host's HCI commands say so. Its model needs bumble (the ``hci`` extra)."""
+
+    protocol = "hci"
+    kind = "hci"
+
+    def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
+                 path_loss: PathLossModel, options: dict[str, Any]) -> None:
+        from rfhoming.firmware.hci_controller import HciControllerFirmware  # bumble only where used
+
+        address = str(options.get("address", "C0:FF:EE:00:00:01"))
+        super().__init__(name, lambda: HciControllerFirmware(address), link, faults, rng)
+        self.baud = int(options.get("baud", 1_000_000))
+        if isinstance(link, TcpLink):  # HCI over TCP (bumble's tcp-client) has no baud rate to get wrong
+            link.assumed_host_baud = self.baud
+        self.channel = RadioChannel(path_loss, rng)
+        self.schedule = _Schedule(rng)
+
+    def step(self, world: World, t0: float, t1: float) -> None:
+        fw = self.firmware
+        for beacon, t, _pos, distance, walls in self.transmissions(world, "ble_beacon", t0, t1):
+            hex_id = beacon.id.rjust(12, "0")[-12:].upper()
+            address = ":".join(hex_id[i : i + 2] for i in range(0, 12, 2))
+            for k, ch in enumerate((37, 38, 39)):
+                power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
+                if power is not None:
+                    fw.on_advertisement(int(t * 1e6) + 400 * k, ch, address, power, BEACON_AD)
         fw.tick(int(t1 * 1e6))
 
 

@@ -24,7 +24,8 @@ from typing import IO, Any
 
 import numpy as np
 
-from rfhoming.emulator.devices import AoaRunner, BaseRunner, DeviceRunner, Esp32Runner, RssRunner, target_positions
+from rfhoming.emulator.devices import (AoaRunner, BaseRunner, DeviceRunner, Esp32Runner, EspAtRunner, HciRunner,
+                                       RssRunner, target_positions)
 from rfhoming.emulator.faults import ByteFaults, Fault
 from rfhoming.emulator.links import Link, PipeLink, PtyLink, TcpLink
 from rfhoming.emulator.scenario import Scenario
@@ -86,6 +87,10 @@ class Emulator:
             return AoaRunner(name, link, faults, rng, options, sc.aoa, sc.path_loss, tag)
         if kind == "esp32":
             return Esp32Runner(name, k + 1, link, faults, rng, sc.path_loss)
+        if kind == "esp-at":
+            return EspAtRunner(name, link, faults, rng, sc.path_loss, options)
+        if kind == "hci":
+            return HciRunner(name, link, faults, rng, sc.path_loss, options)
         if kind == "at86rf212":
             return RssRunner(name, k + 1, link, faults, rng, sc.path_loss, options)
         r = self.world.robot

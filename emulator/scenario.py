@@ -18,7 +18,7 @@ import numpy as np
 from rfhoming.emulator.radio import AoaModel, PathLossModel
 from rfhoming.emulator.world import Obstacle, Pose, Target, World
 
-DEVICE_TYPES = ("xplr-aoa", "esp32", "at86rf212", "base")
+DEVICE_TYPES = ("xplr-aoa", "esp32", "esp-at", "hci", "at86rf212", "base")
 
 
 class ScenarioError(ValueError):
@@ -83,10 +83,16 @@ def _random_free_point(bounds, obstacles, rng: np.random.Generator, margin: floa
     raise ScenarioError("no free point for a random target: the bounds are full of obstacles")
 
 
+BLE_RECEIVERS = ("esp32", "esp-at", "hci")
+"""Interchangeable BLE RSSI receivers: ``receiver=`` puts one in place of the scenario's."""
+
+
 def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = None,
-         aoa_preset: int | None = None) -> Scenario:
+         aoa_preset: int | None = None, receiver: str | None = None) -> Scenario:
     """Build a scenario; ``target`` overrides the first target's position, ``aoa_preset`` the
-    AoA noise with S0's configuration 1–5."""
+    AoA noise with S0's configuration 1–5, ``receiver`` the type of every BLE RSSI receiver."""
+    if receiver is not None and receiver not in BLE_RECEIVERS:
+        raise ScenarioError(f"receiver must be one of {BLE_RECEIVERS}, not {receiver!r}")
     raw = _read(name_or_path)
     rng = np.random.default_rng(seed)
     try:
@@ -123,6 +129,8 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
             kind = options.pop("type", None)
             if kind not in DEVICE_TYPES:
                 raise ScenarioError(f"[devices.{name}] type must be one of {DEVICE_TYPES}, not {kind!r}")
+            if receiver is not None and kind in BLE_RECEIVERS:
+                kind = receiver
             devices.append(DeviceSpec(name, kind, options))
     except KeyError as exc:
         raise ScenarioError(f"scenario {name_or_path} lacks {exc}") from None

@@ -4,6 +4,8 @@ In the spirit of bumble's transport strings, ``KIND:WHERE[,key=value...]``::
 
     ublox-aoa:/dev/ttyUSB0,baud=1000000,flow=rtscts,tags=CCF9578E0D8A+CCF9578E0D8B
     rss:socket://127.0.0.1:5001
+    esp-at:/dev/ttyUSB0,active=yes,interval=100,window=50
+    hci:serial:/dev/ttyACM0,1000000,extended=auto     (any bumble transport: hci:usb:0, hci:tcp-client:H:P)
     base:/dev/ttyACM1,baud=115200
     auto                      (the one recognised device; ublox-aoa:auto for a kind)
     /dev/ttyACM0              (no KIND: the protocol is sniffed from what the port says)
@@ -77,10 +79,59 @@ def _name(text: str) -> str:
 
 SERIAL_KEYS: dict[str, Callable[[str], Any]] = {"baud": _baud, "flow": _flow, "name": _name, "timeout": _seconds}
 
+
+def _scan_ms(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 2.5 <= value <= 10_240:
+        raise ValueError("milliseconds from 2.5 to 10240, e.g. interval=100")
+    return value
+
+
+def _yes_no(text: str) -> bool:
+    if text not in ("yes", "no", "1", "0", "true", "false"):
+        raise ValueError("yes or no")
+    return text in ("yes", "1", "true")
+
+
+def _mac(text: str) -> str:
+    if not re.fullmatch(r"[0-9A-Fa-f]{2}(:[0-9A-Fa-f]{2}){5}", text):
+        raise ValueError("an address as aa:bb:cc:dd:ee:ff, e.g. mac=24:0a:c4:96:e6:88")
+    return text.upper()
+
+
+def _ad_name(text: str) -> str:
+    if not 1 <= len(text) <= 29 or '"' in text:
+        raise ValueError("an advertised local name, 1 to 29 characters, no quotes")
+    return text
+
+
+def _extended(text: str) -> str:
+    if text not in ("auto", "on", "off"):
+        raise ValueError("auto (extended scanning where the controller has it), on or off")
+    return text
+
+
+def _content(text: str) -> str:
+    if text not in ("ibeacon", "eddystone"):
+        raise ValueError("ibeacon or eddystone")
+    return text
+
+
+SCAN_KEYS: dict[str, Callable[[str], Any]] = {"active": _yes_no, "interval": _scan_ms, "window": _scan_ms,
+                                               "mac": _mac, "adname": _ad_name}
+"""BLE scanning settings of the RSSI receivers (esp-at, hci): scan type, timing, filter."""
+
 KINDS: dict[str, dict[str, Callable[[str], Any]]] = {
     "ublox-aoa": {**SERIAL_KEYS, "tags": _tags},  # u-blox XPLR-AOA (u-connectLocate text)
     "rss": dict(SERIAL_KEYS),  # rfhoming's framed records from an RSS node (ESP32, AT86RF212)
     "base": dict(SERIAL_KEYS),  # rfhoming's framed records from the robot base
+    "esp-at": {**SERIAL_KEYS, **SCAN_KEYS},  # ESP32 with Espressif's ESP-AT firmware (BLE scan)
+    # a Bluetooth controller through a bumble transport: hci:serial:/dev/ttyACM0,1000000, hci:usb:0
+    "hci": {"name": _name, "timeout": _seconds, **SCAN_KEYS, "extended": _extended, "content": _content,
+            "dedup": _yes_no},
     "capture": {"device": _name, "speed": _speed},  # a pcapng capture replayed as live ports
 }
 """Each kind's settings and their parsers (text -> value; ValueError says what is allowed)."""

@@ -20,6 +20,7 @@ from rfhoming.host.discovery import resolve_auto
 from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup
 from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.common import Driver
+from rfhoming.host.drivers.espat import EspAtDriver, EspAtSetup
 from rfhoming.host.drivers.rss import RssDriver
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.ports import HostPort, PortError, Tap
@@ -28,9 +29,23 @@ from rfhoming.host.replay import describe as describe_interface
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.uconnect import UConnectDecoder
 
-DRIVERS: dict[str, Callable[..., Driver]] = {"ublox-aoa": AoaDriver, "rss": RssDriver, "base": BaseDriver}
-WIRE_PROTOCOL = {"ublox-aoa": "ublox-aoa", "rss": "rss", "base": "rss"}
-AUTO_KIND = {"ublox-aoa": "xplr-aoa", "rss": "esp32", "base": "stm32"}
+
+
+def hci_driver(port: HostPort, **options: Any) -> Driver:
+    """The HCI driver, imported only when used: it needs bumble (``pip install rfhoming[hci]``)."""
+    try:
+        from rfhoming.host.drivers.hci import HciDriver
+    except ImportError as exc:
+        raise PortError(f"hci: ports need bumble ({exc}); install it with pip install 'rfhoming[hci]'") from None
+    return HciDriver(port, **options)
+
+
+hci_driver.kind = "hci"  # type: ignore[attr-defined]
+
+DRIVERS: dict[str, Callable[..., Driver]] = {"ublox-aoa": AoaDriver, "rss": RssDriver, "base": BaseDriver,
+                                             "esp-at": EspAtDriver, "hci": hci_driver}
+WIRE_PROTOCOL = {"ublox-aoa": "ublox-aoa", "rss": "rss", "base": "rss", "esp-at": "esp-at", "hci": "hci"}
+AUTO_KIND = {"ublox-aoa": "xplr-aoa", "rss": "esp32", "base": "stm32", "esp-at": "esp32", "hci": "bluetooth-hci"}
 SNIFF_SECONDS = 1.5
 DEFAULT_BAUD = 115200
 
@@ -86,6 +101,8 @@ def make_driver(spec: PortSpec, taps: list[Tap], **options: Any) -> Driver:
     """The driver for a spec whose kind is known (``options`` go to the driver)."""
     kind = spec.kind
     assert kind in DRIVERS, kind
+    if kind == "hci":
+        return hci_driver(hci_port(spec, taps), setup=hci_setup(spec, options.pop("setup", None)), **options)
     port = HostPort(spec.where, baud=spec.baud or DEFAULT_BAUD, rtscts=flow_control(kind, spec.flow),
                     name=spec.name or spec.where, taps=taps)
     if kind == "ublox-aoa":
@@ -95,7 +112,49 @@ def make_driver(spec: PortSpec, taps: list[Tap], **options: Any) -> Driver:
         if spec.timeout:
             setup = replace(setup, command_timeout=spec.timeout)
         return AoaDriver(port, setup, **options)
+    if kind == "esp-at":
+        return EspAtDriver(port, esp_at_setup(spec, options.pop("setup", EspAtSetup())), **options)
     return DRIVERS[kind](port, **options)
+
+
+def hci_port(spec: PortSpec, taps: list[Tap]) -> HostPort:
+    from rfhoming.host.drivers.hci import open_port
+
+    try:
+        return open_port(spec.where, name=spec.name, taps=taps)
+    except ValueError as exc:
+        raise PortSpecError(str(exc)) from None
+
+
+def hci_setup(spec: PortSpec, setup: Any = None) -> Any:
+    """The spec's scan settings over ``setup`` (an HciSetup; default settings if None)."""
+    from rfhoming.host.drivers.hci import HciSetup
+
+    setup = setup or HciSetup()
+    s = spec.settings
+    interval = s.get("interval", setup.interval_ms)
+    try:
+        return replace(setup, active=s.get("active", setup.active), interval_ms=interval,
+                       window_ms=s.get("window", min(setup.window_ms, interval)),
+                       extended=s.get("extended", setup.extended), filter_duplicates=s.get("dedup", setup.filter_duplicates),
+                       addresses=frozenset([s["mac"].replace(":", "")]) if "mac" in s else setup.addresses,
+                       name=s.get("adname", setup.name), content=s.get("content", setup.content),
+                       command_timeout=spec.timeout or setup.command_timeout)
+    except ValueError as exc:
+        raise PortSpecError(f"{spec}: {exc}") from None
+
+
+def esp_at_setup(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
+    """The spec's scan settings (active, interval, window, mac, adname) over ``setup``."""
+    s = spec.settings
+    interval = s.get("interval", setup.interval_ms)
+    try:
+        return replace(setup, active=s.get("active", setup.active), interval_ms=interval,
+                       window_ms=s.get("window", min(setup.window_ms, interval)),
+                       filter_mac=s.get("mac", setup.filter_mac), filter_name=s.get("adname", setup.filter_name),
+                       command_timeout=spec.timeout or setup.command_timeout)
+    except ValueError as exc:
+        raise PortSpecError(f"{spec}: {exc}") from None
 
 
 async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | None = None,
@@ -157,7 +216,8 @@ def replay_drivers(spec: PortSpec) -> list[Driver]:
                           sequencer=sequencer)
         fields = describe_interface(interfaces[i])
         kind = "ublox-aoa" if fields.get("kind") == "xplr-aoa" or fields.get("protocol") == "ublox-aoa" else (
-            "base" if fields.get("kind") == "base" else "rss")
+            "base" if fields.get("kind") == "base" else fields.get("protocol") if fields.get("protocol") in DRIVERS
+            else "rss")
         drivers.append(DRIVERS[kind](port))
     return drivers
 

@@ -3,7 +3,9 @@
 rfhoming stores raw serial bytes: one interface per device (if_name = the port, if_description
 = protocol and dialect), one Enhanced Packet Block per chunk exactly as read or written,
 microsecond timestamps, and the direction in epb_flags (1 inbound, 2 outbound). Link types are
-the user-defined ones: 147 (USER0) for u-connectLocate text, 148 (USER1) for COBS records.
+the user-defined ones: 147 (USER0) for u-connectLocate text, 148 (USER1) for COBS records,
+149 (USER2) for ESP-AT text, 150 (USER3) for an HCI H4 byte stream (chunks as read, so a chunk
+need not hold whole HCI packets -- the reason it is not LINKTYPE_BLUETOOTH_HCI_H4).
 
 Spec: IETF draft-ietf-opsawg-pcapng. Little-endian sections; the reader also reads big-endian.
 """
@@ -17,7 +19,10 @@ SHB, IDB, EPB = 0x0A0D0D0A, 0x00000001, 0x00000006
 BYTE_ORDER_MAGIC = 0x1A2B3C4D
 LINKTYPE_UCONNECT = 147
 LINKTYPE_FRAMES = 148
-LINKTYPES = {"ublox-aoa": LINKTYPE_UCONNECT, "rss": LINKTYPE_FRAMES}
+LINKTYPE_ESP_AT = 149
+LINKTYPE_H4_STREAM = 150
+LINKTYPES = {"ublox-aoa": LINKTYPE_UCONNECT, "rss": LINKTYPE_FRAMES, "esp-at": LINKTYPE_ESP_AT,
+             "hci": LINKTYPE_H4_STREAM}
 PROTOCOLS = {v: k for k, v in LINKTYPES.items()}
 OPT_END, OPT_COMMENT, OPT_SHB_USERAPPL = 0, 1, 4
 OPT_IF_NAME, OPT_IF_DESCRIPTION, OPT_IF_TSRESOL = 2, 3, 9

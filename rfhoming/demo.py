@@ -19,6 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from rfhoming.host import portspec
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.drivers.base import BaseDriver
@@ -26,13 +27,17 @@ from rfhoming.host.drivers.rss import RssDriver
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from rfhoming.host.ports import HostPort
+from rfhoming.host.session import make_driver
 
 SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e", "s3-arena"}  # S0–S3
 
 
-def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None) -> tuple[subprocess.Popen, dict]:
+def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None,
+                   receiver: str | None = None) -> tuple[subprocess.Popen, dict]:
     cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", "--lockstep", "--seed", str(seed),
            "--truth", str(truth), "--link-dir", str(link_dir)]
+    if receiver:
+        cmd += ["--receiver", receiver]
     if target:
         cmd.append(f"--target={target}")  # "=": a negative X would read as an option
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -50,9 +55,11 @@ async def home(endpoints: dict, out: Path, config: Config, docking: bool = False
     capture = CaptureWriter(out / "capture.pcapng")
     base = BaseDriver(HostPort(endpoints["base"]["path"], taps=[capture.tap]), command_timeout_ms=config.loop.command_timeout_ms)
     capture.describe(base.port.name, protocol="rss", kind="base")
-    if "esp32" in endpoints:
-        sensor = RssDriver(HostPort(endpoints["esp32"]["path"], taps=[capture.tap]))
-        capture.describe(sensor.port.name, protocol="rss", kind="esp32")
+    ble = next((t for t in ("esp32", "esp-at", "hci") if t in endpoints), None)
+    if ble is not None:  # the same S3 loop whichever receiver the robot carries
+        spec = {"esp32": "rss", "esp-at": "esp-at", "hci": "hci:serial"}[ble] + ":" + endpoints[ble]["path"]
+        sensor = make_driver(portspec.parse(spec), [capture.tap])
+        capture.describe(sensor.port.name, protocol=endpoints[ble]["protocol"], kind=ble)
         make = trilat_loop
     elif "xplr-aoa" in endpoints:
         sensor = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], rtscts=True, taps=[capture.tap]))  # its default
@@ -151,11 +158,14 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
     plt.close(fig)
 
 
-def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None) -> dict[str, Any]:
+def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
+             receiver: str | None = None) -> dict[str, Any]:
+    """One demo run; ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that device."""
     out.mkdir(parents=True, exist_ok=True)
     truth = out / "truth.jsonl"
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
-    proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target)
+    proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
+                                     receiver)
     if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
         config = trilat_config(config, truth, target)
     try:

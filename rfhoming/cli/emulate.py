@@ -13,7 +13,7 @@ from pathlib import Path
 
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
-from rfhoming.emulator.scenario import ScenarioError, load, presets
+from rfhoming.emulator.scenario import BLE_RECEIVERS, ScenarioError, load, presets
 
 HELP = """\
 Run an emulated world and serve each device where a host opens it like real hardware:
@@ -24,6 +24,8 @@ then the world runs until Ctrl-C.
 examples:
   rfhoming emulate s0-open --seed 3 --truth truth.jsonl
   rfhoming emulate s2-c --tcp --speed 10
+  rfhoming emulate s3-arena --receiver esp-at     (the robot's scanner is an ESP32 with ESP-AT)
+  rfhoming emulate s3-arena --receiver hci        (... a Bluetooth controller: hci:serial:PATH)
   rfhoming emulate s0-open --lockstep --fault unplug@aoa:at=5,for=2 --fault ber:rate=1e-5
 
 faults (repeatable): KIND[@DEVICE][:key=value,...]
@@ -44,6 +46,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of every random stream (default 0)")
     p.add_argument("--target", help="first target's position X,Y in metres, e.g. --target=-3.5,2 "
                    "(default: the scenario's, random per seed)")
+    p.add_argument("--receiver", choices=BLE_RECEIVERS,
+                   help="serve every BLE RSSI receiver as this device: esp32 (rfhoming frames), esp-at "
+                   "(Espressif's AT firmware) or hci (a Bluetooth controller over H4, needs rfhoming[hci])")
     p.add_argument("--aoa-preset", type=int, choices=range(1, 6), help="S0 Table 2 noise configuration 1-5")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
     p.add_argument("--truth", type=Path, help="write the true robot pose and target positions as JSON lines")
@@ -61,7 +66,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         print("rfhoming emulate: --target takes X,Y in metres, e.g. --target=3.5,-2", file=sys.stderr)
         return 2
     try:
-        scenario = load(args.scenario, seed=args.seed, target=target, aoa_preset=args.aoa_preset)
+        scenario = load(args.scenario, seed=args.seed, target=target, aoa_preset=args.aoa_preset,
+                        receiver=args.receiver)
         faults = [Fault.parse(spec) for spec in args.fault]
     except (ScenarioError, FaultError) as exc:
         print(f"rfhoming emulate: {exc}", file=sys.stderr)

@@ -13,7 +13,7 @@ from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
 from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from rfhoming.host.ports import PortError
-from rfhoming.host.portspec import PortSpecError
+from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.session import make_driver, resolve
 
@@ -35,6 +35,12 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble"}
 ROLE_KIND = {"aoa": "ublox-aoa", "base": "base", "rss": "rss", "ble": "rss"}
+BLE_KINDS = ("rss", "esp-at", "hci")  # any BLE RSSI receiver feeds the trilateration
+
+
+def role_kind(role: str, spec: str | PortSpec) -> str:
+    kind = parse_spec(spec).kind
+    return kind if role == "ble" and kind in BLE_KINDS else ROLE_KIND[role]
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -76,14 +82,15 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
                runlog) -> int:
     taps = [capture.tap] if capture else []
     describe = capture.describe if capture else None
-    resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=ROLE_KIND[r], describe=describe)
-                for r, spec in specs.items()}
+    resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=role_kind(r, spec),
+                                 describe=describe) for r, spec in specs.items()}
     base = make_driver(resolved["base"], taps, command_timeout_ms=config.loop.command_timeout_ms)
     if role == "aoa":
         sensor = make_driver(resolved["aoa"], taps)
         make = aoa_loop if args.controller == "aoa" else dock_loop
     else:
-        sensor = make_driver(resolved[role], taps, ed_scale_db=config.calibration.ed_scale_db)
+        options = {"ed_scale_db": config.calibration.ed_scale_db} if resolved[role].kind == "rss" else {}
+        sensor = make_driver(resolved[role], taps, **options)
         make = rss_loop if args.controller == "rss" else trilat_loop
     loop = make(base, sensor, config, RunLog(runlog))
     outcome = await loop.run()
@@ -105,7 +112,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         return 2
     if not args.json:
         print(f"demo: emulating {args.scenario} (seed {args.seed}) on ptys in lockstep; homing ...", file=sys.stderr)
-    summary = run_demo(args.scenario, args.seed, args.out, config, args.target)
+    if args.receiver and args.scenario != "s3-arena":
+        print("rfhoming demo: --receiver swaps the BLE RSSI receiver of --scenario s3-arena", file=sys.stderr)
+        return 2
+    summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver)
     if args.json:
         print(json.dumps(summary))
     else:
@@ -131,6 +141,7 @@ examples:
   rfhoming demo
   rfhoming demo --seed 7 --json
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
+  rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
 """
 
 RUN_HELP = """\
@@ -144,6 +155,8 @@ examples:
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
   rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
+  rfhoming run --controller trilat --ble esp-at:/dev/ttyUSB0 --base /dev/ttyACM0 --config arena.toml
+  rfhoming run --controller trilat --ble hci:usb:0,active=no --base /dev/ttyACM0 --config arena.toml
 """
 
 
@@ -157,6 +170,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("rfhoming-demo"), help="output folder (default ./rfhoming-demo)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--receiver", choices=("esp32", "esp-at", "hci"),
+                   help="s3-arena: the robot's BLE RSSI receiver -- esp32 (rfhoming frames, default), esp-at "
+                   "(ESP32 with Espressif's AT firmware) or hci (a Bluetooth controller, needs rfhoming[hci])")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
@@ -165,7 +181,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    "WHERE[,baud=,flow=,tags=] (e.g. /dev/ttyUSB0,baud=1000000); settings it leaves out come "
                    "from the config's [devices.aoa]")
     p.add_argument("--rss", metavar="SPEC", help="the four-dish AT86RF212 node, for --controller rss")
-    p.add_argument("--ble", metavar="SPEC", help="the ESP32 BLE scanner, for --controller trilat")
+    p.add_argument("--ble", metavar="SPEC", help="the BLE RSSI receiver, for --controller trilat: an ESP32 "
+                   "scanner (rss:PATH), an ESP32 with ESP-AT (esp-at:PATH) or an HCI controller (hci:usb:0)")
     p.add_argument("--base", metavar="SPEC", help="the robot base (e.g. /dev/ttyACM0,baud=115200)")
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "

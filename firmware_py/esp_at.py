@@ -1,0 +1,195 @@
+"""ESP32 running Espressif's ESP-AT firmware, as a BLE scanner driven by AT commands.
+
+Sans-IO, like the other models: :meth:`receive` takes the host's bytes, :meth:`read` gives the
+board's, :meth:`tick` moves its clock, :meth:`on_advertisement` is a packet at the antenna.
+What it does follows the ESP-AT documentation (docs/protocol.md section 5): echo on after
+boot, ``ready`` after a (re)boot, ``AT+BLEINIT`` roles that cannot change without ``AT+RST``,
+``AT+BLESCANPARAM`` ranges (4..0x4000 units of 0.625 ms, window <= interval), ``AT+BLESCAN``
+with a duration (then ``+BLESCANDONE``) and a MAC or NAME filter, ``ERROR`` for anything
+else. Scanning has the radio's limits: only inside the scan window, only on the channel of
+this interval (37, 38, 39 in turn), not when two packets collide, not below sensitivity.
+"""
+
+from __future__ import annotations
+
+import re
+
+from rfhoming.protocol.ad import local_name
+from rfhoming.protocol.espat import ScanReport, encode_scan
+
+TX_BUFFER = 16384
+MAX_COMMAND = 256
+AIR_US_PER_BYTE = 8
+SENSITIVITY_DBM = -97.0
+UNIT_US = 625
+
+
+class EspAtFirmware:
+    """The AT command interpreter and the BLE scanner behind it."""
+
+    VERSION = "AT version:3.2.0.0 (model)"
+
+    def __init__(self) -> None:
+        self.counters = {"tx_dropped": 0, "reported": 0, "duty_cycle": 0, "wrong_channel": 0,
+                         "collision": 0, "below_sensitivity": 0, "filtered": 0, "errors": 0}
+        self._out = bytearray()
+        self._rx = b""
+        self._now_us = 0
+        self.echo = True
+        self.role = 0
+        self.scan_type = 0
+        self.interval = 100  # the ESP-AT docs' example values; the driver always sets its own
+        self.window = 50
+        self.scanning = False
+        self._scan_until: int | None = None
+        self._filter: tuple[int, str] | None = None
+        self._last_end_us = {37: -1, 38: -1, 39: -1}
+        self._write(b"\r\nready\r\n")
+
+    # -- bytes ------------------------------------------------------------------------------
+    def read(self) -> bytes:
+        data = bytes(self._out)
+        self._out.clear()
+        return data
+
+    def _write(self, data: bytes) -> None:
+        if len(self._out) + len(data) > TX_BUFFER:
+            self.counters["tx_dropped"] += 1
+            return
+        self._out += data
+
+    def receive(self, data: bytes) -> None:
+        """Host bytes: each CR LF ends a command; an overlong line is answered with ERROR."""
+        self._rx += data
+        while b"\r\n" in self._rx:
+            line, self._rx = self._rx.split(b"\r\n", 1)
+            self._command(line)
+        if len(self._rx) > MAX_COMMAND:
+            self._rx = b""
+            self._error()
+
+    def tick(self, now_us: int) -> None:
+        self._now_us = now_us
+        if self.scanning and self._scan_until is not None and now_us >= self._scan_until:
+            self.scanning, self._scan_until = False, None
+            self._write(b"+BLESCANDONE\r\n")
+
+    # -- commands ---------------------------------------------------------------------------
+    def _ok(self) -> None:
+        self._write(b"\r\nOK\r\n")
+
+    def _error(self) -> None:
+        self.counters["errors"] += 1
+        self._write(b"\r\nERROR\r\n")
+
+    def _command(self, raw: bytes) -> None:
+        try:
+            line = raw.decode("ascii").strip()
+        except UnicodeDecodeError:
+            self._error()
+            return
+        if not line:
+            return
+        if self.echo:
+            self._write(line.encode() + b"\r\n")
+        name, eq, args = line.partition("=")
+        handler = {
+            "AT": lambda: self._ok(),
+            "ATE0": lambda: self._set_echo(False),
+            "ATE1": lambda: self._set_echo(True),
+            "AT+RST": self._reset,
+            "AT+GMR": lambda: (self._write(f"{self.VERSION}\r\n".encode()), self._ok()),
+            "AT+BLEINIT?": lambda: self._query("BLEINIT", str(self.role)),
+            "AT+BLESCANPARAM?": lambda: self._query(
+                "BLESCANPARAM", f"{self.scan_type},0,0,{self.interval},{self.window}"),
+        }.get(line) if not eq else {
+            "AT+BLEINIT": lambda: self._init(args),
+            "AT+BLESCANPARAM": lambda: self._scan_param(args),
+            "AT+BLESCAN": lambda: self._scan(args),
+        }.get(name)
+        if handler is None:
+            self._error()
+        else:
+            handler()
+
+    def _set_echo(self, on: bool) -> None:
+        self.echo = on
+        self._ok()
+
+    def _query(self, name: str, value: str) -> None:
+        self._write(f"+{name}:{value}\r\n".encode())
+        self._ok()
+
+    def _reset(self) -> None:
+        self._ok()
+        answered = bytes(self._out)
+        self.__init__()  # a reboot: every setting back to its default, then "ready"
+        self._out[:0] = answered
+
+    def _init(self, args: str) -> None:
+        if args not in ("0", "1", "2") or (self.role and args != "0" and int(args) != self.role):
+            self._error()  # the role cannot change without AT+RST (or AT+BLEINIT=0 first)
+            return
+        self.role = int(args)
+        if self.role == 0:
+            self.scanning = False
+        self._ok()
+
+    def _scan_param(self, args: str) -> None:
+        m = re.fullmatch(r"([01]),([0-3]),([0-3]),(\d{1,5}),(\d{1,5})", args)
+        if self.role != 1 or m is None:
+            self._error()
+            return
+        interval, window = int(m.group(4)), int(m.group(5))
+        if not (4 <= window <= interval <= 0x4000):
+            self._error()
+            return
+        self.scan_type, self.interval, self.window = int(m.group(1)), interval, window
+        self._ok()
+
+    def _scan(self, args: str) -> None:
+        m = re.fullmatch(r'([01])(?:,(\d{1,5}))?(?:,([12]),"?([^",]{1,32})"?)?', args)
+        if self.role != 1 or m is None or (m.group(1) == "0" and m.group(2) is not None):
+            self._error()
+            return
+        if m.group(1) == "0":
+            self.scanning, self._scan_until = False, None
+            self._ok()
+            return
+        duration = int(m.group(2) or 0)
+        self._filter = (int(m.group(3)), m.group(4).lower()) if m.group(3) else None
+        self.scanning = True
+        self._scan_until = self._now_us + duration * 1_000_000 if duration else None
+        self._ok()
+
+    # -- radio ------------------------------------------------------------------------------
+    def listening_channel(self, t_us: int) -> int | None:
+        interval, window = self.interval * UNIT_US, self.window * UNIT_US
+        if not self.scanning or t_us % interval >= window:
+            return None
+        return 37 + (t_us // interval) % 3
+
+    def on_advertisement(self, t_us: int, channel: int, address: str, rssi_dbm: float, ad: bytes,
+                         addr_type: int = 0) -> None:
+        """One packet on the air at ``t_us``; ``address`` MSB first as 12 hex digits."""
+        end = t_us + (len(ad) + 16) * AIR_US_PER_BYTE
+        collided = t_us < self._last_end_us.get(channel, -1)
+        self._last_end_us[channel] = max(end, self._last_end_us.get(channel, -1))
+        listening = self.listening_channel(t_us)
+        reason = ("duty_cycle" if listening is None else "wrong_channel" if listening != channel
+                  else "collision" if collided else "below_sensitivity" if rssi_dbm < SENSITIVITY_DBM
+                  else "filtered" if not self._passes(address, ad) else None)
+        if reason is not None:
+            self.counters[reason] += 1
+            return
+        rssi = max(-127, min(20, round(rssi_dbm)))
+        self._write(encode_scan(ScanReport(address.upper(), rssi, ad, b"", addr_type)))
+        self.counters["reported"] += 1
+
+    def _passes(self, address: str, ad: bytes) -> bool:
+        if self._filter is None:
+            return True
+        kind, value = self._filter
+        if kind == 1:
+            return value.replace(":", "") == address.lower()
+        return (local_name(ad) or "").lower() == value

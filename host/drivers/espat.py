@@ -1,0 +1,140 @@
+"""Driver for an ESP32 running Espressif's ESP-AT firmware, as a BLE RSSI receiver.
+
+After every open and every reboot (``ready``) it sets the board up -- ``AT``, ``AT+BLEINIT?``,
+``AT+BLEINIT=1`` if needed, ``AT+BLESCANPARAM=...``, ``AT+BLESCAN=1,...`` -- and turns every
+``+BLESCAN:`` report into the same :class:`~rfhoming.host.drivers.rss.BleRssi` reading the
+rfhoming ESP32 scanner gives, so the S3 trilateration, S1 and S4 consumers take either. ESP-AT
+reports carry no timestamp: the reading's time is the host's arrival time of its line.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.rss import BleRssi
+from rfhoming.host.ports import HostPort
+from rfhoming.protocol.espat import EspAtDecoder, Final, Info
+
+log = logging.getLogger(__name__)
+UNIT_MS = 0.625
+
+
+class CommandFailed(RuntimeError):
+    """The board answered ERROR or nothing."""
+
+
+@dataclass(frozen=True)
+class EspAtSetup:
+    """How to scan; times in milliseconds/seconds, converted to the firmware's units here."""
+
+    active: bool = False
+    interval_ms: float = 100.0
+    window_ms: float = 100.0  # = interval: listen all the time
+    duration_s: int = 0  # 0 = until stopped
+    filter_mac: str | None = None  # "24:0A:C4:96:E6:88": only this advertiser
+    filter_name: str | None = None  # only advertisers with this local name
+    node_id: int = 0  # the readings' node_id (ESP-AT has none of its own)
+    command_timeout: float = 2.0
+    retries: int = 2
+
+    def __post_init__(self) -> None:
+        if not 2.5 <= self.window_ms <= self.interval_ms <= 10_240:
+            raise ValueError("need 2.5 ms <= window_ms <= interval_ms <= 10240 ms (ESP-AT's range)")
+        if self.filter_mac and self.filter_name:
+            raise ValueError("ESP-AT filters by MAC or by name, not both")
+
+    def commands(self) -> list[str]:
+        interval, window = round(self.interval_ms / UNIT_MS), round(self.window_ms / UNIT_MS)
+        scan = f"AT+BLESCAN=1,{self.duration_s}"
+        if self.filter_mac:
+            scan += f',1,"{self.filter_mac.lower()}"'
+        elif self.filter_name:
+            scan += f',2,"{self.filter_name}"'
+        return [f"AT+BLESCANPARAM={int(self.active)},0,0,{interval},{window}", scan]
+
+
+class EspAtDriver(Driver):
+    kind = "esp-at"
+
+    def __init__(self, port: HostPort, setup: EspAtSetup = EspAtSetup(), *, queue_size: int = 4000,
+                 reconnect: bool = True) -> None:
+        super().__init__(port, reconnect=reconnect)
+        self.setup = setup
+        self.decoder = EspAtDecoder()
+        self.readings = BoundedStream[Any](queue_size)
+        self.counters.update(setups=0, reboots=0, retries=0, scans_done=0)
+        self.problem: str | None = None
+        self._answer: asyncio.Future[list[Any]] | None = None
+        self._lines: list[Any] = []
+        self._needs_setup = asyncio.Event()
+
+    def on_chunk(self, data: bytes, t_host: float) -> None:
+        for item in self.decoder.feed(data):
+            self.emit(t_host, item)
+            if item.kind == "scan_report":
+                self.readings.put(BleRssi(t_host, self.setup.node_id, item.address, item.rssi_dbm))
+            elif item.kind == "info":
+                self._lines.append(item)
+            elif isinstance(item, Final):
+                if self._answer is not None and not self._answer.done():
+                    self._answer.set_result([*self._lines, item])
+                self._lines = []
+            elif item.kind == "event" and item.what == "ready" and self.state == "streaming":
+                self.counters["reboots"] += 1
+                log.warning("%s: the board restarted (ready); setting it up again", self.port.name)
+                self._needs_setup.set()
+            elif item.kind == "event" and item.what == "blescandone":
+                self.counters["scans_done"] += 1
+
+    async def command(self, text: str) -> list[Any]:
+        """Send one command; its information lines and final answer (CommandFailed on ERROR)."""
+        for _ in range(self.setup.retries + 1):
+            self._answer, self._lines = asyncio.get_running_loop().create_future(), []
+            self.port.write(text.encode() + b"\r\n")
+            try:
+                answer = await asyncio.wait_for(self._answer, self.setup.command_timeout)
+            except asyncio.TimeoutError:
+                self.counters["retries"] += 1
+                continue
+            if not answer[-1].ok:
+                raise CommandFailed(f"{text} answered ERROR")
+            return answer
+        raise CommandFailed(f"{text}: no answer after {self.setup.retries + 1} tries "
+                            f"({self.setup.command_timeout:g} s each); is it an ESP32 with ESP-AT at this baud rate?")
+
+    async def session(self) -> None:
+        """Set the board up after every open and every reboot."""
+        while True:
+            self._needs_setup.clear()
+            try:
+                await self._set_up()
+            except CommandFailed as exc:
+                self.state = "setup_failed"
+                self.problem = str(exc)
+                log.error("%s: set-up failed: %s", self.port.name, exc)
+                await asyncio.sleep(1.0)
+                continue
+            await self._needs_setup.wait()
+
+    async def _set_up(self) -> None:
+        self.state = "setting_up"
+        await self.command("AT")
+        role = next((i.value for i in await self.command("AT+BLEINIT?") if i.name == "BLEINIT"), "0")
+        if role not in ("0", "1"):  # a server role cannot become a client without a deinit
+            await self.command("AT+BLEINIT=0")
+            role = "0"
+        if role == "0":
+            await self.command("AT+BLEINIT=1")
+        for text in self.setup.commands():
+            await self.command(text)
+        self.counters["setups"] += 1
+        self.problem = None
+        self.state = "streaming"
+
+    def health(self) -> dict[str, Any]:
+        return {**super().health(), "queued": len(self.readings), "queue_dropped": self.readings.dropped,
+                "problem": self.problem, **{f"decoder.{k}": v for k, v in self.decoder.counters.items()}}

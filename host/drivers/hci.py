@@ -1,0 +1,273 @@
+"""Driver for any Bluetooth LE controller spoken to over HCI (a USB dongle, an nRF52840 or
+ESP32 in HCI-UART mode, the computer's own adapter), as a BLE RSSI receiver.
+
+bumble (a well-kept Bluetooth stack in Python) encodes the commands and decodes the events;
+this driver does the rest: after every open it resets the controller, reads its LE features,
+sets the event masks and scans -- with the extended commands where the controller has LE
+Extended Advertising (``extended=auto``), the legacy ones otherwise -- and turns every legacy
+or extended advertising report into the same :class:`~rfhoming.host.drivers.rss.BleRssi`
+reading the rfhoming ESP32 scanner gives, timed by the host's arrival time, filtered by
+address, local name, iBeacon or Eddystone content.
+
+Where the controller is: ``serial:PATH[,BAUD]`` and ``tcp-client:HOST:PORT`` are opened as
+rfhoming ports (captured and replayed like the others, H4 bytes); every other bumble
+transport name (``usb:0``, ``hci-socket:0``, ...) is opened by bumble, and its packets pass
+the same taps.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+from bumble import hci
+
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.rss import BleRssi
+from rfhoming.host.ports import Disconnected, HostPort, PortError, Tap
+from rfhoming.protocol import ad as adv
+from rfhoming.protocol.h4 import H4Splitter
+
+log = logging.getLogger(__name__)
+UNIT_MS = 0.625
+EVENT_MASK = (1 << 61) | 0x00001FFFFFFFFFFF  # the spec's default, plus LE Meta events
+LE_EVENT_MASK = (1 << 1) | (1 << 12)  # LE Advertising Report, LE Extended Advertising Report
+RSSI_NOT_AVAILABLE = 127
+HARDWARE_ERROR_EVENT = 0x10  # the controller lost its state: set it up again
+CONTENT_FILTERS = {"ibeacon": adv.is_ibeacon, "eddystone": adv.is_eddystone}
+
+
+class Advertisement(NamedTuple):
+    """One advertising report, as ``listen`` shows it (and as listeners get it)."""
+
+    kind = "advertisement"
+    address: str  # 12 hex digits, MSB first
+    address_type: int
+    rssi_dbm: int  # 127 = not available
+    extended: bool
+    data: bytes
+
+
+class HciPacket(NamedTuple):
+    """Any other HCI packet: bumble's name for it and its bytes (H4 indicator included)."""
+
+    kind = "hci"
+    name: str
+    raw: bytes
+
+
+class CommandFailed(RuntimeError):
+    """The controller answered a command with an error status, or not at all."""
+
+
+@dataclass(frozen=True)
+class HciSetup:
+    """How to scan (physical units) and which reports to keep."""
+
+    active: bool = False
+    interval_ms: float = 100.0
+    window_ms: float = 100.0
+    extended: str = "auto"  # auto: the extended commands if the controller has them; on; off
+    filter_duplicates: bool = False  # the controller's: True keeps one report per address per scan
+    addresses: frozenset[str] = field(default_factory=frozenset)  # 12 hex digits, MSB first
+    name: str | None = None  # advertised local name
+    content: str | None = None  # "ibeacon" or "eddystone"
+    node_id: int = 0
+    command_timeout: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not 2.5 <= self.window_ms <= self.interval_ms <= 10_240:
+            raise ValueError("need 2.5 ms <= window_ms <= interval_ms <= 10240 ms")
+        if self.extended not in ("auto", "on", "off"):
+            raise ValueError("extended is auto, on or off")
+        if self.content not in (None, *CONTENT_FILTERS):
+            raise ValueError(f"content filter is one of {', '.join(CONTENT_FILTERS)}")
+
+    def keeps(self, address: str, data: bytes) -> bool:
+        return ((not self.addresses or address in self.addresses)
+                and (self.name is None or adv.local_name(data) == self.name)
+                and (self.content is None or CONTENT_FILTERS[self.content](data)))
+
+
+def address_text(address: hci.Address) -> str:
+    """bumble's address (bytes LSB first) -> 12 upper-case hex digits, MSB first."""
+    return bytes(address.address_bytes)[::-1].hex().upper()
+
+
+class HciDriver(Driver):
+    kind = "hci"
+
+    def __init__(self, port: HostPort, setup: HciSetup = HciSetup(), *, queue_size: int = 4000,
+                 reconnect: bool = True) -> None:
+        super().__init__(port, reconnect=reconnect)
+        self.setup = setup
+        self.splitter = H4Splitter()
+        self.readings = BoundedStream[Any](queue_size)
+        self.counters.update(setups=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0)
+        self.extended: bool | None = None
+        self.problem: str | None = None
+        self._pending: tuple[int, asyncio.Future[Any]] | None = None
+        self._needs_setup = asyncio.Event()
+
+    def on_chunk(self, data: bytes, t_host: float) -> None:
+        for item in self.splitter.feed(data):
+            if not isinstance(item, bytes):
+                self.emit(t_host, item)
+                continue
+            try:
+                packet = hci.HCI_Packet.from_bytes(item)
+            except Exception:  # bumble raises several types on a malformed packet  # noqa: BLE001
+                self.counters["bad_packets"] += 1
+                continue
+            self._on_packet(packet, item, t_host)
+
+    def _on_packet(self, packet: hci.HCI_Packet, raw: bytes, t_host: float) -> None:
+        extended = isinstance(packet, hci.HCI_LE_Extended_Advertising_Report_Event)
+        if extended or isinstance(packet, hci.HCI_LE_Advertising_Report_Event):
+            for report in packet.reports:
+                self._report(report, extended, t_host)
+            return
+        self.emit(t_host, HciPacket(packet.name, raw))
+        if isinstance(packet, (hci.HCI_Command_Complete_Event, hci.HCI_Command_Status_Event)):
+            if self._pending is not None and packet.command_opcode == self._pending[0] and not self._pending[1].done():
+                self._pending[1].set_result(packet)
+        elif getattr(packet, "event_code", None) == HARDWARE_ERROR_EVENT:
+            self.counters["hardware_errors"] += 1
+            log.warning("%s: controller hardware error; setting it up again", self.port.name)
+            self._needs_setup.set()
+
+    def _report(self, report: Any, extended: bool, t_host: float) -> None:
+        self.counters["reports"] += 1
+        address = address_text(report.address)
+        self.emit(t_host, Advertisement(address, report.address_type, report.rssi, extended, bytes(report.data)))
+        if report.rssi == RSSI_NOT_AVAILABLE:
+            self.counters["no_rssi"] += 1
+        elif not self.setup.keeps(address, bytes(report.data)):
+            self.counters["filtered"] += 1
+        else:
+            self.readings.put(BleRssi(t_host, self.setup.node_id, address, report.rssi))
+
+    async def command(self, command: hci.HCI_Command) -> Any:
+        """Send one command; its Command Complete return parameters (CommandFailed otherwise)."""
+        future = asyncio.get_running_loop().create_future()
+        self._pending = (command.op_code, future)
+        self.port.write(bytes(command))
+        try:
+            event = await asyncio.wait_for(future, self.setup.command_timeout)
+        except asyncio.TimeoutError:
+            raise CommandFailed(f"{command.name}: no answer in {self.setup.command_timeout:g} s; is this an HCI "
+                                "controller (H4) at this baud rate?") from None
+        finally:
+            self._pending = None
+        params = getattr(event, "return_parameters", event)
+        status = getattr(params, "status", hci.HCI_SUCCESS)
+        if status != hci.HCI_SUCCESS:
+            raise CommandFailed(f"{command.name} failed: {hci.HCI_Constant.error_name(status)}")
+        return params
+
+    async def session(self) -> None:
+        while True:
+            self._needs_setup.clear()
+            try:
+                await self._set_up()
+            except CommandFailed as exc:
+                self.state, self.problem = "setup_failed", str(exc)
+                log.error("%s: set-up failed: %s", self.port.name, exc)
+                await asyncio.sleep(1.0)
+                continue
+            await self._needs_setup.wait()
+
+    async def _set_up(self) -> None:
+        s = self.setup
+        self.state = "setting_up"
+        await self.command(hci.HCI_Reset_Command())
+        features = await self.command(hci.HCI_LE_Read_Local_Supported_Features_Command())
+        has_extended = bool(int.from_bytes(features.le_features, "little") & hci.LeFeatureMask.LE_EXTENDED_ADVERTISING)
+        if s.extended == "on" and not has_extended:
+            raise CommandFailed("extended=on, but this controller has no LE Extended Advertising")
+        self.extended = has_extended and s.extended != "off"
+        await self.command(hci.HCI_Set_Event_Mask_Command(event_mask=EVENT_MASK.to_bytes(8, "little")))
+        await self.command(hci.HCI_LE_Set_Event_Mask_Command(le_event_mask=LE_EVENT_MASK.to_bytes(8, "little")))
+        interval, window, kind = round(s.interval_ms / UNIT_MS), round(s.window_ms / UNIT_MS), int(s.active)
+        if self.extended:
+            await self.command(hci.HCI_LE_Set_Extended_Scan_Parameters_Command(
+                own_address_type=0, scanning_filter_policy=0, scanning_phys=1,  # LE 1M
+                scan_types=[kind], scan_intervals=[interval], scan_windows=[window]))
+            await self.command(hci.HCI_LE_Set_Extended_Scan_Enable_Command(
+                enable=1, filter_duplicates=int(s.filter_duplicates), duration=0, period=0))
+        else:
+            await self.command(hci.HCI_LE_Set_Scan_Parameters_Command(
+                le_scan_type=kind, le_scan_interval=interval, le_scan_window=window,
+                own_address_type=0, scanning_filter_policy=0))
+            await self.command(hci.HCI_LE_Set_Scan_Enable_Command(
+                le_scan_enable=1, filter_duplicates=int(s.filter_duplicates)))
+        self.counters["setups"] += 1
+        self.state, self.problem = "streaming", None
+
+    def health(self) -> dict[str, Any]:
+        return {**super().health(), "extended": self.extended, "queued": len(self.readings),
+                "queue_dropped": self.readings.dropped, "problem": self.problem,
+                **{f"h4.{k}": v for k, v in self.splitter.counters.items()}}
+
+
+class BumbleTransportPort(HostPort):
+    """A controller bumble opens itself (``usb:0``, ``hci-socket:0`` ...), presented as a port:
+    each HCI packet it delivers is one inbound chunk (H4 indicator included), and the
+    driver's writes, each one whole command packet, go to the controller."""
+
+    def __init__(self, spec: str, *, name: str | None = None, taps: list[Tap] | None = None) -> None:
+        super().__init__(spec, name=name, taps=taps)
+        self._bumble: Any = None
+
+    async def open(self) -> None:
+        from bumble.transport import open_transport
+
+        try:
+            self._bumble = await open_transport(self.spec)
+        except Exception as exc:  # bumble raises per-transport types  # noqa: BLE001
+            raise PortError(f"bumble could not open {self.spec}: {exc}") from None
+        self._transport = self._bumble  # is_open and _lost() look at it
+        self._gone = asyncio.Event()
+        self._queue = asyncio.Queue()
+        self._backlog = 0
+        self._bumble.source.set_packet_sink(self)
+        self.counters["opens"] += 1
+
+    def on_packet(self, packet: bytes) -> None:
+        self._received(bytes(packet))
+
+    def write(self, data: bytes) -> None:
+        if self._bumble is None:
+            raise Disconnected(f"{self.name} is not open")
+        now = self.clock()
+        for tap in self.taps:
+            tap(self.name, "out", now, data)
+        self.counters["bytes_out"] += len(data)
+        self._bumble.sink.on_packet(data)
+
+    async def close(self) -> None:
+        transport, self._bumble, self._transport = self._bumble, None, None
+        if transport is not None:
+            await transport.close()
+            self._queue.put_nowait(None)
+
+
+def open_port(where: str, *, name: str | None = None, taps: list[Tap] | None = None) -> HostPort:
+    """The port for a bumble-style transport name (see the module docstring)."""
+    if where.startswith("serial:") or where.startswith("/"):
+        path, *options = where.removeprefix("serial:").split(",")
+        baud, rtscts = 1_000_000, False  # bumble's defaults
+        for option in options:
+            if option.isdigit():
+                baud = int(option)
+            elif option == "rtscts":
+                rtscts = True
+            else:
+                raise ValueError(f"{where}: after the path come SPEED and rtscts, e.g. serial:/dev/ttyACM0,1000000,rtscts")
+        return HostPort(path, baud=baud, rtscts=rtscts, name=name or path, taps=taps)
+    if where.startswith("tcp-client:"):
+        host_port = where.removeprefix("tcp-client:")
+        return HostPort(f"socket://{host_port}", name=name or where, taps=taps)
+    return BumbleTransportPort(where, name=name or where, taps=taps)

@@ -1,0 +1,85 @@
+"""Closed-loop S3 trilateration through an emulated BLE RSSI receiver, shared by the tests of
+the ESP-AT and HCI receivers: the live run (with a capture) and its replay."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import math
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import load
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.drivers.common import Driver
+from rfhoming.host.drivers.rss import BleRssi
+from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.loop import RunLog, trilat_loop
+from rfhoming.host.homing.s3_trilat import TrilatParams
+from rfhoming.host.ports import HostPort
+from rfhoming.host.replay import ReplayPort, Sequencer, load_capture
+
+GOAL = (4.0, 4.0)
+
+
+def s3_config(scenario: Any) -> Config:
+    anchors = {t.id: list(t.position) for t in scenario.world.targets}
+    return replace(Config().for_lockstep(), trilat=TrilatParams(anchors=anchors, goal=list(GOAL)))
+
+
+def reading_log(driver: Driver, into: list) -> None:
+    """Collect every BLE RSSI reading the driver puts out (the loop shares the stream with the
+    base's odometry, so only BleRssi items are taken)."""
+    put = driver.readings.put
+
+    def tap(item: Any) -> None:
+        if isinstance(item, BleRssi):
+            into.append(tuple(item))
+        put(item)
+
+    driver.readings.put = tap
+
+
+async def s3_live(tmp_path: Path, receiver: str, make: Callable[[HostPort], Driver], protocol: str,
+                  seed: int = 1) -> dict[str, Any]:
+    """S3 homing with the robot's receiver served as ``receiver``; a capture of both links."""
+    sc = load("s3-arena", seed=seed, receiver=receiver)
+    em = Emulator(sc, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path, lockstep_timeout=2.0)
+    await em.start()
+    world = asyncio.create_task(em.run())
+    writer = CaptureWriter(tmp_path / "run.pcapng")
+    base = BaseDriver(HostPort(str(tmp_path / "base"), taps=[writer.tap]))
+    sensor = make(HostPort(str(tmp_path / "ble"), taps=[writer.tap]))
+    writer.describe(base.port.name, protocol="rss", kind="base")
+    writer.describe(sensor.port.name, protocol=protocol, kind=receiver)
+    out, readings = io.StringIO(), []
+    loop = trilat_loop(base, sensor, s3_config(sc), RunLog(out))
+    reading_log(sensor, readings)
+    try:
+        outcome = await asyncio.wait_for(loop.run(), 120)
+    finally:
+        world.cancel()
+        await asyncio.gather(world, return_exceptions=True)
+        await em.close()
+        writer.close()
+    error = math.hypot(em.world.robot.x - GOAL[0], em.world.robot.y - GOAL[1])
+    return {"outcome": outcome, "error": error, "log": [json.loads(x) for x in out.getvalue().splitlines()],
+            "readings": readings, "sensor": sensor, "emulator": em, "scenario": sc}
+
+
+async def s3_replay(tmp_path: Path, live: dict[str, Any], make: Callable[[Any], Driver], protocol: str) -> dict[str, Any]:
+    """The same loop on the capture's bytes: its readings and log."""
+    interfaces, packets, _ = load_capture(tmp_path / "run.pcapng")
+    sequencer = Sequencer({iface.name: packets[i] for i, iface in enumerate(interfaces)})
+    ports = {i.protocol: ReplayPort(i.name, packets[n], sequencer=sequencer) for n, i in enumerate(interfaces)}
+    sensor = make(ports[protocol])
+    out, readings = io.StringIO(), []
+    loop = trilat_loop(BaseDriver(ports["rss"]), sensor, s3_config(live["scenario"]), RunLog(out))
+    reading_log(sensor, readings)
+    outcome = await asyncio.wait_for(loop.run(), 60)
+    return {"outcome": outcome, "log": [json.loads(x) for x in out.getvalue().splitlines()], "readings": readings}

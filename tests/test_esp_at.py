@@ -1,0 +1,126 @@
+"""ESP32 with Espressif's ESP-AT firmware: the +BLESCAN decoder, the firmware model, the driver,
+and closed-loop S3 trilateration with its readings (live and replayed)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from rfhoming.firmware.esp_at import EspAtFirmware
+from rfhoming.host import portspec
+from rfhoming.host.drivers.espat import EspAtDriver, EspAtSetup
+from rfhoming.host.session import esp_at_setup
+from rfhoming.protocol.espat import EspAtDecoder, Final, Info, ScanReport, encode_scan, parse_scan
+from tests.receivers import s3_live, s3_replay
+from tests.strategies import chunked
+
+reports = st.builds(ScanReport, st.text("0123456789ABCDEF", min_size=12, max_size=12), st.integers(-128, 20),
+                    st.binary(max_size=31), st.binary(max_size=31), st.integers(0, 3))
+
+
+@given(st.lists(reports, max_size=20), st.lists(st.integers(1, 40), max_size=5))
+def test_scan_lines_round_trip_in_any_chunking(items: list[ScanReport], sizes: list[int]) -> None:
+    data = b"".join(encode_scan(r) for r in items)
+    decoder, out = EspAtDecoder(), []
+    for piece in chunked(data, sizes):
+        out += decoder.feed(piece)
+    assert out == items and decoder.counters["scan_report"] == len(items)
+
+
+def test_documented_example_lines_decode() -> None:
+    # the lines of Espressif's "Bluetooth LE AT Examples" page
+    got = EspAtDecoder().feed(b'+BLESCAN:"5b:3b:6c:51:90:49",-87,02011a020a0c0aff4c001005071c3024dc,,1\r\n'
+                              b'+BLESCAN:"24:0a:c4:d6:e4:46",-29,,,0\r\n+BLESCANDONE\r\n')
+    assert got[0] == ScanReport("5B3B6C519049", -87, bytes.fromhex("02011a020a0c0aff4c001005071c3024dc"), b"", 1)
+    assert got[1] == ScanReport("240AC4D6E446", -29, b"", b"", 0)
+    assert got[2].kind == "event" and got[2].what == "blescandone"
+
+
+@pytest.mark.parametrize("line", [b'+BLESCAN:"5b:3b:6c:51:90",-87,,,1', b'+BLESCAN:"5b:3b:6c:51:90:49",-300,,,1',
+                                  b'+BLESCAN:"5b:3b:6c:51:90:49",-87,0g,,1', b'+BLESCAN:"5b:3b:6c:51:90:49",-87,,,9',
+                                  b'+BLESCAN:"5b:3b:6c:51:90:49",-87,,1', b"+BLESCAN:\xff"])
+def test_a_malformed_report_is_a_counted_drop(line: bytes) -> None:
+    decoder = EspAtDecoder()
+    out = decoder.feed(line + b"\r\n")
+    assert [i.kind for i in out] == ["drop"] and decoder.counters["drop.scan"] == 1
+    assert parse_scan(line).kind == "drop"
+
+
+def test_an_overlong_line_is_dropped_and_the_next_survives() -> None:
+    decoder = EspAtDecoder()
+    out = decoder.feed(b"x" * 2000) + decoder.feed(b"yyy\r\nOK\r\n")
+    assert [i.kind for i in out] == ["drop", "final"] and decoder.counters["drop.oversize"] == 1
+
+
+def run(fw: EspAtFirmware, *commands: str) -> list:
+    fw.receive(b"".join(c.encode() + b"\r\n" for c in commands))
+    return [i for i in EspAtDecoder().feed(fw.read()) if i.kind != "event"]
+
+
+def test_firmware_answers_as_documented() -> None:
+    fw = EspAtFirmware()
+    assert run(fw, "AT+BLESCAN=1") == [Final(False)]  # not initialised
+    assert run(fw, "AT+BLEINIT=1", "AT+BLEINIT?") == [Final(True), Info("BLEINIT", "1"), Final(True)]
+    assert run(fw, "AT+BLEINIT=2") == [Final(False)]  # the role cannot change without AT+RST
+    assert run(fw, "AT+BLESCANPARAM=0,0,0,50,100") == [Final(False)]  # window > interval
+    assert run(fw, "AT+BLESCANPARAM=0,0,0,3,3") == [Final(False)]  # below 2.5 ms
+    assert run(fw, "AT+BLESCANPARAM=1,0,0,160,80", "AT+BLESCANPARAM?") == [
+        Final(True), Info("BLESCANPARAM", "1,0,0,160,80"), Final(True)]
+    assert run(fw, "AT+BOGUS") == [Final(False)]
+
+
+def test_firmware_scans_in_its_window_with_its_filter_and_duration() -> None:
+    fw = EspAtFirmware()
+    run(fw, "AT+BLEINIT=1", "AT+BLESCANPARAM=0,0,0,160,80", 'AT+BLESCAN=1,2,1,"ac:00:00:00:00:01"')
+    fw.on_advertisement(1_000, 37, "AC0000000001", -60.4, b"")  # heard
+    fw.on_advertisement(2_000, 37, "AC0000000002", -60.0, b"")  # filtered out
+    fw.on_advertisement(60_000, 37, "AC0000000001", -60.0, b"")  # outside the 50 ms window
+    fw.on_advertisement(101_000, 37, "AC0000000001", -60.0, b"")  # interval 2 listens on 38
+    fw.on_advertisement(201_000, 39, "AC0000000001", -99.0, b"")  # below sensitivity
+    fw.tick(2_000_000)
+    out = EspAtDecoder().feed(fw.read())
+    assert [i for i in out if i.kind == "scan_report"] == [ScanReport("AC0000000001", -60, b"", b"", 0)]
+    assert out[-1].kind == "event" and out[-1].what == "blescandone"
+    assert {k: fw.counters[k] for k in ("filtered", "duty_cycle", "wrong_channel", "below_sensitivity")} == dict.fromkeys(
+        ("filtered", "duty_cycle", "wrong_channel", "below_sensitivity"), 1)
+
+
+def test_reset_answers_ok_then_reboots_to_defaults() -> None:
+    fw = EspAtFirmware()
+    run(fw, "AT+BLEINIT=1")
+    fw.receive(b"AT+RST\r\n")
+    kinds = [(i.kind, getattr(i, "what", None)) for i in EspAtDecoder().feed(fw.read())]
+    assert kinds == [("event", "echo"), ("final", None), ("event", "ready")] and fw.role == 0
+
+
+def test_port_spec_settings_reach_the_scan_commands() -> None:
+    spec = portspec.parse("esp-at:/dev/ttyUSB0,baud=115200,active=yes,interval=50,window=25,adname=Beacon-1")
+    setup = esp_at_setup(spec, EspAtSetup())
+    assert setup.commands() == ["AT+BLESCANPARAM=1,0,0,80,40", 'AT+BLESCAN=1,0,2,"Beacon-1"']
+    with pytest.raises(portspec.PortSpecError, match="interval"):
+        portspec.parse("esp-at:/dev/ttyUSB0,interval=1")
+
+
+async def test_s3_homes_on_esp_at_readings_and_the_capture_replays_them_exactly(tmp_path: Path) -> None:
+    live = await s3_live(tmp_path, "esp-at", EspAtDriver, "esp-at")
+    assert live["outcome"].arrived and live["error"] < 1.0
+    assert live["sensor"].counters["setups"] == 1 and len(live["readings"]) > 50
+    fw = live["emulator"].device("ble").firmware
+    assert fw.counters["reported"] >= len(live["readings"]) and fw.counters["errors"] == 0
+    replayed = await s3_replay(tmp_path, live, EspAtDriver, "esp-at")
+    assert replayed["readings"] == live["readings"]
+    assert replayed["log"] == live["log"]
+
+
+def test_demo_runs_s3_on_an_esp_at_board(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--scenario", "s3-arena", "--receiver", "esp-at",
+                           "--json", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["success"] and "esp-at" in summary["links"]

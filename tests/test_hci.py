@@ -1,0 +1,194 @@
+"""Bluetooth HCI controllers through bumble: the H4 splitter, AD filters, the controller model
+(bumble's controller plus the radio), the driver over a pty and over a bumble transport, and
+closed-loop S3 trilateration on HCI advertising reports (live and replayed)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import asyncio
+import math
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+pytest.importorskip("bumble", reason="the hci receiver needs bumble: pip install 'rfhoming[hci]'")
+
+from bumble import hci  # noqa: E402
+
+from rfhoming.emulator.runtime import Emulator  # noqa: E402
+from rfhoming.emulator.scenario import load  # noqa: E402
+from rfhoming.firmware.hci_controller import HciControllerFirmware  # noqa: E402
+from rfhoming.host import portspec  # noqa: E402
+from rfhoming.host.drivers.hci import BumbleTransportPort, HciDriver, HciSetup, open_port  # noqa: E402
+from rfhoming.host.drivers.rss import BleRssi  # noqa: E402
+from rfhoming.host.session import hci_setup, make_driver  # noqa: E402
+from rfhoming.protocol import ad  # noqa: E402
+from rfhoming.protocol.h4 import H4Splitter  # noqa: E402
+from tests.receivers import s3_live, s3_replay  # noqa: E402
+from tests.strategies import chunked  # noqa: E402
+
+h4_packets = st.one_of(
+    st.binary(max_size=255).flatmap(lambda p: st.binary(min_size=2, max_size=2).map(
+        lambda op: b"\x01" + op + bytes([len(p)]) + p)),
+    st.binary(max_size=255).map(lambda p: b"\x04\x3e" + bytes([len(p)]) + p),
+    st.binary(max_size=600).map(lambda p: b"\x02\x01\x00" + len(p).to_bytes(2, "little") + p),
+)
+
+
+@given(st.lists(h4_packets, max_size=12), st.lists(st.integers(1, 50), max_size=5))
+def test_h4_packets_come_out_whole_in_any_chunking(packets: list[bytes], sizes: list[int]) -> None:
+    splitter, out = H4Splitter(), []
+    for piece in chunked(b"".join(packets), sizes):
+        out += splitter.feed(piece)
+    assert out == packets
+
+
+def test_h4_junk_is_a_counted_drop_and_the_next_packet_survives() -> None:
+    splitter = H4Splitter()
+    out = splitter.feed(b"\xff\x00\x99" + b"\x04\x0e\x04\x01\x03\x0c\x00")
+    assert [getattr(i, "reason", None) for i in out] == ["indicator", None] and out[1] == b"\x04\x0e\x04\x01\x03\x0c\x00"
+    assert splitter.counters["drop.indicator"] == 1
+
+
+IBEACON = bytes.fromhex("0201061aff4c000215") + bytes(16) + bytes.fromhex("00010002c5")
+EDDYSTONE = bytes.fromhex("0201060303aafe")
+NAMED = bytes.fromhex("020106") + b"\x07\x09Dock-1"
+
+
+def test_advertising_content_filters() -> None:
+    assert ad.is_ibeacon(IBEACON) and not ad.is_ibeacon(EDDYSTONE) and not ad.is_ibeacon(NAMED)
+    assert ad.is_eddystone(EDDYSTONE) and not ad.is_eddystone(IBEACON)
+    assert ad.local_name(NAMED) == "Dock-1" and ad.local_name(IBEACON) is None
+    assert ad.local_name(b"\x09\x09trunc") is None  # a structure longer than the data is ignored
+    setup = HciSetup(addresses=frozenset({"AC0000000001"}), content="eddystone")
+    assert setup.keeps("AC0000000001", EDDYSTONE) and not setup.keeps("AC0000000002", EDDYSTONE)
+    assert not setup.keeps("AC0000000001", IBEACON)
+
+
+def commands(*cmds: hci.HCI_Command) -> bytes:
+    return b"".join(bytes(c) for c in cmds)
+
+
+def events(fw: HciControllerFirmware) -> list:
+    return [hci.HCI_Packet.from_bytes(p) for p in H4Splitter().feed(fw.read())]
+
+
+MASKS = (hci.HCI_Set_Event_Mask_Command(event_mask=((1 << 61) | 0x1FFFFFFFFFFF).to_bytes(8, "little")),
+         hci.HCI_LE_Set_Event_Mask_Command(le_event_mask=(0x1002).to_bytes(8, "little")))
+LEGACY = (hci.HCI_LE_Set_Scan_Parameters_Command(le_scan_type=0, le_scan_interval=160, le_scan_window=80,
+                                                 own_address_type=0, scanning_filter_policy=0),
+          hci.HCI_LE_Set_Scan_Enable_Command(le_scan_enable=1, filter_duplicates=1))
+
+
+async def test_controller_model_scans_as_the_host_set_it() -> None:
+    fw = HciControllerFirmware()
+    fw.receive(commands(hci.HCI_Reset_Command(), *LEGACY))  # no event masks yet
+    fw.on_advertisement(1_000, 37, "AC:00:00:00:00:01", -60.4, EDDYSTONE)
+    assert fw.counters["masked"] == 1
+    fw.receive(commands(*MASKS))
+    fw.on_advertisement(2_000, 37, "AC:00:00:00:00:01", -60.4, EDDYSTONE)  # heard
+    fw.on_advertisement(3_000, 37, "AC:00:00:00:00:01", -60.4, EDDYSTONE)  # a duplicate
+    fw.on_advertisement(60_000, 37, "AC:00:00:00:00:02", -60.0, EDDYSTONE)  # outside the 50 ms window
+    fw.on_advertisement(101_000, 37, "AC:00:00:00:00:02", -60.0, EDDYSTONE)  # interval 2 listens on 38
+    out = events(fw)
+    reports = [r for e in out if isinstance(e, hci.HCI_LE_Advertising_Report_Event) for r in e.reports]
+    assert [(r.rssi, bytes(r.data)) for r in reports] == [(-60, EDDYSTONE)]
+    assert all(isinstance(e, (hci.HCI_Command_Complete_Event, hci.HCI_LE_Advertising_Report_Event)) for e in out)
+    assert {k: fw.counters[k] for k in ("duplicate", "duty_cycle", "wrong_channel", "reported")} == dict.fromkeys(
+        ("duplicate", "duty_cycle", "wrong_channel", "reported"), 1)
+    fw.receive(commands(hci.HCI_Reset_Command()))  # a reset stops scanning
+    fw.on_advertisement(202_000, 39, "AC:00:00:00:00:01", -60.0, EDDYSTONE)
+    assert fw.counters["duty_cycle"] == 2
+
+
+async def test_controller_model_rejects_a_window_longer_than_the_interval() -> None:
+    fw = HciControllerFirmware()
+    fw.receive(commands(hci.HCI_LE_Set_Scan_Parameters_Command(
+        le_scan_type=0, le_scan_interval=80, le_scan_window=160, own_address_type=0, scanning_filter_policy=0)))
+    (complete,) = events(fw)
+    assert complete.return_parameters.status == hci.HCI_ErrorCode.INVALID_COMMAND_PARAMETERS_ERROR
+
+
+def test_port_specs_name_bumble_transports_and_scan_settings() -> None:
+    spec = portspec.parse("hci:serial:/dev/ttyACM0,1000000,active=yes,interval=60,window=30,extended=off,"
+                          "mac=ac:00:00:00:00:01,content=ibeacon")
+    assert spec.where == "serial:/dev/ttyACM0,1000000"
+    setup = hci_setup(spec)
+    assert (setup.active, setup.interval_ms, setup.window_ms, setup.extended) == (True, 60.0, 30.0, "off")
+    assert setup.addresses == {"AC0000000001"} and setup.content == "ibeacon"
+    port = open_port(spec.where)
+    assert (port.spec, port.baud) == ("/dev/ttyACM0", 1_000_000)
+    assert open_port("serial:/dev/ttyACM0,115200,rtscts").rtscts
+    with pytest.raises(ValueError, match="SPEED and rtscts"):
+        open_port("serial:/dev/ttyACM0,fast")
+    assert open_port("tcp-client:127.0.0.1:9000").spec == "socket://127.0.0.1:9000"
+    assert isinstance(open_port("usb:0"), BumbleTransportPort)
+    with pytest.raises(portspec.PortSpecError, match="extended"):
+        portspec.parse("hci:usb:0,extended=maybe")
+
+
+async def readings_for(driver: HciDriver, count: int) -> list[BleRssi]:
+    task = asyncio.create_task(driver.run())
+    got: list[BleRssi] = []
+    try:
+        while len(got) < count:
+            got.append(await asyncio.wait_for(driver.readings.get(), 10))
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+    return got
+
+
+async def test_legacy_scanning_through_a_bumble_tcp_transport(tmp_path: Path) -> None:
+    em = Emulator(load("s3-arena", seed=2, receiver="hci"), transport="tcp", seed=2, speed=math.inf)
+    endpoints = {e["device"]: e for e in await em.start()}
+    world = asyncio.create_task(em.run(30.0))
+    try:
+        where = "tcp-client:" + endpoints["ble"]["url"].removeprefix("socket://")
+        driver = HciDriver(BumbleTransportPort(where), HciSetup(extended="off"))
+        got = await readings_for(driver, 20)
+    finally:
+        world.cancel()
+        await asyncio.gather(world, return_exceptions=True)
+        await em.close()
+    assert driver.extended is False and not em.device("ble").firmware.controller.extended
+    anchors = {t.id for t in em.world.targets}
+    assert {r.address for r in got} <= anchors and all(-100 <= r.rssi_dbm <= 20 for r in got)
+    assert endpoints["ble"]["protocol"] == "hci"
+
+
+async def test_s3_homes_on_hci_reports_and_the_capture_replays_them_exactly(tmp_path: Path) -> None:
+    def make(port):
+        return make_driver(portspec.parse(f"hci:serial:{port.spec}"), port.taps)
+
+    live = await s3_live(tmp_path, "hci", make, "hci")
+    assert live["outcome"].arrived and live["error"] < 1.0
+    assert live["sensor"].extended is True and live["sensor"].counters["setups"] == 1
+    assert len(live["readings"]) > 50
+    replayed = await s3_replay(tmp_path, live, HciDriver, "hci")
+    assert replayed["readings"] == live["readings"]
+    assert replayed["log"] == live["log"]
+
+
+def test_demo_runs_s3_on_an_hci_controller(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--scenario", "s3-arena", "--receiver", "hci",
+                           "--json", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["success"] and "hci" in summary["links"]
+
+
+def test_hci_items_print_as_json_lines() -> None:
+    """The items the driver shows ``listen``/``replay``: plain JSON, bytes as hex."""
+    from rfhoming.host.drivers.hci import Advertisement, HciPacket
+    from rfhoming.protocol.jsonable import as_dict
+
+    rows = [as_dict(Advertisement("AC0000000001", 0, -61, True, b"\x02\x01\x06")),
+            as_dict(HciPacket("HCI_COMMAND_COMPLETE_EVENT", b"\x04\x0e\x04\x01\x03\x0c\x00"))]
+    assert rows == [{"kind": "advertisement", "address": "AC0000000001", "address_type": 0, "rssi_dbm": -61,
+                     "extended": True, "data": "020106"},
+                    {"kind": "hci", "name": "HCI_COMMAND_COMPLETE_EVENT", "raw": "040e0401030c00"}]
