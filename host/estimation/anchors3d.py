@@ -97,22 +97,23 @@ class Fix:
     chi2: float
 
 
-def _solve(rays: list[tuple[np.ndarray, np.ndarray]], weights: np.ndarray, height: float | None
+def _solve(o: np.ndarray, u: np.ndarray, weights: np.ndarray, height: float | None
            ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted LS point (and inverse normal matrix); with ``height`` only x, y are free."""
-    o = np.array([r[0] for r in rays])
-    u = np.array([r[1] for r in rays])
     proj = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
+    wp = weights[:, None, None] * proj
     if height is None:
-        a = np.einsum("n,nij->ij", weights, proj)
-        b = np.einsum("n,nij,nj->i", weights, proj, o)
+        a = wp.sum(axis=0)
+        b = np.einsum("nij,nj->i", wp, o)
     else:
-        c = np.array([0.0, 0.0, height])
-        a = np.einsum("n,nij->ij", weights, proj[:, :2, :2])
-        b = np.einsum("n,nij,nj->i", weights, proj[:, :2, :], o - c)
-    if not np.all(np.isfinite(a)) or np.linalg.cond(a) > 1e8:
+        a = wp[:, :2, :2].sum(axis=0)
+        b = np.einsum("nij,nj->i", wp[:, :2, :], o - np.array([0.0, 0.0, height]))
+    try:
+        cov = np.linalg.inv(a)
+    except np.linalg.LinAlgError:
+        raise Degenerate("rays parallel: no crossing") from None
+    if not np.all(np.isfinite(cov)) or np.abs(a).sum() * np.abs(cov).sum() > 1e8:  # ~ condition number
         raise Degenerate("rays (nearly) parallel: no crossing")
-    cov = np.linalg.inv(a)
     q = cov @ b
     if height is None:
         return q, cov
@@ -121,42 +122,38 @@ def _solve(rays: list[tuple[np.ndarray, np.ndarray]], weights: np.ndarray, heigh
     return np.array([q[0], q[1], height]), full
 
 
-def _residuals(point: np.ndarray, rays: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+def _residuals(point: np.ndarray, o: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(range along each ray, perpendicular distance from it); range < 0 = behind the anchor."""
-    o = np.array([r[0] for r in rays])
-    u = np.array([r[1] for r in rays])
     d = point[None] - o
-    along = np.einsum("ij,ij->i", d, u)
-    perp = np.linalg.norm(d - along[:, None] * u, axis=1)
+    along = (d * u).sum(axis=1)
+    perp = np.sqrt(np.maximum((d * d).sum(axis=1) - along**2, 0.0))
     return along, perp
 
 
-def _fit(rays: list[Ray], height: float | None, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+def _fit(rays: list[Ray], height: float | None, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """IRLS: range weights from the last fix, Huber on normalised residuals, folds resolved."""
-    chosen = [(r.origin, r.direction) for r in rays]
+    o = np.array([r.origin for r in rays])
+    u = np.array([r.direction for r in rays])
     sig = np.array([r.sigma_rad for r in rays])
-    robust = np.ones(len(rays))
-    ranges = np.ones(len(rays))
-    point, cov = _solve(chosen, 1 / sig**2, height)
+    folds = [(i, r.direction, r.mirror) for i, r in enumerate(rays) if r.mirror is not None]
+    point, cov = _solve(o, u, 1 / sig**2, height)
     for _ in range(iterations):
-        for i, r in enumerate(rays):  # the fold: keep the candidate the fix lies in front of and near
-            if r.mirror is not None:
-                cands = [(r.origin, r.direction), (r.origin, r.mirror)]
-                along, perp = _residuals(point, cands)
-                score = perp + np.where(along < 0, 1e3, 0.0)
-                chosen[i] = cands[int(np.argmin(score))]
-        along, perp = _residuals(point, chosen)
+        for i, front, back in folds:  # the fold: keep the candidate the fix lies in front of and near
+            cands = np.array([front, back])
+            along, perp = _residuals(point, o[[i, i]], cands)
+            u[i] = cands[int(np.argmin(perp + np.where(along < 0, 1e3, 0.0)))]
+        along, perp = _residuals(point, o, u)
         ranges = np.maximum(along, MIN_RANGE_M)
         z = perp / (ranges * sig)
         robust = np.where(z > HUBER_K, HUBER_K / np.maximum(z, 1e-12), 1.0)
         robust = np.where(along < 0, 1e-3, robust)  # a fix behind an anchor cannot be on its ray
-        point, cov = _solve(chosen, robust / (ranges * sig) ** 2, height)
-    along, perp = _residuals(point, chosen)
+        point, cov = _solve(o, u, robust / (ranges * sig) ** 2, height)
+    along, perp = _residuals(point, o, u)
     z2 = (perp / (np.maximum(along, MIN_RANGE_M) * sig)) ** 2 + np.where(along < 0, 1e6, 0.0)
-    return point, cov, z2, chosen
+    return point, cov, z2
 
 
-def locate(rays: list[Ray], height: float | None = None, iterations: int = 4) -> Fix:
+def locate(rays: list[Ray], height: float | None = None, iterations: int = 3) -> Fix:
     """The tag's position from two or more rays (with ``height``) or three or more (3-D).
 
     One bad anchor (a reflection, a wrong mounting) is found by its residual and left out when
@@ -165,17 +162,17 @@ def locate(rays: list[Ray], height: float | None = None, iterations: int = 4) ->
     need = 2
     if len(rays) < need:
         raise Degenerate(f"need at least {need} anchors, have {len(rays)}")
-    point, cov, z2, _ = _fit(rays, height, iterations)
+    point, cov, z2 = _fit(rays, height, iterations)
     rejected: tuple[str, ...] = ()
     if len(rays) >= 4 and z2.max() > SUSPECT_CHI2:
         best = None
         for k, bad in enumerate(rays):  # consensus: which one ray, left out, lets the rest agree?
             rest = rays[:k] + rays[k + 1:]
             try:
-                p2, c2, z2b, _ = _fit(rest, height, iterations)
+                p2, c2, z2b = _fit(rest, height, iterations)
             except Degenerate:
                 continue
-            along, perp = _residuals(p2, [(bad.origin, bad.direction)])
+            along, perp = _residuals(p2, bad.origin[None], bad.direction[None])
             z_bad = 1e6 if along[0] < 0 else (perp[0] / (max(along[0], MIN_RANGE_M) * bad.sigma_rad)) ** 2
             if z2b.max() < OUTLIER_CHI2 and z_bad > OUTLIER_CHI2 and (best is None or z2b.sum() < best[2].sum()):
                 best = (p2, c2, z2b, rest, bad.anchor)
