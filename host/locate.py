@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from bisect import bisect_right
+import statistics
 from collections import deque
 from dataclasses import dataclass, replace
 from typing import Any
@@ -130,19 +130,17 @@ class Locator:
                 continue
             while window and window[0][0] < t - self.site.stale_s - self.site.window_s:
                 window.popleft()
-            stamps = [w[0] for w in window]
-            end = bisect_right(stamps, t)
-            if end == 0:
+            last = next((w[0] for w in reversed(window) if w[0] <= t), None)
+            if last is None:
                 continue
-            last = stamps[end - 1]
-            recent = [w for w in list(window)[:end] if w[0] > last - self.site.window_s]
-            az = float(np.median([w[1] for w in recent]))
-            el = float(np.median([w[2] for w in recent]))
+            recent = [w for w in window if last - self.site.window_s < w[0] <= last]
+            az = statistics.median(w[1] for w in recent)
+            el = statistics.median(w[2] for w in recent)
             sigma = math.hypot(sigma0 * 1.25 / math.sqrt(len(recent)), sigma0 * SYSTEMATIC)
             rays.append(make_ray(anchor.name, anchor.position, self.rotations[anchor_id], az, el, sigma,
                                  anchor.two_sided))
-            times.append(float(np.mean([w[0] for w in recent])))
-        return rays, float(np.mean(times)) if times else t
+            times.append(sum(w[0] for w in recent) / len(recent))
+        return rays, sum(times) / len(times) if times else t
 
     def _tick(self, t: float) -> list[Position]:
         out = []

@@ -99,27 +99,46 @@ class Fix:
 
 def _solve(o: np.ndarray, u: np.ndarray, weights: np.ndarray, height: float | None
            ) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted LS point (and inverse normal matrix); with ``height`` only x, y are free."""
-    proj = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
-    wp = weights[:, None, None] * proj
-    if height is None:
-        a = wp.sum(axis=0)
-        b = np.einsum("nij,nj->i", wp, o)
-    else:
-        a = wp[:, :2, :2].sum(axis=0)
-        b = np.einsum("nij,nj->i", wp[:, :2, :], o - np.array([0.0, 0.0, height]))
-    try:
-        cov = np.linalg.inv(a)
-    except np.linalg.LinAlgError:
-        raise Degenerate("rays parallel: no crossing") from None
-    if not np.all(np.isfinite(cov)) or np.abs(a).sum() * np.abs(cov).sum() > 1e8:  # ~ condition number
-        raise Degenerate("rays (nearly) parallel: no crossing")
+    """Weighted LS point (and inverse normal matrix); with ``height`` only x, y are free.
+
+    Normal equations in closed form: A = sum(w) I - U^T W U, b = W o - U^T W (u . o) summed."""
+    uw = u * weights[:, None]
+    a = weights.sum() * _I3 - u.T @ uw
+    b = weights @ o - uw.T @ (u * o).sum(axis=1)
+    if height is not None:  # p = (x, y, h): move the known z to the right-hand side
+        b = b[:2] - a[:2, 2] * height
+        a = a[:2, :2]
+    cov = _inverse(a.tolist())
     q = cov @ b
     if height is None:
         return q, cov
     full = np.zeros((3, 3))
     full[:2, :2] = cov
     return np.array([q[0], q[1], height]), full
+
+
+_I3 = np.eye(3)
+
+
+def _inverse(m: list[list[float]]) -> np.ndarray:
+    """Inverse of a 2x2 or 3x3 normal matrix by cofactors (numpy's LAPACK call costs more than
+    the whole fix at this size); Degenerate when (nearly) singular: parallel rays."""
+    if len(m) == 2:
+        (a, b), (c, d) = m
+        det = a * d - b * c
+        scale = max(abs(a), abs(d)) ** 2
+        if not det > 1e-10 * scale:
+            raise Degenerate("rays (nearly) parallel: no crossing")
+        return np.array([[d, -b], [-c, a]]) / det
+    (a, b, c), (d, e, f), (g, h, i) = m
+    co = [[e * i - f * h, c * h - b * i, b * f - c * e],
+          [f * g - d * i, a * i - c * g, c * d - a * f],
+          [d * h - e * g, b * g - a * h, a * e - b * d]]
+    det = a * co[0][0] + b * co[1][0] + c * co[2][0]
+    scale = max(abs(a), abs(e), abs(i)) ** 3
+    if not det > 1e-10 * scale:
+        raise Degenerate("rays (nearly) parallel: no crossing")
+    return np.array(co) / det
 
 
 def _residuals(point: np.ndarray, o: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -153,7 +172,7 @@ def _fit(rays: list[Ray], height: float | None, iterations: int) -> tuple[np.nda
     return point, cov, z2
 
 
-def locate(rays: list[Ray], height: float | None = None, iterations: int = 3) -> Fix:
+def locate(rays: list[Ray], height: float | None = None, iterations: int = 2) -> Fix:
     """The tag's position from two or more rays (with ``height``) or three or more (3-D).
 
     One bad anchor (a reflection, a wrong mounting) is found by its residual and left out when
