@@ -12,14 +12,13 @@ import numpy as np
 
 from rfhoming.emulator import scenario as scenarios
 from rfhoming.emulator.runtime import Emulator
-from rfhoming.emulator.world import Target
 from rfhoming.protocol.uconnect import AngleEvent, UConnectDecoder
 
 CALIBRATION_POINTS: dict[str, tuple[float, float, float]] = {
     "CCF9578E0C01": (2.0, 1.5, 0.8), "CCF9578E0C02": (6.0, 3.0, 0.3), "CCF9578E0C03": (10.0, 4.5, 1.2),
     "CCF9578E0C04": (3.5, 4.8, 0.5), "CCF9578E0C05": (9.0, 1.2, 1.0), "CCF9578E0C06": (6.0, 5.0, 1.5),
 }
-"""Static tags at known points (x, y, z) for a calibration run: the same room, other tags."""
+"""The kit-room-cal scenario's static tags (x, y, z), as docs/sites/kit-room-points.toml."""
 
 
 @dataclass
@@ -54,11 +53,8 @@ async def _record(sc: scenarios.Scenario, seed: int, duration: float) -> Recordi
     return Recording(events, truth, sorted(targets), [d.truth() for d in em.devices])
 
 
-def record(seed: int = 0, duration: float = 30.0, calibration: bool = False, name: str = "kit-room") -> Recording:
-    """A run of the kit scenario (or, with ``calibration``, the same anchors -- same seed, same
-    hidden errors -- with static tags at :data:`CALIBRATION_POINTS`)."""
-    sc = scenarios.load(name, seed=seed)
-    if calibration:
-        sc.world.targets = [Target(id=k, kind="aoa_tag", position=(x, y), height=z, interval_ms=20.0)
-                            for k, (x, y, z) in CALIBRATION_POINTS.items()]
+def record(seed: int = 0, duration: float = 30.0, calibration: bool = False) -> Recording:
+    """A run of the kit scenario (or, with ``calibration``, kit-room-cal: the same anchors --
+    same seed, same hidden errors -- with static tags at :data:`CALIBRATION_POINTS`)."""
+    sc = scenarios.load("kit-room-cal" if calibration else "kit-room", seed=seed)
     return asyncio.run(_record(sc, seed, duration))
