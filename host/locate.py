@@ -6,7 +6,8 @@ ports are stamped in arrival order but may reach us slightly out of it), keeps e
 (tag, anchor) pair's angles of the last ``window_s`` seconds, and at its own rate (ticks at
 multiples of 1/rate_hz of host time) fixes every tag from the anchors still fresh (heard
 within ``stale_s``): each anchor's median corrected angles become a world ray; the rays give a
-robust 3-D (or known-height) fix; a constant-velocity filter tracks it. Output depends only on
+robust 3-D (or known-height) fix; a constant-velocity filter tracks the fixes (``tracker="cv"``)
+or, from a first fix on, takes every angle pair as it arrives (``tracker="ekf"``). Output depends only on
 the events and their stamps, so a live run and a replay of its capture print the same lines.
 Board timestamps (each board's uptime) are not used.
 """
@@ -22,10 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.host.estimation.anchors3d import Degenerate, locate, make_ray
-from rfhoming.host.estimation.tracking import ConstantVelocity
+from rfhoming.host.estimation.anchors3d import Degenerate, angle_sigma_deg, locate, make_ray
+from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity
 from rfhoming.host.site import Anchor, Calibration, Site
 from rfhoming.protocol.uconnect import AngleEvent
+
+TRACKERS = ("cv", "ekf")
+"""cv: a constant-velocity filter on the fixes (default: cheaper); ekf: the same state updated
+by every angle pair as it arrives, fixes only (re)starting it (more accurate, docs/RESULTS.md)."""
 
 MAX_PENDING = 100_000
 """Events held for reordering at most (then the oldest are processed early, counted)."""
@@ -56,14 +61,18 @@ class Position:
 
 
 class Locator:
-    def __init__(self, site: Site, *, track: bool = True, accel_psd: float = 1.0, reorder_s: float = 0.2,
-                 calibrated: bool = True) -> None:
+    def __init__(self, site: Site, *, track: bool = True, tracker: str = "cv", accel_psd: float = 1.0,
+                 reorder_s: float = 0.2, calibrated: bool = True) -> None:
+        if tracker not in TRACKERS:
+            raise ValueError(f"tracker must be one of {', '.join(TRACKERS)}")
         self.site = site
         self.anchors = site.anchor_by_id()
         self.rotations = {a.id: a.rotation() if calibrated else _uncalibrated(a).rotation() for a in site.anchors}
+        self._origins = {a.id: np.array(a.position) for a in site.anchors}
         self.calibrated = calibrated
         self.wanted = {t.id for t in site.tags}
         self.track = track
+        self.tracker = tracker
         self.accel_psd = accel_psd
         self.reorder_s = reorder_s
         self.period = 1.0 / site.rate_hz
@@ -72,6 +81,7 @@ class Locator:
         self._next_tick: float | None = None
         self._windows: dict[tuple[str, str], deque[tuple[float, float, float]]] = {}
         self._trackers: dict[str, ConstantVelocity] = {}
+        self._ekfs: dict[str, BearingEkf] = {}
         self.counters = {"events": 0, "unknown_anchor": 0, "other_tag": 0, "late": 0, "overflow": 0,
                          "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0}
 
@@ -117,6 +127,14 @@ class Locator:
         cal = self.anchors[anchor_id].calibration
         a, e = cal.correct(az, el) if self.calibrated else (float(az), float(el))
         window.append((t, a, e))
+        ekf = self._ekfs.get(tag)
+        if ekf is not None and ekf.t is not None:
+            info = self.site.tag(tag)
+            anchor = self.anchors[anchor_id]
+            sigma = math.hypot(angle_sigma_deg(a, e, self.site.sigma_deg), self.site.sigma_deg * SYSTEMATIC)
+            if not ekf.update_angles(t, self._origins[anchor_id], self.rotations[anchor_id], a, e, sigma,
+                                     info.height if info else None):
+                self.counters["gated"] += 1
         return out
 
     # -- output ------------------------------------------------------------------------
@@ -145,9 +163,16 @@ class Locator:
     def _tick(self, t: float) -> list[Position]:
         out = []
         for tag in sorted({k[0] for k in self._windows}):
-            rays, t_fix = self.rays_at(tag, t)
             info = self.site.tag(tag)
             height = info.height if info else None
+            ekf = self._ekfs.get(tag)
+            if ekf is not None and ekf.t is not None and ekf.t >= t - self.site.stale_s:
+                fresh = tuple(a.name for a_id, a in self.anchors.items()
+                              if (w := self._windows.get((tag, a_id))) and w[-1][0] >= t - self.site.stale_s)
+                point, cov = ekf.predicted(t)
+                out.append(Position(t, tag, point, cov, fresh, (), True))
+                continue
+            rays, t_fix = self.rays_at(tag, t)
             if len(rays) < (2 if height is not None else 3):
                 self.counters["no_fix"] += 1
                 continue
@@ -160,6 +185,12 @@ class Locator:
             self.counters["rejected_anchor"] += len(fix.rejected)
             if not self.track:
                 out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False))
+                continue
+            if self.tracker == "ekf":  # a fix starts (or restarts) the filter; angles drive it
+                ekf = self._ekfs[tag] = BearingEkf(self.accel_psd)
+                ekf.start(t_fix, fix.point, fix.covariance)
+                point, cov = ekf.predicted(t)
+                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True))
                 continue
             tracker = self._trackers.setdefault(tag, ConstantVelocity(self.accel_psd))
             if not tracker.update(t_fix, fix.point, fix.covariance):

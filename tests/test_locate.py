@@ -223,3 +223,27 @@ def test_calibrate_writes_the_site_file_and_keeps_its_comments(tmp_path):
     missing = subprocess.run([*RFHOMING, "calibrate", str(site), "--points", str(tmp_path / "none.toml")],
                              capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "cannot read points file" in missing.stderr
+
+
+def test_ekf_on_bearings_tracks_walking_tags(kit):
+    site = sites.load(SITE)
+    ekf = errors(site, kit, tracker="ekf")
+    assert len(ekf) > 200
+    assert ekf.mean() < errors(site, kit, track=False).mean()
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.floats(1.0, 11.0), st.floats(1.0, 5.0), st.floats(0.0, 1.5))
+def test_ekf_converges_on_exact_angles_of_a_static_tag(x, y, z):
+    from rfhoming.host.estimation.anchors3d import board_angles, rotation
+    from rfhoming.host.estimation.tracking import BearingEkf
+
+    anchors = [((0.0, 3.0, 2.4), 0.0), ((12.0, 3.0, 2.4), 180.0), ((6.0, 0.0, 2.4), 90.0), ((6.0, 6.0, 2.4), -90.0)]
+    ekf = BearingEkf(0.1)
+    ekf.start(0.0, np.array([x + 0.8, y - 0.6, z + 0.3]), np.eye(3) * 1.0)
+    for k in range(200):
+        pos, yaw = anchors[k % 4]
+        rot = rotation(yaw, -20)
+        az, el = board_angles(rot.T @ (np.array([x, y, z]) - np.array(pos)))
+        ekf.update_angles(0.02 * (k + 1), np.array(pos), rot, az, el, 2.0)
+    assert np.linalg.norm(ekf.x[:3] - np.array([x, y, z])) < 0.05

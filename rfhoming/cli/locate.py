@@ -120,7 +120,7 @@ def cmd_locate(args: argparse.Namespace) -> int:
     if args.rate:
         site = sites.Site(site.name, site.anchors, site.tags, args.rate, site.window_s, site.stale_s,
                           site.sigma_deg, site.path)
-    locator = Locator(site, track=not args.no_track, accel_psd=args.accel_psd)
+    locator = Locator(site, track=not args.no_track, tracker=args.tracker, accel_psd=args.accel_psd)
     out = args.output.open("w") if args.output else sys.stdout
     per_tag: dict[str, list[float]] = {}
 
@@ -223,7 +223,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--capture", type=Path, help="also record every anchor's bytes to this pcapng file")
             p.add_argument("-o", "--output", type=Path, help="write the JSON lines here instead of stdout")
             p.add_argument("--rate", type=_positive, help="positions per second per tag (default: the site's rate_hz)")
-            p.add_argument("--no-track", action="store_true", help="raw fixes, no constant-velocity filter")
+            p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
+            p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
+                           help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
+                                "pair updates the track as it arrives (more accurate, ~10x the cost)")
             p.add_argument("--accel-psd", type=float, default=1.0,
                            help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
             p.set_defaults(func=cmd_locate)
