@@ -44,9 +44,12 @@ def rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
 class FixedAnchorRunner(AoaRunner):
     """An XPLR-AOA anchor fixed at a 3-D pose, with its own seeded error model."""
 
+    ROBOT_TAG_HEIGHT_M = 0.3
+
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
-                 options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel) -> None:
-        super().__init__(name, link, faults, rng, options, aoa, path_loss, None)
+                 options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
+                 robot_tag: tuple[str, float] | None = None) -> None:
+        super().__init__(name, link, faults, rng, options, aoa, path_loss, robot_tag)
         o = options
         self.position = np.array([float(v) for v in o["position"]])
         mount_sigma = float(o.get("mount_error_deg", 3.0))
@@ -70,6 +73,15 @@ class FixedAnchorRunner(AoaRunner):
         return {"device": self.name, "true_yaw_deg": self.true_pose[0], "true_pitch_deg": self.true_pose[1],
                 "az_scale": self.az_scale, "az_bias_deg": self.az_bias,
                 "el_scale": self.el_scale, "el_bias_deg": self.el_bias}
+
+    def sources(self, world: World, t: float) -> list[tuple[str, tuple[float, float], float, float, float]]:
+        """Every tag in the room: the targets' and, if the robot carries one, the robot's."""
+        tags = [(t_.id, t_.position_at(t), t_.height, t_.interval_ms / 1000, t_.tx_power_dbm)
+                for t_ in world.targets if t_.kind == "aoa_tag"]
+        if self.robot_tag is not None:
+            tag_id, interval_ms = self.robot_tag
+            tags.append((tag_id, (world.robot.x, world.robot.y), self.ROBOT_TAG_HEIGHT_M, interval_ms / 1000, 0.0))
+        return tags
 
     def _image(self, world: World, p: np.ndarray) -> np.ndarray:
         """The tag, or (near a wall, sometimes) its mirror image in the nearest wall."""

@@ -28,6 +28,7 @@ calibrated, and which tags to locate.
     [tags.CCF9578E0D8A]
     name = "cart"
     height = 0.9                      # metres, when known (else solved in 3-D)
+    role = "target"                   # homing: "robot" (its own tag) or "target" (to reach)
 """
 
 from __future__ import annotations
@@ -81,11 +82,16 @@ class Anchor:
         return rotation(self.yaw_deg + self.calibration.yaw_offset_deg, self.pitch_deg, self.roll_deg)
 
 
+ROLES = ("", "robot", "target")
+"""A tag's role for `rfhoming run --controller anchors`: the robot's own tag, the one to reach."""
+
+
 @dataclass(frozen=True)
 class TagInfo:
     id: str
     name: str = ""
     height: float | None = None
+    role: str = ""
 
 
 @dataclass(frozen=True)
@@ -104,6 +110,14 @@ class Site:
 
     def tag(self, tag_id: str) -> TagInfo | None:
         return next((t for t in self.tags if t.id == tag_id), None)
+
+    def tag_with_role(self, role: str) -> TagInfo:
+        """The one tag with ``role``; SiteError when there is none or several."""
+        found = [t for t in self.tags if t.role == role]
+        if len(found) != 1:
+            raise SiteError(f"{self.path or self.name}: homing on the anchors needs exactly one tag with "
+                            f"role = \"{role}\" in [tags.ID], found {len(found)}")
+        return found[0]
 
 
 def _number(table: dict[str, Any], key: str, where: str, default: float | None = None,
@@ -164,10 +178,13 @@ def _tag(tag_id: str, table: Any) -> TagInfo:
         raise SiteError(f"[{where}]: a tag id is 12 upper-case hex digits, e.g. [tags.CCF9578E0D8A]")
     if not isinstance(table, dict):
         raise SiteError(f"[{where}] must be a table")
-    _check_keys(table, {"name", "height"}, where)
+    _check_keys(table, {"name", "height", "role"}, where)
     height = table.get("height")
+    role = table.get("role", "")
+    if role not in ROLES:
+        raise SiteError(f"[{where}] role = {role!r}: expected \"robot\" (the robot's own tag) or \"target\"")
     return TagInfo(tag_id, str(table.get("name", "")),
-                   None if height is None else _number(table, "height", where, low=-10, high=100))
+                   None if height is None else _number(table, "height", where, low=-10, high=100), role)
 
 
 def parse(raw: dict[str, Any], where: str = "site") -> Site:
