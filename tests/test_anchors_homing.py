@@ -4,7 +4,11 @@ biased wall anchors (through the emulator's bytes, in lockstep), drives to the t
 from __future__ import annotations
 
 import asyncio
+import json
 import math
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -61,3 +65,37 @@ def test_robot_homes_on_the_target_located_by_the_anchors(seed):
     assert outcome.arrived, outcome.summary()
     assert math.dist((robot.x, robot.y), target) < 0.8
     assert outcome.robot_time_s < 60 and outcome.stale_stops == 0
+
+
+RFHOMING = [sys.executable, "-m", "rfhoming"]
+
+
+def test_run_controller_anchors_homes_through_the_emulators_ptys(tmp_path):
+    links = tmp_path / "links"
+    links.mkdir()
+    site = tmp_path / "site.toml"
+    site.write_text(SITE.read_text().replace("/tmp/rfhoming-kit/", f"{links}/"))
+    emulator = subprocess.Popen([*RFHOMING, "emulate", "kit-home", "--seed", "1", "--lockstep", "--link-dir", str(links)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for _ in range(5):
+            json.loads(emulator.stdout.readline())
+        run = subprocess.run([*RFHOMING, "run", "--controller", "anchors", "--site", str(site),
+                              "--base", f"base:{links}/base"], capture_output=True, text=True, timeout=180)
+    finally:
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(timeout=10)
+    assert run.returncode == 0, run.stderr
+    summary = json.loads(run.stdout.splitlines()[-1])
+    assert summary["arrived"] and math.dist(summary["pose"][:2], (9.5, 4.2)) < 0.8
+
+
+def test_run_controller_anchors_says_what_is_missing(tmp_path):
+    no_site = subprocess.run([*RFHOMING, "run", "--controller", "anchors", "--base", "base:/dev/null"],
+                             capture_output=True, text=True, timeout=60)
+    assert no_site.returncode == 2 and "--site SITE.toml" in no_site.stderr
+    roleless = tmp_path / "site.toml"
+    roleless.write_text(SITE.read_text().replace('role = "target"\n', ""))
+    missing = subprocess.run([*RFHOMING, "run", "--controller", "anchors", "--site", str(roleless),
+                              "--base", "base:/dev/null"], capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and 'role = "target"' in missing.stderr

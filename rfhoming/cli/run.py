@@ -11,11 +11,12 @@ from pathlib import Path
 from rfhoming.cli.io import add_port_defaults
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
-from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
+from rfhoming.host import site as sites
+from rfhoming.host.homing.loop import RunLog, anchors_loop, aoa_loop, dock_loop, rss_loop, trilat_loop
 from rfhoming.host.ports import PortError
 from rfhoming.host.session import make_driver, resolve
 
-CONTROLLERS = ("aoa", "dock", "rss", "trilat")
+CONTROLLERS = ("aoa", "dock", "rss", "trilat", "anchors")
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -31,7 +32,7 @@ def cmd_config(args: argparse.Namespace) -> int:
     return 0
 
 
-SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble"}
+SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble", "anchors": "site"}
 ROLE_KIND = {"aoa": "ublox-aoa", "base": "base", "rss": "rss", "ble": "rss"}
 
 
@@ -42,7 +43,21 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
     role = SENSOR_ROLE[args.controller]
-    specs = {r: getattr(args, r) or config.devices.get(r) for r in (role, "base")}
+    if role == "site":  # fixed anchors: their ports come from the site file
+        if args.site is None:
+            print("rfhoming run: --controller anchors needs --site SITE.toml (anchors, and tags with "
+                  "role = \"robot\" / \"target\")", file=sys.stderr)
+            return 2
+        try:
+            site = sites.load(args.site)
+            site.tag_with_role("robot"), site.tag_with_role("target")
+            if any(a.port is None for a in site.anchors):
+                raise sites.SiteError(f"{args.site}: every anchor needs port = \"ublox-aoa:WHERE\" for run")
+        except sites.SiteError as exc:
+            print(f"rfhoming run: {exc}", file=sys.stderr)
+            return 2
+        args.site_loaded = site
+    specs = {r: getattr(args, r, None) or config.devices.get(r) for r in (role, "base") if r != "site"}
     for r, spec in specs.items():
         if spec is None:
             print(f"rfhoming run: --controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)",
@@ -72,6 +87,13 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
     resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=ROLE_KIND[r], describe=describe)
                 for r, spec in specs.items()}
     base = make_driver(resolved["base"], taps, command_timeout_ms=config.loop.command_timeout_ms)
+    if role == "site":
+        site = args.site_loaded
+        anchors = [make_driver(await resolve(a.port, baud=args.baud, flow=args.flow, taps=taps, kind="ublox-aoa",
+                                             describe=describe), taps) for a in site.anchors]
+        outcome = await anchors_loop(base, anchors, site, config, RunLog(runlog)).run()
+        print(json.dumps(outcome.summary()))
+        return 0 if outcome.arrived else 1
     if role == "aoa":
         sensor = make_driver(resolved["aoa"], taps)
         make = aoa_loop if args.controller == "aoa" else dock_loop
@@ -137,6 +159,7 @@ examples:
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
   rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
+  rfhoming run --controller anchors --site site.toml --base /dev/ttyACM0
 """
 
 
@@ -162,7 +185,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
                         "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
-                        "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal)")
+                        "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal), "
+                        "anchors (fixed XPLR-AOA anchors of --site locate the robot's own tag and the target's)")
+    p.add_argument("--site", type=Path, help="site file for --controller anchors (see rfhoming locate --help)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     add_port_defaults(p)
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
