@@ -82,7 +82,10 @@ async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable
         drivers: list[Driver] = await open_drivers(_specs(site, args.sources), baud=args.baud, flow=args.flow,
                                                    taps=[capture.tap] if capture else [],
                                                    describe=capture.describe if capture else None)
-    except (PortError, ValueError, OSError, CaptureFormatError) as exc:
+    except OSError as exc:
+        print(f"rfhoming {args.command}: cannot read {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2
+    except (PortError, ValueError, CaptureFormatError) as exc:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
 
@@ -132,6 +135,8 @@ def cmd_locate(args: argparse.Namespace) -> int:
             out.flush()
 
     code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event))))
+    if code:
+        return code
     show(locator.flush())
     names = {a.id: a.name for a in site.anchors}
     summary = {"kind": "summary", "site": site.name,
