@@ -39,6 +39,9 @@ SYSTEMATIC = 0.6
 """The part of an angle's error (a fraction of sigma_deg) that a median does not average away:
 bias, mounting, multipath (the kit scenario's residual after calibration is of this size)."""
 
+FORGET_S = 60.0
+"""A (tag, anchor) pair silent this long is forgotten, and a tag with no pair left."""
+
 MAX_PER_PAIR = 2000
 """Angles kept per (tag, anchor) at most, whatever the window (a bound, not a setting)."""
 
@@ -105,7 +108,7 @@ class Locator:
         return out
 
     def flush(self) -> list[Position]:
-        """End of input: everything held, and the ticks up to the last event."""
+        """End of input: the events still held for reordering, and the ticks they pass."""
         out: list[Position] = []
         while self._pending:
             out += self._take(heapq.heappop(self._pending))
@@ -130,7 +133,6 @@ class Locator:
         ekf = self._ekfs.get(tag)
         if ekf is not None and ekf.t is not None:
             info = self.site.tag(tag)
-            anchor = self.anchors[anchor_id]
             sigma = math.hypot(angle_sigma_deg(a, e, self.site.sigma_deg), self.site.sigma_deg * SYSTEMATIC)
             if not ekf.update_angles(t, self._origins[anchor_id], self.rotations[anchor_id], a, e, sigma,
                                      info.height if info else None):
@@ -162,6 +164,12 @@ class Locator:
 
     def _tick(self, t: float) -> list[Position]:
         out = []
+        gone = [k for k, w in self._windows.items() if not w or w[-1][0] < t - FORGET_S]
+        for key in gone:  # tags that left (or were never wanted): bounded memory
+            del self._windows[key]
+            if not any(k[0] == key[0] for k in self._windows):
+                self._trackers.pop(key[0], None)
+                self._ekfs.pop(key[0], None)
         for tag in sorted({k[0] for k in self._windows}):
             info = self.site.tag(tag)
             height = info.height if info else None

@@ -3,7 +3,6 @@ bad anchor do not move it far, the fold is resolved from the geometry."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
