@@ -24,8 +24,17 @@ from typing import IO, Any
 
 import numpy as np
 
-from rfhoming.emulator.devices import (AoaRunner, BaseRunner, DeviceRunner, Esp32Runner, EspAtRunner, HciRunner,
-                                       RssRunner, target_positions)
+from rfhoming.emulator.anchors import FixedAnchorRunner
+from rfhoming.emulator.devices import (
+    AoaRunner,
+    BaseRunner,
+    DeviceRunner,
+    Esp32Runner,
+    EspAtRunner,
+    HciRunner,
+    RssRunner,
+    target_positions,
+)
 from rfhoming.emulator.faults import ByteFaults, Fault
 from rfhoming.emulator.links import Link, PipeLink, PtyLink, TcpLink
 from rfhoming.emulator.scenario import Scenario
@@ -82,8 +91,10 @@ class Emulator:
     def _device(self, kind: str, name: str, k: int, link: Link, faults: ByteFaults,
                 rng: np.random.Generator, options: dict[str, Any]) -> DeviceRunner:
         sc = self.scenario
+        tag = (sc.robot_tag, sc.robot_tag_interval_ms) if sc.robot_tag else None
+        if kind == "xplr-aoa" and "position" in options:  # a fixed anchor in 3-D (emulator/anchors.py)
+            return FixedAnchorRunner(name, link, faults, rng, options, sc.aoa, sc.path_loss, tag)
         if kind == "xplr-aoa":
-            tag = (sc.robot_tag, sc.robot_tag_interval_ms) if sc.robot_tag else None
             return AoaRunner(name, link, faults, rng, options, sc.aoa, sc.path_loss, tag)
         if kind == "esp32":
             return Esp32Runner(name, k + 1, link, faults, rng, sc.path_loss)

@@ -17,7 +17,7 @@ from typing import Any
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.ports import HostPort
-from rfhoming.protocol.espat import EspAtDecoder, Final, Info
+from rfhoming.protocol.espat import EspAtDecoder, Final
 
 log = logging.getLogger(__name__)
 UNIT_MS = 0.625

@@ -29,6 +29,7 @@ from typing import IO, Any, Protocol
 from rfhoming.host.drivers.aoa import AoaDriver, TimedAngle
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.drivers.base import BaseDriver, Pose2D, Scan
+from rfhoming.host.homing.anchors import AnchorsController
 from rfhoming.host.homing.avoidance import ObstacleAvoidance
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.grid import OccupancyGrid, lookahead
@@ -37,6 +38,7 @@ from rfhoming.host.homing.s1_dock import DockController
 from rfhoming.host.homing.s2_rss import RssController
 from rfhoming.host.homing.s3_trilat import TrilatController
 from rfhoming.host.homing.types import Decision, Pose
+from rfhoming.host.site import Site
 
 log = logging.getLogger(__name__)
 
@@ -123,10 +125,12 @@ class AoaController:
 
 
 class HomingLoop:
-    """The base plus one sensor driver and a controller."""
+    """The base plus one sensor driver (or several: fixed anchors) and a controller."""
 
-    def __init__(self, base: BaseDriver, sensor: Driver, controller: Controller, config: Config = Config(),
-                 runlog: RunLog | None = None) -> None:
+    def __init__(self, base: BaseDriver, sensor: Driver | list[Driver], controller: Controller,
+                 config: Config = Config(), runlog: RunLog | None = None) -> None:
+        self.sensors = sensor if isinstance(sensor, list) else [sensor]
+        sensor = self.sensors[0]
         self.base, self.sensor, self.config = base, sensor, config
         self.controller = controller
         self.source = getattr(controller, "source", sensor.kind)
@@ -138,9 +142,10 @@ class HomingLoop:
         # its decisions depend on the bytes alone (a replay reproduces them exactly)
         self.inputs = BoundedStream[Any](4000)
         base.odometry = base.scans = self.inputs
-        for name in ("events", "readings"):
-            if hasattr(sensor, name):
-                setattr(sensor, name, self.inputs)
+        for each in self.sensors:
+            for name in ("events", "readings"):
+                if hasattr(each, name):
+                    setattr(each, name, self.inputs)
         own = getattr(controller, "own_avoidance", False)  # S2's preliminary system has its own rules
         self.avoidance = ObstacleAvoidance(config.avoid) if config.avoid_obstacles and not own else None
         self._planning = config.plan.enabled and getattr(controller, "uses_planner", True)
@@ -151,7 +156,7 @@ class HomingLoop:
         self.plans = 0
 
     async def run(self) -> Outcome:
-        tasks = [asyncio.create_task(self.base.run()), asyncio.create_task(self.sensor.run())]
+        tasks = [asyncio.create_task(self.base.run())] + [asyncio.create_task(s.run()) for s in self.sensors]
         try:
             async with self.base:
                 await self.base.connected.wait()
@@ -284,6 +289,12 @@ def dock_loop(base: BaseDriver, station: AoaDriver, config: Config = Config(), r
 def trilat_loop(base: BaseDriver, ble: Driver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
     """S3: go to a goal, localised by trilateration on BLE beacons at known places."""
     return HomingLoop(base, ble, TrilatController(config.trilat), config, runlog)
+
+
+def anchors_loop(base: BaseDriver, anchors: list[Driver], site: Site, config: Config = Config(),
+                 runlog: RunLog | None = None) -> HomingLoop:
+    """Homing on fixed anchors: the site's anchors locate the robot's tag and the target's."""
+    return HomingLoop(base, anchors, AnchorsController(site), config, runlog)
 
 
 def _round(v: Any) -> list[float] | None:

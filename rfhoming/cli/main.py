@@ -13,6 +13,7 @@ from typing import BinaryIO
 from rfhoming import __version__
 from rfhoming.cli.io import add_parsers as add_io_parsers
 from rfhoming.cli.io import configure_logging
+from rfhoming.cli.locate import add_parser as add_locate_parsers
 from rfhoming.cli.run import add_parsers as add_run_parsers
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.jsonable import as_dict
@@ -123,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     dissector.set_defaults(func=cmd_dissector)
     add_run_parsers(sub)
     add_io_parsers(sub)
+    add_locate_parsers(sub)
     _add_emulate(sub)
     _add_campaign(sub)
     return parser

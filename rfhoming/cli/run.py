@@ -9,15 +9,23 @@ import sys
 from pathlib import Path
 
 from rfhoming.cli.io import add_port_defaults
+from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
-from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
+from rfhoming.host.homing.loop import (
+    RunLog,
+    anchors_loop,
+    aoa_loop,
+    dock_loop,
+    rss_loop,
+    trilat_loop,
+)
 from rfhoming.host.ports import PortError
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.session import make_driver, resolve
 
-CONTROLLERS = ("aoa", "dock", "rss", "trilat")
+CONTROLLERS = ("aoa", "dock", "rss", "trilat", "anchors")
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -33,7 +41,7 @@ def cmd_config(args: argparse.Namespace) -> int:
     return 0
 
 
-SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble"}
+SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble", "anchors": "site"}
 ROLE_KIND = {"aoa": "ublox-aoa", "base": "base", "rss": "rss", "ble": "rss"}
 BLE_KINDS = ("rss", "esp-at", "hci")  # any BLE RSSI receiver feeds the trilateration
 
@@ -50,9 +58,23 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
     role = SENSOR_ROLE[args.controller]
+    if role == "site":  # fixed anchors: their ports come from the site file
+        if args.site is None:
+            print("rfhoming run: --controller anchors needs --site SITE.toml (anchors, and tags with "
+                  "role = \"robot\" / \"target\")", file=sys.stderr)
+            return 2
+        try:
+            site = sites.load(args.site)
+            site.tag_with_role("robot"), site.tag_with_role("target")
+            if any(a.port is None for a in site.anchors):
+                raise sites.SiteError(f"{args.site}: every anchor needs port = \"ublox-aoa:WHERE\" for run")
+        except sites.SiteError as exc:
+            print(f"rfhoming run: {exc}", file=sys.stderr)
+            return 2
+        args.site_loaded = site
     try:
-        specs = {r: parse_spec(getattr(args, r)).over(config.devices.get(r)) if getattr(args, r)
-                 else config.devices.get(r) for r in (role, "base")}
+        specs = {r: parse_spec(getattr(args, r)).over(config.devices.get(r)) if getattr(args, r, None)
+                 else config.devices.get(r) for r in (role, "base") if r != "site"}
     except PortSpecError as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
@@ -85,6 +107,13 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
     resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=role_kind(r, spec),
                                  describe=describe) for r, spec in specs.items()}
     base = make_driver(resolved["base"], taps, command_timeout_ms=config.loop.command_timeout_ms)
+    if role == "site":
+        site = args.site_loaded
+        anchors = [make_driver(await resolve(a.port, baud=args.baud, flow=args.flow, taps=taps, kind="ublox-aoa",
+                                             describe=describe), taps) for a in site.anchors]
+        outcome = await anchors_loop(base, anchors, site, config, RunLog(runlog)).run()
+        print(json.dumps(outcome.summary()))
+        return 0 if outcome.arrived else 1
     if role == "aoa":
         sensor = make_driver(resolved["aoa"], taps)
         make = aoa_loop if args.controller == "aoa" else dock_loop
@@ -155,8 +184,7 @@ examples:
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
   rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
-  rfhoming run --controller trilat --ble esp-at:/dev/ttyUSB0 --base /dev/ttyACM0 --config arena.toml
-  rfhoming run --controller trilat --ble hci:usb:0,active=no --base /dev/ttyACM0 --config arena.toml
+  rfhoming run --controller anchors --site site.toml --base /dev/ttyACM0
 """
 
 
@@ -187,7 +215,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
                         "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
-                        "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal)")
+                        "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal), "
+                        "anchors (fixed XPLR-AOA anchors of --site locate the robot's own tag and the target's)")
+    p.add_argument("--site", type=Path, help="site file for --controller anchors (see rfhoming locate --help)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     add_port_defaults(p)
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")

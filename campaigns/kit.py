@@ -1,0 +1,60 @@
+"""The kit scenario recorded in-process: every anchor's +UUDF bytes through the emulator's pipe
+and the host's decoder, stamped with the emulator's clock (so truth lines up exactly), and the
+tags' true 3-D positions. Used by bench/locate_bench.py and the locate tests."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from rfhoming.emulator import scenario as scenarios
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.protocol.uconnect import AngleEvent, UConnectDecoder
+
+CALIBRATION_POINTS: dict[str, tuple[float, float, float]] = {
+    "CCF9578E0C01": (2.0, 1.5, 0.8), "CCF9578E0C02": (6.0, 3.0, 0.3), "CCF9578E0C03": (10.0, 4.5, 1.2),
+    "CCF9578E0C04": (3.5, 4.8, 0.5), "CCF9578E0C05": (9.0, 1.2, 1.0), "CCF9578E0C06": (6.0, 5.0, 1.5),
+}
+"""The kit-room-cal scenario's static tags (x, y, z), as docs/sites/kit-room-points.toml."""
+
+
+@dataclass
+class Recording:
+    events: list[tuple[float, AngleEvent]]
+    truth: Callable[[str, float], np.ndarray]  # (tag, t) -> (x, y, z)
+    tags: list[str]
+    anchors_truth: list[dict]
+
+
+async def _record(sc: scenarios.Scenario, seed: int, duration: float) -> Recording:
+    em = Emulator(sc, transport="pipe", seed=seed, speed=float("inf"))
+    await em.start()
+    decoders = {d.name: UConnectDecoder() for d in em.devices}
+    events: list[tuple[float, AngleEvent]] = []
+    while em.t < duration:
+        await em.step()
+        for d in em.devices:
+            end = d.link.host
+            while end.pending():
+                for item in decoders[d.name].feed(await end.read()):
+                    if item.kind == "angle":
+                        events.append((round(em.t, 6), item))
+    await em.close()
+    targets = {t.id: t for t in sc.world.targets}
+
+    def truth(tag: str, t: float) -> np.ndarray:
+        target = targets[tag]
+        x, y = target.position_at(t)
+        return np.array([x, y, target.height])
+
+    return Recording(events, truth, sorted(targets), [d.truth() for d in em.devices])
+
+
+def record(seed: int = 0, duration: float = 30.0, calibration: bool = False) -> Recording:
+    """A run of the kit scenario (or, with ``calibration``, kit-room-cal: the same anchors --
+    same seed, same hidden errors -- with static tags at :data:`CALIBRATION_POINTS`)."""
+    sc = scenarios.load("kit-room-cal" if calibration else "kit-room", seed=seed)
+    return asyncio.run(_record(sc, seed, duration))

@@ -1,0 +1,117 @@
+"""Fixed XPLR-AOA anchors in 3-D with each board's own, biased error (the kit scenario).
+
+An anchor with ``position = [x, y, z]`` (and ``yaw_deg``, ``pitch_deg``, ``roll_deg``) sees
+every ``aoa_tag`` in 3-D, in the board frame of docs/estimation.md: x the boresight, y the
+board's left, z its top; azimuth in the x-y plane with the board's sign (negative = left),
+elevation out of it. What a real board adds, drawn once per anchor from the seed:
+
+- mounting: the board sits ``mount_error_deg`` (sigma) off its nominal yaw and pitch;
+- bias that grows with angle: azimuth and elevation are scaled by 1 + U(-scale_error,
+  scale_error) (arrays compress or stretch angles away from boresight) plus a fixed offset
+  N(0, bias_deg);
+- noise: the scenario's [aoa] sigma, growing toward +-90, on azimuth; ``elevation_sigma_deg``
+  (elevation is the weaker axis of the C211's antenna layout);
+- reflections: near a wall of the room (within ``reflection_range_m``) the board locks onto
+  the tag's mirror image in that wall with a probability up to ``reflection``.
+
+The host is told none of this: a calibration run through the same anchors has to find it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from rfhoming.emulator.devices import AoaRunner
+from rfhoming.emulator.faults import ByteFaults
+from rfhoming.emulator.links import Link
+from rfhoming.emulator.radio import AoaModel, PathLossModel, fold_front
+from rfhoming.emulator.world import World
+from rfhoming.firmware.xplr_aoa import Advertisement, XplrAoaFirmware
+
+
+def rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Board -> world: Rz(yaw) Ry(-pitch) Rx(roll), positive pitch = boresight up."""
+    y, p, r = (math.radians(v) for v in (yaw_deg, pitch_deg, roll_deg))
+    rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
+    ry = np.array([[math.cos(p), 0, -math.sin(p)], [0, 1, 0], [math.sin(p), 0, math.cos(p)]])
+    rx = np.array([[1, 0, 0], [0, math.cos(r), -math.sin(r)], [0, math.sin(r), math.cos(r)]])
+    return rz @ ry @ rx
+
+
+class FixedAnchorRunner(AoaRunner):
+    """An XPLR-AOA anchor fixed at a 3-D pose, with its own seeded error model."""
+
+    ROBOT_TAG_HEIGHT_M = 0.3
+
+    def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
+                 options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
+                 robot_tag: tuple[str, float] | None = None) -> None:
+        super().__init__(name, link, faults, rng, options, aoa, path_loss, robot_tag)
+        o = options
+        self.position = np.array([float(v) for v in o["position"]])
+        mount_sigma = float(o.get("mount_error_deg", 3.0))
+        scale_error = float(o.get("scale_error", 0.12))
+        bias = float(o.get("bias_deg", 1.5))
+        rng = self.rng
+        self.true_pose = (float(o.get("yaw_deg", 0.0)) + float(rng.normal(0, mount_sigma)),
+                          float(o.get("pitch_deg", 0.0)) + float(rng.normal(0, mount_sigma)),
+                          float(o.get("roll_deg", 0.0)))
+        self.az_scale = 1 + float(rng.uniform(-scale_error, scale_error))
+        self.el_scale = 1 + float(rng.uniform(-scale_error, scale_error))
+        self.az_bias = float(rng.normal(0, bias))
+        self.el_bias = float(rng.normal(0, 2 * bias))
+        self.el_sigma = float(o.get("elevation_sigma_deg", 5.0))
+        self.reflection = float(o.get("reflection", 0.3))
+        self.reflection_range = float(o.get("reflection_range_m", 1.0))
+        self.rot = rotation(*self.true_pose)
+
+    def truth(self) -> dict[str, Any]:
+        """The hidden error model, for the truth log and the calibration test's cross-check."""
+        return {"device": self.name, "true_yaw_deg": self.true_pose[0], "true_pitch_deg": self.true_pose[1],
+                "az_scale": self.az_scale, "az_bias_deg": self.az_bias,
+                "el_scale": self.el_scale, "el_bias_deg": self.el_bias}
+
+    def sources(self, world: World, t: float) -> list[tuple[str, tuple[float, float], float, float, float]]:
+        """Every tag in the room: the targets' and, if the robot carries one, the robot's."""
+        tags = [(t_.id, t_.position_at(t), t_.height, t_.interval_ms / 1000, t_.tx_power_dbm)
+                for t_ in world.targets if t_.kind == "aoa_tag"]
+        if self.robot_tag is not None:
+            tag_id, interval_ms = self.robot_tag
+            tags.append((tag_id, (world.robot.x, world.robot.y), self.ROBOT_TAG_HEIGHT_M, interval_ms / 1000, 0.0))
+        return tags
+
+    def _image(self, world: World, p: np.ndarray) -> np.ndarray:
+        """The tag, or (near a wall, sometimes) its mirror image in the nearest wall."""
+        x0, y0, x1, y1 = world.bounds
+        gaps = [(p[0] - x0, 0, x0), (x1 - p[0], 0, x1), (p[1] - y0, 1, y0), (y1 - p[1], 1, y1)]
+        gap, axis, wall = min(gaps)
+        if gap < self.reflection_range and self.rng.random() < self.reflection * (1 - gap / self.reflection_range):
+            q = p.copy()
+            q[axis] = 2 * wall - p[axis]
+            return q
+        return p
+
+    def step(self, world: World, t0: float, t1: float) -> None:
+        fw: XplrAoaFirmware = self.firmware
+        for tag_id, pos, height, interval, tx in self.sources(world, t1):
+            for t in self.schedule.due(tag_id, interval, interval * 0.1, t0, t1):
+                fw.tick(int(t * 1000))
+                tag = np.array([pos[0], pos[1], height])
+                distance = float(np.linalg.norm(tag - self.position))
+                sample = self.channel.received_dbm((tag_id, self.name), distance, tx, 0)
+                if sample is None or sample < -100:
+                    continue
+                d = self.rot.T @ (self._image(world, tag) - self.position)
+                az_ccw = fold_front(math.degrees(math.atan2(d[1], d[0])))
+                if d[0] < 0:  # behind the board's plane: the array sees the front image
+                    d = d * np.array([-1.0, 1.0, 1.0])
+                el = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
+                az_ccw = az_ccw * self.az_scale - self.az_bias + float(self.rng.normal(0, self.aoa.sigma_deg(az_ccw)))
+                el = el * self.el_scale + self.el_bias + float(self.rng.normal(0, self.el_sigma))
+                fw.on_advertisement(Advertisement(tag_id, "", -max(-90.0, min(90.0, az_ccw)),
+                                                  max(-90.0, min(90.0, el)), sample,
+                                                  sample + float(self.rng.normal(0, 1.5))))
+        fw.tick(int(t1 * 1000))

@@ -1,0 +1,135 @@
+"""Constant-velocity Kalman filter on position fixes, with its noise in physical units.
+
+State (x, y, z, vx, vy, vz). The process noise is a white acceleration of spectral density
+``accel_psd`` (m^2/s^3): over dt it adds the standard CV covariance q*[[dt^3/3, dt^2/2],
+[dt^2/2, dt]] per axis, so the setting means the same at 10 Hz and at 50 Hz. A fix whose
+innovation is beyond ``gate`` (chi-square, 3 dof) is refused (counted); after
+``max_misses`` refusals in a row the filter restarts from the next fix (the tag was moved).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+_I3 = np.eye(3)
+
+
+class ConstantVelocity:
+    def __init__(self, accel_psd: float = 1.0, gate: float = 25.0, max_misses: int = 3) -> None:
+        self.q = accel_psd
+        self.gate = gate
+        self.max_misses = max_misses
+        self.t: float | None = None
+        self.x = np.zeros(6)
+        self.p = np.eye(6)
+        self.misses = 0
+        self.counters = {"updates": 0, "gated": 0, "restarts": 0}
+
+    def _transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        f = np.kron(np.array([[1.0, dt], [0.0, 1.0]]), _I3)
+        q = np.kron(np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]) * self.q, _I3)
+        return f, q
+
+    def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(position, its covariance) at ``t`` without changing the state."""
+        if self.t is None:
+            raise ValueError("no fix yet")
+        f, q = self._transition(max(0.0, t - self.t))
+        x = f @ self.x
+        p = f @ self.p @ f.T + q
+        return x[:3], p[:3, :3]
+
+    def update(self, t: float, z: np.ndarray, r: np.ndarray) -> bool:
+        """Take a fix ``z`` (3,) with covariance ``r`` (3, 3) made at ``t``; False if gated out.
+        A fix older than the state is taken at the state's time (late by < one window)."""
+        r = r + np.diag(np.where(np.diag(r) <= 0, 1e-6, 0.0))  # a known height: z pinned, not singular
+        if self.t is None:
+            self.x = np.concatenate([z, np.zeros(3)])
+            self.p = np.zeros((6, 6))
+            self.p[:3, :3] = r
+            self.p[3:, 3:] = np.eye(3) * 1.0  # walking speed, unknown direction: 1 m/s sigma
+            self.t = t
+            return True
+        f, q = self._transition(max(0.0, t - self.t))
+        x = f @ self.x
+        p = f @ self.p @ f.T + q
+        s = p[:3, :3] + r
+        innovation = z - x[:3]
+        d2 = float(innovation @ np.linalg.solve(s, innovation))
+        self.t = max(t, self.t)
+        if d2 > self.gate:
+            self.x, self.p = x, p
+            self.misses += 1
+            self.counters["gated"] += 1
+            if self.misses >= self.max_misses:
+                self.counters["restarts"] += 1
+                self.t = None
+                self.misses = 0
+            return False
+        k = p[:, :3] @ np.linalg.inv(s)
+        self.x = x + k @ innovation
+        self.p = p - k @ p[:3, :]
+        self.misses = 0
+        self.counters["updates"] += 1
+        return True
+
+
+class BearingEkf(ConstantVelocity):
+    """The same constant-velocity state, updated by each anchor's angle pair as it arrives
+    (an extended Kalman filter on bearings) instead of by fixes.
+
+    h(p) = the board angles of p seen from ``origin`` through ``rot`` (board -> world), in
+    radians, board sign (docs/estimation.md); its Jacobian is written out. A pair whose
+    innovation is beyond ``gate`` (chi-square, 2 dof) is refused: a reflection, a fold.
+    With ``height`` the z state is pinned after every update."""
+
+    def __init__(self, accel_psd: float = 1.0, gate: float = 16.0, max_misses: int = 25) -> None:
+        super().__init__(accel_psd, gate, max_misses)
+
+    def start(self, t: float, point: np.ndarray, covariance: np.ndarray) -> None:
+        self.update(t, point, covariance)
+
+    def update_angles(self, t: float, origin: np.ndarray, rot: np.ndarray, azimuth_deg: float,
+                      elevation_deg: float, sigma_deg: float, height: float | None = None) -> bool:
+        if self.t is None:
+            raise ValueError("start the filter from a first fix")
+        f, q = self._transition(max(0.0, t - self.t))
+        x = f @ self.x
+        p = f @ self.p @ f.T + q
+        self.t = max(t, self.t)
+        d = rot.T @ (x[:3] - origin)
+        rho2 = d[0] ** 2 + d[1] ** 2
+        rho = np.sqrt(rho2)
+        r2 = rho2 + d[2] ** 2
+        if rho < 1e-6:
+            self.x, self.p = x, p
+            return False
+        predicted = np.array([-np.arctan2(d[1], d[0]), np.arctan2(d[2], rho)])
+        jac_d = np.array([[d[1] / rho2, -d[0] / rho2, 0.0],
+                          [-d[0] * d[2] / (rho * r2), -d[1] * d[2] / (rho * r2), rho / r2]])
+        h = np.zeros((2, 6))
+        h[:, :3] = jac_d @ rot.T
+        innovation = np.radians([azimuth_deg, elevation_deg]) - predicted
+        pht = p @ h.T
+        (a, b), (c, e) = (h @ pht).tolist()
+        var = math.radians(sigma_deg) ** 2
+        a, e = a + var, e + var
+        s_inv = np.array([[e, -b], [-c, a]]) / (a * e - b * c)  # 2 x 2: cheaper than LAPACK
+        d2 = float(innovation @ s_inv @ innovation)
+        if d2 > self.gate or d[0] < 0:
+            self.x, self.p = x, p
+            self.counters["gated"] += 1
+            return False
+        k = pht @ s_inv
+        self.x = x + k @ innovation
+        self.p = p - k @ (h @ p)
+        self.p = (self.p + self.p.T) / 2  # rounding makes P - KHP drift from symmetric
+        if height is not None:
+            self.x[2], self.x[5] = height, 0.0
+            self.p[[2, 5], :] = 0.0
+            self.p[:, [2, 5]] = 0.0
+        self.counters["updates"] += 1
+        return True

@@ -1,0 +1,216 @@
+"""Tag positions from N fixed anchors' angle streams: merge, window, fix, track.
+
+:class:`Locator` is fed ``(t_host, AngleEvent)`` pairs from every anchor in any interleaving;
+it sorts them by host arrival time (holding each for ``reorder_s``: serial reads of several
+ports are stamped in arrival order but may reach us slightly out of it), keeps each
+(tag, anchor) pair's angles of the last ``window_s`` seconds, and at its own rate (ticks at
+multiples of 1/rate_hz of host time) fixes every tag from the anchors still fresh (heard
+within ``stale_s``): each anchor's median corrected angles become a world ray; the rays give a
+robust 3-D (or known-height) fix; a constant-velocity filter tracks the fixes (``tracker="cv"``)
+or, from a first fix on, takes every angle pair as it arrives (``tracker="ekf"``). Output depends only on
+the events and their stamps, so a live run and a replay of its capture print the same lines.
+Board timestamps (each board's uptime) are not used.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import statistics
+from collections import deque
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from rfhoming.host.estimation.anchors3d import Degenerate, angle_sigma_deg, locate, make_ray
+from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity
+from rfhoming.host.site import Anchor, Calibration, Site
+from rfhoming.protocol.uconnect import AngleEvent
+
+TRACKERS = ("cv", "ekf")
+"""cv: a constant-velocity filter on the fixes (default: cheaper); ekf: the same state updated
+by every angle pair as it arrives, fixes only (re)starting it (more accurate, docs/RESULTS.md)."""
+
+MAX_PENDING = 100_000
+"""Events held for reordering at most (then the oldest are processed early, counted)."""
+
+SYSTEMATIC = 0.6
+"""The part of an angle's error (a fraction of sigma_deg) that a median does not average away:
+bias, mounting, multipath (the kit scenario's residual after calibration is of this size)."""
+
+FORGET_S = 60.0
+"""A (tag, anchor) pair silent this long is forgotten, and a tag with no pair left."""
+
+MAX_PER_PAIR = 2000
+"""Angles kept per (tag, anchor) at most, whatever the window (a bound, not a setting)."""
+
+
+@dataclass(frozen=True)
+class Position:
+    t: float
+    tag: str
+    point: np.ndarray  # (3,) metres
+    covariance: np.ndarray  # (3, 3) m^2
+    anchors: tuple[str, ...]  # anchor names the fix rests on
+    rejected: tuple[str, ...]
+    tracked: bool
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"t": round(self.t, 6), "tag": self.tag, "x": round(float(self.point[0]), 3),
+                "y": round(float(self.point[1]), 3), "z": round(float(self.point[2]), 3),
+                "cov": [[round(float(v), 5) for v in row] for row in self.covariance],
+                "anchors": list(self.anchors), "rejected": list(self.rejected)}
+
+
+class Locator:
+    def __init__(self, site: Site, *, track: bool = True, tracker: str = "cv", accel_psd: float = 1.0,
+                 reorder_s: float = 0.2, calibrated: bool = True) -> None:
+        if tracker not in TRACKERS:
+            raise ValueError(f"tracker must be one of {', '.join(TRACKERS)}")
+        self.site = site
+        self.anchors = site.anchor_by_id()
+        self.rotations = {a.id: a.rotation() if calibrated else _uncalibrated(a).rotation() for a in site.anchors}
+        self._origins = {a.id: np.array(a.position) for a in site.anchors}
+        self.calibrated = calibrated
+        self.wanted = {t.id for t in site.tags}
+        self.track = track
+        self.tracker = tracker
+        self.accel_psd = accel_psd
+        self.reorder_s = reorder_s
+        self.period = 1.0 / site.rate_hz
+        self._pending: list[tuple[float, str, str, int, int]] = []
+        self._latest = -math.inf
+        self._next_tick: float | None = None
+        self._windows: dict[tuple[str, str], deque[tuple[float, float, float]]] = {}
+        self._trackers: dict[str, ConstantVelocity] = {}
+        self._ekfs: dict[str, BearingEkf] = {}
+        self.counters = {"events": 0, "unknown_anchor": 0, "other_tag": 0, "late": 0, "overflow": 0,
+                         "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0}
+
+    # -- input -------------------------------------------------------------------------
+    def feed(self, t: float, event: AngleEvent) -> list[Position]:
+        """One angle event stamped with its host arrival time; the positions now due."""
+        if event.anchor_id not in self.anchors:
+            self.counters["unknown_anchor"] += 1
+            return []
+        if self.wanted and event.instance_id not in self.wanted:
+            self.counters["other_tag"] += 1
+            return []
+        self.counters["events"] += 1
+        heapq.heappush(self._pending, (t, event.anchor_id, event.instance_id, event.azimuth, event.elevation))
+        self._latest = max(self._latest, t)
+        out: list[Position] = []
+        while self._pending and (self._pending[0][0] <= self._latest - self.reorder_s or len(self._pending) > MAX_PENDING):
+            if len(self._pending) > MAX_PENDING:
+                self.counters["overflow"] += 1
+            out += self._take(heapq.heappop(self._pending))
+        return out
+
+    def flush(self) -> list[Position]:
+        """End of input: the events still held for reordering, and the ticks they pass."""
+        out: list[Position] = []
+        while self._pending:
+            out += self._take(heapq.heappop(self._pending))
+        return out
+
+    def _take(self, item: tuple[float, str, str, int, int]) -> list[Position]:
+        t, anchor_id, tag, az, el = item
+        out: list[Position] = []
+        if self._next_tick is None:
+            self._next_tick = math.ceil(t / self.period) * self.period
+        while self._next_tick <= t:
+            out += self._tick(self._next_tick)
+            self._next_tick += self.period
+        window = self._windows.get((tag, anchor_id))
+        if window is None:
+            window = self._windows[(tag, anchor_id)] = deque(maxlen=MAX_PER_PAIR)
+        if window and t < window[-1][0]:
+            self.counters["late"] += 1  # later than reorder_s: taken, out of order
+        cal = self.anchors[anchor_id].calibration
+        a, e = cal.correct(az, el) if self.calibrated else (float(az), float(el))
+        window.append((t, a, e))
+        ekf = self._ekfs.get(tag)
+        if ekf is not None and ekf.t is not None:
+            info = self.site.tag(tag)
+            sigma = math.hypot(angle_sigma_deg(a, e, self.site.sigma_deg), self.site.sigma_deg * SYSTEMATIC)
+            if not ekf.update_angles(t, self._origins[anchor_id], self.rotations[anchor_id], a, e, sigma,
+                                     info.height if info else None):
+                self.counters["gated"] += 1
+        return out
+
+    # -- output ------------------------------------------------------------------------
+    def rays_at(self, tag: str, t: float) -> tuple[list, float]:
+        """Each fresh anchor's ray for ``tag`` at ``t`` and the mean time of the angles used."""
+        rays, times = [], []
+        sigma0 = self.site.sigma_deg
+        for anchor_id, anchor in self.anchors.items():
+            window = self._windows.get((tag, anchor_id))
+            if not window or window[-1][0] < t - self.site.stale_s:
+                continue
+            while window and window[0][0] < t - self.site.stale_s - self.site.window_s:
+                window.popleft()
+            last = next((w[0] for w in reversed(window) if w[0] <= t), None)
+            if last is None:
+                continue
+            recent = [w for w in window if last - self.site.window_s < w[0] <= last]
+            az = statistics.median(w[1] for w in recent)
+            el = statistics.median(w[2] for w in recent)
+            sigma = math.hypot(sigma0 * 1.25 / math.sqrt(len(recent)), sigma0 * SYSTEMATIC)
+            rays.append(make_ray(anchor.name, anchor.position, self.rotations[anchor_id], az, el, sigma,
+                                 anchor.two_sided))
+            times.append(sum(w[0] for w in recent) / len(recent))
+        return rays, sum(times) / len(times) if times else t
+
+    def _tick(self, t: float) -> list[Position]:
+        out = []
+        gone = [k for k, w in self._windows.items() if not w or w[-1][0] < t - FORGET_S]
+        for key in gone:  # tags that left (or were never wanted): bounded memory
+            del self._windows[key]
+            if not any(k[0] == key[0] for k in self._windows):
+                self._trackers.pop(key[0], None)
+                self._ekfs.pop(key[0], None)
+        for tag in sorted({k[0] for k in self._windows}):
+            info = self.site.tag(tag)
+            height = info.height if info else None
+            ekf = self._ekfs.get(tag)
+            if ekf is not None and ekf.t is not None and ekf.t >= t - self.site.stale_s:
+                fresh = tuple(a.name for a_id, a in self.anchors.items()
+                              if (w := self._windows.get((tag, a_id))) and w[-1][0] >= t - self.site.stale_s)
+                point, cov = ekf.predicted(t)
+                out.append(Position(t, tag, point, cov, fresh, (), True))
+                continue
+            rays, t_fix = self.rays_at(tag, t)
+            if len(rays) < (2 if height is not None else 3):
+                self.counters["no_fix"] += 1
+                continue
+            try:
+                fix = locate(rays, height=height)
+            except Degenerate:
+                self.counters["no_fix"] += 1
+                continue
+            self.counters["fixes"] += 1
+            self.counters["rejected_anchor"] += len(fix.rejected)
+            if not self.track:
+                out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False))
+                continue
+            if self.tracker == "ekf":  # a fix starts (or restarts) the filter; angles drive it
+                ekf = self._ekfs[tag] = BearingEkf(self.accel_psd)
+                ekf.start(t_fix, fix.point, fix.covariance)
+                point, cov = ekf.predicted(t)
+                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True))
+                continue
+            tracker = self._trackers.setdefault(tag, ConstantVelocity(self.accel_psd))
+            if not tracker.update(t_fix, fix.point, fix.covariance):
+                self.counters["gated"] += 1
+            if tracker.t is None:
+                continue
+            point, cov = tracker.predicted(t)
+            if height is not None:
+                point = np.array([point[0], point[1], height])
+            out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True))
+        return out
+
+
+def _uncalibrated(anchor: Anchor) -> Anchor:
+    return replace(anchor, calibration=Calibration())

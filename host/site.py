@@ -1,0 +1,233 @@
+"""Site files (TOML): where a deployment's fixed AoA anchors are, how each is mounted and
+calibrated, and which tags to locate.
+
+::
+
+    [site]
+    name = "kit-room"
+    rate_hz = 10          # fixes per second per tag
+    window_s = 0.3        # each anchor's angles for a fix: its last window_s seconds
+    stale_s = 1.0         # an anchor silent this long about a tag is left out
+    sigma_deg = 3.0       # one angle's error at boresight (grows toward +-90)
+
+    [anchors.north]
+    id = "CCF9578E0D01"               # its +UUDF anchor id (AT+UDFCFG tag 4; default its MAC)
+    port = "ublox-aoa:/dev/ttyUSB0"   # a port spec (docs/usage.md)
+    position = [6.0, 6.0, 2.2]        # metres, world frame, z up
+    yaw_deg = -90                     # boresight heading, CCW from +x
+    pitch_deg = -20                   # boresight tilt, negative = down (ceiling: -90)
+    roll_deg = 0
+    two_sided = false                 # true when tags can be behind it (a pole, not a wall)
+    [anchors.north.calibration]       # written by `rfhoming calibrate`
+    yaw_offset_deg = 0.0
+    az_scale = 1.0
+    az_bias_deg = 0.0
+    el_scale = 1.0
+    el_bias_deg = 0.0
+
+    [tags.CCF9578E0D8A]
+    name = "cart"
+    height = 0.9                      # metres, when known (else solved in 3-D)
+    role = "target"                   # homing: "robot" (its own tag) or "target" (to reach)
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rfhoming.host import portspec
+from rfhoming.host.estimation.anchors3d import rotation
+from rfhoming.host.portspec import PortSpecError, TAG_ID
+
+
+class SiteError(ValueError):
+    """A site file that cannot be used; the message names the table and key to fix."""
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Per-anchor correction: true = (reported - bias) / scale; the yaw offset turns the board."""
+
+    yaw_offset_deg: float = 0.0
+    az_scale: float = 1.0
+    az_bias_deg: float = 0.0
+    el_scale: float = 1.0
+    el_bias_deg: float = 0.0
+
+    def correct(self, azimuth_deg: float, elevation_deg: float) -> tuple[float, float]:
+        return ((azimuth_deg - self.az_bias_deg) / self.az_scale,
+                (elevation_deg - self.el_bias_deg) / self.el_scale)
+
+
+@dataclass(frozen=True)
+class Anchor:
+    name: str
+    id: str
+    port: str | None
+    position: tuple[float, float, float]
+    yaw_deg: float = 0.0
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+    two_sided: bool = False
+    calibration: Calibration = Calibration()
+
+    def rotation(self) -> np.ndarray:
+        """Board -> world, the calibrated yaw offset included."""
+        return rotation(self.yaw_deg + self.calibration.yaw_offset_deg, self.pitch_deg, self.roll_deg)
+
+
+ROLES = ("", "robot", "target")
+"""A tag's role for `rfhoming run --controller anchors`: the robot's own tag, the one to reach."""
+
+
+@dataclass(frozen=True)
+class TagInfo:
+    id: str
+    name: str = ""
+    height: float | None = None
+    role: str = ""
+
+
+@dataclass(frozen=True)
+class Site:
+    name: str
+    anchors: tuple[Anchor, ...]
+    tags: tuple[TagInfo, ...] = ()
+    rate_hz: float = 10.0
+    window_s: float = 0.3
+    stale_s: float = 1.0
+    sigma_deg: float = 3.0
+    path: Path | None = field(default=None, compare=False)
+
+    def anchor_by_id(self) -> dict[str, Anchor]:
+        return {a.id: a for a in self.anchors}
+
+    def tag(self, tag_id: str) -> TagInfo | None:
+        return next((t for t in self.tags if t.id == tag_id), None)
+
+    def tag_with_role(self, role: str) -> TagInfo:
+        """The one tag with ``role``; SiteError when there is none or several."""
+        found = [t for t in self.tags if t.role == role]
+        if len(found) != 1:
+            raise SiteError(f"{self.path or self.name}: homing on the anchors needs exactly one tag with "
+                            f"role = \"{role}\" in [tags.ID], found {len(found)}")
+        return found[0]
+
+
+def _number(table: dict[str, Any], key: str, where: str, default: float | None = None,
+            low: float = -math.inf, high: float = math.inf) -> float:
+    value = table.get(key, default)
+    if value is None:
+        raise SiteError(f"[{where}] needs {key} = <number>")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+        raise SiteError(f"[{where}] {key} = {value!r}: expected a number from {low:g} to {high:g}")
+    return float(value)
+
+
+def _check_keys(table: dict[str, Any], known: set[str], where: str) -> None:
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise SiteError(f"[{where}] has unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+
+
+def _anchor(name: str, table: Any) -> Anchor:
+    where = f"anchors.{name}"
+    if not isinstance(table, dict):
+        raise SiteError(f"[{where}] must be a table")
+    _check_keys(table, {"id", "port", "position", "yaw_deg", "pitch_deg", "roll_deg", "two_sided", "calibration"}, where)
+    anchor_id = table.get("id")
+    if not isinstance(anchor_id, str) or not 0 < len(anchor_id) <= 30:
+        raise SiteError(f"[{where}] needs id = \"<its +UUDF anchor id>\" (1-30 characters; by default the board's MAC)")
+    port = table.get("port")
+    if port is not None:
+        try:
+            spec = portspec.parse(str(port))
+        except PortSpecError as exc:
+            raise SiteError(f"[{where}] port: {exc}") from None
+        if spec.kind not in (None, "ublox-aoa", "capture"):
+            raise SiteError(f"[{where}] port {port!r} is a {spec.kind} port; an anchor is ublox-aoa:WHERE")
+    pos = table.get("position")
+    if (not isinstance(pos, list) or len(pos) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in pos)):
+        raise SiteError(f"[{where}] needs position = [x, y, z] in metres")
+    cal = table.get("calibration", {})
+    if not isinstance(cal, dict):
+        raise SiteError(f"[{where}.calibration] must be a table")
+    known = {f.name for f in fields(Calibration)}
+    _check_keys(cal, known, f"{where}.calibration")
+    calibration = Calibration(**{k: _number(cal, k, f"{where}.calibration", getattr(Calibration(), k),
+                                            *((0.5, 2.0) if k.endswith("scale") else (-45, 45)))
+                                 for k in known})
+    two_sided = table.get("two_sided", False)
+    if not isinstance(two_sided, bool):
+        raise SiteError(f"[{where}] two_sided must be true or false")
+    return Anchor(name, anchor_id, None if port is None else str(port), tuple(float(v) for v in pos),  # type: ignore[arg-type]
+                  _number(table, "yaw_deg", where, 0.0, -360, 360), _number(table, "pitch_deg", where, 0.0, -90, 90),
+                  _number(table, "roll_deg", where, 0.0, -180, 180), two_sided, calibration)
+
+
+def _tag(tag_id: str, table: Any) -> TagInfo:
+    where = f"tags.{tag_id}"
+    if not TAG_ID.fullmatch(tag_id):
+        raise SiteError(f"[{where}]: a tag id is 12 upper-case hex digits, e.g. [tags.CCF9578E0D8A]")
+    if not isinstance(table, dict):
+        raise SiteError(f"[{where}] must be a table")
+    _check_keys(table, {"name", "height", "role"}, where)
+    height = table.get("height")
+    role = table.get("role", "")
+    if role not in ROLES:
+        raise SiteError(f"[{where}] role = {role!r}: expected \"robot\" (the robot's own tag) or \"target\"")
+    return TagInfo(tag_id, str(table.get("name", "")),
+                   None if height is None else _number(table, "height", where, low=-10, high=100), role)
+
+
+def parse(raw: dict[str, Any], where: str = "site") -> Site:
+    """A site from its TOML table; SiteError names what is wrong."""
+    _check_keys(raw, {"site", "anchors", "tags"}, where)
+    head = raw.get("site", {})
+    _check_keys(head, {"name", "rate_hz", "window_s", "stale_s", "sigma_deg"}, "site")
+    anchors = raw.get("anchors")
+    if not isinstance(anchors, dict) or len(anchors) < 2:
+        raise SiteError(f"{where} needs two or more [anchors.NAME] tables (each with id, port, position)")
+    parsed = tuple(_anchor(name, table) for name, table in anchors.items())
+    ids = [a.id for a in parsed]
+    if len(set(ids)) != len(ids):
+        raise SiteError(f"{where}: two anchors share an id; each board needs its own (AT+UDFCFG=4,\"NAME\")")
+    tags = tuple(_tag(k, v) for k, v in raw.get("tags", {}).items())
+    return Site(str(head.get("name", where)), parsed, tags,
+                _number(head, "rate_hz", "site", 10.0, 0.1, 1000), _number(head, "window_s", "site", 0.3, 0.01, 60),
+                _number(head, "stale_s", "site", 1.0, 0.01, 600), _number(head, "sigma_deg", "site", 3.0, 0.1, 45))
+
+
+def load(path: str | Path) -> Site:
+    """Read and validate a site file."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise SiteError(f"cannot read site file {path}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SiteError(f"site file {path} is not valid TOML: {exc}") from None
+    site = parse(raw, str(path))
+    return Site(site.name, site.anchors, site.tags, site.rate_hz, site.window_s, site.stale_s, site.sigma_deg, path)
+
+
+def write_calibration(path: str | Path, calibrations: dict[str, Calibration]) -> None:
+    """Write each anchor's calibration (by anchor name) into the site file, keeping the rest of
+    it -- comments and order -- as it was."""
+    import tomlkit
+
+    path = Path(path)
+    doc = tomlkit.parse(path.read_text())
+    for name, cal in calibrations.items():
+        table = tomlkit.table()
+        for f in fields(Calibration):
+            table[f.name] = round(float(getattr(cal, f.name)), 4)
+        doc["anchors"][name]["calibration"] = table  # type: ignore[index]
+    path.write_text(tomlkit.dumps(doc))

@@ -1,0 +1,241 @@
+"""``rfhoming locate`` and ``rfhoming calibrate``: tag positions from a site's fixed anchors."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rfhoming.cli.io import _run_until, add_port_defaults
+from rfhoming.host import site as sites
+from rfhoming.host.calibration import CalibrationError, calibrate
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.locate import Locator, Position
+from rfhoming.host.ports import PortError
+from rfhoming.host.session import health, open_drivers
+from rfhoming.protocol.pcapng import CaptureFormatError
+
+LOCATE_HELP = """\
+Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
+Every anchor's angle events are merged by host arrival time; at --rate (default: the site's
+rate_hz) each tag seen by enough fresh anchors gets a fix (3-D rays, weighted, one bad anchor
+left out) that a constant-velocity filter tracks. Output: one JSON line per position
+(kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected), and on
+exit one "summary" line. A capture of the anchors gives the same lines as the live run did.
+
+examples:
+  rfhoming locate site.toml                                # the anchors' ports from the site
+  rfhoming locate site.toml --duration 30 --capture run.pcapng
+  rfhoming locate site.toml --from capture:run.pcapng      # the same positions, from the capture
+  rfhoming emulate kit-room --link-dir /tmp/rfhoming-kit & rfhoming locate docs/sites/kit-room.toml
+"""
+
+CALIBRATE_HELP = """\
+Fit each anchor's yaw offset and azimuth/elevation scale and bias from tags placed at known
+points, write them into the site file's [anchors.NAME.calibration] tables (the rest of the file
+is kept as it was), and report each anchor's angle error before and after. The points file
+maps tag ids to positions:
+
+  [points]
+  CCF9578E0C01 = [2.0, 1.5, 0.8]     # x, y, z in metres, the site's frame
+
+Every anchor must see three or more points (spread out, not on one line through it).
+
+examples:
+  rfhoming calibrate site.toml --points points.toml --duration 20
+  rfhoming calibrate site.toml --points points.toml --from capture:cal.pcapng --dry-run
+"""
+
+
+def _load_site(path: Path, command: str) -> sites.Site | None:
+    try:
+        return sites.load(path)
+    except sites.SiteError as exc:
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return None
+
+
+def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
+    if given:
+        return given
+    missing = [a.name for a in site.anchors if a.port is None]
+    if missing:
+        raise ValueError(f"anchor(s) {', '.join(missing)} have no port in the site file: add port = "
+                         "\"ublox-aoa:WHERE\" to each, or give --from SPEC (e.g. --from capture:run.pcapng)")
+    return [a.port for a in site.anchors if a.port is not None]
+
+
+async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable[[float, Any], None]) -> int:
+    """Open the site's anchors (or --from), feed every angle event to ``on_angle`` in arrival
+    order until --duration or the end of a capture; 2 on a port/capture error."""
+    capture = CaptureWriter(args.capture) if getattr(args, "capture", None) else None
+    try:
+        drivers: list[Driver] = await open_drivers(_specs(site, args.sources), baud=args.baud, flow=args.flow,
+                                                   taps=[capture.tap] if capture else [],
+                                                   describe=capture.describe if capture else None)
+    except OSError as exc:
+        print(f"rfhoming {args.command}: cannot read {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2
+    except (PortError, ValueError, CaptureFormatError) as exc:
+        print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
+        return 2
+
+    def listener(_device: str, t: float, item: Any) -> None:
+        if item.kind == "angle":
+            on_angle(t, item)
+
+    for d in drivers:
+        d.listeners.append(listener)
+    # the listener took every event already: empty the drivers' queues so they count no drops
+    drains = [asyncio.create_task(_discard(d.events)) for d in drivers if isinstance(d, AoaDriver)]
+    try:
+        await _run_until(drivers, args.duration, drains)
+    except PortError as exc:
+        print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        for h in health(drivers):
+            print(json.dumps({"kind": "counters", **h}), file=sys.stderr)
+        if capture is not None:
+            capture.close()
+            print(f"captured {capture.packets} chunks to {capture.path}", file=sys.stderr)
+    return 0
+
+
+async def _discard(stream: BoundedStream) -> None:
+    async for _ in stream:
+        pass
+
+
+def cmd_locate(args: argparse.Namespace) -> int:
+    site = _load_site(args.site, "locate")
+    if site is None:
+        return 2
+    if args.rate:
+        site = sites.Site(site.name, site.anchors, site.tags, args.rate, site.window_s, site.stale_s,
+                          site.sigma_deg, site.path)
+    locator = Locator(site, track=not args.no_track, tracker=args.tracker, accel_psd=args.accel_psd)
+    out = args.output.open("w") if args.output else sys.stdout
+    per_tag: dict[str, list[float]] = {}
+
+    def show(positions: list[Position]) -> None:
+        for p in positions:
+            per_tag.setdefault(p.tag, []).append(float(np.trace(p.covariance)))
+            out.write(json.dumps({"kind": "position", **p.as_dict()}) + "\n")
+        if positions:
+            out.flush()
+
+    code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event))))
+    if code:
+        return code
+    show(locator.flush())
+    names = {a.id: a.name for a in site.anchors}
+    summary = {"kind": "summary", "site": site.name,
+               "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
+                        for tag, v in sorted(per_tag.items())},
+               "anchors": sorted(names.values()), **locator.counters}
+    out.write(json.dumps(summary) + "\n")
+    if out is not sys.stdout:
+        out.close()
+    return code
+
+
+def _load_points(path: Path) -> dict[str, tuple[float, float, float]]:
+    try:
+        raw = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"cannot read points file {path}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"points file {path} is not valid TOML: {exc}") from None
+    points = raw.get("points")
+    if not isinstance(points, dict) or not points:
+        raise ValueError(f"{path} needs a [points] table: TAGID = [x, y, z], one line per known point")
+    out = {}
+    for tag, value in points.items():
+        if (not isinstance(value, list) or len(value) != 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+            raise ValueError(f"{path}: point {tag} must be [x, y, z] in metres")
+        out[tag.upper()] = (float(value[0]), float(value[1]), float(value[2]))
+    return out
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    site = _load_site(args.site, "calibrate")
+    if site is None:
+        return 2
+    try:
+        points = _load_points(args.points)
+    except ValueError as exc:
+        print(f"rfhoming calibrate: {exc}", file=sys.stderr)
+        return 2
+    events: list[tuple[float, Any]] = []
+    print(f"recording angles of {len(points)} known point(s)"
+          + (f" for {args.duration:g} s" if args.duration else "") + "...", file=sys.stderr)
+    code = asyncio.run(_gather(args, site, lambda t, event: events.append((t, event))))
+    if code:
+        return code
+    try:
+        fits = calibrate(site, events, points)
+    except CalibrationError as exc:
+        print(f"rfhoming calibrate: {exc}", file=sys.stderr)
+        return 2
+    for f in fits:
+        c = f.calibration
+        print(json.dumps({"kind": "calibration", "anchor": f.anchor, "points": f.points,
+                          "rms_before_deg": round(f.rms_before_deg, 2), "rms_after_deg": round(f.rms_after_deg, 2),
+                          "yaw_offset_deg": round(c.yaw_offset_deg, 2), "az_scale": round(c.az_scale, 4),
+                          "az_bias_deg": round(c.az_bias_deg, 2), "el_scale": round(c.el_scale, 4),
+                          "el_bias_deg": round(c.el_bias_deg, 2)}))
+    if args.dry_run:
+        print("--dry-run: the site file is unchanged", file=sys.stderr)
+        return 0
+    sites.write_calibration(args.site, {f.anchor: f.calibration for f in fits})
+    print(f"wrote the calibration of {len(fits)} anchors into {args.site}", file=sys.stderr)
+    return 0
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = 0.0
+    if not 0 < value <= 1000:
+        raise argparse.ArgumentTypeError(f"{text!r}: positions per second, more than 0, e.g. --rate 10")
+    return value
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    raw = argparse.RawDescriptionHelpFormatter
+    for name, helptext, description in (
+            ("locate", "positions of tags from a site's fixed AoA anchors", LOCATE_HELP),
+            ("calibrate", "fit each fixed anchor's angle corrections from known points", CALIBRATE_HELP)):
+        p = sub.add_parser(name, help=helptext, description=description, formatter_class=raw)
+        p.add_argument("site", type=Path, help="site file (TOML): anchors, their poses and ports, tags")
+        p.add_argument("--from", dest="sources", action="append", metavar="SPEC",
+                       help="read these ports instead of the site's (repeatable), e.g. capture:run.pcapng")
+        p.add_argument("--duration", type=float, help="stop after this many seconds (a capture ends by itself)")
+        add_port_defaults(p)
+        if name == "locate":
+            p.add_argument("--capture", type=Path, help="also record every anchor's bytes to this pcapng file")
+            p.add_argument("-o", "--output", type=Path, help="write the JSON lines here instead of stdout")
+            p.add_argument("--rate", type=_positive, help="positions per second per tag (default: the site's rate_hz)")
+            p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
+            p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
+                           help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
+                                "pair updates the track as it arrives (more accurate, ~10x the cost)")
+            p.add_argument("--accel-psd", type=float, default=1.0,
+                           help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
+            p.set_defaults(func=cmd_locate)
+        else:
+            p.add_argument("--points", type=Path, required=True, help="TOML [points] TAGID = [x, y, z]")
+            p.add_argument("--dry-run", action="store_true", help="report the fit, leave the site file alone")
+            p.set_defaults(func=cmd_calibrate)

@@ -1,0 +1,101 @@
+"""Done-when of homing on fixed anchors: a robot carrying its own tag, located by the kit's four
+biased wall anchors (through the emulator's bytes, in lockstep), drives to the target tag."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rfhoming.campaigns.closed_loop import PipePort
+from rfhoming.emulator import scenario as scenarios
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.host import site as sites
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.homing.anchors import align
+from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.loop import anchors_loop
+
+SITE = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-home.toml"
+
+
+@settings(max_examples=30)
+@given(st.floats(-3.1, 3.1), st.floats(-5, 5), st.floats(-5, 5), st.integers(0, 2**31))
+def test_align_recovers_a_rotated_shifted_frame(phi, tx, ty, seed):
+    rng = np.random.default_rng(seed)
+    odo = rng.uniform(-2, 2, (20, 2))
+    rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
+    world = odo @ rot.T + np.array([tx, ty])
+    got_phi, got_tau = align(odo, world)
+    assert abs(math.remainder(got_phi - phi, 2 * math.pi)) < 1e-9
+    assert np.allclose(got_tau, [tx, ty], atol=1e-9)
+
+
+async def _home(seed: int):
+    sc = scenarios.load("kit-home", seed=seed)
+    em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0)
+    await em.start()
+    world = asyncio.create_task(em.run())
+    site = sites.load(SITE)
+    anchors = [AoaDriver(PipePort(a.name, em.device(a.name).link.host)) for a in site.anchors]
+    base = BaseDriver(PipePort("base", em.device("base").link.host))
+    try:
+        outcome = await asyncio.wait_for(anchors_loop(base, anchors, site, Config().for_lockstep()).run(), 300)
+    finally:
+        world.cancel()
+        await asyncio.gather(world, return_exceptions=True)
+        await em.close()
+    return outcome, em.world.robot, sc.world.targets[0].position
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_robot_homes_on_the_target_located_by_the_anchors(seed):
+    """Uncalibrated anchors: the goal is off by their bias (0.1-0.6 m over seeds 1-4)."""
+    outcome, robot, target = asyncio.run(_home(seed))
+    assert outcome.arrived, outcome.summary()
+    assert math.dist((robot.x, robot.y), target) < 0.8
+    assert outcome.robot_time_s < 60 and outcome.stale_stops == 0
+
+
+RFHOMING = [sys.executable, "-m", "rfhoming"]
+
+
+def test_run_controller_anchors_homes_through_the_emulators_ptys(tmp_path):
+    links = tmp_path / "links"
+    links.mkdir()
+    site = tmp_path / "site.toml"
+    site.write_text(SITE.read_text().replace("/tmp/rfhoming-kit/", f"{links}/"))
+    emulator = subprocess.Popen([*RFHOMING, "emulate", "kit-home", "--seed", "1", "--lockstep", "--link-dir", str(links)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for _ in range(5):
+            json.loads(emulator.stdout.readline())
+        run = subprocess.run([*RFHOMING, "run", "--controller", "anchors", "--site", str(site),
+                              "--base", f"base:{links}/base"], capture_output=True, text=True, timeout=180)
+    finally:
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(timeout=10)
+    assert run.returncode == 0, run.stderr
+    summary = json.loads(run.stdout.splitlines()[-1])
+    assert summary["arrived"] and math.dist(summary["pose"][:2], (9.5, 4.2)) < 0.8
+
+
+def test_run_controller_anchors_says_what_is_missing(tmp_path):
+    no_site = subprocess.run([*RFHOMING, "run", "--controller", "anchors", "--base", "base:/dev/null"],
+                             capture_output=True, text=True, timeout=60)
+    assert no_site.returncode == 2 and "--site SITE.toml" in no_site.stderr
+    roleless = tmp_path / "site.toml"
+    roleless.write_text(SITE.read_text().replace('role = "target"\n', ""))
+    missing = subprocess.run([*RFHOMING, "run", "--controller", "anchors", "--site", str(roleless),
+                              "--base", "base:/dev/null"], capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and 'role = "target"' in missing.stderr
