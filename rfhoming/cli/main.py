@@ -10,6 +10,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
+from rfhoming.cli.export import add_parser as add_export_parser
 from rfhoming.cli.io import add_parsers as add_io_parsers
 from rfhoming.cli.io import configure_logging
 from rfhoming.cli.run import add_parsers as add_run_parsers
@@ -122,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_io_parsers(sub)
     _add_emulate(sub)
     _add_campaign(sub)
+    add_export_parser(sub)
     return parser
 
 

@@ -48,10 +48,19 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"rfhoming run: --controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)",
                   file=sys.stderr)
             return 2
+    sinks = []
+    if args.mcap:
+        try:
+            from rfhoming.host.export.recorder import McapRecorder
+        except ImportError as exc:
+            print(f"rfhoming run: --mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
+                  file=sys.stderr)
+            return 2
+        sinks.append(McapRecorder(args.mcap))
     capture = CaptureWriter(args.capture) if args.capture else None
     runlog = open(args.log, "w") if args.log else None
     try:
-        return asyncio.run(_run(args, config, role, specs, capture, runlog))
+        return asyncio.run(_run(args, config, role, specs, capture, runlog, sinks))
     except (PortError, ValueError) as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
@@ -63,10 +72,13 @@ def cmd_run(args: argparse.Namespace) -> int:
             runlog.close()
         if capture:
             capture.close()
+        for sink in sinks:
+            sink.close()
 
 
 async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict, capture: CaptureWriter | None,
-               runlog) -> int:
+               runlog, sinks: list) -> int:
+    """``sinks`` see every decoded item and run log record (an MCAP recorder, a live view)."""
     taps = [capture.tap] if capture else []
     describe = capture.describe if capture else None
     resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=ROLE_KIND[r], describe=describe)
@@ -78,7 +90,9 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
     else:
         sensor = make_driver(resolved[role], taps, ed_scale_db=config.calibration.ed_scale_db)
         make = rss_loop if args.controller == "rss" else trilat_loop
-    loop = make(base, sensor, config, RunLog(runlog))
+    for driver in (base, sensor):
+        driver.listeners += [sink.on_item for sink in sinks]
+    loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
     outcome = await loop.run()
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
@@ -98,7 +112,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
         return 2
     if not args.json:
         print(f"demo: emulating {args.scenario} (seed {args.seed}) on ptys in lockstep; homing ...", file=sys.stderr)
-    summary = run_demo(args.scenario, args.seed, args.out, config, args.target)
+    try:
+        summary = run_demo(args.scenario, args.seed, args.out, config, args.target, mcap=args.mcap)
+    except ImportError as exc:
+        print(f"rfhoming demo: --mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
+              file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(summary))
     else:
@@ -114,6 +133,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if summary["success"] else 1
 
 
+MCAP_HELP = ("also record the run as ROS 2 messages (odometry, scans, commands, estimates, readings) in "
+             "this MCAP file, for Foxglove, rosbags or ros2 bag (needs the ros extra)")
+
 DEMO_HELP = """\
 Start the emulator in its own process on pseudo-terminals (lockstep: fast and
 deterministic), run the host's homing loop against it until arrival or failure, and
@@ -124,6 +146,7 @@ examples:
   rfhoming demo
   rfhoming demo --seed 7 --json
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
+  rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
 """
 
 RUN_HELP = """\
@@ -136,6 +159,7 @@ examples:
   rfhoming run --aoa /dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A --base /dev/ttyACM0,baud=115200
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
   rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
+  rfhoming run --config robot.toml --mcap run.mcap   # and a ROS 2 log for Foxglove / rosbags
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
 """
 
@@ -150,6 +174,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("rfhoming-demo"), help="output folder (default ./rfhoming-demo)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--mcap", type=Path, metavar="FILE", help=MCAP_HELP)
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
@@ -167,6 +192,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     add_port_defaults(p)
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
     p.add_argument("--capture", type=Path, help="pcapng capture of every byte")
+    p.add_argument("--mcap", type=Path, metavar="FILE", help=MCAP_HELP)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("config", help="print the default config, or check a config file")
