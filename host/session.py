@@ -2,7 +2,8 @@
 
 A spec (:mod:`rfhoming.host.portspec`) names its kind -- ``ublox-aoa`` (XPLR-AOA), ``rss``
 (ESP32/AT86RF212 node), ``base`` -- or leaves it out to have the protocol sniffed from what the
-port says; ``capture:FILE`` replays a recording as the devices it holds. Used by ``listen``,
+port says; ``capture:FILE`` replays a recording as the devices it holds; ``serve://HOST:PORT``
+is a client of ``rfhoming serve``, which owns the devices. Used by ``listen``,
 ``capture``, ``replay``, ``run`` and the Python API alike.
 """
 
@@ -134,9 +135,23 @@ async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, 
         if spec.kind == "capture":
             drivers += replay_drivers(spec)
             continue
+        if spec.kind == "serve":
+            drivers.append(serve_driver(spec))
+            continue
         spec = await resolve(spec, baud=baud, flow=flow, taps=taps, describe=describe)
         drivers.append(make_driver(spec, list(taps)))
     return drivers
+
+
+def serve_driver(spec: PortSpec) -> Driver:
+    """A client of ``rfhoming serve`` (``serve://HOST:PORT``, ``device=`` keeps one device)."""
+    from rfhoming.host.serve import ServeDriver
+
+    where = spec.where.removeprefix("//")
+    if not where.rpartition(":")[2].isdigit():
+        raise PortSpecError(f"{spec} names no server: write serve://HOST:PORT, e.g. serve://127.0.0.1:2947")
+    return ServeDriver(HostPort(f"socket://{where}", name=spec.name or f"serve://{where}"),
+                       device=spec.settings.get("device"))
 
 
 def replay_drivers(spec: PortSpec) -> list[Driver]:
