@@ -157,24 +157,25 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
 
 
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-             mcap: Path | None = None) -> dict[str, Any]:
-    """``mcap``: also record the run as ROS 2 messages in this MCAP file."""
+             mcap: Path | None = None, sinks: list | tuple = ()) -> dict[str, Any]:
+    """``mcap``: also record the run as ROS 2 messages in this MCAP file; ``sinks`` (a live
+    view) see every item and run log record too, and stay open."""
     out.mkdir(parents=True, exist_ok=True)
-    sinks = []
+    own = []
     if mcap is not None:
         from rfhoming.host.export.recorder import McapRecorder
 
-        sinks.append(McapRecorder(mcap))
+        own.append(McapRecorder(mcap))
     truth = out / "truth.jsonl"
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target)
     if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
         config = trilat_config(config, truth, target)
     try:
-        outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config, scenario.startswith("s1"), tuple(sinks)),
+        outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config, scenario.startswith("s1"), (*own, *sinks)),
                                                       config.loop.max_time_s + 60))
     finally:
-        for sink in sinks:
+        for sink in own:
             sink.close()
         proc.send_signal(signal.SIGINT)
         try:

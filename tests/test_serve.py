@@ -42,9 +42,10 @@ def serving_emulated_aoa(queue: int) -> Iterator[tuple[int, subprocess.Popen]]:
     server = None
     try:
         aoa = next(e for e in map(json.loads, iter(emulator.stdout.readline, "")) if e["type"] == "xplr-aoa")
-        server = start("serve", f"ublox-aoa:{aoa['url']}", "--port", "0", "--queue", str(queue))
-        first = json.loads(server.stdout.readline())
+        server = start("serve", f"ublox-aoa:{aoa['url']}", "--port", "0", "--queue", str(queue), "--foxglove=0")
+        first, second = (json.loads(server.stdout.readline()) for _ in range(2))
         assert first["kind"] == "listening" and first["address"].startswith("tcp://127.0.0.1:")  # loopback by default
+        assert second["kind"] == "listening" and second["address"].startswith("ws://127.0.0.1:")  # Foxglove too
         yield int(first["address"].rsplit(":", 1)[1]), server
     finally:
         for proc in (server, emulator):

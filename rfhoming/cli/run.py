@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from rfhoming.cli.io import add_port_defaults
+from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
 from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
@@ -57,6 +58,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 2
         sinks.append(McapRecorder(args.mcap))
+    view = start_foxglove(args, "run")
+    if view is not None:
+        sinks.append(view)
     capture = CaptureWriter(args.capture) if args.capture else None
     runlog = open(args.log, "w") if args.log else None
     try:
@@ -112,12 +116,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
         return 2
     if not args.json:
         print(f"demo: emulating {args.scenario} (seed {args.seed}) on ptys in lockstep; homing ...", file=sys.stderr)
+    view = start_foxglove(args, "demo")
     try:
-        summary = run_demo(args.scenario, args.seed, args.out, config, args.target, mcap=args.mcap)
+        summary = run_demo(args.scenario, args.seed, args.out, config, args.target, mcap=args.mcap,
+                           sinks=[view] if view else [])
     except ImportError as exc:
         print(f"rfhoming demo: --mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
               file=sys.stderr)
         return 2
+    finally:
+        if view is not None:
+            view.close()
     if args.json:
         print(json.dumps(summary))
     else:
@@ -147,6 +156,7 @@ examples:
   rfhoming demo --seed 7 --json
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
   rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
+  rfhoming demo --foxglove                 # watch it live: Foxglove -> ws://127.0.0.1:8765
 """
 
 RUN_HELP = """\
@@ -160,6 +170,7 @@ examples:
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
   rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
   rfhoming run --config robot.toml --mcap run.mcap   # and a ROS 2 log for Foxglove / rosbags
+  rfhoming run --config robot.toml --foxglove        # and a live view in Foxglove
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
 """
 
@@ -175,6 +186,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--mcap", type=Path, metavar="FILE", help=MCAP_HELP)
+    add_foxglove_option(p)
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
@@ -193,6 +205,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
     p.add_argument("--capture", type=Path, help="pcapng capture of every byte")
     p.add_argument("--mcap", type=Path, metavar="FILE", help=MCAP_HELP)
+    add_foxglove_option(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("config", help="print the default config, or check a config file")

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from rfhoming.cli.io import ENDPOINT_HELP, _describe_dialects, _run_until, add_port_defaults
+from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.ports import PortError
 from rfhoming.host.serve import QUEUE_LINES, ItemServer
@@ -32,6 +33,7 @@ examples:
   rfhoming serve ublox-aoa:/dev/ttyUSB0
   rfhoming serve /dev/ttyUSB0 base:/dev/ttyACM0 -o session.pcapng
   rfhoming serve auto --bind 0.0.0.0 --port 3000      # reachable from the network
+  rfhoming serve /dev/ttyUSB0 --foxglove              # and the Foxglove WebSocket on :8765
   rfhoming listen serve://127.0.0.1:{DEFAULT_PORT} --json
 """
 
@@ -53,8 +55,9 @@ async def _serve(args: argparse.Namespace) -> int:
         print(f"rfhoming serve: cannot listen on {args.bind or '127.0.0.1'} port {args.port}: {exc.strerror}; "
               "choose another with --port", file=sys.stderr)
         return 2
+    view = start_foxglove(args, "serve", out=sys.stdout, host=(args.bind or ["127.0.0.1"])[0])
     for d in drivers:
-        d.listeners.append(server.publish)
+        d.listeners += [server.publish, *([view.on_item] if view else [])]
     extra = [asyncio.create_task(_describe_dialects(drivers, capture))] if capture else []
     try:
         await _run_until(drivers, args.duration, extra)
@@ -63,6 +66,8 @@ async def _serve(args: argparse.Namespace) -> int:
         return 2
     finally:
         await server.close()
+        if view is not None:
+            view.close()
         for h in health(drivers):
             print(json.dumps({"kind": "counters", **h}), flush=True)
         print(json.dumps({"kind": "server", **server.health()}), flush=True)
@@ -87,4 +92,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help=f"items held for a slow client before its newest are dropped (default {QUEUE_LINES})")
     p.add_argument("-o", "--output", type=Path, help="also capture every byte of the devices to this pcapng file")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
+    add_foxglove_option(p)
     p.set_defaults(func=cmd_serve)

@@ -1,0 +1,116 @@
+"""The live Foxglove view: a WebSocket client subscribes during ``demo --foxglove`` and decodes
+the scene with nothing but what the server advertises (protobuf schemas, JSON)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+from rfhoming.host.foxglove_view import LAYOUT
+
+SUBPROTOCOL = "foxglove.sdk.v1"
+SAFETY_S = 60  # bounds each wait, so a broken server fails the test instead of hanging it
+
+
+def decoders(channels: list[dict]) -> dict[int, tuple[str, object]]:
+    """channel id -> (topic, bytes -> message), from the advertised schemas alone."""
+    out = {}
+    for ch in channels:
+        if ch["encoding"] == "json":
+            out[ch["id"]] = (ch["topic"], json.loads)
+            continue
+        assert ch["encoding"] == "protobuf" and ch["schemaEncoding"] == "protobuf"
+        pool = descriptor_pool.DescriptorPool()
+        for fd in descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(ch["schema"])).file:
+            pool.Add(fd)
+        cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(ch["schemaName"]))
+        out[ch["id"]] = (ch["topic"], cls.FromString)
+    return out
+
+
+def watch(address: str) -> dict[str, list]:
+    """Subscribe to every channel as it is advertised; topic -> decoded messages, until the
+    server goes away."""
+    got: dict[str, list] = defaultdict(list)
+    subscribed: dict[int, tuple[str, object]] = {}
+    decode: dict[int, tuple[str, object]] = {}
+    with connect(address, subprotocols=[SUBPROTOCOL], open_timeout=SAFETY_S) as ws:
+        try:
+            while True:
+                frame = ws.recv(timeout=SAFETY_S)
+                if isinstance(frame, str):
+                    op = json.loads(frame)
+                    if op["op"] == "advertise":
+                        fresh = decoders(op["channels"])
+                        decode.update(fresh)
+                        subs = [{"id": cid, "channelId": cid} for cid in fresh]
+                        ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                        subscribed.update(fresh)
+                    continue
+                assert frame[0] == 0x01  # message data: op, subscription id u32, log time u64, payload
+                sub = int.from_bytes(frame[1:5], "little")
+                topic, parse = subscribed[sub]
+                got[topic].append(parse(frame[13:]))
+        except ConnectionClosed:
+            pass
+    return got
+
+
+def test_a_websocket_client_receives_the_scene_during_demo(tmp_path: Path) -> None:
+    demo = subprocess.Popen([sys.executable, "-m", "rfhoming", "demo", "--out", str(tmp_path), "--foxglove=0",
+                             "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = json.loads(demo.stderr.readline())
+        assert first["kind"] == "listening" and first["address"].startswith("ws://127.0.0.1:")
+        got = watch(first["address"])
+        out, err = demo.communicate(timeout=SAFETY_S)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+    assert demo.returncode == 0, err
+    runlog = [json.loads(line) for line in (tmp_path / "run.jsonl").read_text().splitlines()]
+
+    # the robot: its pose, the path, the transform, all decoded from protobuf
+    poses = [(round(m.pose.position.x, 4), round(m.pose.position.y, 4)) for m in got["/robot/pose"]]
+    final = [r for r in runlog if r["kind"] == "estimate"][-1]["pose"]
+    assert len(poses) > 20 and (round(final[0], 4), round(final[1], 4)) in poses
+    assert got["/tf"][-1].transforms[0].child_frame_id == "base_link"
+    assert len(got["/robot/path"][-1].poses) > len(got["/robot/path"][0].poses)
+
+    # the target estimate and the bearings, in the scene
+    goals = {tuple(r["goal"]) for r in runlog if r["kind"] == "estimate" and r.get("goal")}
+    entities = [e for update in got["/rfhoming/scene"] for e in update.entities]
+    targets = [(e.spheres[0].pose.position.x, e.spheres[0].pose.position.y) for e in entities if e.id == "target"]
+    assert targets and set(targets) <= goals
+    rays = [e for e in entities if e.id == "bearings"]
+    assert rays and len(rays[-1].lines[0].points) % 2 == 0
+
+    # the raw readings and the loop's records, as JSON for plots
+    assert {m["kind"] for m in got["/rfhoming/aoa"]} == {"angle"}
+    commands = [r for r in runlog if r["kind"] == "command"]
+    seen = got["/rfhoming/command"]
+    assert len(seen) > 10
+    start = commands.index(seen[0])
+    assert commands[start:start + len(seen)] == seen  # in order, none missing, none made up
+
+
+def test_the_shipped_layout_names_the_published_topics() -> None:
+    layout = json.loads(LAYOUT.read_text())
+    panels = layout["configById"]
+    three_d = next(v for k, v in panels.items() if k.startswith("3D!"))
+    assert {"/robot/path", "/rfhoming/scene", "/scan"} <= set(three_d["topics"])
+    plotted = {p["value"].split(".")[0] for k, v in panels.items() if k.startswith("Plot!") for p in v["paths"]}
+    assert {"/rfhoming/aoa", "/rfhoming/command", "/rfhoming/measurement"} <= plotted
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)
