@@ -18,6 +18,7 @@ Import from file). Times are the host's wall clock: a live view shows now.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections import deque
@@ -25,6 +26,8 @@ from importlib.resources import files
 from typing import Any
 
 from rfhoming.protocol.jsonable import as_dict
+
+log = logging.getLogger(__name__)
 
 PATH_POSES = 2000  # the path keeps the latest poses
 RAYS = 12  # bearings drawn at once
@@ -58,9 +61,27 @@ class FoxgloveView:
         self.rays: deque[tuple[tuple[float, float], tuple[float, float]]] = deque(maxlen=RAYS)
         self._odometry = 0
         self.published = 0
+        self.failed = 0  # items that could not be drawn (logged once)
 
-    # -- the two inputs ------------------------------------------------------------------
+    # -- the two inputs (neither ever raises into a driver or the loop) ---------------------
     def on_item(self, device: str, t_host: float, item: Any) -> None:
+        try:
+            self._on_item(device, t_host, item)
+        except Exception as exc:  # noqa: BLE001 - a view must not stop the devices
+            self._failed(getattr(item, "kind", type(item).__name__), exc)
+
+    def on_runlog(self, record: dict[str, Any]) -> None:
+        try:
+            self._on_runlog(record)
+        except Exception as exc:  # noqa: BLE001 - a view must not stop the loop
+            self._failed(str(record.get("kind")), exc)
+
+    def _failed(self, kind: str, exc: Exception) -> None:
+        if not self.failed:
+            log.warning("Foxglove view: cannot publish a %s (%s); counting such failures", kind, exc)
+        self.failed += 1
+
+    def _on_item(self, device: str, t_host: float, item: Any) -> None:
         kind = getattr(item, "kind", None)
         if kind == "odometry":
             self._on_pose(item.x_mm / 1000, item.y_mm / 1000, item.theta_urad / 1e6)
@@ -73,7 +94,7 @@ class FoxgloveView:
             topic = {"angle": "/rfhoming/aoa", "adv_report": "/rfhoming/ble", "antenna_set": "/rfhoming/antennas"}[kind]
             self._log(self.json[topic], {"device": device, "t": t_host, **as_dict(item)})
 
-    def on_runlog(self, record: dict[str, Any]) -> None:
+    def _on_runlog(self, record: dict[str, Any]) -> None:
         kind = record.get("kind")
         if kind == "measurement":
             self._log(self.json["/rfhoming/measurement"], record)

@@ -153,3 +153,18 @@ def test_yaw_quaternion_round_trips(theta: float) -> None:
     q = rosmsgs.yaw_quaternion(theta)
     assert math.hypot(q["z"], q["w"]) == pytest.approx(1.0)
     assert 2 * math.atan2(q["z"], q["w"]) == pytest.approx(theta, abs=1e-12)
+
+
+def test_an_item_that_cannot_be_written_is_counted_not_raised(tmp_path) -> None:
+    from rfhoming.host.export.recorder import McapRecorder
+    from rfhoming.protocol.frames import Odometry
+    from rfhoming.protocol.uconnect.items import AngleEvent
+
+    recorder = McapRecorder(tmp_path / "x.mcap")
+    recorder.on_item("base", 0.0, Odometry(0, 0, 1_000_000, 0, 0, 0, 0, 0, 0))
+    bad = AngleEvent("CCF9578E0D8A", -60, 40_000, 0, -60, 37, "CCF9578E0D89", "", 1)  # azimuth beyond int16
+    recorder.on_item("aoa", 0.0, bad)
+    recorder.on_runlog({"kind": "command", "t": 1.0, "v": "fast", "w": 0.0})
+    recorder.close()
+    assert recorder.skipped == {"unwritable angle": 1, "unwritable command": 1}
+    assert recorder.counts == {"/odom": 1}

@@ -158,3 +158,27 @@ def test_every_golden_item_survives_the_json_form() -> None:
 class _NoPort:
     name = spec = "serve://test"
     counters: dict = {}
+
+
+def test_the_homing_loop_and_a_viewer_share_one_xplr_aoa() -> None:
+    emulator = start("emulate", "s0-open", "--tcp", "--speed", "4", "--seed", "1")
+    server = run = None
+    try:
+        urls = {e["type"]: e["url"] for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}
+        server = start("serve", f"ublox-aoa:{urls['xplr-aoa']}", "--port", "0")
+        port = json.loads(server.stdout.readline())["address"].rsplit(":", 1)[1]
+        with socket.create_connection(("127.0.0.1", int(port))) as viewer:
+            run = start("run", "--aoa", f"serve://127.0.0.1:{port}", "--base", f"base:{urls['base']}")
+            seen = read_lines(viewer, 200)
+            out, err = run.communicate(timeout=SAFETY_S)
+    finally:
+        for proc in (run, server, emulator):
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+    assert run.returncode == 0, err
+    assert json.loads(out)["arrived"] is True
+    assert sum(1 for r in seen if r["kind"] == "angle") > 100

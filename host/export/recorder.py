@@ -58,7 +58,26 @@ class McapRecorder:
 
     # -- the two inputs ------------------------------------------------------------------
     def on_item(self, device: str, t_host: float, item: Any) -> None:
-        """A driver listener: one decoded record or line of ``device``."""
+        """A driver listener: one decoded record or line of ``device``. An item that cannot be
+        written is counted and logged, never raised into the driver."""
+        try:
+            self._on_item(device, t_host, item)
+        except Exception as exc:  # noqa: BLE001 - a log must not stop the devices
+            self._unwritable(getattr(item, "kind", type(item).__name__), exc)
+
+    def on_runlog(self, record: dict[str, Any]) -> None:
+        """A RunLog listener: one run log record (robot time ``t``); like :meth:`on_item`, never raises."""
+        try:
+            self._on_runlog(record)
+        except Exception as exc:  # noqa: BLE001 - a log must not stop the loop
+            self._unwritable(str(record.get("kind")), exc)
+
+    def _unwritable(self, kind: str, exc: Exception) -> None:
+        if not self.skipped[f"unwritable {kind}"]:
+            log.warning("MCAP: cannot write a %s (%s); counting such items as skipped", kind, exc)
+        self.skipped[f"unwritable {kind}"] += 1
+
+    def _on_item(self, device: str, t_host: float, item: Any) -> None:
         kind = getattr(item, "kind", None)
         if kind == "odometry":
             clock = self._clocks.setdefault(device, NodeClock())
@@ -83,8 +102,7 @@ class McapRecorder:
         elif kind == "velocity_command" and self.commands_from == "capture":
             self._write(t, *rosmsgs.twist(item.v_mm_s / 1000, item.w_mrad_s / 1000))
 
-    def on_runlog(self, record: dict[str, Any]) -> None:
-        """A RunLog listener: one run log record (robot time ``t``)."""
+    def _on_runlog(self, record: dict[str, Any]) -> None:
         t = float(record["t"])
         kind = record.get("kind")
         if kind == "command" and self.commands_from == "runlog":

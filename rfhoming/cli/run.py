@@ -14,7 +14,9 @@ from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
 from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from rfhoming.host.ports import PortError
-from rfhoming.host.session import make_driver, resolve
+from rfhoming.host import portspec
+from rfhoming.host.portspec import PortSpecError
+from rfhoming.host.session import make_driver, resolve, serve_driver
 
 CONTROLLERS = ("aoa", "dock", "rss", "trilat")
 
@@ -85,10 +87,16 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
     """``sinks`` see every decoded item and run log record (an MCAP recorder, a live view)."""
     taps = [capture.tap] if capture else []
     describe = capture.describe if capture else None
+    served = portspec.parse(specs[role])
+    if served.kind == "serve" and role != "aoa":
+        raise PortSpecError(f"--{role} {served}: only the XPLR-AOA (--aoa) can come from `rfhoming serve` yet")
     resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=ROLE_KIND[r], describe=describe)
-                for r, spec in specs.items()}
+                for r, spec in specs.items() if not (r == role and served.kind == "serve")}
     base = make_driver(resolved["base"], taps, command_timeout_ms=config.loop.command_timeout_ms)
-    if role == "aoa":
+    if served.kind == "serve":  # the angle events of an XPLR-AOA that `rfhoming serve` owns
+        sensor = serve_driver(served)
+        make = aoa_loop if args.controller == "aoa" else dock_loop
+    elif role == "aoa":
         sensor = make_driver(resolved["aoa"], taps)
         make = aoa_loop if args.controller == "aoa" else dock_loop
     else:
@@ -172,6 +180,7 @@ examples:
   rfhoming run --config robot.toml --mcap run.mcap   # and a ROS 2 log for Foxglove / rosbags
   rfhoming run --config robot.toml --foxglove        # and a live view in Foxglove
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
+  rfhoming run --aoa serve://127.0.0.1:2948 --base /dev/ttyACM0   # share the XPLR-AOA with viewers
 """
 
 
