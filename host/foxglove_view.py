@@ -7,7 +7,9 @@ item, ``on_runlog`` every run log record. It publishes, with foxglove-sdk's own 
   ``/scan`` from its range scans;
 - ``/rfhoming/scene``: the target estimate as a sphere (its diameter: the spread of the
   estimates it came from, e.g. S0's parallax and vector goals, at least 0.2 m), the latest
-  bearings as rays from the robot (length: the range estimate, else 2 m), S3's position fix;
+  bearings as rays from the robot (length: the range estimate, else 2 m), S3's position fix
+  and anchors (:meth:`FoxgloveView.show_anchors`);
+- ``/rfhoming/particles``: S2's particle cloud (:meth:`FoxgloveView.watch` the controller);
 - JSON channels for plots: ``/rfhoming/aoa`` (angle events), ``/rfhoming/ble`` (BLE RSSI),
   ``/rfhoming/antennas`` (antenna sets), ``/rfhoming/measurement``, ``/rfhoming/command``,
   ``/rfhoming/estimate``.
@@ -53,6 +55,7 @@ class FoxgloveView:
         self.path_channel = channels.PosesInFrameChannel("/robot/path", **ctx)
         self.scan_channel = channels.LaserScanChannel("/scan", **ctx)
         self.scene = channels.SceneUpdateChannel("/rfhoming/scene", **ctx)
+        self.particles = channels.PointCloudChannel("/rfhoming/particles", **ctx)
         self.json = {topic: foxglove.Channel(topic, message_encoding="json", **ctx)
                      for topic in ("/rfhoming/aoa", "/rfhoming/ble", "/rfhoming/antennas", "/rfhoming/measurement",
                                    "/rfhoming/command", "/rfhoming/estimate")}
@@ -60,6 +63,9 @@ class FoxgloveView:
         self.path: deque[tuple[float, float, float]] = deque(maxlen=PATH_POSES)
         self.rays: deque[tuple[tuple[float, float], tuple[float, float]]] = deque(maxlen=RAYS)
         self._odometry = 0
+        self._estimates = 0
+        self.anchors: dict[str, tuple[float, float]] = {}
+        self.controller: Any = None
         self.published = 0
         self.failed = 0  # items that could not be drawn (logged once)
 
@@ -104,6 +110,14 @@ class FoxgloveView:
         elif kind == "estimate":
             self._log(self.json["/rfhoming/estimate"], record)
             self._publish_scene(record)
+
+    def show_anchors(self, anchors: dict[str, list[float]]) -> None:
+        """Beacons at surveyed places (S3's ``[trilat.anchors]``), drawn in every scene update."""
+        self.anchors = {name: (float(xy[0]), float(xy[1])) for name, xy in anchors.items()}
+
+    def watch(self, controller: Any) -> None:
+        """The homing controller, for what the run log does not hold: S2's particle cloud."""
+        self.controller = controller
 
     def close(self) -> None:
         self.server.stop()
@@ -154,8 +168,31 @@ class FoxgloveView:
             entities.append(m.SceneEntity(timestamp=now, frame_id="odom", id="bearings", lines=[m.LinePrimitive(
                 type=m.LinePrimitiveLineType.LineList, thickness=0.02, points=points,
                 color=m.Color(r=0.1, g=0.8, b=0.2, a=0.8))]))
+        for name, (ax, ay) in self.anchors.items():
+            entities.append(m.SceneEntity(
+                timestamp=now, frame_id="odom", id=f"anchor {name}",
+                cubes=[m.CubePrimitive(pose=self._pose(ax, ay, 0.0), size=m.Vector3(x=0.15, y=0.15, z=0.3),
+                                       color=m.Color(r=0.6, g=0.2, b=0.8, a=0.9))],
+                texts=[m.TextPrimitive(pose=self._pose(ax, ay + 0.25, 0.0), billboard=True, font_size=12.0,
+                                       scale_invariant=True, color=m.Color(r=1.0, g=1.0, b=1.0, a=1.0), text=name)]))
         if entities:
             self._log(self.scene, m.SceneUpdate(entities=entities))
+        self._estimates += 1
+        if self._estimates % PATH_EVERY == 1:
+            self._publish_particles(now)
+
+    def _publish_particles(self, now: Any) -> None:
+        """S2's particle filter: its particles' (x, y) as a point cloud (float32 pairs)."""
+        pf = getattr(self.controller, "pf", None)
+        if pf is None or not getattr(pf, "initialised", False):
+            return
+        m = self.fg.messages
+        xy = pf.x[:2].T.astype("<f4")
+        self._log(self.particles, m.PointCloud(
+            timestamp=now, frame_id="odom", pose=self._pose(0.0, 0.0, 0.0), point_stride=8,
+            fields=[m.PackedElementField(name="x", offset=0, type=m.PackedElementFieldNumericType.Float32),
+                    m.PackedElementField(name="y", offset=4, type=m.PackedElementFieldNumericType.Float32)],
+            data=xy.tobytes()))
 
     # -- helpers ---------------------------------------------------------------------------
     def _pose(self, x: float, y: float, theta: float) -> Any:

@@ -69,6 +69,10 @@ async def home(endpoints: dict, out: Path, config: Config, docking: bool = False
         driver.listeners += [sink.on_item for sink in sinks]
     with open(out / "run.jsonl", "w") as runlog:
         loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
+        for sink in sinks:
+            if hasattr(sink, "watch"):  # the live view draws the controller's state and the anchors
+                sink.watch(loop.controller)
+                sink.show_anchors(config.trilat.anchors if make is trilat_loop else {})
         try:
             outcome = await loop.run()
         finally:

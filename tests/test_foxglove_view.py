@@ -10,6 +10,7 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
@@ -64,19 +65,24 @@ def watch(address: str) -> dict[str, list]:
     return got
 
 
-def test_a_websocket_client_receives_the_scene_during_demo(tmp_path: Path) -> None:
-    demo = subprocess.Popen([sys.executable, "-m", "rfhoming", "demo", "--out", str(tmp_path), "--foxglove=0",
-                             "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+def watched_demo(out: Path, *args: str) -> tuple[dict[str, list], list[dict]]:
+    """``demo --foxglove=0`` watched from start to end: what the client got, and the run log."""
+    demo = subprocess.Popen([sys.executable, "-m", "rfhoming", "demo", "--out", str(out), "--foxglove=0",
+                             "--json", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         first = json.loads(demo.stderr.readline())
         assert first["kind"] == "listening" and first["address"].startswith("ws://127.0.0.1:")
         got = watch(first["address"])
-        out, err = demo.communicate(timeout=SAFETY_S)
+        _, err = demo.communicate(timeout=SAFETY_S)
     finally:
         if demo.poll() is None:
             demo.kill()
     assert demo.returncode == 0, err
-    runlog = [json.loads(line) for line in (tmp_path / "run.jsonl").read_text().splitlines()]
+    return got, [json.loads(line) for line in (out / "run.jsonl").read_text().splitlines()]
+
+
+def test_a_websocket_client_receives_the_scene_during_demo(tmp_path: Path) -> None:
+    got, runlog = watched_demo(tmp_path)
 
     # the robot: its pose, the path, the transform, all decoded from protobuf
     poses = [(round(m.pose.position.x, 4), round(m.pose.position.y, 4)) for m in got["/robot/pose"]]
@@ -100,6 +106,30 @@ def test_a_websocket_client_receives_the_scene_during_demo(tmp_path: Path) -> No
     assert len(seen) > 10
     start = commands.index(seen[0])
     assert commands[start:start + len(seen)] == seen  # in order, none missing, none made up
+
+
+def test_the_particle_cloud_of_s2_is_published(tmp_path: Path) -> None:
+    got, runlog = watched_demo(tmp_path, "--scenario", "s2-a")
+    clouds = got["/rfhoming/particles"]
+    assert len(clouds) > 3
+    last = clouds[-1]
+    assert [f.name for f in last.fields] == ["x", "y"] and last.point_stride == 8
+    xy = np.frombuffer(last.data, "<f4").reshape(-1, 2)
+    assert len(xy) >= 100
+    goal = [r["goal"] for r in runlog if r["kind"] == "estimate" and r.get("goal")][-1]
+    assert np.hypot(*(xy.mean(axis=0) - goal)) < 1.0  # the cloud sits on the filter's estimate
+
+
+def test_the_anchors_of_s3_are_drawn(tmp_path: Path) -> None:
+    got, _ = watched_demo(tmp_path, "--scenario", "s3-arena")
+    header = json.loads((tmp_path / "truth.jsonl").read_text().splitlines()[0])
+    entities = {e.id: e for update in got["/rfhoming/scene"] for e in update.entities}
+    anchors = {k: (e.cubes[0].pose.position.x, e.cubes[0].pose.position.y) for k, e in entities.items()
+               if k.startswith("anchor ")}
+    assert len(anchors) >= 3
+    truth = json.loads((tmp_path / "truth.jsonl").read_text().splitlines()[1])
+    surveyed = {(t["x"], t["y"]) for t in truth["targets"]}  # the demo surveys them from the truth file
+    assert set(anchors.values()) == surveyed and header["scenario"] == "s3-arena"
 
 
 def test_the_shipped_layout_names_the_published_topics() -> None:

@@ -105,6 +105,10 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
     for driver in (base, sensor):
         driver.listeners += [sink.on_item for sink in sinks]
     loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
+    for sink in sinks:
+        if hasattr(sink, "watch"):  # the live view draws the controller's state and the anchors
+            sink.watch(loop.controller)
+            sink.show_anchors(config.trilat.anchors if args.controller == "trilat" else {})
     outcome = await loop.run()
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
