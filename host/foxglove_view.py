@@ -9,7 +9,8 @@ item, ``on_runlog`` every run log record. It publishes, with foxglove-sdk's own 
   estimates it came from, e.g. S0's parallax and vector goals, at least 0.2 m), the latest
   bearings as rays from the robot (length: the range estimate, else 2 m), S3's position fix
   and anchors (:meth:`FoxgloveView.show_anchors`);
-- ``/rfhoming/particles``: S2's particle cloud (:meth:`FoxgloveView.watch` the controller);
+- ``/rfhoming/particles``: S2's particle cloud, ``/rfhoming/obstacles``: the occupied cells of
+  the loop's occupancy grid (both when the view :meth:`FoxgloveView.watch` es the loop);
 - JSON channels for plots: ``/rfhoming/aoa`` (angle events), ``/rfhoming/ble`` (BLE RSSI),
   ``/rfhoming/antennas`` (antenna sets), ``/rfhoming/measurement``, ``/rfhoming/command``,
   ``/rfhoming/estimate``.
@@ -27,13 +28,17 @@ from collections import deque
 from importlib.resources import files
 from typing import Any
 
+import numpy as np
+
 from rfhoming.protocol.jsonable import as_dict
 
 log = logging.getLogger(__name__)
 
-PATH_POSES = 2000  # the path keeps the latest poses
+PATH_POSES = 1000  # the path keeps the latest poses ...
+PATH_STEP_M = 0.05  # ... each at least this far from the one before (a path costs O(poses) to send)
 RAYS = 12  # bearings drawn at once
-PATH_EVERY = 5  # odometry records per path update
+PATH_EVERY = 25  # odometry records per path update (0.5 s at the base's 50 Hz)
+CLOUD_EVERY = 5  # estimates per particle cloud / obstacle map update
 DEFAULT_PORT = 8765  # Foxglove's own default
 LAYOUT = files("rfhoming.host").joinpath("foxglove_layout.json")
 
@@ -56,6 +61,7 @@ class FoxgloveView:
         self.scan_channel = channels.LaserScanChannel("/scan", **ctx)
         self.scene = channels.SceneUpdateChannel("/rfhoming/scene", **ctx)
         self.particles = channels.PointCloudChannel("/rfhoming/particles", **ctx)
+        self.obstacles = channels.PointCloudChannel("/rfhoming/obstacles", **ctx)
         self.json = {topic: foxglove.Channel(topic, message_encoding="json", **ctx)
                      for topic in ("/rfhoming/aoa", "/rfhoming/ble", "/rfhoming/antennas", "/rfhoming/measurement",
                                    "/rfhoming/command", "/rfhoming/estimate")}
@@ -65,7 +71,7 @@ class FoxgloveView:
         self._odometry = 0
         self._estimates = 0
         self.anchors: dict[str, tuple[float, float]] = {}
-        self.controller: Any = None
+        self.loop: Any = None
         self.published = 0
         self.failed = 0  # items that could not be drawn (logged once)
 
@@ -115,9 +121,10 @@ class FoxgloveView:
         """Beacons at surveyed places (S3's ``[trilat.anchors]``), drawn in every scene update."""
         self.anchors = {name: (float(xy[0]), float(xy[1])) for name, xy in anchors.items()}
 
-    def watch(self, controller: Any) -> None:
-        """The homing controller, for what the run log does not hold: S2's particle cloud."""
-        self.controller = controller
+    def watch(self, loop: Any) -> None:
+        """The homing loop, for what the run log does not hold: its controller's state (S2's
+        particle cloud) and the obstacles it has mapped (its occupancy grid)."""
+        self.loop = loop
 
     def close(self) -> None:
         self.server.stop()
@@ -132,7 +139,8 @@ class FoxgloveView:
             timestamp=now, parent_frame_id="odom", child_frame_id="base_link",
             translation=m.Vector3(x=x, y=y, z=0.0), rotation=q)]))
         self._log(self.pose_channel, m.PoseInFrame(timestamp=now, frame_id="odom", pose=self._pose(x, y, theta)))
-        self.path.append(self.pose)
+        if not self.path or math.dist(self.path[-1][:2], (x, y)) >= PATH_STEP_M:
+            self.path.append(self.pose)
         self._odometry += 1
         if self._odometry % PATH_EVERY == 1:
             self._log(self.path_channel, m.PosesInFrame(timestamp=now, frame_id="odom",
@@ -178,21 +186,26 @@ class FoxgloveView:
         if entities:
             self._log(self.scene, m.SceneUpdate(entities=entities))
         self._estimates += 1
-        if self._estimates % PATH_EVERY == 1:
-            self._publish_particles(now)
+        if self._estimates % CLOUD_EVERY == 1 and self.loop is not None:
+            pf = getattr(self.loop.controller, "pf", None)
+            if pf is not None and pf.initialised:
+                self._log(self.particles, self._cloud(now, pf.x[:2].T))
+            grid = self.loop.grid
+            if grid is not None:
+                cells = np.argwhere(grid.occupied())
+                r = grid.params.resolution
+                self._log(self.obstacles, self._cloud(now, [(grid.x0 + (i + 0.5) * r, grid.y0 + (j + 0.5) * r)
+                                                            for i, j in cells]))
 
-    def _publish_particles(self, now: Any) -> None:
-        """S2's particle filter: its particles' (x, y) as a point cloud (float32 pairs)."""
-        pf = getattr(self.controller, "pf", None)
-        if pf is None or not getattr(pf, "initialised", False):
-            return
+    def _cloud(self, now: Any, xy: Any) -> Any:
+        """Points (x, y) in the odom frame as a point cloud of float32 pairs."""
         m = self.fg.messages
-        xy = pf.x[:2].T.astype("<f4")
-        self._log(self.particles, m.PointCloud(
+        data = np.asarray(xy, dtype="<f4").reshape(-1, 2).tobytes()
+        return m.PointCloud(
             timestamp=now, frame_id="odom", pose=self._pose(0.0, 0.0, 0.0), point_stride=8,
             fields=[m.PackedElementField(name="x", offset=0, type=m.PackedElementFieldNumericType.Float32),
                     m.PackedElementField(name="y", offset=4, type=m.PackedElementFieldNumericType.Float32)],
-            data=xy.tobytes()))
+            data=data)
 
     # -- helpers ---------------------------------------------------------------------------
     def _pose(self, x: float, y: float, theta: float) -> Any:

@@ -70,8 +70,8 @@ async def home(endpoints: dict, out: Path, config: Config, docking: bool = False
     with open(out / "run.jsonl", "w") as runlog:
         loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
         for sink in sinks:
-            if hasattr(sink, "watch"):  # the live view draws the controller's state and the anchors
-                sink.watch(loop.controller)
+            if hasattr(sink, "watch"):  # the live view draws the loop's state and the anchors
+                sink.watch(loop)
                 sink.show_anchors(config.trilat.anchors if make is trilat_loop else {})
         try:
             outcome = await loop.run()

@@ -7,15 +7,20 @@ import base64
 import json
 import subprocess
 import sys
+import threading
 from collections import defaultdict
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from rfhoming.host.foxglove_view import LAYOUT
+from rfhoming.host.drivers.base import Scan
+from rfhoming.host.foxglove_view import LAYOUT, FoxgloveView
+from rfhoming.host.homing.grid import OccupancyGrid
+from rfhoming.host.homing.types import Pose
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 SAFETY_S = 60  # bounds each wait, so a broken server fails the test instead of hanging it
@@ -37,12 +42,11 @@ def decoders(channels: list[dict]) -> dict[int, tuple[str, object]]:
     return out
 
 
-def watch(address: str) -> dict[str, list]:
+def watch(address: str, subscribed: threading.Event | None = None) -> dict[str, list]:
     """Subscribe to every channel as it is advertised; topic -> decoded messages, until the
-    server goes away."""
+    server goes away. ``subscribed`` is set after the first subscription is sent."""
     got: dict[str, list] = defaultdict(list)
-    subscribed: dict[int, tuple[str, object]] = {}
-    decode: dict[int, tuple[str, object]] = {}
+    channels: dict[int, tuple[str, object]] = {}
     with connect(address, subprotocols=[SUBPROTOCOL], open_timeout=SAFETY_S) as ws:
         try:
             while True:
@@ -51,14 +55,15 @@ def watch(address: str) -> dict[str, list]:
                     op = json.loads(frame)
                     if op["op"] == "advertise":
                         fresh = decoders(op["channels"])
-                        decode.update(fresh)
                         subs = [{"id": cid, "channelId": cid} for cid in fresh]
                         ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-                        subscribed.update(fresh)
+                        channels.update(fresh)
+                        if subscribed is not None:
+                            subscribed.set()
                     continue
                 assert frame[0] == 0x01  # message data: op, subscription id u32, log time u64, payload
                 sub = int.from_bytes(frame[1:5], "little")
-                topic, parse = subscribed[sub]
+                topic, parse = channels[sub]
                 got[topic].append(parse(frame[13:]))
         except ConnectionClosed:
             pass
@@ -108,7 +113,7 @@ def test_a_websocket_client_receives_the_scene_during_demo(tmp_path: Path) -> No
     assert commands[start:start + len(seen)] == seen  # in order, none missing, none made up
 
 
-def test_the_particle_cloud_of_s2_is_published(tmp_path: Path) -> None:
+def test_the_particle_cloud_and_mapped_obstacles_of_s2_are_published(tmp_path: Path) -> None:
     got, runlog = watched_demo(tmp_path, "--scenario", "s2-a")
     clouds = got["/rfhoming/particles"]
     assert len(clouds) > 3
@@ -118,6 +123,36 @@ def test_the_particle_cloud_of_s2_is_published(tmp_path: Path) -> None:
     assert len(xy) >= 100
     goal = [r["goal"] for r in runlog if r["kind"] == "estimate" and r.get("goal")][-1]
     assert np.hypot(*(xy.mean(axis=0) - goal)) < 1.0  # the cloud sits on the filter's estimate
+
+
+
+def test_the_obstacles_the_loop_mapped_are_published(tmp_path: Path) -> None:
+    """A wall 2 m ahead seen by one scan: its cells come out as the obstacle cloud."""
+    grid = OccupancyGrid((0.0, 0.0))
+    angles = np.linspace(-0.5, 0.5, 21)
+    grid.integrate(Pose(0.0, 0.0, 0.0), Scan(0.0, -0.5, 0.05, tuple(2.0 / np.cos(a) for a in angles)))
+    view = FoxgloveView(port=0)
+    view.watch(SimpleNamespace(grid=grid, controller=None))
+    subscribed = threading.Event()
+    result: dict[str, list] = {}
+    client = threading.Thread(target=lambda: result.update(watch(view.address, subscribed)))
+    client.start()
+    try:
+        assert subscribed.wait(SAFETY_S)
+        view.on_runlog({"kind": "estimate", "t": 1.0, "goal": [3.0, 0.0], "pose": [0.0, 0.0, 0.0]})
+    finally:
+        view.close()
+        client.join(SAFETY_S)
+    mapped = np.frombuffer(result["/rfhoming/obstacles"][-1].data, "<f4").reshape(-1, 2)
+    assert len(mapped) >= 10
+    assert all(distance_to_segment(p, (2.0, -1.2), (2.0, 1.2)) < 0.2 for p in mapped)
+
+
+def distance_to_segment(p, a, b) -> float:
+    p, a, b = (np.asarray(v, float) for v in (p, a, b))
+    ab = b - a
+    u = 0.0 if not ab.any() else float(np.clip((p - a) @ ab / (ab @ ab), 0.0, 1.0))
+    return float(np.hypot(*(p - (a + u * ab))))
 
 
 def test_the_anchors_of_s3_are_drawn(tmp_path: Path) -> None:

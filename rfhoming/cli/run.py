@@ -106,8 +106,8 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
         driver.listeners += [sink.on_item for sink in sinks]
     loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
     for sink in sinks:
-        if hasattr(sink, "watch"):  # the live view draws the controller's state and the anchors
-            sink.watch(loop.controller)
+        if hasattr(sink, "watch"):  # the live view draws the loop's state and the anchors
+            sink.watch(loop)
             sink.show_anchors(config.trilat.anchors if args.controller == "trilat" else {})
     outcome = await loop.run()
     print(json.dumps(outcome.summary()))
