@@ -42,10 +42,10 @@ def decoders(channels: list[dict]) -> dict[int, tuple[str, object]]:
     return out
 
 
-def watch(address: str, subscribed: threading.Event | None = None) -> dict[str, list]:
-    """Subscribe to every channel as it is advertised; topic -> decoded messages, until the
-    server goes away. ``subscribed`` is set after the first subscription is sent."""
-    got: dict[str, list] = defaultdict(list)
+def watch(address: str, got: dict[str, list] | None = None) -> dict[str, list]:
+    """Subscribe to every channel as it is advertised; topic -> decoded messages (into ``got``
+    as they come, if given), until the server goes away."""
+    got = defaultdict(list) if got is None else got
     channels: dict[int, tuple[str, object]] = {}
     with connect(address, subprotocols=[SUBPROTOCOL], open_timeout=SAFETY_S) as ws:
         try:
@@ -58,13 +58,11 @@ def watch(address: str, subscribed: threading.Event | None = None) -> dict[str, 
                         subs = [{"id": cid, "channelId": cid} for cid in fresh]
                         ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
                         channels.update(fresh)
-                        if subscribed is not None:
-                            subscribed.set()
                     continue
                 assert frame[0] == 0x01  # message data: op, subscription id u32, log time u64, payload
                 sub = int.from_bytes(frame[1:5], "little")
                 topic, parse = channels[sub]
-                got[topic].append(parse(frame[13:]))
+                got.setdefault(topic, []).append(parse(frame[13:]))
         except ConnectionClosed:
             pass
     return got
@@ -133,13 +131,15 @@ def test_the_obstacles_the_loop_mapped_are_published(tmp_path: Path) -> None:
     grid.integrate(Pose(0.0, 0.0, 0.0), Scan(0.0, -0.5, 0.05, tuple(2.0 / np.cos(a) for a in angles)))
     view = FoxgloveView(port=0)
     view.watch(SimpleNamespace(grid=grid, controller=None))
-    subscribed = threading.Event()
     result: dict[str, list] = {}
-    client = threading.Thread(target=lambda: result.update(watch(view.address, subscribed)))
+    client = threading.Thread(target=watch, args=(view.address, result))
     client.start()
     try:
-        assert subscribed.wait(SAFETY_S)
-        view.on_runlog({"kind": "estimate", "t": 1.0, "goal": [3.0, 0.0], "pose": [0.0, 0.0, 0.0]})
+        for _ in range(SAFETY_S * 10):  # until the client has subscribed and got one
+            view.on_runlog({"kind": "estimate", "t": 1.0, "goal": [3.0, 0.0], "pose": [0.0, 0.0, 0.0]})
+            if result.get("/rfhoming/obstacles"):
+                break
+            client.join(0.1)
     finally:
         view.close()
         client.join(SAFETY_S)
