@@ -170,11 +170,16 @@ def replay_drivers(spec: PortSpec) -> list[Driver]:
     for i in chosen:
         port = ReplayPort(interfaces[i].name, packets[i], speed=spec.settings.get("speed") or None,
                           sequencer=sequencer)
-        fields = describe_interface(interfaces[i])
-        kind = "ublox-aoa" if fields.get("kind") == "xplr-aoa" or fields.get("protocol") == "ublox-aoa" else (
-            "base" if fields.get("kind") == "base" else "rss")
-        drivers.append(DRIVERS[kind](port))
+        drivers.append(DRIVERS[recorded_kind(interfaces[i])](port))
     return drivers
+
+
+def recorded_kind(interface: Any) -> str:
+    """The driver kind of a capture's interface, from its description."""
+    fields = describe_interface(interface)
+    if fields.get("kind") == "xplr-aoa" or fields.get("protocol") == "ublox-aoa":
+        return "ublox-aoa"
+    return "base" if fields.get("kind") == "base" else "rss"
 
 
 def health(drivers: list[Driver]) -> list[dict[str, Any]]:

@@ -113,11 +113,17 @@ def test_export_of_a_capture_alone_takes_commands_from_the_bytes_sent(demo_run, 
     assert done.returncode == 0, done.stderr
     exported = read_back(tmp_path / "c.mcap")
     commands = [r for r in demo_run["runlog"] if r["kind"] == "command"]
-    sent = exported["/cmd_vel"]
-    assert len(sent) >= len(commands)  # and the stops sent as the run closed
-    for record, (_, msg) in zip(commands, sent):  # millimetre and mrad on the wire
-        assert msg.linear.x == pytest.approx(record["v"], abs=1e-3)
-        assert msg.angular.z == pytest.approx(record["w"], abs=1e-3)
+    sent = [(m.linear.x, m.angular.z) for _, m in exported["/cmd_vel"]]
+    logged = [(r["v"], r["w"]) for r in commands]
+
+    def same(k: int) -> bool:  # millimetre and mrad on the wire
+        return len(sent) - k >= len(logged) and all(
+            abs(a - c) <= 1e-3 and abs(b - d) <= 1e-3 for (a, b), (c, d) in zip(sent[k:], logged))
+
+    # the capture also holds the stop sent before the loop (written if odometry had come by
+    # then) and the stops sent as the run closed
+    assert same(0) or same(1)
+    assert len([v for v, _ in logged if v > 0.1]) > 20  # a comparison that can fail
     assert "/rfhoming/target" not in exported
     assert len(exported["/odom"]) >= len(demo_run["live"]["/odom"])
 

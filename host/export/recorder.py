@@ -26,8 +26,8 @@ from rfhoming.host.capture import DISCONNECTED, SNIFFED
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.export import rosmsgs
-from rfhoming.host.replay import ReplayPort, describe, load_capture
-from rfhoming.host.session import DRIVERS
+from rfhoming.host.replay import ReplayPort, load_capture
+from rfhoming.host.session import DRIVERS, recorded_kind
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.pcapng import OUTBOUND
 
@@ -157,17 +157,16 @@ def export(output: Path | str, *, runlog: Path | str | None = None, capture: Pat
     recorder = McapRecorder(output, clock="robot" if has_base else "host",
                             commands_from="runlog" if runlog is not None else "capture")
     pending = deque(records)
+    sent = {name: FrameDecoder() for name, d in drivers.items() if d.kind == "base"}  # the commands
+    for driver in drivers.values():
+        driver.listeners.append(recorder.on_item)
     try:
         for name, p in packets:
-            driver = drivers[name]
             if p.direction == OUTBOUND:
-                if driver.kind == "base":
-                    for record in FrameDecoder().feed(p.data):
-                        recorder.on_item(name, p.t, record)
+                for record in sent[name].feed(p.data) if name in sent else ():
+                    recorder.on_item(name, p.t, record)
                 continue
-            driver.listeners.append(recorder.on_item)
-            driver.on_chunk(p.data, p.t)
-            driver.listeners.remove(recorder.on_item)
+            drivers[name].on_chunk(p.data, p.t)
             while pending and recorder.robot_time is not None and pending[0]["t"] <= recorder.robot_time:
                 recorder.on_runlog(pending.popleft())
         while pending:
@@ -186,10 +185,7 @@ def _capture_drivers(path: Path | str) -> tuple[dict[str, Driver], list[tuple[st
     drivers: dict[str, Driver] = {}
     rows = []
     for i, iface in enumerate(interfaces):
-        fields = describe(iface)
-        kind = "ublox-aoa" if fields.get("kind") == "xplr-aoa" or fields.get("protocol") == "ublox-aoa" else (
-            "base" if fields.get("kind") == "base" else "rss")
-        drivers[iface.name] = DRIVERS[kind](ReplayPort(iface.name, per_interface[i]))
+        drivers[iface.name] = DRIVERS[recorded_kind(iface)](ReplayPort(iface.name, per_interface[i]))
         rows += [(p.t, i, n, p) for n, p in enumerate(per_interface[i]) if p.comment not in (SNIFFED, DISCONNECTED)]
     rows.sort(key=lambda row: row[:3])
     return drivers, [(interfaces[i].name, p) for _, i, _, p in rows]
