@@ -28,7 +28,9 @@ from collections import deque
 from importlib.resources import files
 from typing import Any
 
+import foxglove
 import numpy as np
+from foxglove import channels, messages
 
 from rfhoming.protocol.jsonable import as_dict
 
@@ -47,10 +49,6 @@ class FoxgloveView:
     """Starts a Foxglove WebSocket server on ``host:port`` (0 = any free port) at once."""
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1", name: str = "rfhoming") -> None:
-        import foxglove
-        from foxglove import channels
-
-        self.fg = foxglove
         self.context = foxglove.Context()
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
         self.address = f"ws://{host}:{self.server.port}"
@@ -98,7 +96,7 @@ class FoxgloveView:
         if kind == "odometry":
             self._on_pose(item.x_mm / 1000, item.y_mm / 1000, item.theta_urad / 1e6)
         elif kind == "range_scan":
-            self._log(self.scan_channel, self.fg.messages.LaserScan(
+            self._log(self.scan_channel, messages.LaserScan(
                 timestamp=self._now(), frame_id="base_link", start_angle=item.angle_min_mrad / 1000,
                 end_angle=(item.angle_min_mrad + item.angle_inc_mrad * max(0, len(item.ranges_mm) - 1)) / 1000,
                 ranges=[r / 1000 if r else math.inf for r in item.ranges_mm], intensities=[]))
@@ -131,7 +129,7 @@ class FoxgloveView:
 
     # -- drawing -------------------------------------------------------------------------
     def _on_pose(self, x: float, y: float, theta: float) -> None:
-        m = self.fg.messages
+        m = messages
         self.pose = (x, y, theta)
         now = self._now()
         q = m.Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2))
@@ -156,7 +154,7 @@ class FoxgloveView:
         self.rays.append(((x, y), (x + length * math.cos(heading), y + length * math.sin(heading))))
 
     def _publish_scene(self, record: dict[str, Any]) -> None:
-        m = self.fg.messages
+        m = messages
         now = self._now()
         entities = []
         goal = record.get("goal")
@@ -199,7 +197,7 @@ class FoxgloveView:
 
     def _cloud(self, now: Any, xy: Any) -> Any:
         """Points (x, y) in the odom frame as a point cloud of float32 pairs."""
-        m = self.fg.messages
+        m = messages
         data = np.asarray(xy, dtype="<f4").reshape(-1, 2).tobytes()
         return m.PointCloud(
             timestamp=now, frame_id="odom", pose=self._pose(0.0, 0.0, 0.0), point_stride=8,
@@ -209,13 +207,13 @@ class FoxgloveView:
 
     # -- helpers ---------------------------------------------------------------------------
     def _pose(self, x: float, y: float, theta: float) -> Any:
-        m = self.fg.messages
+        m = messages
         return m.Pose(position=m.Vector3(x=x, y=y, z=0.0),
                       orientation=m.Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2)))
 
     def _now(self) -> Any:
         ns = time.time_ns()
-        return self.fg.messages.Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
+        return messages.Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
     def _log(self, channel: Any, message: Any) -> None:
         channel.log(message)

@@ -22,6 +22,8 @@ from collections import Counter, deque
 from pathlib import Path
 from typing import Any, IO
 
+from mcap_ros2.writer import Writer
+
 from rfhoming.host.capture import DISCONNECTED, SNIFFED
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.rss import NodeClock
@@ -41,8 +43,6 @@ class McapRecorder:
     exports with a run log), "capture" to take them from the bytes sent to the base."""
 
     def __init__(self, output: Path | str | IO[bytes], *, clock: str = "robot", commands_from: str = "runlog") -> None:
-        from mcap_ros2.writer import Writer
-
         if clock not in ("robot", "host"):
             raise ValueError(f"clock must be robot or host, not {clock!r}")
         self._file = open(output, "wb") if isinstance(output, (str, Path)) else None

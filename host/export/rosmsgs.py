@@ -16,6 +16,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
 MSG_DIR = Path(__file__).with_name("rfhoming_msgs") / "msg"
 OWN_TYPES = ("AoaAngle", "RssiReading", "AntennaSet", "Bearing")
 
@@ -49,8 +51,6 @@ SCAN_RANGE_MAX = 65.535  # the range scan record's largest range: u16 millimetre
 @cache
 def msgdef(typename: str) -> str:
     """The ROS 2 message definition text (with its dependencies) that an MCAP schema carries."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
     store = get_typestore(Stores.ROS2_HUMBLE)
     own = {}
     for name in OWN_TYPES:
