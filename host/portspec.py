@@ -10,6 +10,7 @@ In the spirit of bumble's transport strings, ``KIND:WHERE[,key=value...]``::
     auto                      (the one recognised device; ublox-aoa:auto for a kind)
     /dev/ttyACM0              (no KIND: the protocol is sniffed from what the port says)
     capture:run.pcapng        (a recorded capture, wherever a live port is accepted)
+    serve://127.0.0.1:2947    (the devices an ``rfhoming serve`` owns, shared with other clients)
 
 WHERE is a device path, a pyserial URL (``socket://HOST:PORT``) or ``auto``; commas inside it
 that are not followed by ``key=`` stay part of it. Unknown kinds and keys, and bad values, raise
@@ -133,6 +134,7 @@ KINDS: dict[str, dict[str, Callable[[str], Any]]] = {
     "hci": {"name": _name, "timeout": _seconds, **SCAN_KEYS, "extended": _extended, "content": _content,
             "dedup": _yes_no},
     "capture": {"device": _name, "speed": _speed},  # a pcapng capture replayed as live ports
+    "serve": {"device": _name},  # the devices of an `rfhoming serve` at serve://HOST:PORT
 }
 """Each kind's settings and their parsers (text -> value; ValueError says what is allowed)."""
 

@@ -2,7 +2,8 @@
 
 A spec (:mod:`rfhoming.host.portspec`) names its kind -- ``ublox-aoa`` (XPLR-AOA), ``rss``
 (ESP32/AT86RF212 node), ``base`` -- or leaves it out to have the protocol sniffed from what the
-port says; ``capture:FILE`` replays a recording as the devices it holds. Used by ``listen``,
+port says; ``capture:FILE`` replays a recording as the devices it holds; ``serve://HOST:PORT``
+is a client of ``rfhoming serve``, which owns the devices. Used by ``listen``,
 ``capture``, ``replay``, ``run`` and the Python API alike.
 """
 
@@ -193,9 +194,23 @@ async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, 
         if spec.kind == "capture":
             drivers += replay_drivers(spec)
             continue
+        if spec.kind == "serve":
+            drivers.append(serve_driver(spec))
+            continue
         spec = await resolve(spec, baud=baud, flow=flow, taps=taps, describe=describe)
         drivers.append(make_driver(spec, list(taps)))
     return drivers
+
+
+def serve_driver(spec: PortSpec) -> Driver:
+    """A client of ``rfhoming serve`` (``serve://HOST:PORT``, ``device=`` keeps one device)."""
+    from rfhoming.host.serve import ServeDriver
+
+    where = spec.where.removeprefix("//")
+    if not where.rpartition(":")[2].isdigit():
+        raise PortSpecError(f"{spec} names no server: write serve://HOST:PORT, e.g. serve://127.0.0.1:2947")
+    return ServeDriver(HostPort(f"socket://{where}", name=spec.name or f"serve://{where}"),
+                       device=spec.settings.get("device"))
 
 
 def replay_drivers(spec: PortSpec) -> list[Driver]:
@@ -214,12 +229,18 @@ def replay_drivers(spec: PortSpec) -> list[Driver]:
     for i in chosen:
         port = ReplayPort(interfaces[i].name, packets[i], speed=spec.settings.get("speed") or None,
                           sequencer=sequencer)
-        fields = describe_interface(interfaces[i])
-        kind = "ublox-aoa" if fields.get("kind") == "xplr-aoa" or fields.get("protocol") == "ublox-aoa" else (
-            "base" if fields.get("kind") == "base" else fields.get("protocol") if fields.get("protocol") in DRIVERS
-            else "rss")
-        drivers.append(DRIVERS[kind](port))
+        drivers.append(DRIVERS[recorded_kind(interfaces[i])](port))
     return drivers
+
+
+def recorded_kind(interface: Any) -> str:
+    """The driver kind of a capture's interface, from its description."""
+    fields = describe_interface(interface)
+    if fields.get("kind") == "xplr-aoa" or fields.get("protocol") == "ublox-aoa":
+        return "ublox-aoa"
+    if fields.get("kind") == "base":
+        return "base"
+    return fields["protocol"] if fields.get("protocol") in DRIVERS else "rss"
 
 
 def health(drivers: list[Driver]) -> list[dict[str, Any]]:

@@ -18,3 +18,42 @@ def _plain(value: Any) -> Any:
 def as_dict(item: Any) -> dict[str, Any]:
     """``{"kind": ..., <fields>}`` for any decoded item or drop of either protocol."""
     return {"kind": item.kind, **{k: _plain(v) for k, v in item._asdict().items()}}
+
+
+def from_dict(fields: dict[str, Any]) -> Any:
+    """The item :func:`as_dict` made ``fields`` from (``kind`` picks the type; extra keys such as
+    a server's ``device``/``t``/``n`` are ignored). ValueError when the kind is unknown or the
+    fields do not fit it."""
+    from construct import Bytes, GreedyBytes
+
+    from rfhoming.protocol.drop import Drop
+    from rfhoming.protocol.frames.records import RECORD_TYPES, AntennaReading
+    from rfhoming.protocol.uconnect import items
+
+    kind = fields.get("kind")
+    text_types = {cls.kind: cls for cls in (items.AngleEvent, items.TagData, items.Startup, items.Echo,
+                                            items.InfoLine, items.FinalCode, items.UnknownLine, Drop)}
+    record_types = {rt.kind: rt for rt in RECORD_TYPES.values()}
+    try:
+        if kind in text_types:
+            cls = text_types[kind]
+            values = {k: fields[k] for k in cls._fields if k in fields}
+            for name in ("payload", "raw"):  # the bytes fields
+                if name in values:
+                    values[name] = bytes.fromhex(values[name])
+            return cls(**values)
+        if kind in record_types:
+            rt = record_types[kind]
+            binary = {sc.name for sc in rt.body.subcons if isinstance(sc.subcon, Bytes) or sc.subcon is GreedyBytes}
+            values = {k: fields[k] for k in rt.cls._fields}
+            for name in binary & set(values):
+                values[name] = bytes.fromhex(values[name])
+            if "antennas" in values:
+                values["antennas"] = tuple(AntennaReading(**a) for a in values["antennas"])
+            for name, value in values.items():  # arrays decode as tuples
+                if isinstance(value, list):
+                    values[name] = tuple(value)
+            return rt.cls(**values)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"fields do not make a {kind}: {exc}") from None
+    raise ValueError(f"unknown item kind {kind!r}")

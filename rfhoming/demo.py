@@ -51,7 +51,10 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
     return proc, endpoints
 
 
-async def home(endpoints: dict, out: Path, config: Config, docking: bool = False) -> tuple[Outcome, dict]:
+async def home(endpoints: dict, out: Path, config: Config, docking: bool = False,
+               sinks: tuple = ()) -> tuple[Outcome, dict]:
+    """``sinks`` see every decoded item (``on_item``) and run log record (``on_runlog``): an
+    MCAP recorder, a live view."""
     capture = CaptureWriter(out / "capture.pcapng")
     base = BaseDriver(HostPort(endpoints["base"]["path"], taps=[capture.tap]), command_timeout_ms=config.loop.command_timeout_ms)
     capture.describe(base.port.name, protocol="rss", kind="base")
@@ -69,8 +72,14 @@ async def home(endpoints: dict, out: Path, config: Config, docking: bool = False
         sensor = RssDriver(HostPort(endpoints["at86rf212"]["path"], taps=[capture.tap]))
         capture.describe(sensor.port.name, protocol="rss", kind="rss-node")
         make = rss_loop
+    for driver in (base, sensor):
+        driver.listeners += [sink.on_item for sink in sinks]
     with open(out / "run.jsonl", "w") as runlog:
-        loop = make(base, sensor, config, RunLog(runlog))
+        loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
+        for sink in sinks:
+            if hasattr(sink, "watch"):  # the live view draws the loop's state and the anchors
+                sink.watch(loop)
+                sink.show_anchors(config.trilat.anchors if make is trilat_loop else {})
         try:
             outcome = await loop.run()
         finally:
@@ -159,9 +168,16 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
 
 
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-             receiver: str | None = None) -> dict[str, Any]:
-    """One demo run; ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that device."""
+             receiver: str | None = None, mcap: Path | None = None, sinks: list | tuple = ()) -> dict[str, Any]:
+    """One demo run. ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that
+    device; ``mcap`` also records the run as ROS 2 messages in this MCAP file; ``sinks`` (a
+    live view) see every item and run log record too, and stay open."""
     out.mkdir(parents=True, exist_ok=True)
+    own = []
+    if mcap is not None:
+        from rfhoming.host.export.recorder import McapRecorder
+
+        own.append(McapRecorder(mcap))
     truth = out / "truth.jsonl"
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
@@ -169,9 +185,11 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
         config = trilat_config(config, truth, target)
     try:
-        outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config, scenario.startswith("s1")),
+        outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config, scenario.startswith("s1"), (*own, *sinks)),
                                                       config.loop.max_time_s + 60))
     finally:
+        for sink in own:
+            sink.close()
         proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=10)
@@ -180,4 +198,6 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     summary = summarise(outcome, truth, links, config.trilat.goal if scenario == "s3-arena" else None)
     plot(truth, out / "run.jsonl", out / "trajectory.png")
     summary["files"] = {name: str(out / name) for name in ("trajectory.png", "capture.pcapng", "run.jsonl", "truth.jsonl")}
+    if mcap is not None:
+        summary["files"]["mcap"] = str(mcap)
     return summary

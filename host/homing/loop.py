@@ -24,6 +24,7 @@ from collections import deque
 import logging
 import time
 from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import IO, Any, Protocol
 
 from rfhoming.host.drivers.aoa import AoaDriver, TimedAngle
@@ -67,13 +68,17 @@ class Outcome:
 class RunLog:
     """JSON lines, one per event, flushed as they come (a killed run keeps its log)."""
 
-    def __init__(self, out: IO[str] | None) -> None:
+    def __init__(self, out: IO[str] | None, listeners: list[Callable[[dict[str, Any]], None]] | None = None) -> None:
         self.out = out
+        self.listeners = listeners or []  # each record also goes to these (an MCAP recorder, a live view)
 
     def write(self, kind: str, t: float, **fields: Any) -> None:
+        record = {"kind": kind, "t": round(t, 4), **fields}
         if self.out is not None:
-            self.out.write(json.dumps({"kind": kind, "t": round(t, 4), **fields}) + "\n")
+            self.out.write(json.dumps(record) + "\n")
             self.out.flush()
+        for listener in self.listeners:
+            listener(record)
 
 
 class Controller(Protocol):

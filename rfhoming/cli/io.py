@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.discovery import candidates
 from rfhoming.host.drivers.aoa import AoaDriver
@@ -27,7 +28,8 @@ log = logging.getLogger(__name__)
 
 ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket://HOST:PORT or auto; KIND "
                  "(ublox-aoa, rss, base) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
-                 "capture:FILE replays a recording (see docs/usage.md)")
+                 "capture:FILE replays a recording; serve://HOST:PORT is the devices of an `rfhoming serve` "
+                 "(see docs/usage.md)")
 
 
 def printer(json_lines: bool, out=sys.stdout) -> Callable[[str, float, Any], None]:
@@ -115,6 +117,10 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     if show:
         for d in drivers:
             d.listeners.append(printer(args.json))
+    view = start_foxglove(args, args.command)
+    if view is not None:
+        for d in drivers:
+            d.listeners.append(view.on_item)
     extra = [asyncio.create_task(_describe_dialects(drivers, capture))] if capture else []
     try:
         await _run_until(drivers, args.duration, extra)
@@ -122,6 +128,8 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
     finally:
+        if view is not None:
+            view.close()
         for h in health(drivers):
             print(json.dumps({"kind": "counters", **h}), file=sys.stdout if show else sys.stderr)
         if capture is not None:
@@ -171,6 +179,8 @@ examples:
   rfhoming listen ublox-aoa:/tmp/rfhoming-x/aoa rss:socket://127.0.0.1:40123 --json
   rfhoming listen auto --duration 10
   rfhoming listen capture:run.pcapng --json
+  rfhoming listen serve://127.0.0.1:2948 --json     # beside other clients of `rfhoming serve`
+  rfhoming listen /dev/ttyACM0 --foxglove           # and watch the readings in Foxglove
 """
 
 REPLAY_HELP = """\
@@ -210,6 +220,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--show", action="store_true", help="also print the decoded items")
             p.set_defaults(func=cmd_capture)
         else:
+            add_foxglove_option(p)
             p.set_defaults(func=cmd_listen)
 
     p = sub.add_parser("replay", help="replay a pcapng capture through the drivers, or on ptys",

@@ -11,10 +11,12 @@ from pathlib import Path
 from typing import BinaryIO
 
 from rfhoming import __version__
+from rfhoming.cli.export import add_parser as add_export_parser
 from rfhoming.cli.io import add_parsers as add_io_parsers
 from rfhoming.cli.io import configure_logging
 from rfhoming.cli.locate import add_parser as add_locate_parsers
 from rfhoming.cli.run import add_parsers as add_run_parsers
+from rfhoming.cli.serve import add_parser as add_serve_parser
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.jsonable import as_dict
 from rfhoming.protocol.uconnect import UConnectDecoder
@@ -127,6 +129,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_locate_parsers(sub)
     _add_emulate(sub)
     _add_campaign(sub)
+    add_export_parser(sub)
+    add_serve_parser(sub)
     return parser
 
 

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from rfhoming.cli.io import add_port_defaults
+from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
@@ -23,7 +24,7 @@ from rfhoming.host.homing.loop import (
 from rfhoming.host.ports import PortError
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
-from rfhoming.host.session import make_driver, resolve
+from rfhoming.host.session import make_driver, resolve, serve_driver
 
 CONTROLLERS = ("aoa", "dock", "rss", "trilat", "anchors")
 
@@ -83,10 +84,22 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"rfhoming run: --controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)",
                   file=sys.stderr)
             return 2
+    sinks = []
+    if args.mcap:
+        try:
+            from rfhoming.host.export.recorder import McapRecorder
+        except ImportError as exc:
+            print(f"rfhoming run: --mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
+                  file=sys.stderr)
+            return 2
+        sinks.append(McapRecorder(args.mcap))
+    view = start_foxglove(args, "run")
+    if view is not None:
+        sinks.append(view)
     capture = CaptureWriter(args.capture) if args.capture else None
     runlog = open(args.log, "w") if args.log else None
     try:
-        return asyncio.run(_run(args, config, role, specs, capture, runlog))
+        return asyncio.run(_run(args, config, role, specs, capture, runlog, sinks))
     except (PortError, ValueError) as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
@@ -98,30 +111,48 @@ def cmd_run(args: argparse.Namespace) -> int:
             runlog.close()
         if capture:
             capture.close()
+        for sink in sinks:
+            sink.close()
 
 
 async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict, capture: CaptureWriter | None,
-               runlog) -> int:
+               runlog, sinks: list) -> int:
+    """``sinks`` see every decoded item and run log record (an MCAP recorder, a live view)."""
     taps = [capture.tap] if capture else []
     describe = capture.describe if capture else None
+    served = parse_spec(specs[role]) if role != "site" else None
+    serving = served is not None and served.kind == "serve"
+    if serving and role != "aoa":
+        raise PortSpecError(f"--{role} {served}: only the XPLR-AOA (--aoa) can come from `rfhoming serve` yet")
     resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=role_kind(r, spec),
-                                 describe=describe) for r, spec in specs.items()}
+                                 describe=describe) for r, spec in specs.items() if not (r == role and serving)}
     base = make_driver(resolved["base"], taps, command_timeout_ms=config.loop.command_timeout_ms)
     if role == "site":
         site = args.site_loaded
         anchors = [make_driver(await resolve(a.port, baud=args.baud, flow=args.flow, taps=taps, kind="ublox-aoa",
                                              describe=describe), taps) for a in site.anchors]
-        outcome = await anchors_loop(base, anchors, site, config, RunLog(runlog)).run()
+        for driver in (base, *anchors):
+            driver.listeners += [sink.on_item for sink in sinks]
+        outcome = await anchors_loop(base, anchors, site, config, RunLog(runlog, [sink.on_runlog for sink in sinks])).run()
         print(json.dumps(outcome.summary()))
         return 0 if outcome.arrived else 1
-    if role == "aoa":
+    if serving:  # the angle events of an XPLR-AOA that `rfhoming serve` owns
+        sensor = serve_driver(served)
+        make = aoa_loop if args.controller == "aoa" else dock_loop
+    elif role == "aoa":
         sensor = make_driver(resolved["aoa"], taps)
         make = aoa_loop if args.controller == "aoa" else dock_loop
     else:
         options = {"ed_scale_db": config.calibration.ed_scale_db} if resolved[role].kind == "rss" else {}
         sensor = make_driver(resolved[role], taps, **options)
         make = rss_loop if args.controller == "rss" else trilat_loop
-    loop = make(base, sensor, config, RunLog(runlog))
+    for driver in (base, sensor):
+        driver.listeners += [sink.on_item for sink in sinks]
+    loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
+    for sink in sinks:
+        if hasattr(sink, "watch"):  # the live view draws the loop's state and the anchors
+            sink.watch(loop)
+            sink.show_anchors(config.trilat.anchors if args.controller == "trilat" else {})
     outcome = await loop.run()
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
@@ -144,7 +175,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if args.receiver and args.scenario != "s3-arena":
         print("rfhoming demo: --receiver swaps the BLE RSSI receiver of --scenario s3-arena", file=sys.stderr)
         return 2
-    summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver)
+    view = start_foxglove(args, "demo")
+    try:
+        summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver, mcap=args.mcap,
+                           sinks=[view] if view else [])
+    except ImportError as exc:
+        print(f"rfhoming demo: --mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
+              file=sys.stderr)
+        return 2
+    finally:
+        if view is not None:
+            view.close()
     if args.json:
         print(json.dumps(summary))
     else:
@@ -160,6 +201,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if summary["success"] else 1
 
 
+MCAP_HELP = ("also record the run as ROS 2 messages (odometry, scans, commands, estimates, readings) in "
+             "this MCAP file, for Foxglove, rosbags or ros2 bag (needs the ros extra)")
+
 DEMO_HELP = """\
 Start the emulator in its own process on pseudo-terminals (lockstep: fast and
 deterministic), run the host's homing loop against it until arrival or failure, and
@@ -171,6 +215,8 @@ examples:
   rfhoming demo --seed 7 --json
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
   rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
+  rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
+  rfhoming demo --foxglove                 # watch it live: Foxglove -> ws://127.0.0.1:8765
 """
 
 RUN_HELP = """\
@@ -183,8 +229,11 @@ examples:
   rfhoming run --aoa /dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A --base /dev/ttyACM0,baud=115200
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
   rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
+  rfhoming run --config robot.toml --mcap run.mcap   # and a ROS 2 log for Foxglove / rosbags
+  rfhoming run --config robot.toml --foxglove        # and a live view in Foxglove
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
   rfhoming run --controller anchors --site site.toml --base /dev/ttyACM0
+  rfhoming run --aoa serve://127.0.0.1:2948 --base /dev/ttyACM0   # share the XPLR-AOA with viewers
 """
 
 
@@ -201,6 +250,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--receiver", choices=("esp32", "esp-at", "hci"),
                    help="s3-arena: the robot's BLE RSSI receiver -- esp32 (rfhoming frames, default), esp-at "
                    "(ESP32 with Espressif's AT firmware) or hci (a Bluetooth controller, needs rfhoming[hci])")
+    p.add_argument("--mcap", type=Path, metavar="FILE", help=MCAP_HELP)
+    add_foxglove_option(p)
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
@@ -222,6 +273,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     add_port_defaults(p)
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
     p.add_argument("--capture", type=Path, help="pcapng capture of every byte")
+    p.add_argument("--mcap", type=Path, metavar="FILE", help=MCAP_HELP)
+    add_foxglove_option(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("config", help="print the default config, or check a config file")

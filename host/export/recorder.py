@@ -1,0 +1,206 @@
+"""An MCAP log with ROS 2 messages, written while a run goes or afterwards from its files.
+
+:class:`McapRecorder` takes the two streams a run has: the drivers' decoded items (it is a
+driver listener, ``(device, t_host, item)``) and the run log's records (a RunLog listener). Its
+writer is the mcap library's ROS 2 support (CDR, schema ``ros2msg``); ``rosbags`` or Foxglove
+read the file without rfhoming.
+
+Time: with a robot base every message is stamped on the base's own clock, the run log's time
+axis (an item gets the robot time of the latest odometry, as the homing loop does; items before
+the first odometry have no robot time and are counted, not written). Without a base (a bare
+``listen``) the host's arrival time is used.
+
+:func:`export` builds the same log after the fact, from a run log and/or a capture whose
+inbound bytes go through the same decoders as live.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import Counter, deque
+from pathlib import Path
+from typing import Any, IO
+
+from mcap_ros2.writer import Writer
+
+from rfhoming.host.capture import DISCONNECTED, SNIFFED
+from rfhoming.host.drivers.common import Driver
+from rfhoming.host.drivers.rss import NodeClock
+from rfhoming.host.export import rosmsgs
+from rfhoming.host.replay import ReplayPort, load_capture
+from rfhoming.host.session import DRIVERS, recorded_kind
+from rfhoming.protocol.frames import FrameDecoder
+from rfhoming.protocol.pcapng import OUTBOUND
+
+log = logging.getLogger(__name__)
+
+
+class McapRecorder:
+    """Writes ROS 2 messages to an MCAP file. ``clock`` is "robot" (a base is present) or "host".
+
+    ``commands_from``: "runlog" when a run log will give the velocity commands (live runs and
+    exports with a run log), "capture" to take them from the bytes sent to the base."""
+
+    def __init__(self, output: Path | str | IO[bytes], *, clock: str = "robot", commands_from: str = "runlog") -> None:
+        if clock not in ("robot", "host"):
+            raise ValueError(f"clock must be robot or host, not {clock!r}")
+        self._file = open(output, "wb") if isinstance(output, (str, Path)) else None
+        self.writer = Writer(self._file or output)
+        self.clock = clock
+        self.commands_from = commands_from
+        self._schemas: dict[str, Any] = {}
+        self._clocks: dict[str, NodeClock] = {}
+        self.robot_time: float | None = None  # of the latest odometry
+        self.counts: Counter[str] = Counter()  # messages per topic
+        self.skipped: Counter[str] = Counter()  # items not written, per reason
+        self._closed = False
+
+    # -- the two inputs ------------------------------------------------------------------
+    def on_item(self, device: str, t_host: float, item: Any) -> None:
+        """A driver listener: one decoded record or line of ``device``. An item that cannot be
+        written is counted and logged, never raised into the driver."""
+        try:
+            self._on_item(device, t_host, item)
+        except Exception as exc:  # noqa: BLE001 - a log must not stop the devices
+            self._unwritable(getattr(item, "kind", type(item).__name__), exc)
+
+    def on_runlog(self, record: dict[str, Any]) -> None:
+        """A RunLog listener: one run log record (robot time ``t``); like :meth:`on_item`, never raises."""
+        try:
+            self._on_runlog(record)
+        except Exception as exc:  # noqa: BLE001 - a log must not stop the loop
+            self._unwritable(str(record.get("kind")), exc)
+
+    def _unwritable(self, kind: str, exc: Exception) -> None:
+        if not self.skipped[f"unwritable {kind}"]:
+            log.warning("MCAP: cannot write a %s (%s); counting such items as skipped", kind, exc)
+        self.skipped[f"unwritable {kind}"] += 1
+
+    def _on_item(self, device: str, t_host: float, item: Any) -> None:
+        kind = getattr(item, "kind", None)
+        if kind == "odometry":
+            clock = self._clocks.setdefault(device, NodeClock())
+            self.robot_time = clock.unwrap(item.t_us) / 1e6
+        t = self._time(t_host)
+        if t is None:
+            if kind in ("odometry", "range_scan", "angle", "adv_report", "antenna_set", "velocity_command"):
+                self.skipped["before odometry"] += 1
+            return
+        if kind == "odometry":
+            self._write(t, *rosmsgs.odometry(t, item.x_mm / 1000, item.y_mm / 1000, item.theta_urad / 1e6,
+                                             item.v_mm_s / 1000, item.w_mrad_s / 1000))
+        elif kind == "range_scan":
+            ranges = [r / 1000 if r else None for r in item.ranges_mm]
+            self._write(t, *rosmsgs.laser_scan(t, item.angle_min_mrad / 1000, item.angle_inc_mrad / 1000, ranges))
+        elif kind == "angle":
+            self._write(t, *rosmsgs.aoa_angle(t, device, item))
+        elif kind == "adv_report":
+            self._write(t, *rosmsgs.rssi_reading(t, device, item))
+        elif kind == "antenna_set":
+            self._write(t, *rosmsgs.antenna_set(t, device, item))
+        elif kind == "velocity_command" and self.commands_from == "capture":
+            self._write(t, *rosmsgs.twist(item.v_mm_s / 1000, item.w_mrad_s / 1000))
+
+    def _on_runlog(self, record: dict[str, Any]) -> None:
+        t = float(record["t"])
+        kind = record.get("kind")
+        if kind == "command" and self.commands_from == "runlog":
+            self._write(t, *rosmsgs.twist(record["v"], record["w"]))
+        elif kind == "estimate":
+            for field, topic in (("goal", "/rfhoming/target"), ("fix", "/rfhoming/fix")):
+                if record.get(field) is not None:
+                    self._write(t, *rosmsgs.point(topic, t, record[field]))
+        elif kind == "measurement" and not record.get("incomplete"):
+            self._write(t, *rosmsgs.bearing(t, record))
+        elif kind == "event":
+            self._write(t, *rosmsgs.text("/rfhoming/events", record["what"]))
+
+    # -- writing -------------------------------------------------------------------------
+    def _time(self, t_host: float) -> float | None:
+        return t_host if self.clock == "host" else self.robot_time
+
+    def _write(self, t: float, topic: str, typename: str, message: dict[str, Any]) -> None:
+        if self._closed:
+            return
+        schema = self._schemas.get(typename)
+        if schema is None:
+            schema = self._schemas[typename] = self.writer.register_msgdef(typename, rosmsgs.msgdef(typename))
+        ns = max(0, round(t * 1e9))
+        self.writer.write_message(topic, schema, message, log_time=ns, publish_time=ns, sequence=self.counts[topic])
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self.writer.finish()
+        if self._file is not None:
+            self._file.close()
+
+    def summary(self) -> dict[str, Any]:
+        return {"messages": sum(self.counts.values()), "topics": dict(sorted(self.counts.items())),
+                "skipped": dict(self.skipped)}
+
+
+def export(output: Path | str, *, runlog: Path | str | None = None, capture: Path | str | None = None) -> dict[str, Any]:
+    """An MCAP file from a run log and/or a capture; returns the recorder's summary.
+
+    The capture's inbound bytes go through each device's driver decoding (its ``on_chunk``, as
+    live, in recorded global order); commands come from the run log if given, else from the
+    frames sent to the base. Run log records are merged in by robot time."""
+    if runlog is None and capture is None:
+        raise ValueError("nothing to export: give a run log, a capture, or both")
+    records = _read_runlog(runlog) if runlog is not None else []
+    drivers, packets = _capture_drivers(capture) if capture is not None else ({}, [])
+    has_base = runlog is not None or any(d.kind == "base" for d in drivers.values())
+    recorder = McapRecorder(output, clock="robot" if has_base else "host",
+                            commands_from="runlog" if runlog is not None else "capture")
+    pending = deque(records)
+    sent = {name: FrameDecoder() for name, d in drivers.items() if d.kind == "base"}  # the commands
+    for driver in drivers.values():
+        driver.listeners.append(recorder.on_item)
+    try:
+        for name, p in packets:
+            if p.direction == OUTBOUND:
+                for record in sent[name].feed(p.data) if name in sent else ():
+                    recorder.on_item(name, p.t, record)
+                continue
+            drivers[name].on_chunk(p.data, p.t)
+            while pending and recorder.robot_time is not None and pending[0]["t"] <= recorder.robot_time:
+                recorder.on_runlog(pending.popleft())
+        while pending:
+            recorder.on_runlog(pending.popleft())
+    finally:
+        recorder.close()
+    return recorder.summary()
+
+
+def _capture_drivers(path: Path | str) -> tuple[dict[str, Driver], list[tuple[str, Any]]]:
+    """A driver per recorded device (fed by hand, never run) and every packet in recorded time
+    order, without the bytes exchanged while sniffing or the disconnect markers."""
+    interfaces, per_interface, torn = load_capture(path)
+    if torn:
+        log.warning("%s ends in a torn block (%d bytes); exporting up to the last complete block", path, torn)
+    drivers: dict[str, Driver] = {}
+    rows = []
+    for i, iface in enumerate(interfaces):
+        drivers[iface.name] = DRIVERS[recorded_kind(iface)](ReplayPort(iface.name, per_interface[i]))
+        rows += [(p.t, i, n, p) for n, p in enumerate(per_interface[i]) if p.comment not in (SNIFFED, DISCONNECTED)]
+    rows.sort(key=lambda row: row[:3])
+    return drivers, [(interfaces[i].name, p) for _, i, _, p in rows]
+
+
+def _read_runlog(path: Path | str) -> list[dict[str, Any]]:
+    records = []
+    with open(path) as f:
+        for n, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+                float(record["t"])
+            except (ValueError, KeyError, TypeError):
+                raise ValueError(f"{path}:{n}: not a run log line (JSON with kind and t): {line[:60]!r}") from None
+            records.append(record)
+    return records

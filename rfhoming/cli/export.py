@@ -1,0 +1,59 @@
+"""``rfhoming export``: a run's files -> an MCAP log of ROS 2 messages."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from rfhoming.protocol.pcapng import CaptureFormatError
+
+PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
+
+EXPORT_HELP = """\
+Write a run as ROS 2 messages in an MCAP file that Foxglove, rosbags and `ros2 bag` read:
+/odom (nav_msgs/Odometry), /scan (sensor_msgs/LaserScan), /cmd_vel (geometry_msgs/Twist),
+/rfhoming/target (geometry_msgs/PointStamped), and rfhoming_msgs' AoaAngle, RssiReading,
+AntennaSet and Bearing (their .msg files ship in rfhoming/host/export/rfhoming_msgs). Give the
+run log and its capture for everything; a capture alone gives the devices' own streams and the
+commands sent to the base; a run log alone gives commands, estimates and bearings.
+It prints the message count per topic as one JSON object.
+
+examples:
+  rfhoming export run.jsonl --capture run.pcapng -o run.mcap
+  rfhoming export rfhoming-demo/capture.pcapng -o devices.mcap
+  rfhoming export run.jsonl -o decisions.mcap
+"""
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    try:
+        from rfhoming.host.export.recorder import export
+    except ImportError as exc:
+        print(f"rfhoming export: needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
+              file=sys.stderr)
+        return 2
+    runlog, capture = args.run, args.capture
+    try:
+        with open(runlog, "rb") as f:
+            if f.read(4) == PCAPNG_MAGIC:  # a capture given alone
+                if capture is not None:
+                    print("rfhoming export: give the run log first and the capture with --capture", file=sys.stderr)
+                    return 2
+                runlog, capture = None, runlog
+        summary = export(args.output, runlog=runlog, capture=capture)
+    except (OSError, ValueError, CaptureFormatError) as exc:
+        print(f"rfhoming export: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps({"output": str(args.output), **summary}))
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="a run log and/or capture -> MCAP with ROS 2 messages",
+                       description=EXPORT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run", type=Path, metavar="RUN", help="the run log (run.jsonl), or a pcapng capture alone")
+    p.add_argument("--capture", type=Path, help="the run's pcapng capture (odometry, scans, raw readings)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="MCAP file to write")
+    p.set_defaults(func=cmd_export)

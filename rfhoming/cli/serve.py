@@ -1,0 +1,96 @@
+"""``rfhoming serve``: one process owns the devices and fans their items out to many clients."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from pathlib import Path
+
+from rfhoming.cli.io import ENDPOINT_HELP, _describe_dialects, _run_until, add_port_defaults
+from rfhoming.cli.live import add_foxglove_option, start_foxglove
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.ports import PortError
+from rfhoming.host.serve import QUEUE_LINES, ItemServer
+from rfhoming.host.session import health, open_drivers
+from rfhoming.protocol.pcapng import CaptureFormatError
+
+DEFAULT_PORT = 2948  # beside gpsd's 2947
+
+SERVE_HELP = f"""\
+Own the devices -- set them up, follow reboots, reconnect, capture -- and send every decoded
+item to any number of clients as JSON lines over TCP (the form of `listen --json`, plus "n",
+the item's number). A client that reads too slowly loses items (counted; it is sent a
+"dropped" line) and never holds up the devices or the other clients; one that takes nothing
+while its queue overflows is disconnected. Listens on 127.0.0.1:{DEFAULT_PORT} unless told;
+prints each address it listens on as a JSON line when it starts.
+
+Clients: `rfhoming listen serve://127.0.0.1:{DEFAULT_PORT}`, the Python API with the same port
+spec, or anything that reads lines from a socket (`nc 127.0.0.1 {DEFAULT_PORT}`).
+
+examples:
+  rfhoming serve ublox-aoa:/dev/ttyUSB0
+  rfhoming serve /dev/ttyUSB0 base:/dev/ttyACM0 -o session.pcapng
+  rfhoming serve auto --bind 0.0.0.0 --port 3000      # reachable from the network
+  rfhoming serve /dev/ttyUSB0 --foxglove              # and the Foxglove WebSocket on :8765
+  rfhoming listen serve://127.0.0.1:{DEFAULT_PORT} --json
+"""
+
+
+async def _serve(args: argparse.Namespace) -> int:
+    capture = CaptureWriter(args.output) if args.output else None
+    try:
+        drivers = await open_drivers(args.ports, baud=args.baud, flow=args.flow, taps=[capture.tap] if capture else [],
+                                     describe=capture.describe if capture else None)
+    except (PortError, ValueError, OSError, CaptureFormatError) as exc:
+        print(f"rfhoming serve: {exc}", file=sys.stderr)
+        return 2
+    server = ItemServer(queue_lines=args.queue, hello={"devices": [d.port.name for d in drivers]})
+    try:
+        for host in args.bind or ["127.0.0.1"]:
+            for address in await server.start(host, args.port):
+                print(json.dumps({"kind": "listening", "address": address}), flush=True)
+    except OSError as exc:
+        print(f"rfhoming serve: cannot listen on {args.bind or '127.0.0.1'} port {args.port}: {exc.strerror}; "
+              "choose another with --port", file=sys.stderr)
+        return 2
+    view = start_foxglove(args, "serve", out=sys.stdout, host=(args.bind or ["127.0.0.1"])[0])
+    for d in drivers:
+        d.listeners += [server.publish, *([view.on_item] if view else [])]
+    extra = [asyncio.create_task(_describe_dialects(drivers, capture))] if capture else []
+    try:
+        await _run_until(drivers, args.duration, extra)
+    except PortError as exc:
+        print(f"rfhoming serve: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        await server.close()
+        if view is not None:
+            view.close()
+        for h in health(drivers):
+            print(json.dumps({"kind": "counters", **h}), flush=True)
+        print(json.dumps({"kind": "server", **server.health()}), flush=True)
+        if capture is not None:
+            capture.close()
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    return asyncio.run(_serve(args))
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("serve", help="own the devices and serve their items to many clients (gpsd-style)",
+                       description=SERVE_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("ports", nargs="+", metavar="PORT", help=ENDPOINT_HELP)
+    add_port_defaults(p)
+    p.add_argument("--bind", action="append", metavar="ADDR",
+                   help="address to listen on (default 127.0.0.1; repeat for several, 0.0.0.0 for all)")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"TCP port (default {DEFAULT_PORT}; 0 = any free)")
+    p.add_argument("--queue", type=int, default=QUEUE_LINES, metavar="LINES",
+                   help=f"items held for a slow client before its newest are dropped (default {QUEUE_LINES})")
+    p.add_argument("-o", "--output", type=Path, help="also capture every byte of the devices to this pcapng file")
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    add_foxglove_option(p)
+    p.set_defaults(func=cmd_serve)

@@ -1,0 +1,184 @@
+"""``rfhoming serve``: one owner of an emulated XPLR-AOA, many clients.
+
+Two clients that read get identical, gap-free streams while a third that stops reading is cut
+off (told so) and the other two go on; ``serve://HOST:PORT`` works as a port spec."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+
+from rfhoming.host import portspec
+from rfhoming.host.serve import ServeDriver
+from rfhoming.host.session import open_drivers
+from rfhoming.protocol.frames import FrameDecoder
+from rfhoming.protocol.jsonable import as_dict, from_dict
+from rfhoming.protocol.uconnect import UConnectDecoder
+from tests.strategies import records
+
+GOLDEN = Path(__file__).parent / "golden"
+ITEMS = 2500  # per reading client
+SAFETY_S = 120  # a bound on each blocking read, so a broken server fails the test instead of hanging it
+
+
+def start(*args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "rfhoming", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+@contextmanager
+def serving_emulated_aoa(queue: int) -> Iterator[tuple[int, subprocess.Popen]]:
+    emulator = start("emulate", "s0-open", "--tcp", "--speed", "10", "--seed", "3")
+    server = None
+    try:
+        aoa = next(e for e in map(json.loads, iter(emulator.stdout.readline, "")) if e["type"] == "xplr-aoa")
+        server = start("serve", f"ublox-aoa:{aoa['url']}", "--port", "0", "--queue", str(queue), "--foxglove=0")
+        first, second = (json.loads(server.stdout.readline()) for _ in range(2))
+        assert first["kind"] == "listening" and first["address"].startswith("tcp://127.0.0.1:")  # loopback by default
+        assert second["kind"] == "listening" and second["address"].startswith("ws://127.0.0.1:")  # Foxglove too
+        yield int(first["address"].rsplit(":", 1)[1]), server
+    finally:
+        for proc in (server, emulator):
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+
+
+def read_lines(sock: socket.socket, want: int | None) -> list[dict]:
+    """Lines until ``want`` items have come (None: until the server closes)."""
+    sock.settimeout(SAFETY_S)
+    got, partial = [], b""
+    while want is None or sum(1 for r in got if "n" in r) < want:
+        data = sock.recv(65536)
+        if not data:
+            break
+        *lines, partial = (partial + data).split(b"\n")
+        got += [json.loads(line) for line in lines]
+    return got
+
+
+def test_two_readers_get_identical_streams_while_a_stalled_client_is_dropped() -> None:
+    with serving_emulated_aoa(queue=300) as (port, server):
+        stalled = socket.socket()
+        stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        stalled.connect(("127.0.0.1", port))
+        hello = json.loads(stalled.makefile("rb").readline())
+        assert hello["kind"] == "hello" and hello["devices"]
+        # ... and from here on it reads nothing
+
+        streams: list[list[dict]] = [[], []]
+
+        def reader(i: int) -> None:
+            with socket.create_connection(("127.0.0.1", port)) as sock:
+                streams[i] = read_lines(sock, ITEMS)
+
+        threads = [threading.Thread(target=reader, args=(i,)) for i in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        stalled_lines = read_lines(stalled, None)  # now it reads: what was in flight, then the end
+        stalled.close()
+        server.send_signal(signal.SIGINT)
+        out, _ = server.communicate(timeout=30)
+
+    items = [[r for r in s if "n" in r] for s in streams]
+    for stream, its in zip(streams, items):
+        assert len(its) >= ITEMS
+        assert not [r for r in stream if r["kind"] == "dropped"]
+        ns = [r["n"] for r in its]
+        assert ns == list(range(ns[0], ns[0] + len(ns)))  # gap-free
+        assert {r["kind"] for r in its} >= {"angle"}
+    common = {r["n"]: r for r in items[0]}.keys() & {r["n"]: r for r in items[1]}.keys()
+    assert len(common) >= ITEMS // 2
+    by_n = [{r["n"]: r for r in its} for its in items]
+    assert [by_n[0][n] for n in sorted(common)] == [by_n[1][n] for n in sorted(common)]
+
+    last = stalled_lines[-1]
+    assert last["kind"] == "dropped" and "disconnected" in last and last["total"] >= 300
+    stalled_ns = [r["n"] for r in stalled_lines if "n" in r]
+    assert max(stalled_ns) < max(r["n"] for r in items[0])  # cut off while the others went on
+    summary = [json.loads(line) for line in out.splitlines() if line.strip()]
+    health = next(s for s in summary if s["kind"] == "server")
+    assert health["disconnected_slow"] == 1 and health["clients"] == 3
+
+
+async def test_serve_port_spec_and_a_client_driver() -> None:
+    spec = portspec.parse("serve://127.0.0.1:2948,device=aoa")
+    assert (spec.kind, spec.where, spec.settings) == ("serve", "//127.0.0.1:2948", {"device": "aoa"})
+    (driver,) = await open_drivers([spec])
+    assert isinstance(driver, ServeDriver) and driver.port.spec == "socket://127.0.0.1:2948"
+    with pytest.raises(portspec.PortSpecError, match="serve://HOST:PORT"):
+        await open_drivers(["serve:nowhere"])
+
+
+def test_serve_driver_rebuilds_items_and_counts_bad_lines() -> None:
+    driver = ServeDriver(_NoPort())
+    seen = []
+    driver.listeners.append(lambda device, t, item: seen.append((device, t, item)))
+    items = list(UConnectDecoder().feed((GOLDEN / "xplr_aoa_session.raw").read_bytes()))
+    lines = [json.dumps({"n": i, "device": "aoa", "t": float(i), **as_dict(item)}) for i, item in enumerate(items)]
+    data = ("\n".join([json.dumps({"kind": "hello"}), "not json", *lines,
+                       json.dumps({"kind": "dropped", "count": 7, "total": 7})]) + "\n").encode()
+    for k in range(0, len(data), 97):  # arbitrary chunking
+        driver.on_chunk(data[k:k + 97], 0.0)
+    assert [item for _, _, item in seen] == items
+    assert driver.counters["bad_lines"] == 1 and driver.counters["server_dropped"] == 7
+    assert len(driver.events) == sum(1 for i in items if i.kind == "angle")
+
+
+@given(records)
+def test_every_record_survives_the_json_form(record) -> None:
+    assert from_dict(json.loads(json.dumps(as_dict(record)))) == record
+
+
+def test_every_golden_item_survives_the_json_form() -> None:
+    raw = (GOLDEN / "rss_node_stream.raw").read_bytes()
+    items = list(FrameDecoder().feed(raw)) + list(UConnectDecoder().feed((GOLDEN / "xplr_aoa_session.raw").read_bytes()))
+    assert len({i.kind for i in items}) > 8
+    for item in items:
+        assert from_dict(json.loads(json.dumps(as_dict(item)))) == item
+    with pytest.raises(ValueError, match="unknown item kind"):
+        from_dict({"kind": "nonsense"})
+
+
+class _NoPort:
+    name = spec = "serve://test"
+    counters: dict = {}
+
+
+def test_the_homing_loop_and_a_viewer_share_one_xplr_aoa() -> None:
+    emulator = start("emulate", "s0-open", "--tcp", "--speed", "4", "--seed", "1")
+    server = run = None
+    try:
+        urls = {e["type"]: e["url"] for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}
+        server = start("serve", f"ublox-aoa:{urls['xplr-aoa']}", "--port", "0")
+        port = json.loads(server.stdout.readline())["address"].rsplit(":", 1)[1]
+        with socket.create_connection(("127.0.0.1", int(port))) as viewer:
+            run = start("run", "--aoa", f"serve://127.0.0.1:{port}", "--base", f"base:{urls['base']}")
+            seen = read_lines(viewer, 200)
+            out, err = run.communicate(timeout=SAFETY_S)
+    finally:
+        for proc in (run, server, emulator):
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+    assert run.returncode == 0, err
+    assert json.loads(out)["arrived"] is True
+    assert sum(1 for r in seen if r["kind"] == "angle") > 100
