@@ -121,7 +121,7 @@ class AoaRunner(DeviceRunner):
         dialect = Dialect(str(options.get("dialect", "1.2")))
         mac = str(options.get("mac", "CCF9578E0D89"))
         baud = int(options.get("baud", DEFAULT_BAUD))
-        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect, baud), link, faults, rng)
+        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect, baud, paced=True), link, faults, rng)
         self.aoa = aoa
         self.path_loss = path_loss
         self.channel = RadioChannel(path_loss, rng)

@@ -248,7 +248,8 @@ async def test_tcp_transport_serves_pyserial_socket_urls() -> None:
     endpoints = await em.start()
     assert endpoints[0]["url"].startswith("socket://127.0.0.1:")
     port = serial.serial_for_url(endpoints[0]["url"], timeout=0)
-    task = asyncio.create_task(em.run(1.0))
+    task = asyncio.create_task(em.run(2.0))
+    await _poll(port, em, 1.0)  # the board ignores the host for a second after +STARTUP
     port.write(b"AT+GMI\r")
     data = await _poll(port, em, 0.9)
     await task
@@ -262,9 +263,10 @@ async def test_tcp_transport_serves_pyserial_socket_urls() -> None:
 async def test_umrs_moves_the_board_and_the_host_must_follow(tmp_path) -> None:
     em = make(transport="pty", speed=5, link_dir=tmp_path)
     endpoints = await em.start()
-    task = asyncio.create_task(em.run(4.0))
+    task = asyncio.create_task(em.run(6.0))
     port = serial.Serial(endpoints[0]["path"], 115200, timeout=0)
-    for command in (b"AT+UMRS=460800,0\r", b"AT&W\r", b"AT+CPWROFF\r"):
+    await _poll(port, em, 1.0)  # the board ignores the host for a second after +STARTUP
+    for command in (b"AT+UMRS=460800,2\r", b"AT&W\r", b"AT+CPWROFF\r"):
         port.write(command)
         await _poll(port, em, 0.1)
     await _poll(port, em, 0.5)  # the restart
@@ -272,6 +274,7 @@ async def test_umrs_moves_the_board_and_the_host_must_follow(tmp_path) -> None:
     garbage = await _poll(port, em, 0.6)
     port.baudrate = 460800
     port.read(65536)
+    await _poll(port, em, 1.0)
     port.write(b"AT\r")
     healed = await _poll(port, em, 0.6)
     await task
