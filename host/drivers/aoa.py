@@ -55,6 +55,10 @@ class AoaSetup:
     garbage_timeout: float = 3.0
     silence_timeout: float = 5.0
     """Streaming without one +UUDF this long: say why that may be."""
+    choose_tag_s: float | None = None
+    """With no ``host_filter``: hold every event back for this long, listening; then home on
+    the only tag heard, or report the tags heard (:attr:`AoaDriver.ambiguous_tags`) and keep
+    holding. None: pass every tag on (listen, capture)."""
     probe_baud: bool = False
 
 
@@ -118,11 +122,14 @@ class AoaDriver(Driver):
         self.dialect: Dialect | None = None
         self.identity: dict[str, str] = {}
         self.counters.update(setups=0, reboots=0, retries=0, filtered=0, baud_mismatch=0, config_skipped=0,
-                             restarts=0, binary_output=0, silent=0)
+                             restarts=0, binary_output=0, silent=0, held=0)
         self.tags_heard: dict[str, int] = {}
         """Every tag id seen in a +UUDF line (before the host filter) and how often: bounded by
         what the board reports (it tracks at most 20 tags)."""
         self.last_event: float | None = None
+        self.chosen: frozenset[str] = setup.host_filter
+        self.ambiguous_tags: list[str] = []
+        self._choosing_since: float | None = None
         self._answer: asyncio.Future[Response] | None = None
         self._startup = asyncio.Event()
         self._last_valid = time.monotonic()
@@ -168,10 +175,30 @@ class AoaDriver(Driver):
                 log.info("%s: +UUDF has %s fields: dialect %s, not %s", self.port.name,
                          found.field_count, found.value, self.dialect.value)
                 self.dialect = found
-        if self.setup.host_filter and event.instance_id not in self.setup.host_filter:
+        if not self.chosen and self.setup.choose_tag_s is not None and not self._choose():
+            self.counters["held"] += 1
+        elif self.chosen and event.instance_id not in self.chosen:
             self.counters["filtered"] += 1
         else:
             self.events.put(TimedAngle(t_host, event))
+
+    def _choose(self) -> bool:
+        """Listening for the tags in view: True once the only one heard is chosen."""
+        now = time.monotonic()
+        if self._choosing_since is None:
+            self._choosing_since = now
+        if now - self._choosing_since < self.setup.choose_tag_s or self.ambiguous_tags:
+            return False
+        if len(self.tags_heard) > 1:
+            self.ambiguous_tags = sorted(self.tags_heard)
+            heard = ", ".join(f"{t} ({self.tags_heard[t]} events)" for t in self.ambiguous_tags)
+            self.problem = (f"{len(self.ambiguous_tags)} tags in view: {heard}; choose the one to home on "
+                            f"with --tag ID (or tags=ID in the port spec, tags = [\"ID\"] in [devices.aoa])")
+            log.error("%s: %s", self.port.name, self.problem)
+            return False
+        self.chosen = frozenset(self.tags_heard)
+        log.info("%s: homing on tag %s, the only one in view", self.port.name, next(iter(self.chosen)))
+        return True
 
     # -- commands ---------------------------------------------------------------------
     async def command(self, command: c.Command, *, timeout: float | None = None, tries: int | None = None) -> Response:
@@ -196,6 +223,7 @@ class AoaDriver(Driver):
     async def _wake(self) -> None:
         """AT until the board answers: it ignores the host for a second after +STARTUP."""
         tries = max(1, round(self.setup.wake_timeout / 0.25))
+        self.problem = f"waiting for an answer to AT; if none comes, {FLOW_HINT}"
         try:
             await self.command(c.at(), timeout=0.25, tries=tries)
         except CommandFailed:

@@ -65,6 +65,9 @@ class Driver:
         self.latency: deque[float] = deque(maxlen=1000)  # seconds to handle one chunk
         self.connected = asyncio.Event()
         self.listeners: list[Callable[[str, float, Any], None]] = []
+        self.error: Exception | None = None
+        """Why :meth:`run` ended with an exception (e.g. a port that never opened), for a
+        supervisor that does not await the task itself."""
 
     def emit(self, t: float, item: Any) -> Any:
         """Show one decoded item (record, line or drop) to the listeners; returns it."""
@@ -84,6 +87,9 @@ class Driver:
         The port is closed when this ends, however it ends."""
         try:
             await self._run()
+        except Exception as exc:
+            self.error = exc
+            raise
         finally:
             await self.port.close()
 

@@ -6,10 +6,15 @@ import argparse
 import asyncio
 import json
 import sys
+import time
+from dataclasses import replace
 from pathlib import Path
 
 from rfhoming.cli.io import add_port_defaults
+from rfhoming.host import portspec
 from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup
+from rfhoming.host.drivers.common import Driver
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
 from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from rfhoming.host.ports import PortError
@@ -33,6 +38,22 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble"}
 ROLE_KIND = {"aoa": "ublox-aoa", "base": "base", "rss": "rss", "ble": "rss"}
+SETUP_TIMEOUT_S = {"ublox-aoa": 20.0, "base": 5.0, "rss": 5.0}
+"""How long a device may take to open and be set up (port spec ``timeout=`` overrides)."""
+CHOOSE_TAG_S = 2.0
+"""With no tag chosen, listen this long before homing on the only tag in view."""
+
+
+class RunRefused(Exception):
+    """The run cannot start as asked; the message says what to change."""
+
+
+def _tags(values: list[str]) -> tuple[str, ...]:
+    """--tag values (each one id or ids joined by +) -> upper-case ids; ValueError explains."""
+    try:
+        return tuple(dict.fromkeys(t for v in values for t in portspec.KINDS["ublox-aoa"]["tags"](v)))
+    except ValueError as exc:
+        raise ValueError(f"--tag takes {exc}") from None
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -48,11 +69,14 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"rfhoming run: --controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)",
                   file=sys.stderr)
             return 2
+    if args.tag and role != "aoa":
+        print(f"rfhoming run: --tag chooses an XPLR-AOA tag; --controller {args.controller} has none", file=sys.stderr)
+        return 2
     capture = CaptureWriter(args.capture) if args.capture else None
     runlog = open(args.log, "w") if args.log else None
     try:
         return asyncio.run(_run(args, config, role, specs, capture, runlog))
-    except (PortError, ValueError) as exc:
+    except (PortError, ValueError, RunRefused) as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -73,15 +97,56 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
                 for r, spec in specs.items()}
     base = make_driver(resolved["base"], taps, command_timeout_ms=config.loop.command_timeout_ms)
     if role == "aoa":
-        sensor = make_driver(resolved["aoa"], taps)
+        spec = resolved["aoa"]
+        if args.tag:
+            spec = replace(spec, settings={**spec.settings, "tags": _tags(args.tag)})
+        sensor = make_driver(spec, taps, setup=AoaSetup(choose_tag_s=CHOOSE_TAG_S))
         make = aoa_loop if args.controller == "aoa" else dock_loop
     else:
         sensor = make_driver(resolved[role], taps, ed_scale_db=config.calibration.ed_scale_db)
         make = rss_loop if args.controller == "rss" else trilat_loop
     loop = make(base, sensor, config, RunLog(runlog))
-    outcome = await loop.run()
+    deadlines = {d: SETUP_TIMEOUT_S[kind] if spec.timeout is None else spec.timeout
+                 for d, kind, spec in ((base, "base", resolved["base"]), (sensor, resolved[role].kind, resolved[role]))}
+    homing = asyncio.create_task(loop.run())
+    watch = asyncio.create_task(_supervise(deadlines))
+    try:
+        done, _ = await asyncio.wait({homing, watch}, return_when=asyncio.FIRST_COMPLETED)
+        if watch in done:
+            watch.result()  # raises: the run cannot go on
+        outcome = homing.result()
+    finally:
+        for task in (homing, watch):
+            task.cancel()
+        await asyncio.gather(homing, watch, return_exceptions=True)
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
+
+
+def _ready(driver: Driver) -> bool:
+    return driver.state == "streaming" if isinstance(driver, AoaDriver) else driver.connected.is_set()
+
+
+async def _supervise(deadlines: dict[Driver, float]) -> None:
+    """Fail fast: a device that died (e.g. a port that cannot be opened) or is not set up by
+    its deadline ends the run with a message naming it; so do several tags and none chosen."""
+    start = time.monotonic()
+    waiting = dict(deadlines)
+    while True:
+        await asyncio.sleep(0.05)
+        for driver in deadlines:
+            if driver.error is not None:
+                raise PortError(str(driver.error)) if isinstance(driver.error, PortError) else RunRefused(
+                    f"{driver.port.name}: {driver.error}")
+            if isinstance(driver, AoaDriver) and driver.ambiguous_tags:
+                raise RunRefused(f"{driver.port.name}: {driver.problem}")
+        for driver, deadline in list(waiting.items()):
+            if _ready(driver):
+                del waiting[driver]
+            elif time.monotonic() - start > deadline:
+                why = getattr(driver, "problem", None) or f"still {driver.state}"
+                raise RunRefused(f"{driver.port.name} ({driver.kind}) was not ready within {deadline:g} s: {why}; "
+                                 f"a longer wait: timeout=SECONDS in its port spec")
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -129,10 +194,13 @@ examples:
 RUN_HELP = """\
 Home on a tag with real devices or emulator endpoints. The XPLR-AOA gives bearings; the base
 takes velocity commands and gives odometry. The robot stops when data goes stale, on
-arrival, on any error and on Ctrl-C. Exit status: 0 arrived, 1 did not, 2 usage/port errors.
+arrival, on any error and on Ctrl-C. Exit status: 0 arrived, 1 did not, 2 usage/port errors
+(a port that cannot be opened, a device not set up within its timeout=, several tags in view
+and none chosen with --tag).
 
 examples:
   rfhoming run --aoa /dev/ttyUSB0 --base /dev/ttyACM0 --log run.jsonl --capture run.pcapng
+  rfhoming run --aoa /dev/ttyUSB0 --base /dev/ttyACM0 --tag CCF9578E0D8A
   rfhoming run --aoa /dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A --base /dev/ttyACM0,baud=115200
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
   rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
@@ -163,6 +231,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
                         "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
                         "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal)")
+    p.add_argument("--tag", action="append", default=[], metavar="ID",
+                   help="the tag to home on (12 hex digits; repeat or join with + for several ids of one "
+                        "target). Without it, run listens for 2 s and homes on the only tag in view, or "
+                        "stops and lists the tags it hears. Same as tags= in the --aoa spec")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     add_port_defaults(p)
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
