@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from rfhoming.protocol.uconnect import CommandMatcher, UConnectDecoder, encode_answer, encode_startup
@@ -72,6 +74,18 @@ def test_udfcfg_table_per_family() -> None:
     assert c.accepts("2.x", 13, 1) and c.accepts("embed", 7, 2) and not c.accepts("1.x", 7, 2)
     assert not c.accepts("1.x", 2, 'a"b') and not c.accepts("1.x", 2, "\xff") and c.accepts("1.x", 2, "a,b")
     assert c.set_config(10, 50, "2.x").wire == b"AT+UDFCFG=10,50\r"
+
+
+def test_protocol_md_shows_the_udfcfg_table_of_the_code() -> None:
+    doc = (Path(__file__).parents[1] / "docs" / "protocol.md").read_text()
+    doc = doc[doc.index("### `AT+UDFCFG` per firmware family"):]
+    for tag, entry in c.UDFCFG.items():
+        row = next(line for line in doc.splitlines() if line.startswith(f"| {tag} |"))
+        cells = [cell.strip() for cell in row.split("|")[3:6]]
+        for fam, cell in zip(c.FAMILIES, cells):
+            valid = entry.ranges.get(fam, "absent")
+            expected = "—" if valid == "absent" else "≤ 30 chars" if valid is None else f"{valid.start}–{valid.stop - 1}"
+            assert cell == expected, (tag, fam)
 
 
 def run(matcher: CommandMatcher, stream: bytes) -> tuple[list, list]:
