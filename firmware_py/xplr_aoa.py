@@ -165,6 +165,7 @@ class XplrAoaFirmware:
         self._out = bytearray()
         self._urgent = 0  # echo and answers go before this index of the unsent output
         self._credit = 0.0  # bytes the UART may send now (paced)
+        self._uart_ms = 0
         self._line = bytearray()
         self._overflowed = False
         self._now_ms = 0
@@ -192,9 +193,10 @@ class XplrAoaFirmware:
         return self.active.baud
 
     def tick(self, now_ms: int) -> None:
-        if self.paced and self._out:
-            elapsed = max(0, now_ms - self._now_ms)
+        if self.paced and self._out:  # the UART's clock only runs forwards
+            elapsed = max(0, now_ms - self._uart_ms)
             self._credit = min(self._credit + elapsed * self.baud / 10_000, len(self._out))
+        self._uart_ms = max(self._uart_ms, now_ms)
         self._now_ms = now_ms
         if self._restart_at is not None and now_ms >= self._restart_at:
             self.boot(now_ms)
