@@ -149,10 +149,12 @@ class XplrAoaFirmware:
     """The anchor board. Times are integer milliseconds since the emulator started."""
 
     def __init__(self, mac: str = "CCF9578E0D89", dialect: Dialect = Dialect.V1_2, baud: int = 115200,
-                 *, paced: bool = False) -> None:
+                 *, paced: bool = False, deaf_at_power_up: bool = True) -> None:
         """``baud``: the stored UART rate, as if set by AT+UMRS and AT&W before this boot.
         ``paced``: output leaves at the UART's rate (the emulator's links); otherwise
-        :meth:`read` returns everything at once (sans-IO tests)."""
+        :meth:`read` returns everything at once (sans-IO tests). ``deaf_at_power_up=False``:
+        the board was powered before the host opened its port, so only later boots (a
+        restart, a reset) ignore the host for their first second."""
         if len(mac) != 12:
             raise ValueError("mac must be 12 hex digits")
         self.mac = mac
@@ -172,12 +174,15 @@ class XplrAoaFirmware:
         self._restart_at: int | None = None
         self.powered = True
         self.boot(0)
+        if not deaf_at_power_up:
+            self._deaf_until = 0
 
     # -- life cycle -------------------------------------------------------------------
     def boot(self, now_ms: int) -> None:
         """Power-up or reset: load stored settings, forget tags, print +STARTUP."""
         self._now_ms = now_ms
         self.booted_ms = now_ms
+        self._deaf_until = now_ms + DEAF_AFTER_BOOT_MS
         self.active = copy.deepcopy(self.saved)
         self.pending = copy.deepcopy(self.saved)
         self.enabled = bool(self.active.udfcfg[3])
@@ -227,7 +232,7 @@ class XplrAoaFirmware:
         """Bytes from the host: echoed as received; each CR ends a command."""
         if self._restart_at is not None:
             return  # restarting: the UART is down
-        if self._now_ms - self.booted_ms < DEAF_AFTER_BOOT_MS:
+        if self._now_ms < self._deaf_until:
             self.counters["rx_ignored"] += len(data)
             return
         for byte in data:

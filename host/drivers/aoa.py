@@ -5,7 +5,8 @@ State machine::
     opening --open--> setting_up --AT ok, config applied, UDFENABLE=1--> streaming
     streaming --"+STARTUP" (board rebooted)--> setting_up
     any --device gone--> disconnected --re-open with back-off--> setting_up
-    any --only garbage for garbage_timeout s--> baud_mismatch (or binary_output)
+    any --only garbage for garbage_timeout s--> baud_mismatch, or binary_output when the
+        garbage is u-locateEmbed binary frames (AT+UDFCFG=7,2)
 
 Set-up (docs/hardware.md explains each command): ``AT`` until the board answers (it ignores
 the host for a while after booting); identify the firmware with ``AT+GMM``, ``AT+GMR`` and
@@ -326,6 +327,8 @@ class AoaDriver(Driver):
                 continue
             since = max(self.last_event or 0.0, self._streaming_at)
             if time.monotonic() - since < self.setup.silence_timeout:
+                if warned and self.problem and self.problem.startswith("no +UUDF"):
+                    self.problem = None  # events again
                 warned = False
             elif not warned:
                 warned = True
