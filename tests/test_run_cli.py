@@ -118,3 +118,15 @@ def test_a_board_that_never_answers_fails_by_its_timeout_with_a_hint() -> None:
                 os.close(fd)
     assert done.returncode == 2
     assert aoa in done.stderr and "1.5 s" in done.stderr and "RTS/CTS" in done.stderr
+
+
+def test_listen_fails_fast_when_the_board_never_answers() -> None:
+    """Every command, not only run: the board's first set-up fails (no answer to AT) -> exit 2."""
+    controller, device = pty.openpty()
+    aoa = os.ttyname(device)
+    try:
+        done = subprocess.run(rfhoming("listen", f"ublox-aoa:{aoa}"), capture_output=True, text=True, timeout=30)
+    finally:
+        os.close(controller)
+        os.close(device)
+    assert done.returncode == 2 and aoa in done.stderr and "RTS/CTS" in done.stderr

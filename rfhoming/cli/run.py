@@ -6,15 +6,14 @@ import argparse
 import asyncio
 import json
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
 from rfhoming.cli.io import add_port_defaults
+from rfhoming.cli.supervise import DeviceNotReady, deadline, supervise
 from rfhoming.host import portspec
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup
-from rfhoming.host.drivers.common import Driver
+from rfhoming.host.drivers.aoa import AoaSetup
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
 from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
 from rfhoming.host.ports import PortError
@@ -38,14 +37,8 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble"}
 ROLE_KIND = {"aoa": "ublox-aoa", "base": "base", "rss": "rss", "ble": "rss"}
-SETUP_TIMEOUT_S = {"ublox-aoa": 20.0, "base": 5.0, "rss": 5.0}
-"""How long a device may take to open and be set up (port spec ``timeout=`` overrides)."""
 CHOOSE_TAG_S = 2.0
 """With no tag chosen, listen this long before homing on the only tag in view."""
-
-
-class RunRefused(Exception):
-    """The run cannot start as asked; the message says what to change."""
 
 
 def _tags(values: list[str]) -> tuple[str, ...]:
@@ -76,7 +69,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     runlog = open(args.log, "w") if args.log else None
     try:
         return asyncio.run(_run(args, config, role, specs, capture, runlog))
-    except (PortError, ValueError, RunRefused) as exc:
+    except (PortError, ValueError, DeviceNotReady) as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -106,10 +99,9 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
         sensor = make_driver(resolved[role], taps, ed_scale_db=config.calibration.ed_scale_db)
         make = rss_loop if args.controller == "rss" else trilat_loop
     loop = make(base, sensor, config, RunLog(runlog))
-    deadlines = {d: SETUP_TIMEOUT_S[kind] if spec.timeout is None else spec.timeout
-                 for d, kind, spec in ((base, "base", resolved["base"]), (sensor, resolved[role].kind, resolved[role]))}
+    deadlines = {base: deadline(base, resolved["base"].timeout), sensor: deadline(sensor, resolved[role].timeout)}
     homing = asyncio.create_task(loop.run())
-    watch = asyncio.create_task(_supervise(deadlines))
+    watch = asyncio.create_task(supervise(deadlines))
     try:
         done, _ = await asyncio.wait({homing, watch}, return_when=asyncio.FIRST_COMPLETED)
         if watch in done:
@@ -121,32 +113,6 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
         await asyncio.gather(homing, watch, return_exceptions=True)
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
-
-
-def _ready(driver: Driver) -> bool:
-    return driver.state == "streaming" if isinstance(driver, AoaDriver) else driver.connected.is_set()
-
-
-async def _supervise(deadlines: dict[Driver, float]) -> None:
-    """Fail fast: a device that died (e.g. a port that cannot be opened) or is not set up by
-    its deadline ends the run with a message naming it; so do several tags and none chosen."""
-    start = time.monotonic()
-    waiting = dict(deadlines)
-    while True:
-        await asyncio.sleep(0.05)
-        for driver in deadlines:
-            if driver.error is not None:
-                raise PortError(str(driver.error)) if isinstance(driver.error, PortError) else RunRefused(
-                    f"{driver.port.name}: {driver.error}")
-            if isinstance(driver, AoaDriver) and driver.ambiguous_tags:
-                raise RunRefused(f"{driver.port.name}: {driver.problem}")
-        for driver, deadline in list(waiting.items()):
-            if _ready(driver):
-                del waiting[driver]
-            elif time.monotonic() - start > deadline:
-                why = getattr(driver, "problem", None) or f"still {driver.state}"
-                raise RunRefused(f"{driver.port.name} ({driver.kind}) was not ready within {deadline:g} s: {why}; "
-                                 f"a longer wait: timeout=SECONDS in its port spec")
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
