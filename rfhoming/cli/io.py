@@ -169,7 +169,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 LISTEN_HELP = """\
 Open each device like the robot would -- set the XPLR-AOA up, follow reboots, reconnect
 after an unplug -- and print every decoded item as it arrives (text, or --json lines).
-On exit (Ctrl-C or --duration) one counters line per device.
+On exit (Ctrl-C or --duration) one counters line per device. Exit status 2, with a message
+naming the device, when a port cannot be opened or a device's first set-up fails or takes
+longer than 20 s (XPLR-AOA) / 5 s (others).
 
 examples:
   rfhoming listen /dev/ttyACM0
