@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from rfhoming.firmware.xplr_aoa import (
     DEAF_AFTER_BOOT_MS,
@@ -324,3 +326,28 @@ def test_paced_output_leaves_at_the_baud_rate_and_answers_jump_the_queue() -> No
     decoder = UConnectDecoder()
     items = decoder.feed(first + second + rest)
     assert sum(i.kind == "angle" for i in items) == 19 and any(i.kind == "final" for i in items)
+
+
+AT_WORDS = [b"AT", b"+UDFCFG", b"+UDFFILT", b"+UMRS", b"+UDFENABLE", b"=", b"?", b",", b'"', b"1", b"0", b"-",
+            b"2", b"121", b"CCF9578E0D8A", b"\xff", b" ", b"_", b"+", b"&W", b"x" * 300]
+
+
+@given(st.lists(st.lists(st.sampled_from(AT_WORDS) | st.binary(max_size=4), max_size=12).map(b"".join),
+                min_size=1, max_size=8))
+def test_any_command_line_gets_one_final_code_and_events_keep_coming(lines: list[bytes]) -> None:
+    """Hostile input (issue 18): whatever the lines, AT&W and a restart after them, every line
+    gets exactly one final code and the board still encodes its events."""
+    h = Host(XplrAoaFirmware(dialect=Dialect.V2))
+    h.drain()
+    for line in lines:
+        line = line.replace(b"\r", b"").replace(b"\n", b"")
+        h.fw.receive(line + b"\r")
+        finals = [i for i in h.decoder.feed(h.fw.read()) if i.kind == "final"]
+        assert len(finals) == (1 if line.strip() else 0)
+    h.fw.receive(b"AT+UDFENABLE=1\rAT&W\r")
+    h.fw.read()
+    h.restart(5000)
+    h.send(c.enable_angles(True))
+    h.fw.on_advertisement(adv())
+    h.drain()
+    assert h.urcs[-1].kind == "angle"
