@@ -200,6 +200,18 @@ async def test_binary_output_is_told_from_a_baud_mismatch(tmp_path: Path) -> Non
     await stop(em, task)
 
 
+async def test_text_that_is_not_uudf_is_told_from_a_baud_mismatch(tmp_path: Path) -> None:
+    """Raw-IQ JSON debug lines are well-formed text: the baud rate is right, the output is not."""
+    em = await start(tmp_path)
+    fw = em.device("aoa").firmware
+    fw.on_advertisement = lambda adv: fw._emit(b'\r\n{"iq":[12,-7,3,40,-2,11,9,-33,5,8],"ch":37}\r\n')
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(garbage_timeout=1.0))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["unknown_output"] >= 1, 15)
+    assert "JSON" in driver.problem and '{"iq"' in driver.problem and driver.counters["baud_mismatch"] == 0
+    await stop(em, task)
+
+
 def test_garbage_does_not_look_like_binary_output() -> None:
     rng = np.random.default_rng(1)
     assert not any(looks_binary(rng.integers(0, 256, 512, dtype=np.uint8).tobytes()) for _ in range(200))

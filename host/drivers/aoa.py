@@ -6,7 +6,8 @@ State machine::
     streaming --"+STARTUP" (board rebooted)--> setting_up
     any --device gone--> disconnected --re-open with back-off--> setting_up
     any --only garbage for garbage_timeout s--> baud_mismatch, or binary_output when the
-        garbage is u-locateEmbed binary frames (AT+UDFCFG=7,2)
+        garbage is u-locateEmbed binary frames (AT+UDFCFG=7,2), or unknown_output when it is
+        well-formed text lines that are not +UUDF ($MEAS, raw-IQ JSON debug lines)
 
 Set-up (docs/hardware.md explains each command): ``AT`` until the board answers (it ignores
 the host for a while after booting); identify the firmware with ``AT+GMM``, ``AT+GMR`` and
@@ -22,6 +23,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -123,7 +125,8 @@ class AoaDriver(Driver):
         self.dialect: Dialect | None = None
         self.identity: dict[str, str] = {}
         self.counters.update(setups=0, reboots=0, retries=0, filtered=0, baud_mismatch=0, config_skipped=0,
-                             restarts=0, binary_output=0, silent=0, held=0)
+                             restarts=0, binary_output=0, unknown_output=0,
+                             silent=0, held=0)
         self.tags_heard: dict[str, int] = {}
         """Every tag id seen in a +UUDF line (before the host filter) and how often: bounded by
         what the board reports (it tracks at most 20 tags)."""
@@ -138,6 +141,7 @@ class AoaDriver(Driver):
         self._needs_setup = asyncio.Event()
         self._streaming_at = 0.0
         self._recent = bytearray()
+        self._unknown_lines: deque[str] = deque(maxlen=5)
         self.problem: str | None = None
 
     # -- reading ----------------------------------------------------------------------
@@ -149,9 +153,12 @@ class AoaDriver(Driver):
             kind = item.kind
             if kind == "drop":
                 continue
-            if kind != "unknown":
+            if kind == "unknown":
+                self._unknown_lines.append(item.text[:60])  # text, yet not +UUDF: say what it is
+            else:
                 self._last_valid = time.monotonic()
                 self._bytes_at_valid = self.port.counters["bytes_in"]
+                self._unknown_lines.clear()
             if kind == "angle":
                 self._on_angle(item, t_host)
                 continue
@@ -160,6 +167,7 @@ class AoaDriver(Driver):
                 if self.state == "streaming":
                     self.counters["reboots"] += 1
                     log.warning("%s: the board restarted (+STARTUP); setting it up again", self.port.name)
+                    self.state = "setting_up"  # from now: its settings and UDFENABLE are gone
                     self._needs_setup.set()
             # an unknown line while a command waits is its answer whose echo was torn
             response = self.matcher.on_item(item)
@@ -348,6 +356,17 @@ class AoaDriver(Driver):
                     self.problem = ("the board writes u-locateEmbed binary output (AT+UDFCFG=7,2), not +UUDF "
                                     "lines: set AT+UDFCFG=7,0 (add 7: 0 to the AoA set-up, or send it, AT&W, "
                                     "AT+CPWROFF)")
+                    log.error("%s: %s", self.port.name, self.problem)
+                    self._last_valid = time.monotonic()
+                    self._bytes_at_valid = self.port.counters["bytes_in"]
+                    continue
+                if len(self._unknown_lines) >= 3:  # well-formed lines: the baud rate is right
+                    self.counters["unknown_output"] += 1
+                    self.state = "unknown_output"
+                    self.problem = (f"the board writes text lines that are not +UUDF, e.g. "
+                                    f"{self._unknown_lines[-1]!r}: $MEAS lines come from AT+UDFCFG=7,1 (set 7,0); "
+                                    "JSON lines are a debug output (raw IQ samples) of some firmware builds; "
+                                    "flash a release build (docs/hardware.md)")
                     log.error("%s: %s", self.port.name, self.problem)
                     self._last_valid = time.monotonic()
                     self._bytes_at_valid = self.port.counters["bytes_in"]
