@@ -124,12 +124,11 @@ class AoaDriver(Driver):
         self.events = BoundedStream[TimedAngle](queue_size)
         self.dialect: Dialect | None = None
         self.identity: dict[str, str] = {}
-        self.counters.update(setups=0, reboots=0, retries=0, filtered=0, baud_mismatch=0, config_skipped=0,
-                             restarts=0, binary_output=0, unknown_output=0,
-                             silent=0, held=0)
+        self.counters.update(setups=0, reboots=0, retries=0, filtered=0, held=0, baud_mismatch=0, binary_output=0,
+                             unknown_output=0, config_skipped=0, restarts=0, silent=0)
         self.tags_heard: dict[str, int] = {}
-        """Every tag id seen in a +UUDF line (before the host filter) and how often: bounded by
-        what the board reports (it tracks at most 20 tags)."""
+        """Every tag id seen in a +UUDF line (before any filter) and how often; at most 256 ids
+        (a board tracks at most 20 at a time)."""
         self.last_event: float | None = None
         self.chosen: frozenset[str] = setup.host_filter
         self.ambiguous_tags: list[str] = []
