@@ -122,7 +122,10 @@ class AoaRunner(DeviceRunner):
         dialect = Dialect(str(options.get("dialect", "1.2")))
         mac = str(options.get("mac", "CCF9578E0D89"))
         baud = int(options.get("baud", DEFAULT_BAUD))
-        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect, baud), link, faults, rng)
+        # powered before the host opens its port (lockstep runs stay deterministic); every later
+        # boot -- AT+CPWROFF, a reboot fault -- ignores the host for its first second
+        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect, baud, paced=True, deaf_at_power_up=False),
+                         link, faults, rng)
         self.aoa = aoa
         self.path_loss = path_loss
         self.channel = RadioChannel(path_loss, rng)

@@ -5,20 +5,45 @@ echoes them and answers each CR-terminated line; :meth:`on_advertisement` is one
 advertisement heard by the antenna array (the emulator computes its angles);
 :meth:`tick` advances time; :meth:`read` drains the bounded TX buffer.
 
-Configuration semantics (protocols.md §1): ``AT+UDFCFG``, ``AT+UDFFILT`` and ``AT+UMRS``
-edit the *pending* settings, which read back at once but take effect only after ``AT&W``
-(store) and ``AT+CPWROFF`` (restart -> ``+STARTUP``); unsaved settings are lost at restart.
-``AT+UDFENABLE`` acts at once and is never stored.
+As hard as the board (docs/protocol.md, "The emulated board"):
+
+- commands are parsed as AT syntax: integers are plain decimals (no sign other than ``-``, no
+  blanks, no ``_``, no leading zeros), strings are double-quoted printable ASCII without a
+  quote inside, ids are hex; anything else answers ``ERROR`` and changes nothing, so every
+  stored value can be printed back and put in a ``+UUDF`` line;
+- a line longer than 512 bytes is discarded whole (answered ``ERROR``), its tail never runs;
+- for the first second after ``+STARTUP`` the UART ignores what it receives (no echo);
+- ``AT+UDFCFG`` follows the family's table (:data:`~rfhoming.protocol.uconnect.commands.UDFCFG`):
+  1.x edits the *pending* settings, which take effect after ``AT&W`` + ``AT+CPWROFF``;
+  2.x and u-locateEmbed apply them at once (``AT&W`` still makes them survive a restart).
+  ``AT+UMRS`` always waits for the restart; ``AT+UDFENABLE`` acts at once and is never stored;
+- with ``paced=True`` output leaves at the UART's rate (10 bits a byte): a 115200 Bd link
+  carries about 175 ``+UUDF`` lines a second, the rest queue in the bounded TX buffer and
+  arrive late; the echo and answer of a command jump that queue, so they can land in the middle
+  of an event line that is half sent;
+- 2.x writes a non-zero reserved field (values seen in real logs).
 """
 
 from __future__ import annotations
 
 import copy
+import re
+import struct
 from collections import deque
 from dataclasses import dataclass, field
 
 from rfhoming.protocol.uconnect import AngleEvent, Dialect, encode_angle_event, encode_answer, encode_startup
-from rfhoming.protocol.uconnect.commands import BAUD_RATES, STRING_TAGS, UDFCFG_RANGES
+from rfhoming.protocol.uconnect.commands import (
+    BAUD_RATES,
+    FLOW_OFF,
+    FLOW_ON,
+    LIVE_FAMILIES,
+    UDFCFG,
+    accepts,
+    config_answer,
+    family,
+    is_at_string,
+)
 
 TX_BUFFER = 8192
 """UART TX buffer, bytes; a URC that does not fit is dropped whole and counted."""
@@ -26,6 +51,12 @@ RX_LINE = 512
 TAG_TIMEOUT_MS = 5000
 RESTART_MS = 300
 """Time from AT+CPWROFF's OK to +STARTUP."""
+DEAF_AFTER_BOOT_MS = 1000
+"""The UART ignores the host this long after +STARTUP."""
+RESERVED_2X = (-43, 6, 8)
+"""Values of the reserved 5th +UUDF field in real 2.x logs (shared/protocols.md §1)."""
+BINARY_ANGLE = 0x01
+"""Frame type of an angle in this model's u-locateEmbed binary output (AT+UDFCFG=7,2)."""
 
 _IDENTITY = {
     Dialect.V1_0: ('"NINA-B4-DF"', '"1.0.2-001"', '"u-connectLocate","1.0.2-001","NINA-B4"'),
@@ -37,8 +68,43 @@ _IDENTITY = {
 (not captured from a board): hosts tell it apart by 'u-locateEmbed' in ATI9."""
 
 TAG_LIMIT = {Dialect.V1_0: 5, Dialect.V1_2: 20, Dialect.V2: 20, Dialect.EMBED: 20}
-LATER_TAGS = {9, 11}
-EMBED_TAGS = {121}
+
+_INTEGER = re.compile(r"0|-?[1-9][0-9]{0,9}")
+
+
+class AtSyntaxError(ValueError):
+    """A command line the board refuses (answered ERROR)."""
+
+
+def parse_params(text: str) -> list[int | str]:
+    """``1,"abc",-5`` -> ``[1, "abc", -5]`` as an AT interpreter reads parameters.
+
+    Strings are double-quoted, printable ASCII, without a quote inside (commas are allowed);
+    integers are plain decimals. Empty parameters and anything else raise AtSyntaxError."""
+    params: list[int | str] = []
+    i, n = 0, len(text)
+    while True:
+        if i < n and text[i] == '"':
+            end = text.find('"', i + 1)
+            if end < 0:
+                raise AtSyntaxError("unterminated string")
+            params.append(text[i + 1:end])
+            i = end + 1
+        else:
+            end = text.find(",", i)
+            end = n if end < 0 else end
+            token = text[i:end]
+            if not _INTEGER.fullmatch(token):
+                raise AtSyntaxError(f"not an integer: {token!r}")
+            params.append(int(token))
+            i = end
+        if i == n:
+            return params
+        if text[i] != ",":
+            raise AtSyntaxError(f"',' expected at {i}")
+        i += 1
+        if i == n:
+            raise AtSyntaxError("empty last parameter")
 
 
 @dataclass
@@ -51,8 +117,11 @@ class Settings:
     flow_control: bool = True
 
 
-def factory_settings(mac: str) -> Settings:
-    return Settings(udfcfg={1: 1, 2: "", 3: 1, 4: mac, 5: 1, 6: 0, 7: 0, 8: 1, 9: 20, 11: 0, 121: 0})
+def factory_settings(mac: str, dialect: Dialect = Dialect.V1_2) -> Settings:
+    """The family's AT+UDFCFG defaults (tag 4, the anchor id, defaults to the MAC)."""
+    fam = family(dialect)
+    return Settings(udfcfg={tag: mac if entry.default is None else entry.default
+                            for tag, entry in UDFCFG.items() if fam in entry.ranges})
 
 
 @dataclass(frozen=True)
@@ -79,32 +148,47 @@ class _Tag:
 class XplrAoaFirmware:
     """The anchor board. Times are integer milliseconds since the emulator started."""
 
-    def __init__(self, mac: str = "CCF9578E0D89", dialect: Dialect = Dialect.V1_2, baud: int = 115200) -> None:
-        """``baud``: the stored UART rate, as if set by AT+UMRS and AT&W before this boot."""
+    def __init__(self, mac: str = "CCF9578E0D89", dialect: Dialect = Dialect.V1_2, baud: int = 115200,
+                 *, paced: bool = False, deaf_at_power_up: bool = True) -> None:
+        """``baud``: the stored UART rate, as if set by AT+UMRS and AT&W before this boot.
+        ``paced``: output leaves at the UART's rate (the emulator's links); otherwise
+        :meth:`read` returns everything at once (sans-IO tests). ``deaf_at_power_up=False``:
+        the board was powered before the host opened its port, so only later boots (a
+        restart, a reset) ignore the host for their first second."""
         if len(mac) != 12:
             raise ValueError("mac must be 12 hex digits")
         self.mac = mac
         self.dialect = dialect
-        self.saved = factory_settings(mac)
+        self.family = family(dialect)
+        self.paced = paced
+        self.saved = factory_settings(mac, dialect)
         self.saved.baud = baud
-        self.counters: dict[str, int] = {"events": 0, "tx_overflow": 0, "rx_overflow": 0}
+        self.counters: dict[str, int] = {"events": 0, "tx_overflow": 0, "rx_overflow": 0, "rx_ignored": 0}
         self._out = bytearray()
+        self._urgent = 0  # echo and answers go before this index of the unsent output
+        self._credit = 0.0  # bytes the UART may send now (paced)
+        self._uart_ms = 0
         self._line = bytearray()
+        self._overflowed = False
         self._now_ms = 0
         self._restart_at: int | None = None
         self.powered = True
         self.boot(0)
+        if not deaf_at_power_up:
+            self._deaf_until = 0
 
     # -- life cycle -------------------------------------------------------------------
     def boot(self, now_ms: int) -> None:
         """Power-up or reset: load stored settings, forget tags, print +STARTUP."""
         self._now_ms = now_ms
         self.booted_ms = now_ms
+        self._deaf_until = now_ms + DEAF_AFTER_BOOT_MS
         self.active = copy.deepcopy(self.saved)
         self.pending = copy.deepcopy(self.saved)
         self.enabled = bool(self.active.udfcfg[3])
         self.tags: dict[str, _Tag] = {}
         self._line.clear()
+        self._overflowed = False
         self._restart_at = None
         self._emit(encode_startup())
 
@@ -114,6 +198,10 @@ class XplrAoaFirmware:
         return self.active.baud
 
     def tick(self, now_ms: int) -> None:
+        if self.paced and self._out:  # the UART's clock only runs forwards
+            elapsed = max(0, now_ms - self._uart_ms)
+            self._credit = min(self._credit + elapsed * self.baud / 10_000, len(self._out))
+        self._uart_ms = max(self._uart_ms, now_ms)
         self._now_ms = now_ms
         if self._restart_at is not None and now_ms >= self._restart_at:
             self.boot(now_ms)
@@ -121,39 +209,62 @@ class XplrAoaFirmware:
             del self.tags[tag_id]
 
     def read(self) -> bytes:
-        data = bytes(self._out)
-        self._out.clear()
+        """What the UART has sent since the last read."""
+        n = min(len(self._out), int(self._credit)) if self.paced else len(self._out)
+        data = bytes(self._out[:n])
+        del self._out[:n]
+        self._credit -= n
+        self._urgent = max(0, self._urgent - n)
         return data
 
-    def _emit(self, data: bytes) -> None:
+    def _emit(self, data: bytes, urgent: bool = False) -> None:
         if len(self._out) + len(data) > TX_BUFFER:
             self.counters["tx_overflow"] += 1
             return
-        self._out += data
+        if urgent:
+            self._out[self._urgent:self._urgent] = data
+            self._urgent += len(data)
+        else:
+            self._out += data
 
     # -- host -> board ----------------------------------------------------------------
     def receive(self, data: bytes) -> None:
         """Bytes from the host: echoed as received; each CR ends a command."""
         if self._restart_at is not None:
             return  # restarting: the UART is down
+        if self._now_ms < self._deaf_until:
+            self.counters["rx_ignored"] += len(data)
+            return
         for byte in data:
-            self._emit(bytes((byte,)))
+            self._emit(bytes((byte,)), urgent=True)
             if byte == 0x0D:
-                line, self._line = self._line.decode("ascii", "replace"), bytearray()
-                if line.strip():
-                    self._execute(line.strip())
+                line, overflowed = bytes(self._line), self._overflowed
+                self._line.clear()
+                self._overflowed = False
+                if overflowed:
+                    self._answer(ok=False)  # the whole line is lost, its tail never runs
+                elif line.strip():
+                    self._execute_bytes(line.strip())
             elif byte != 0x0A:
                 if len(self._line) >= RX_LINE:
-                    self.counters["rx_overflow"] += 1
-                    self._line.clear()
+                    if not self._overflowed:
+                        self.counters["rx_overflow"] += 1
+                    self._overflowed = True
+                    continue
                 self._line.append(byte)
 
     def _answer(self, info: list[str] | None = None, ok: bool = True) -> None:
-        self._emit(encode_answer(info or [], ok))
+        self._emit(encode_answer(info or [], ok), urgent=True)
+
+    def _execute_bytes(self, line: bytes) -> None:
+        if any(b < 0x20 or b > 0x7E for b in line):  # control or non-ASCII byte: not a command
+            return self._answer(ok=False)
+        self._execute(line.decode("ascii"))
 
     def _execute(self, line: str) -> None:
         upper = line.upper()
         gmm, gmr, ati9 = _IDENTITY[self.dialect]
+        flow = FLOW_ON if self.pending.flow_control else FLOW_OFF
         simple = {
             "AT": [],
             "AT+GMI": ['"u-blox"'],
@@ -161,7 +272,7 @@ class XplrAoaFirmware:
             "AT+GMR": [gmr],
             "ATI9": [ati9],
             "AT+UMLA=1": [f"+UMLA:{self.mac}"],
-            "AT+UMRS?": [f"+UMRS:{self.pending.baud},{int(self.pending.flow_control)}"],
+            "AT+UMRS?": [f"+UMRS:{self.pending.baud},{flow},8,1,1,1"],
         }
         if upper in simple:
             return self._answer(simple[upper])
@@ -173,87 +284,71 @@ class XplrAoaFirmware:
             self._restart_at = self._now_ms + RESTART_MS
             return None
         if upper == "AT+UFACTORY":
-            self.saved = factory_settings(self.mac)
+            self.saved = factory_settings(self.mac, self.dialect)
             self.pending = copy.deepcopy(self.saved)
             return self._answer()
+        if upper == "AT+UDFCFG?":
+            return self._answer([config_answer(t, v) for t, v in sorted(self.pending.udfcfg.items())])
         for prefix, handler in (
             ("AT+UDFENABLE=", self._udfenable),
-            ("AT+UDFCFG", self._udfcfg),
+            ("AT+UDFCFG=", self._udfcfg),
             ("AT+UDFFILT=", self._udffilt),
             ("AT+UMRS=", self._umrs),
         ):
             if upper.startswith(prefix):
                 try:
-                    info = handler(line[len(prefix):])
-                except (ValueError, IndexError, KeyError):
+                    info = handler(parse_params(line[len(prefix):]))
+                except (ValueError, KeyError):
                     return self._answer(ok=False)
                 return self._answer(info)
         return self._answer(ok=False)
 
-    def _udfenable(self, arg: str) -> list[str]:
-        if arg not in ("0", "1"):
-            raise ValueError(arg)
-        self.enabled = arg == "1"
+    def _udfenable(self, params: list[int | str]) -> list[str]:
+        if params not in ([0], [1]):
+            raise AtSyntaxError("AT+UDFENABLE takes 0 or 1")
+        self.enabled = params == [1]
         return []
 
-    def _known_tag(self, tag: int) -> bool:
-        if tag in EMBED_TAGS:
-            return self.dialect is Dialect.EMBED
-        if tag in LATER_TAGS:
-            return self.dialect in (Dialect.V2, Dialect.EMBED)
-        return tag in UDFCFG_RANGES
-
-    def _format_cfg(self, tag: int) -> str:
-        value = self.pending.udfcfg[tag]
-        return f'+UDFCFG:{tag},"{value}"' if tag in STRING_TAGS else f"+UDFCFG:{tag},{value}"
-
-    def _udfcfg(self, arg: str) -> list[str]:
-        if arg == "?":
-            return [self._format_cfg(t) for t in sorted(self.pending.udfcfg) if self._known_tag(t)]
-        if not arg.startswith("="):
-            raise ValueError(arg)
-        tag_text, _, value = arg[1:].partition(",")
-        tag = int(tag_text)
-        if not self._known_tag(tag):
-            raise ValueError(tag)
-        if not value:
-            return [self._format_cfg(tag)]
-        if tag in STRING_TAGS:
-            if len(value) < 2 or value[0] != '"' or value[-1] != '"' or len(value) - 2 > 30:
-                raise ValueError(value)
-            self.pending.udfcfg[tag] = value[1:-1]
-        else:
-            number = int(value)
-            if number not in UDFCFG_RANGES[tag]:
-                raise ValueError(value)
-            self.pending.udfcfg[tag] = number
+    def _udfcfg(self, params: list[int | str]) -> list[str]:
+        tag = params[0]
+        if not isinstance(tag, int) or tag not in self.pending.udfcfg:
+            raise AtSyntaxError(f"no tag {tag}")
+        if len(params) == 1:
+            return [config_answer(tag, self.pending.udfcfg[tag])]
+        if len(params) != 2 or not accepts(self.family, tag, params[1]):
+            raise AtSyntaxError(f"bad value for tag {tag}")
+        self.pending.udfcfg[tag] = params[1]
+        if self.family in LIVE_FAMILIES:
+            self.active.udfcfg[tag] = params[1]
         return []
 
-    def _udffilt(self, arg: str) -> list[str]:
-        parts = arg.split(",")
-        kind = int(parts[0])
-        digits = {1: 20, 2: 12}[kind]
-        if len(parts) == 1:
+    def _udffilt(self, params: list[int | str]) -> list[str]:
+        kind = params[0]
+        digits = {1: 20, 2: 12}[kind]  # KeyError: ERROR
+        if len(params) == 1:
             ids = "".join(f',"{i}"' for i in self.pending.filters[kind])
             return [f"+UDFFILT:{kind}{ids}"]
-        action = int(parts[1])
-        ids = [p.strip('"').upper() for p in parts[2:]]
-        if any(len(i) != digits for i in ids):
-            raise ValueError(ids)
+        action, ids = params[1], params[2:]
+        if not all(isinstance(i, str) and len(i) == digits and is_at_string(i)
+                   and all(c in "0123456789abcdefABCDEF" for c in i) for i in ids):
+            raise AtSyntaxError("ids must be quoted hex")
+        upper = [str(i).upper() for i in ids]
         if action == 1 and not ids:
             self.pending.filters[kind] = []
         elif action == 2 and ids and len(self.pending.filters[kind]) + len(ids) <= 100:
-            self.pending.filters[kind].extend(ids)
+            self.pending.filters[kind].extend(upper)
         else:
-            raise ValueError(action)
+            raise AtSyntaxError(f"bad action {action}")
         return []
 
-    def _umrs(self, arg: str) -> list[str]:
-        baud_text, flow_text = arg.split(",")
-        baud = int(baud_text)
-        if baud not in BAUD_RATES or flow_text not in ("0", "1"):
-            raise ValueError(arg)
-        self.pending.baud, self.pending.flow_control = baud, flow_text == "1"
+    def _umrs(self, params: list[int | str]) -> list[str]:
+        """``<baud>,<flow>[,8,1,1,<change_after_confirm>]``: only baud and flow control are
+        supported (UBX-21004616 A.5); flow 1 on, 2 off."""
+        if len(params) not in (2, 6) or params[0] not in BAUD_RATES or params[1] not in (FLOW_ON, FLOW_OFF):
+            raise AtSyntaxError("bad AT+UMRS")
+        if len(params) == 6 and (params[2:5] != [8, 1, 1] or params[5] not in (0, 1)):
+            raise AtSyntaxError("only 8N1 is supported")
+        self.pending.baud, self.pending.flow_control = int(params[0]), params[1] == FLOW_ON
         return []
 
     # -- radio -> board ---------------------------------------------------------------
@@ -269,7 +364,7 @@ class XplrAoaFirmware:
             return
         tag = self.tags.get(adv.instance_id)
         if tag is None:
-            if len(self.tags) >= TAG_LIMIT[self.dialect]:
+            if len(self.tags) >= TAG_LIMIT[self.dialect] and not cfg[6]:  # tag 6: track unlimited tags
                 return
             tag = self.tags[adv.instance_id] = _Tag(self._now_ms)
         tag.last_heard_ms = self._now_ms
@@ -287,21 +382,28 @@ class XplrAoaFirmware:
         tag.seq = (tag.seq + 1) & 0xFFFF
         timestamp = _int32(self._now_ms - self.booted_ms)
         rssi1 = _clamp(round(adv.rssi1_dbm), -127, 20)
-        rssi2 = _clamp(round(adv.rssi2_dbm), -127, 20)
         if self.dialect in (Dialect.V1_0, Dialect.V1_2):
+            rssi2 = _clamp(round(adv.rssi2_dbm), -127, 20)  # 1.0: 2nd polarisation; 1.2 prints 0
             channel = 37 + tag.seq % 3  # legacy advertising channels
         else:
+            rssi2 = RESERVED_2X[tag.seq % len(RESERVED_2X)]  # "reserved", yet not 0 on real boards
             channel = (tag.seq * 11) % 37  # periodic advertising hops the data channels
-        if int(cfg[7]) == 1:  # undocumented $MEAS text format, emulated so hosts can detect it
+        if cfg[7] == 1:  # undocumented $MEAS text format, emulated so hosts can detect it
             self._emit(f"\r\n$MEAS,{azimuth},{elevation},{rssi1},{rssi2},{channel},{timestamp},0,0\r\n".encode())
             return
+        if cfg[7] == 2:  # u-locateEmbed binary output: FE type len16 payload
+            payload = bytes.fromhex(adv.instance_id) + struct.pack(
+                "<bbbBiH", rssi1, azimuth, elevation, channel, timestamp, tag.seq)
+            self._emit(b"\xfe" + bytes((BINARY_ANGLE,)) + struct.pack("<H", len(payload)) + payload)
+            return
+        raw = bool(cfg.get(121, 0))
         event = AngleEvent(
             adv.instance_id, rssi1, azimuth, elevation, rssi2, channel,
             str(cfg[4]), str(cfg[2]), timestamp, tag.seq,
-            raw_az if cfg[121] else None, raw_el if cfg[121] else None,
+            raw_az if raw else None, raw_el if raw else None,
         )
         dialect = self.dialect
-        if dialect is Dialect.EMBED and not cfg[121]:
+        if dialect is Dialect.EMBED and not raw:
             dialect = Dialect.V2
         self._emit(encode_angle_event(event, dialect))
         self.counters["events"] += 1

@@ -43,12 +43,19 @@ def read_for(port: serial.Serial, seconds: float) -> bytes:
     return data
 
 
-def command(port: serial.Serial, line: bytes) -> bytes:
+def command(port: serial.Serial, line: bytes, timeout: float = 5) -> bytes:
     port.write(line + b"\r")
-    data, end = b"", time.monotonic() + 5
+    data, end = b"", time.monotonic() + timeout
     while b"OK\r\n" not in data and b"ERROR\r\n" not in data and time.monotonic() < end:
         data += port.read(4096)
     return data
+
+
+def wake(port: serial.Serial) -> None:
+    """Say AT until the board answers: it ignores the host for a second after +STARTUP."""
+    end = time.monotonic() + 5
+    while b"OK\r\n" not in command(port, b"AT", 0.3):
+        assert time.monotonic() < end, "the board never answered AT"
 
 
 def test_plain_pyserial_at_session_and_angles_match_truth(tmp_path: Path) -> None:
@@ -59,7 +66,7 @@ def test_plain_pyserial_at_session_and_angles_match_truth(tmp_path: Path) -> Non
         aoa = endpoints["aoa"]
         assert aoa["protocol"] == "ublox-aoa" and Path(aoa["path"]).exists()
         port = serial.Serial(aoa["path"], 115200, rtscts=False, timeout=0.05)
-        assert b"OK\r\n" in command(port, b"AT")
+        wake(port)
         assert b"NINA-B411-40B" in command(port, b"AT+GMM")
         assert b"OK\r\n" in command(port, b"AT+UDFENABLE=1")
         events = [i for i in UConnectDecoder().feed(read_for(port, 2.0)) if i.kind == "angle"]
@@ -74,6 +81,32 @@ def test_plain_pyserial_at_session_and_angles_match_truth(tmp_path: Path) -> Non
     assert len(errors) > 40
     assert abs(sum(errors) / len(errors)) < 1.5  # configured noise: σ = 3° at boresight
     assert max(map(abs, errors)) < 6 * 3.0 + 1
+
+
+PROBES = [b'AT+UDFCFG=2,"a"b"', b'AT+UDFCFG=2,"\xff"', b"AT+UDFCFG=2", b"AT+UDFCFG?", b"AT+UDFFILT=2",
+          b"x" * 512 + b"AT+GMM", b"AT+UDFCFG=1,1_000", b"AT+UDFCFG=1, 5", b"AT+UDFCFG=1,+5", b"AT+UDFCFG=1,0005",
+          b'AT+UDFFILT=2,2,"GGGGGGGGGGGG"', b"AT+UDFCFG=1,", b"AT&W"]
+
+
+def test_hostile_at_commands_never_kill_the_emulator(tmp_path: Path) -> None:
+    """Issue 18's probes: each gets a final result code; after AT&W and AT+CPWROFF the board
+    boots and keeps sending angle events."""
+    proc, endpoints = emulate("s0-open", "--pty", "--seed", "5", "--target", "3,2",
+                              "--link-dir", str(tmp_path), devices=2)
+    try:
+        port = serial.Serial(endpoints["aoa"]["path"], 115200, rtscts=False, timeout=0.05)
+        wake(port)
+        for probe in PROBES:
+            finals = [i.ok for i in UConnectDecoder().feed(command(port, probe)) if i.kind == "final"]
+            assert finals == [probe in (b"AT+UDFCFG=2", b"AT+UDFCFG?", b"AT+UDFFILT=2", b"AT&W")], probe
+        assert b"OK\r\n" in command(port, b"AT+CPWROFF")
+        time.sleep(0.5)
+        wake(port)
+        events = [i for i in UConnectDecoder().feed(read_for(port, 1.5)) if i.kind == "angle"]
+        assert proc.poll() is None and len(events) > 10
+        port.close()
+    finally:
+        assert stop(proc) == 0
 
 
 def test_rss_node_and_base_over_their_framing(tmp_path: Path) -> None:

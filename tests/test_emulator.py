@@ -6,6 +6,7 @@ import asyncio
 import math
 import os
 import termios
+from collections import Counter
 
 import pytest
 import serial
@@ -13,6 +14,7 @@ import serial
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import ScenarioError, load, presets
+from rfhoming.emulator.world import Target
 from rfhoming.protocol.frames import FrameDecoder, Odometry, VelocityCommand, encode_frame
 from rfhoming.protocol.uconnect import UConnectDecoder
 
@@ -99,6 +101,40 @@ async def test_angles_agree_with_truth_within_noise() -> None:
     assert len(errors) > 150
     assert abs(sum(errors) / len(errors)) < 1.0
     assert max(map(abs, errors)) < 6 * 3.0 + 1
+    await em.close()
+
+
+def with_tags(em: Emulator, intervals_ms: list[float]) -> list[str]:
+    """Replace the scenario's tags with one per interval, spread in front of the robot."""
+    em.world.targets[:] = [Target(f"CCF9578E0D{i:02X}", "aoa_tag", (4.0, -3.0 + 2.0 * i), interval_ms=ms)
+                           for i, ms in enumerate(intervals_ms)]
+    return [t.id for t in em.world.targets]
+
+
+async def test_four_tags_each_at_its_own_advertising_interval() -> None:
+    em = make()
+    ids = with_tags(em, [20, 100, 250, 1000])
+    await em.start()
+    await em.run(6.0)
+    counts = Counter(e.instance_id for e in angles(await drain(em.device("aoa").link.host)))
+    for tag, ms in zip(ids, (20, 100, 250, 1000)):
+        assert counts[tag] == pytest.approx(6000 / ms, rel=0.2, abs=2)
+    await em.close()
+
+
+async def test_more_tags_than_the_link_carries_queue_then_drop() -> None:
+    """115200 Bd carries ~175 +UUDF lines/s; six tags at 20 ms offer 300."""
+    em = make()
+    with_tags(em, [20] * 6)
+    await em.start()
+    await em.run(3.0)
+    data = await drain(em.device("aoa").link.host)
+    events = angles(data)
+    fw = em.device("aoa").firmware
+    assert len(data) <= 3.0 * 115200 / 10 + 64  # 10 bits a byte, never faster
+    assert len(events) < 0.7 * 6 * 50 * 3 and fw.counters["tx_overflow"] > 0
+    lateness = [em.t * 1000 - e.timestamp_ms for e in events[-20:]]
+    assert min(lateness) > 200  # the last lines delivered were measured long before
     await em.close()
 
 
@@ -262,9 +298,9 @@ async def test_tcp_transport_serves_pyserial_socket_urls() -> None:
 async def test_umrs_moves_the_board_and_the_host_must_follow(tmp_path) -> None:
     em = make(transport="pty", speed=5, link_dir=tmp_path)
     endpoints = await em.start()
-    task = asyncio.create_task(em.run(4.0))
+    task = asyncio.create_task(em.run(6.0))
     port = serial.Serial(endpoints[0]["path"], 115200, timeout=0)
-    for command in (b"AT+UMRS=460800,0\r", b"AT&W\r", b"AT+CPWROFF\r"):
+    for command in (b"AT+UMRS=460800,2\r", b"AT&W\r", b"AT+CPWROFF\r"):
         port.write(command)
         await _poll(port, em, 0.1)
     await _poll(port, em, 0.5)  # the restart
@@ -272,6 +308,7 @@ async def test_umrs_moves_the_board_and_the_host_must_follow(tmp_path) -> None:
     garbage = await _poll(port, em, 0.6)
     port.baudrate = 460800
     port.read(65536)
+    await _poll(port, em, 1.0)  # after the restart the board ignores the host for a second
     port.write(b"AT\r")
     healed = await _poll(port, em, 0.6)
     await task

@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from rfhoming.firmware.xplr_aoa import RESTART_MS, TAG_TIMEOUT_MS, Advertisement, XplrAoaFirmware
+from rfhoming.firmware.xplr_aoa import (
+    DEAF_AFTER_BOOT_MS,
+    RESTART_MS,
+    TAG_TIMEOUT_MS,
+    Advertisement,
+    XplrAoaFirmware,
+)
 from rfhoming.protocol.uconnect import CommandMatcher, Dialect, Response, UConnectDecoder
 from rfhoming.protocol.uconnect import commands as c
 
@@ -17,6 +25,7 @@ class Host:
         self.decoder = UConnectDecoder()
         self.matcher = CommandMatcher()
         self.urcs: list = []
+        fw.tick(fw.booted_ms + DEAF_AFTER_BOOT_MS)  # the UART ignores the host for a second after boot
 
     def drain(self) -> list[Response]:
         responses = []
@@ -34,8 +43,11 @@ class Host:
         return response
 
     def restart(self, now_ms: int = 1000) -> None:
+        """AT+CPWROFF at ``now_ms``; returns once the board listens again."""
+        self.fw.tick(now_ms)
         assert self.send(c.restart()).ok
         self.fw.tick(now_ms + RESTART_MS)
+        self.fw.tick(now_ms + RESTART_MS + DEAF_AFTER_BOOT_MS)
         self.drain()
 
 
@@ -59,6 +71,7 @@ def test_boot_banner_then_echo_info_ok(host: Host) -> None:
 
 def test_echo_bytes_exactly_then_answer() -> None:
     fw = XplrAoaFirmware()
+    fw.tick(DEAF_AFTER_BOOT_MS)
     fw.read()
     fw.receive(b"AT\r")
     assert fw.read() == b"AT\r\r\nOK\r\n"
@@ -129,8 +142,8 @@ def test_angle_event_fields(host: Host) -> None:
 def test_rate_limited_by_tag_1_interval(host: Host) -> None:
     host.send(c.set_config(1, 100))
     host.send(c.store())
-    host.restart(0)
-    for ms in range(300, 1300, 20):  # 50 advertisements at 20 ms
+    host.restart(1000)
+    for ms in range(2300, 3300, 20):  # 50 advertisements at 20 ms
         host.fw.tick(ms)
         host.fw.on_advertisement(adv())
     host.drain()
@@ -155,7 +168,7 @@ def test_tag_limit_and_five_second_drop(dialect: Dialect, limit: int) -> None:
         h.fw.on_advertisement(adv(f"{i:012X}"))
     h.drain()
     assert len({u.instance_id for u in h.urcs if u.kind == "angle"}) == limit
-    h.fw.tick(TAG_TIMEOUT_MS + 1)
+    h.fw.tick(DEAF_AFTER_BOOT_MS + TAG_TIMEOUT_MS + 1)
     assert h.fw.tags == {}
     h.fw.on_advertisement(adv("FFFFFFFFFFFF"))
     h.drain()
@@ -191,7 +204,7 @@ def test_later_dialect_tags_rejected_by_1x(host: Host) -> None:
 
 def test_umrs_changes_baud_only_after_store_and_restart(host: Host) -> None:
     assert host.send(c.set_serial(1000000, False)).ok
-    assert host.send(c.read_serial()).info == ["+UMRS:1000000,0"]
+    assert host.send(c.read_serial()).info == ["+UMRS:1000000,2,8,1,1,1"]
     assert host.fw.baud == 115200
     host.send(c.store())
     host.restart()
@@ -213,3 +226,128 @@ def test_tx_buffer_is_bounded() -> None:
         fw.tick(i * 10)
         fw.on_advertisement(adv(f"{i % 20:012X}"))
     assert len(fw.read()) <= 8192 and fw.counters["tx_overflow"] > 0
+
+
+# -- AT syntax as the firmware documents it (issue 18, defects 1-3) ---------------------------
+def finals(host: Host, line: bytes) -> list[bool]:
+    """Send raw bytes; the final codes that came back (responses are not paired here)."""
+    host.fw.receive(line)
+    return [i.ok for i in host.decoder.feed(host.fw.read()) if i.kind == "final"]
+
+
+@pytest.mark.parametrize("line", [b'AT+UDFCFG=2,"a"b"\r', b'AT+UDFCFG=2,"\xff"\r', b'AT+UDFCFG=4,"\x01"\r',
+                                  b'AT+UDFCFG=2,"' + b"x" * 31 + b'"\r', b'AT+UDFCFG=2,abc\r'])
+def test_a_string_setting_the_board_cannot_print_is_refused(host: Host, line: bytes) -> None:
+    assert finals(host, line) == [False]
+    assert host.send(c.store()).ok
+    host.restart()
+    for read in (c.read_config(2), c.read_config(), c.read_filter(2)):  # always a final code
+        assert host.send(read).ok
+    host.fw.on_advertisement(adv())
+    host.drain()
+    assert host.urcs[-1].kind == "angle" and host.urcs[-1].user_str == ""
+
+
+def test_a_string_with_a_comma_is_a_valid_setting(host: Host) -> None:
+    assert finals(host, b'AT+UDFCFG=2,"59.3,18.1"\r') == [True]
+    assert host.send(c.read_config(2)).info == ['+UDFCFG:2,"59.3,18.1"']
+
+
+def test_an_overflowed_line_is_discarded_whole() -> None:
+    h = Host(XplrAoaFirmware())
+    h.drain()
+    h.fw.receive(b"x" * 512 + b"AT+GMM\r")
+    items = h.decoder.feed(h.fw.read())
+    assert [i.ok for i in items if i.kind == "final"] == [False]
+    assert not [i for i in items if i.kind == "info"] and h.fw.counters["rx_overflow"] == 1
+    assert h.send(c.identify_model()).ok  # the next line is a command again
+
+
+@pytest.mark.parametrize("line", [b"AT+UDFCFG=1,1_000\r", b"AT+UDFCFG=1, 5\r", b"AT+UDFCFG=1,+5\r",
+                                  b"AT+UDFCFG=1,0005\r", b"AT+UDFCFG=1,\r", b"AT+UDFCFG=1,5,\r",
+                                  b"AT+UDFCFG= 1\r", b"AT+UDFENABLE=01\r", b"AT+UDFCFG=1,-0\r",
+                                  b'AT+UDFFILT=2,2,"GGGGGGGGGGGG"\r', b"AT+UDFFILT=2,2,CCF9578E0D8A\r",
+                                  b"AT+UDFCFG\r", b"AT+UMRS=115200,0\r", b"AT+UDFCFG=10,5\r"])
+def test_at_syntax_the_board_refuses(host: Host, line: bytes) -> None:
+    before = (dict(host.fw.pending.udfcfg), {k: list(v) for k, v in host.fw.pending.filters.items()})
+    assert finals(host, line) == [False]
+    assert (host.fw.pending.udfcfg, host.fw.pending.filters) == before
+
+
+def test_commands_are_ignored_for_a_second_after_startup() -> None:
+    fw = XplrAoaFirmware()
+    fw.tick(500)
+    fw.receive(b"AT\r")
+    assert fw.read() == b"\r\n+STARTUP\r\n" and fw.counters["rx_ignored"] == 3
+    fw.tick(1000)
+    fw.receive(b"AT\r")
+    assert fw.read() == b"AT\r\r\nOK\r\n"
+
+
+@pytest.mark.parametrize(("dialect", "live"), [(Dialect.V1_2, False), (Dialect.V2, True), (Dialect.EMBED, True)])
+def test_udfcfg_live_or_at_restart_per_family(dialect: Dialect, live: bool) -> None:
+    h = Host(XplrAoaFirmware(dialect=dialect))
+    h.drain()
+    assert h.send(c.set_config(2, "new")).ok
+    h.fw.on_advertisement(adv())
+    h.drain()
+    assert h.urcs[-1].user_str == ("new" if live else "")
+
+
+def test_2x_has_a_nonzero_reserved_field_and_its_own_tags() -> None:
+    h = Host(XplrAoaFirmware(dialect=Dialect.V2))
+    h.drain()
+    for ms in range(1000, 1100, 20):
+        h.fw.tick(ms)
+        h.fw.on_advertisement(adv())
+    h.drain()
+    assert {u.rssi2 for u in h.urcs if u.kind == "angle"} <= {-43, 6, 8} and h.urcs[-1].rssi2 != 0
+    assert h.send(c.set_config(10, 50, "2.x")).ok and h.send(c.set_config(13, 1, "2.x")).ok
+    assert not h.send(c.set_config(121, 1)).ok  # u-locateEmbed only
+
+
+def test_paced_output_leaves_at_the_baud_rate_and_answers_jump_the_queue() -> None:
+    fw = XplrAoaFirmware(paced=True)
+    fw.tick(1000)
+    fw.read()
+    for i in range(20):  # 20 tags heard at once: ~1.3 kB queued
+        fw.on_advertisement(adv(f"{i:012X}"))
+    fw.tick(1010)  # 10 ms at 115200 Bd: 115 bytes
+    first = fw.read()
+    assert len(first) == 115
+    fw.receive(b"AT\r")
+    fw.tick(1020)
+    second = fw.read()
+    assert second.startswith(b"AT\r\r\nOK\r\n")  # mid-line: the event line resumes after it
+    rest = b""
+    for ms in range(1030, 1300, 10):
+        fw.tick(ms)
+        rest += fw.read()
+    decoder = UConnectDecoder()
+    items = decoder.feed(first + second + rest)
+    assert sum(i.kind == "angle" for i in items) == 19 and any(i.kind == "final" for i in items)
+
+
+AT_WORDS = [b"AT", b"+UDFCFG", b"+UDFFILT", b"+UMRS", b"+UDFENABLE", b"=", b"?", b",", b'"', b"1", b"0", b"-",
+            b"2", b"121", b"CCF9578E0D8A", b"\xff", b" ", b"_", b"+", b"&W", b"x" * 300]
+
+
+@given(st.lists(st.lists(st.sampled_from(AT_WORDS) | st.binary(max_size=4), max_size=12).map(b"".join),
+                min_size=1, max_size=8))
+def test_any_command_line_gets_one_final_code_and_events_keep_coming(lines: list[bytes]) -> None:
+    """Hostile input (issue 18): whatever the lines, AT&W and a restart after them, every line
+    gets exactly one final code and the board still encodes its events."""
+    h = Host(XplrAoaFirmware(dialect=Dialect.V2))
+    h.drain()
+    for line in lines:
+        line = line.replace(b"\r", b"").replace(b"\n", b"")
+        h.fw.receive(line + b"\r")
+        finals = [i for i in h.decoder.feed(h.fw.read()) if i.kind == "final"]
+        assert len(finals) == (1 if line.strip() else 0)
+    h.fw.receive(b"AT+UDFENABLE=1\rAT&W\r")
+    h.fw.read()
+    h.restart(5000)
+    h.send(c.enable_angles(True))
+    h.fw.on_advertisement(adv())
+    h.drain()
+    assert h.urcs[-1].kind == "angle"

@@ -10,13 +10,14 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rfhoming.emulator.faults import Fault
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup, identify_dialect
+from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup, identify_dialect, looks_binary
 from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.rss import AntennaPowers, Associator, LossCounter, NodeClock, RssDriver
 from rfhoming.host.ports import HostPort, PortError, explain
@@ -125,8 +126,8 @@ async def test_unplug_replug_reconnects_and_sets_up_again(tmp_path: Path) -> Non
     driver = AoaDriver(HostPort(where(em, "aoa")))
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.counters["reconnects"] == 1 and driver.state == "streaming", 15)
-    before = driver.events.dropped + len(driver.events)
-    await until(lambda: driver.events.dropped + len(driver.events) > before + 5)
+    before = sum(driver.tags_heard.values())
+    await until(lambda: sum(driver.tags_heard.values()) > before + 5)
     assert driver.counters["setups"] == 2 and driver.port.counters["disconnects"] == 1
     await stop(em, task)
 
@@ -138,6 +139,93 @@ async def test_baud_mismatch_detected_reported_and_probed(tmp_path: Path) -> Non
     await until(lambda: driver.counters["baud_mismatch"] >= 1, 15)
     assert "only garbage" in (driver.problem or "") and "AT+UMRS" in driver.problem
     await until(lambda: driver.port.baud == 460800 and driver.state == "streaming", 20)
+    await stop(em, task)
+
+
+async def test_identification_errors_degrade_and_the_field_count_decides(tmp_path: Path) -> None:
+    em = await start(tmp_path, dialect="2.x")
+    fw = em.device("aoa").firmware
+    execute = fw._execute
+    fw._execute = lambda line: fw._answer(ok=False) if line in ("AT+GMM", "AT+GMR", "ATI9") else execute(line)
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(config={1: 30}))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.state == "streaming")
+    assert driver.identity == {"model": "", "version": "", "software": ""}
+    await asyncio.wait_for(driver.events.get(), 10)
+    assert driver.dialect is Dialect.V2  # 10 fields: the guess (1.2) gave way
+    await stop(em, task)
+
+
+@pytest.mark.parametrize(("dialect", "restarts"), [("1.2", 1), ("2.x", 0)])
+async def test_settings_read_back_restart_only_where_needed(tmp_path: Path, dialect: str, restarts: int) -> None:
+    em = await start(tmp_path, dialect=dialect)
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(config={2: "dock-7"}))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.state == "streaming")
+    assert driver.counters["restarts"] == restarts
+    while len(driver.events):
+        await driver.events.get()
+    assert (await asyncio.wait_for(driver.events.get(), 5)).event.user_str == "dock-7"
+    assert em.device("aoa").firmware.saved.udfcfg[2] == "dock-7"  # stored either way
+    await stop(em, task)
+
+
+async def test_settings_the_family_lacks_are_skipped_not_fatal(tmp_path: Path) -> None:
+    em = await start(tmp_path, dialect="1.2")
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(config={10: 50, 6: 0}))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.state == "streaming")
+    assert driver.counters["config_skipped"] == 1 and driver.counters["restarts"] == 0
+    await stop(em, task)
+
+
+async def test_a_silent_board_gets_a_hint(tmp_path: Path) -> None:
+    em = await start(tmp_path)
+    em.device("aoa").firmware.on_advertisement = lambda adv: None  # no tag advertising
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(silence_timeout=1.0))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["silent"] == 1)
+    assert "not advertising" in driver.problem and "docs/hardware.md" in driver.problem
+    await stop(em, task)
+
+
+async def test_binary_output_is_told_from_a_baud_mismatch(tmp_path: Path) -> None:
+    em = await start(tmp_path, dialect="embed")
+    fw = em.device("aoa").firmware
+    fw.saved.udfcfg[7] = fw.active.udfcfg[7] = fw.pending.udfcfg[7] = 2
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(garbage_timeout=1.0))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["binary_output"] >= 1, 15)
+    assert "AT+UDFCFG=7,2" in driver.problem and driver.counters["baud_mismatch"] == 0
+    await stop(em, task)
+
+
+async def test_text_that_is_not_uudf_is_told_from_a_baud_mismatch(tmp_path: Path) -> None:
+    """Raw-IQ JSON debug lines are well-formed text: the baud rate is right, the output is not."""
+    em = await start(tmp_path)
+    fw = em.device("aoa").firmware
+    fw.on_advertisement = lambda adv: fw._emit(b'\r\n{"iq":[12,-7,3,40,-2,11,9,-33,5,8],"ch":37}\r\n')
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(garbage_timeout=1.0))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["unknown_output"] >= 1, 15)
+    assert "JSON" in driver.problem and '{"iq"' in driver.problem and driver.counters["baud_mismatch"] == 0
+    await stop(em, task)
+
+
+def test_garbage_does_not_look_like_binary_output() -> None:
+    rng = np.random.default_rng(1)
+    assert not any(looks_binary(rng.integers(0, 256, 512, dtype=np.uint8).tobytes()) for _ in range(200))
+    frame = b"\xfe\x01\x11\x00" + bytes(17)
+    assert looks_binary(b"junk" + frame * 3)
+
+
+async def test_an_unread_stream_counts_no_loss(tmp_path: Path) -> None:
+    """listen and capture read no queue: what the ring overwrites was never waited for."""
+    em = await start(tmp_path)
+    driver = AoaDriver(HostPort(where(em, "aoa")), queue_size=5)
+    task = asyncio.create_task(driver.run())
+    await until(lambda: sum(driver.tags_heard.values()) > 20)
+    assert driver.health()["queue_dropped"] == 0
     await stop(em, task)
 
 

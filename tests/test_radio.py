@@ -28,6 +28,7 @@ def events_through_codec(model: AoaModel, true_ccw: float, n: int) -> np.ndarray
     """Angles as a host reads them: model -> firmware -> +UUDF bytes -> decoder."""
     rng = np.random.default_rng(7)
     fw = XplrAoaFirmware()
+    fw.tick(1000)  # the board ignores the host for a second after +STARTUP
     fw.receive(c.set_config(8, 0).wire + c.store().wire)  # no median smoothing
     fw.receive(c.restart().wire)
     fw.tick(1000)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from rfhoming.protocol.uconnect import CommandMatcher, UConnectDecoder, encode_answer, encode_startup
@@ -29,7 +31,8 @@ OFFICIAL = b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869\r\n'
          b'AT+UDFFILT=2,2,"CCF9578E0D8A","CCF9578E0D8B"\r'),
         (c.set_filter(c.FILTER_INSTANCE, c.FILTER_CLEAR), b"AT+UDFFILT=2,1\r"),
         (c.read_filter(c.FILTER_NAMESPACE), b"AT+UDFFILT=1\r"),
-        (c.set_serial(1000000, False), b"AT+UMRS=1000000,0\r"),
+        (c.set_serial(1000000, False), b"AT+UMRS=1000000,2\r"),  # u-connect: 2 = flow control off
+        (c.set_serial(115200, True), b"AT+UMRS=115200,1\r"),
         (c.read_serial(), b"AT+UMRS?\r"),
         (c.store(), b"AT&W\r"),
         (c.restart(), b"AT+CPWROFF\r"),
@@ -52,11 +55,37 @@ def test_builders_write_the_documented_command(command: c.Command, wire: bytes) 
         (lambda: c.set_filter(2, 1, ("CCF9578E0D8A",)), "takes no ids"),
         (lambda: c.set_filter(2, 2, tuple(f"{i:012X}" for i in range(101))), "at most 100"),
         (lambda: c.set_serial(1234, True), "not supported"),
+        (lambda: c.set_config(2, 'a"b'), "without quotes"),
+        (lambda: c.set_config(2, "\xff"), "printable ASCII"),
+        (lambda: c.set_config(6, 2), "0..1"),  # 1.x: track unlimited tags, 0/1 (UBX-21004616 A.3.3)
+        (lambda: c.set_config(10, 1, "1.x"), "does not exist on 1.x"),
+        (lambda: c.set_config(7, 2, "2.x"), "0..1"),
+        (lambda: c.set_config(121, 1, "2.x"), "only embed"),
     ],
 )
 def test_builders_refuse_bad_arguments(build, words: str) -> None:
     with pytest.raises(ValueError, match=words):
         build()
+
+
+def test_udfcfg_table_per_family() -> None:
+    assert c.accepts("1.x", 6, 1) and not c.accepts("1.x", 6, 2)
+    assert c.accepts("2.x", 10, 99) and not c.accepts("2.x", 10, 100) and not c.accepts("1.x", 10, 0)
+    assert c.accepts("2.x", 13, 1) and c.accepts("embed", 7, 2) and not c.accepts("1.x", 7, 2)
+    assert not c.accepts("1.x", 2, 'a"b') and not c.accepts("1.x", 2, "\xff") and c.accepts("1.x", 2, "a,b")
+    assert c.set_config(10, 50, "2.x").wire == b"AT+UDFCFG=10,50\r"
+
+
+def test_protocol_md_shows_the_udfcfg_table_of_the_code() -> None:
+    doc = (Path(__file__).parents[1] / "docs" / "protocol.md").read_text()
+    doc = doc[doc.index("### `AT+UDFCFG` per firmware family"):]
+    for tag, entry in c.UDFCFG.items():
+        row = next(line for line in doc.splitlines() if line.startswith(f"| {tag} |"))
+        cells = [cell.strip() for cell in row.split("|")[3:6]]
+        for fam, cell in zip(c.FAMILIES, cells):
+            valid = entry.ranges.get(fam, "absent")
+            expected = "—" if valid == "absent" else "≤ 30 chars" if valid is None else f"{valid.start}–{valid.stop - 1}"
+            assert cell == expected, (tag, fam)
 
 
 def run(matcher: CommandMatcher, stream: bytes) -> tuple[list, list]:

@@ -2,15 +2,20 @@
 
 State machine::
 
-    opening --open--> setting_up --AT ok, dialect known, config applied, UDFENABLE=1--> streaming
+    opening --open--> setting_up --AT ok, config applied, UDFENABLE=1--> streaming
     streaming --"+STARTUP" (board rebooted)--> setting_up
     any --device gone--> disconnected --re-open with back-off--> setting_up
-    any --only garbage for garbage_timeout s--> baud_mismatch (--probe: try each documented rate)
+    any --only garbage for garbage_timeout s--> baud_mismatch, or binary_output when the
+        garbage is u-locateEmbed binary frames (AT+UDFCFG=7,2), or unknown_output when it is
+        well-formed text lines that are not +UUDF ($MEAS, raw-IQ JSON debug lines)
 
-Set-up: ``AT`` (retried while the board boots), identify the dialect from ``AT+GMM``,
-``AT+GMR`` and ``ATI9``, read each wanted ``AT+UDFCFG``/``AT+UDFFILT`` and, only if one
-differs, write them, ``AT&W`` and ``AT+CPWROFF`` (they take effect at restart), then
-``AT+UDFENABLE=1``.
+Set-up (docs/hardware.md explains each command): ``AT`` until the board answers (it ignores
+the host for a while after booting); identify the firmware with ``AT+GMM``, ``AT+GMR`` and
+``ATI9`` -- an identification that fails only costs the guess (1.2, the common dialect, until
+the ``+UUDF`` field count says otherwise); read each wanted ``AT+UDFCFG``/``AT+UDFFILT`` and
+write those that differ and that the family accepts; if something was written, ``AT&W``, read
+back, and ``AT+CPWROFF`` only when the family applies settings at restart (1.x) or the board
+still reports the old value; then ``AT+UDFENABLE=1``.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -27,6 +33,10 @@ from rfhoming.protocol.uconnect import AngleEvent, CommandMatcher, Dialect, Resp
 from rfhoming.protocol.uconnect import commands as c
 
 log = logging.getLogger(__name__)
+
+FLOW_HINT = "check the RTS/CTS wiring, or try flow=none in the port spec (e.g. /dev/ttyUSB0,flow=none)"
+SILENT_HINT = ("the tag is not advertising (battery, or asleep), or the tag and anchor firmware "
+               "generations do not match; see docs/hardware.md, troubleshooting")
 
 
 class CommandFailed(Exception):
@@ -42,8 +52,16 @@ class AoaSetup:
     host_filter: frozenset[str] = frozenset()
     command_timeout: float = 1.0
     retries: int = 3
+    wake_timeout: float = 5.0
+    """How long to say AT before giving up on a board (it ignores the host after booting)."""
     restart_timeout: float = 3.0
     garbage_timeout: float = 3.0
+    silence_timeout: float = 5.0
+    """Streaming without one +UUDF this long: say why that may be."""
+    choose_tag_s: float | None = None
+    """With no ``host_filter``: hold every event back for this long, listening; then home on
+    the only tag heard, or report the tags heard (:attr:`AoaDriver.ambiguous_tags`) and keep
+    holding. None: pass every tag on (listen, capture)."""
     probe_baud: bool = False
 
 
@@ -55,7 +73,8 @@ class TimedAngle(NamedTuple):
 
 
 def identify_dialect(model: str, version: str, software: str) -> Dialect:
-    """AT+GMM / AT+GMR / ATI9 answers -> the +UUDF dialect (docs/protocol.md)."""
+    """AT+GMM / AT+GMR / ATI9 answers -> the +UUDF dialect (docs/protocol.md); the common
+    dialect (1.2) when the answers say nothing."""
     if "locateembed" in software.lower():
         return Dialect.EMBED
     if "NINA-B4-DF" in model:
@@ -64,6 +83,33 @@ def identify_dialect(model: str, version: str, software: str) -> Dialect:
     if digits.isdigit() and int(digits) >= 2:
         return Dialect.V2
     return Dialect.V1_2
+
+
+def dialect_of_event(event: AngleEvent, guess: Dialect) -> Dialect:
+    """What a +UUDF line's field count says of the dialect (it wins over a guess)."""
+    if event.azimuth_raw is not None:
+        return Dialect.EMBED
+    if event.seq is not None:
+        return guess if guess in (Dialect.V2, Dialect.EMBED) else Dialect.V2
+    return guess if guess in (Dialect.V1_0, Dialect.V1_2) else Dialect.V1_2
+
+
+def looks_binary(data: bytes, chain: int = 3) -> bool:
+    """Whether ``data`` holds ``chain`` back-to-back u-locateEmbed binary frames
+    (``FE type len16-LE payload``): random garbage at a wrong baud rate almost never does."""
+    start = data.find(b"\xfe")
+    while start >= 0:
+        i, n = start, 0
+        while i + 4 <= len(data) and data[i] == 0xFE:
+            length = int.from_bytes(data[i + 2:i + 4], "little")
+            if length > 64 or i + 4 + length > len(data):
+                break
+            i += 4 + length
+            n += 1
+            if n >= chain:
+                return True
+        start = data.find(b"\xfe", start + 1)
+    return False
 
 
 class AoaDriver(Driver):
@@ -78,49 +124,102 @@ class AoaDriver(Driver):
         self.events = BoundedStream[TimedAngle](queue_size)
         self.dialect: Dialect | None = None
         self.identity: dict[str, str] = {}
-        self.counters.update(setups=0, reboots=0, retries=0, filtered=0, baud_mismatch=0)
+        self.counters.update(setups=0, reboots=0, retries=0, filtered=0, held=0, baud_mismatch=0, binary_output=0,
+                             unknown_output=0, config_skipped=0, restarts=0, silent=0)
+        self.tags_heard: dict[str, int] = {}
+        """Every tag id seen in a +UUDF line (before any filter) and how often; at most 256 ids
+        (a board tracks at most 20 at a time)."""
+        self.last_event: float | None = None
+        self.chosen: frozenset[str] = setup.host_filter
+        self.ambiguous_tags: list[str] = []
+        self._choosing_since: float | None = None
         self._answer: asyncio.Future[Response] | None = None
         self._startup = asyncio.Event()
         self._last_valid = time.monotonic()
         self._bytes_at_valid = 0
         self._needs_setup = asyncio.Event()
+        self._streaming_at = 0.0
+        self._recent = bytearray()
+        self._unknown_lines: deque[str] = deque(maxlen=5)
         self.problem: str | None = None
 
     # -- reading ----------------------------------------------------------------------
     def on_chunk(self, data: bytes, t_host: float) -> None:
+        self._recent += data
+        del self._recent[:-512]  # bounded: enough to recognise binary output
         for item in self.decoder.feed(data):
             kind = item.kind
-            if kind == "angle" and self.setup.host_filter and item.instance_id not in self.setup.host_filter:
-                self.counters["filtered"] += 1  # another tag: counted, neither shown nor used
+            if not (kind == "angle" and self.chosen and item.instance_id not in self.chosen):
+                self.emit(t_host, item)  # another tag's angles are counted (filtered), not shown
+            if kind == "drop":
+                continue
+            if kind == "unknown":
+                self._unknown_lines.append(item.text[:60])  # text, yet not +UUDF: say what it is
+            else:
                 self._last_valid = time.monotonic()
                 self._bytes_at_valid = self.port.counters["bytes_in"]
-                continue
-            self.emit(t_host, item)
-            if kind in ("drop", "unknown"):
-                continue
-            self._last_valid = time.monotonic()
-            self._bytes_at_valid = self.port.counters["bytes_in"]
+                self._unknown_lines.clear()
             if kind == "angle":
-                self.events.put(TimedAngle(t_host, item))
+                self._on_angle(item, t_host)
                 continue
             if kind == "startup":
                 self._startup.set()
                 if self.state == "streaming":
                     self.counters["reboots"] += 1
                     log.warning("%s: the board restarted (+STARTUP); setting it up again", self.port.name)
+                    self.state = "setting_up"  # from now: its settings and UDFENABLE are gone
                     self._needs_setup.set()
+            # an unknown line while a command waits is its answer whose echo was torn
             response = self.matcher.on_item(item)
             if response is not None and self._answer is not None and not self._answer.done():
                 self._answer.set_result(response)
 
+    def _on_angle(self, event: AngleEvent, t_host: float) -> None:
+        self.last_event = time.monotonic()
+        if len(self.tags_heard) < 256 or event.instance_id in self.tags_heard:
+            self.tags_heard[event.instance_id] = self.tags_heard.get(event.instance_id, 0) + 1
+        if self.dialect is not None:
+            found = dialect_of_event(event, self.dialect)
+            if found is not self.dialect:
+                log.info("%s: +UUDF has %s fields: dialect %s, not %s", self.port.name,
+                         found.field_count, found.value, self.dialect.value)
+                self.dialect = found
+        if not self.chosen and self.setup.choose_tag_s is not None and not self._choose():
+            self.counters["held"] += 1
+        elif self.chosen and event.instance_id not in self.chosen:
+            self.counters["filtered"] += 1
+        else:
+            self.events.put(TimedAngle(t_host, event))
+
+    def _choose(self) -> bool:
+        """Listening for the tags in view: True once the only one heard is chosen."""
+        now = time.monotonic()
+        if self._choosing_since is None:
+            self._choosing_since = now
+        if now - self._choosing_since < self.setup.choose_tag_s or self.ambiguous_tags:
+            return False
+        if len(self.tags_heard) > 1:
+            self.ambiguous_tags = sorted(self.tags_heard)
+            heard = ", ".join(f"{t} ({self.tags_heard[t]} events)" for t in self.ambiguous_tags)
+            self.problem = (f"{len(self.ambiguous_tags)} tags in view: {heard}; choose the one to home on "
+                            f"with --tag ID (or tags=ID in the port spec, tags = [\"ID\"] in [devices.aoa])")
+            log.error("%s: %s", self.port.name, self.problem)
+            return False
+        self.chosen = frozenset(self.tags_heard)
+        log.info("%s: homing on tag %s, the only one in view", self.port.name, next(iter(self.chosen)))
+        return True
+
     # -- commands ---------------------------------------------------------------------
-    async def command(self, command: c.Command) -> Response:
+    async def command(self, command: c.Command, *, timeout: float | None = None, tries: int | None = None) -> Response:
         """Send one command and wait for its answer, retrying on timeout; CommandFailed on ERROR."""
-        for _ in range(self.setup.retries + 1):
+        timeout = self.setup.command_timeout if timeout is None else timeout
+        tries = self.setup.retries + 1 if tries is None else tries
+        for _ in range(tries):
             self._answer = asyncio.get_running_loop().create_future()
+            self.matcher.cancel()
             self.port.write(self.matcher.send(command))
             try:
-                response = await asyncio.wait_for(self._answer, self.setup.command_timeout)
+                response = await asyncio.wait_for(self._answer, timeout)
             except asyncio.TimeoutError:
                 self.matcher.cancel()
                 self.counters["retries"] += 1
@@ -128,13 +227,23 @@ class AoaDriver(Driver):
             if not response.ok:
                 raise CommandFailed(f"{command.text} answered ERROR")
             return response
-        raise CommandFailed(f"{command.text}: no answer after {self.setup.retries + 1} tries "
-                            f"({self.setup.command_timeout} s each)")
+        raise CommandFailed(f"{command.text}: no answer after {tries} tries ({timeout:g} s each)")
+
+    async def _wake(self) -> None:
+        """AT until the board answers: it ignores the host for a second after +STARTUP."""
+        tries = max(1, round(self.setup.wake_timeout / 0.25))
+        self.problem = f"waiting for an answer to AT; if none comes, {FLOW_HINT}"
+        try:
+            await self.command(c.at(), timeout=0.25, tries=tries)
+        except CommandFailed:
+            hint = FLOW_HINT if self.port.counters["bytes_in"] == 0 else (
+                "bytes arrive but no answer: is this an XPLR-AOA, at this baud rate?")
+            raise CommandFailed(f"no answer to AT within {self.setup.wake_timeout:g} s: {hint}") from None
 
     # -- set-up -----------------------------------------------------------------------
     async def session(self) -> None:
         """Set the board up after every open and every reboot; watch for garbage meanwhile."""
-        watchdog = asyncio.create_task(self._watch_garbage())
+        watchdogs = [asyncio.create_task(self._watch_garbage()), asyncio.create_task(self._watch_silence())]
         try:
             while True:
                 self._needs_setup.clear()
@@ -148,48 +257,92 @@ class AoaDriver(Driver):
                     continue
                 await self._needs_setup.wait()
         finally:
-            watchdog.cancel()
+            for task in watchdogs:
+                task.cancel()
+
+    async def _identify(self, command: c.Command) -> str:
+        """One identification answer, or '' when the board refuses it (never blocks set-up)."""
+        try:
+            return " ".join((await self.command(command)).info)
+        except CommandFailed as exc:
+            log.warning("%s: %s; guessing the dialect", self.port.name, exc)
+            return ""
 
     async def _set_up(self) -> None:
         self.state = "setting_up"
-        await self.command(c.at())
-        model = (await self.command(c.identify_model())).info
-        version = (await self.command(c.identify_version())).info
-        software = (await self.command(c.identify_software())).info
-        self.identity = {"model": " ".join(model), "version": " ".join(version), "software": " ".join(software)}
+        await self._wake()
+        self.identity = {"model": await self._identify(c.identify_model()),
+                         "version": await self._identify(c.identify_version()),
+                         "software": await self._identify(c.identify_software())}
         self.dialect = identify_dialect(self.identity["model"], self.identity["version"], self.identity["software"])
-        if await self._apply_config():
+        written = await self._apply_config()
+        if written:
             await self.command(c.store())
-            self._startup.clear()
-            await self.command(c.restart())
-            try:
-                await asyncio.wait_for(self._startup.wait(), self.setup.restart_timeout)
-            except asyncio.TimeoutError:
-                raise CommandFailed("no +STARTUP after AT+CPWROFF") from None
-            await self.command(c.at())
+            stale = [tag for tag, value in written.items() if not await self._reads_back(tag, value)]
+            if c.family(self.dialect) not in c.LIVE_FAMILIES or stale:
+                await self._restart()
         await self.command(c.enable_angles(True))
         self.counters["setups"] += 1
         self.problem = None
         self.state = "streaming"
-        log.info("%s: streaming (%s, %s)", self.port.name, self.identity["model"], self.dialect.value)
+        self._streaming_at = time.monotonic()
+        log.info("%s: streaming (%s, %s)", self.port.name, self.identity["model"] or "model unknown",
+                 self.dialect.value)
 
-    async def _apply_config(self) -> bool:
-        """Write the settings that differ; True when something changed (restart needed)."""
-        changed = False
+    async def _restart(self) -> None:
+        self._startup.clear()
+        await self.command(c.restart())
+        self.counters["restarts"] += 1
+        try:
+            await asyncio.wait_for(self._startup.wait(), self.setup.restart_timeout)
+        except asyncio.TimeoutError:
+            raise CommandFailed("no +STARTUP after AT+CPWROFF") from None
+        await self._wake()
+
+    async def _reads_back(self, tag: int | str, value: Any) -> bool:
+        if tag == "filter":
+            return (await self.command(c.read_filter(c.FILTER_INSTANCE))).info == [value]
+        return (await self.command(c.read_config(tag))).info == [c.config_answer(tag, value)]
+
+    async def _apply_config(self) -> dict[int | str, Any]:
+        """Write the settings that differ and that this family has; returns what was written."""
+        assert self.dialect is not None
+        fam = c.family(self.dialect)
+        written: dict[int | str, Any] = {}
         for tag, value in sorted(self.setup.config.items()):
-            wanted = c.set_config(tag, value)
-            current = (await self.command(c.read_config(tag))).info
-            if current != [wanted.text.replace("AT+UDFCFG=", "+UDFCFG:")]:
-                await self.command(wanted)
-                changed = True
+            if not c.accepts(fam, tag, value):
+                self.counters["config_skipped"] += 1
+                log.warning("%s: AT+UDFCFG=%d,%r is not a %s setting; skipped", self.port.name, tag, value, fam)
+                continue
+            if (await self.command(c.read_config(tag))).info != [c.config_answer(tag, value)]:
+                await self.command(c.set_config(tag, value, fam))
+                written[tag] = value
         if self.setup.instance_filter:
             wanted_ids = [i.upper() for i in self.setup.instance_filter]
-            current = (await self.command(c.read_filter(c.FILTER_INSTANCE))).info
-            if current != ["+UDFFILT:2" + "".join(f',"{i}"' for i in wanted_ids)]:
+            answer = "+UDFFILT:2" + "".join(f',"{i}"' for i in wanted_ids)
+            if (await self.command(c.read_filter(c.FILTER_INSTANCE))).info != [answer]:
                 await self.command(c.set_filter(c.FILTER_INSTANCE, c.FILTER_CLEAR))
                 await self.command(c.set_filter(c.FILTER_INSTANCE, c.FILTER_APPEND, tuple(wanted_ids)))
-                changed = True
-        return changed
+                written["filter"] = answer
+        return written
+
+    async def _watch_silence(self) -> None:
+        """Streaming, AT works, yet no +UUDF: say the likely reasons once per silence."""
+        warned = False
+        while True:
+            await asyncio.sleep(0.5)
+            if self.state != "streaming":
+                continue
+            since = max(self.last_event or 0.0, self._streaming_at)
+            if time.monotonic() - since < self.setup.silence_timeout:
+                if warned and self.problem and self.problem.startswith("no +UUDF"):
+                    self.problem = None  # events again
+                warned = False
+            elif not warned:
+                warned = True
+                self.counters["silent"] += 1
+                self.problem = f"no +UUDF for {self.setup.silence_timeout:g} s although the board answers: {SILENT_HINT}"
+                log.warning("%s: %s", self.port.name, self.problem)
 
     # -- garbage / baud ---------------------------------------------------------------
     async def _watch_garbage(self) -> None:
@@ -197,11 +350,32 @@ class AoaDriver(Driver):
             await asyncio.sleep(0.25)
             garbage = self.port.counters["bytes_in"] - self._bytes_at_valid
             if garbage > 64 and time.monotonic() - self._last_valid > self.setup.garbage_timeout:
+                if looks_binary(bytes(self._recent)):
+                    self.counters["binary_output"] += 1
+                    self.state = "binary_output"
+                    self.problem = ("the board writes u-locateEmbed binary output (AT+UDFCFG=7,2), not +UUDF "
+                                    "lines: set AT+UDFCFG=7,0 (add 7: 0 to the AoA set-up, or send it, AT&W, "
+                                    "AT+CPWROFF)")
+                    log.error("%s: %s", self.port.name, self.problem)
+                    self._last_valid = time.monotonic()
+                    self._bytes_at_valid = self.port.counters["bytes_in"]
+                    continue
+                if len(self._unknown_lines) >= 3:  # well-formed lines: the baud rate is right
+                    self.counters["unknown_output"] += 1
+                    self.state = "unknown_output"
+                    self.problem = (f"the board writes text lines that are not +UUDF, e.g. "
+                                    f"{self._unknown_lines[-1]!r}: $MEAS lines come from AT+UDFCFG=7,1 (set 7,0); "
+                                    "JSON lines are a debug output (raw IQ samples) of some firmware builds; "
+                                    "flash a release build (docs/hardware.md)")
+                    log.error("%s: %s", self.port.name, self.problem)
+                    self._last_valid = time.monotonic()
+                    self._bytes_at_valid = self.port.counters["bytes_in"]
+                    continue
                 self.counters["baud_mismatch"] += 1
                 self.state = "baud_mismatch"
                 self.problem = (f"only garbage for {self.setup.garbage_timeout:g} s at {self.port.baud} baud: "
-                                "the board probably runs at another rate (AT+UMRS); use --probe-baud or "
-                                "--baud with the board's rate")
+                                "the board probably runs at another rate (AT+UMRS); give the board's rate in "
+                                "the port spec, e.g. /dev/ttyUSB0,baud=1000000")
                 log.error("%s: %s", self.port.name, self.problem)
                 if self.setup.probe_baud and await self._probe():
                     self._needs_setup.set()

@@ -16,20 +16,25 @@ T = TypeVar("T")
 
 
 class BoundedStream(Generic[T]):
-    """A bounded queue of readings: when the consumer lags, the oldest go first (counted)."""
+    """A bounded queue of readings: when the consumer lags, the oldest go first (counted).
+
+    A stream nobody reads (``listen`` and ``capture`` show the items to listeners instead)
+    keeps only the newest and counts no loss: nothing was waiting for what it overwrote."""
 
     def __init__(self, size: int) -> None:
         self._items: deque[T] = deque(maxlen=size)
         self._ready = asyncio.Event()
+        self._read = False
         self.dropped = 0
 
     def put(self, item: T) -> None:
-        if len(self._items) == self._items.maxlen:
+        if len(self._items) == self._items.maxlen and self._read:
             self.dropped += 1
         self._items.append(item)
         self._ready.set()
 
     async def get(self) -> T:
+        self._read = True
         while not self._items:
             self._ready.clear()
             await self._ready.wait()
@@ -60,6 +65,9 @@ class Driver:
         self.latency: deque[float] = deque(maxlen=1000)  # seconds to handle one chunk
         self.connected = asyncio.Event()
         self.listeners: list[Callable[[str, float, Any], None]] = []
+        self.error: Exception | None = None
+        """Why :meth:`run` ended with an exception (e.g. a port that never opened), for a
+        supervisor that does not await the task itself."""
 
     def emit(self, t: float, item: Any) -> Any:
         """Show one decoded item (record, line or drop) to the listeners; returns it."""
@@ -79,6 +87,9 @@ class Driver:
         The port is closed when this ends, however it ends."""
         try:
             await self._run()
+        except Exception as exc:
+            self.error = exc
+            raise
         finally:
             await self.port.close()
 

@@ -49,6 +49,7 @@ class Calibration:
 @dataclass(frozen=True)
 class LoopSettings:
     stale_timeout_s: float = 0.5  # stop when a required stream is older than this (robot time)
+    stale_intervals: float = 3.0  # ... or than this many of its event intervals, if longer; 0: fixed timeout
     odometry_wall_timeout_s: float = 0.5  # stop when the base is silent this long (wall time; inf in lockstep simulation)
     control_period_s: float = 0.1
     max_time_s: float = 180.0  # give up after this much robot time
@@ -154,6 +155,7 @@ ed_scale_db = 1.0        # AT86RF212: dB per ED step (datasheet 1.03)
 
 [loop]
 stale_timeout_s = 0.5    # stop the robot when a required stream is older than this
+stale_intervals = 3.0    # ... or than this many event intervals (median of the last 20), if that is longer
 odometry_wall_timeout_s = 0.5  # stop when the base is silent this long, in wall time (inf: lockstep sims)
 control_period_s = 0.1
 max_time_s = 180.0       # give up after this long

@@ -6,7 +6,10 @@ the emulator's lockstep (where wall time means nothing). One velocity command go
 control period, after the odometry that closes the period.
 
 Fail-safes, each logged:
-- a required stream older than ``stale_timeout_s`` (robot time) -> stop, resume when fresh;
+- a required stream older than its stale timeout (robot time) -> stop, resume when fresh. The
+  timeout is ``stale_timeout_s``, or ``stale_intervals`` times the stream's median interval
+  between readings when that is longer: a tag advertising every second (u-connectLocate 2.x
+  allows 1000 ms) must not stop the robot between its readings;
 - the base itself silent for ``stale_timeout_s`` of wall time -> stop commands (its watchdog
   stops it anyway);
 - arrival -> stop, done; ``max_time_s`` -> stop, failed;
@@ -22,6 +25,7 @@ import asyncio
 import json
 from collections import deque
 import logging
+import statistics
 import time
 from dataclasses import dataclass, field
 from collections.abc import Callable
@@ -159,6 +163,7 @@ class HomingLoop:
         self._next_plan = 0.0
         self._next_integrate = 0.0
         self.plans = 0
+        self.intervals: deque[float] = deque(maxlen=20)  # robot-time gaps between readings
 
     async def run(self) -> Outcome:
         tasks = [asyncio.create_task(self.base.run())] + [asyncio.create_task(s.run()) for s in self.sensors]
@@ -210,6 +215,8 @@ class HomingLoop:
                 if pose is not None:
                     fields = self.controller.on_input(t, pose, item)
                     if fields is not None:
+                        if last_reading is not None:
+                            self.intervals.append(t - last_reading)
                         last_reading = t
                         self.log.write("measurement", t, source=self.source, **fields)
                 continue
@@ -223,7 +230,7 @@ class HomingLoop:
             if t + 1e-9 < next_control:
                 continue
             next_control += cfg.control_period_s
-            if last_reading is None or t - last_reading > cfg.stale_timeout_s:
+            if last_reading is None or t - last_reading > self.stale_timeout():
                 if not stale and last_reading is not None:
                     self.stale_stops += 1
                     log.warning("%s stream stale for %.2f s: stopping the robot", self.source, t - last_reading)
@@ -247,6 +254,13 @@ class HomingLoop:
                 return self._outcome(True, "arrived", t - t0, pose, decision.goal)
             if t - t0 > cfg.max_time_s:
                 return self._outcome(False, "time limit", t - t0, pose, decision.goal)
+
+    def stale_timeout(self) -> float:
+        """``stale_timeout_s``, or ``stale_intervals`` median reading intervals if longer."""
+        cfg = self.config.loop
+        if not self.intervals or cfg.stale_intervals <= 0:
+            return cfg.stale_timeout_s
+        return max(cfg.stale_timeout_s, cfg.stale_intervals * statistics.median(self.intervals))
 
     def _waypoint(self, t: float, pose: Pose) -> tuple[float, float] | None:
         """With a map: re-plan to the current goal every replan_s, steer to a point ahead."""

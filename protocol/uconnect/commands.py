@@ -11,27 +11,86 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+from rfhoming.protocol.uconnect.decoder import MAX_STRING
+from rfhoming.protocol.uconnect.encoder import Dialect
 from rfhoming.protocol.uconnect.items import Item
 
 BAUD_RATES = (19200, 38400, 57600, 115200, 230400, 460800, 921600, 1000000)
 """Rates AT+UMRS accepts (protocols.md §1); also the list a host probes on garbage."""
 
-UDFCFG_RANGES: dict[int, range | None] = {
-    1: range(0, 10001),  # min interval between events per tag, ms
-    2: None,  # user string
-    3: range(0, 2),  # angle calculation on at start-up
-    4: None,  # anchor id string
-    5: range(0, 2),  # azimuth only (0) or azimuth + elevation (1)
-    6: range(0, 3),  # antenna board: 0 C211, 1 CoreHW patch, 2 ANT-B10
-    7: range(0, 3),  # output format: 0 +UUDF (1 $MEAS text, 2 binary: unsupported)
-    8: range(0, 2),  # angle post-processing
-    9: range(0, 10001),  # later firmware: event interval, ms
-    11: range(0, 101),  # later firmware: smoothing factor
-    121: range(0, 2),  # u-locateEmbed: raw angles appended
-}
-"""AT+UDFCFG tags and valid values; ``None`` marks a quoted string tag (≤ 30 chars)."""
+FLOW_ON = 1
+FLOW_OFF = 2
+"""AT+UMRS flow control values of u-connect firmware: 1 = CTS/RTS on, 2 = off (UBX-14044127)."""
 
-STRING_TAGS = frozenset(tag for tag, valid in UDFCFG_RANGES.items() if valid is None)
+FAMILIES = ("1.x", "2.x", "embed")
+"""Firmware families whose AT+UDFCFG tables differ: u-connectLocate 1.x, 2.x, u-locateEmbed."""
+
+_ALL = dict.fromkeys(FAMILIES)
+
+
+@dataclass(frozen=True)
+class ConfigTag:
+    """One ``AT+UDFCFG`` tag: what each family accepts and its factory default.
+
+    ``ranges`` maps a family to its valid values (``None``: a quoted ASCII string of at most
+    30 characters); a family missing from it answers ERROR for the tag. ``default`` None means
+    the anchor's MAC address (tag 4)."""
+
+    tag: int
+    meaning: str
+    ranges: dict[str, range | None]
+    default: int | str | None
+    source: str
+
+
+def _same(valid: range | None, families=FAMILIES) -> dict[str, range | None]:
+    return {f: valid for f in families}
+
+
+_GUIDE = "UBX-21004616 R02 appendix A.3.3"
+_LATER = "shared/protocols.md §1 (second-hand: public clients of 2.x / u-locateEmbed)"
+
+UDFCFG: dict[int, ConfigTag] = {t.tag: t for t in (
+    ConfigTag(1, "minimum interval between +UUDF events per tag, ms", _same(range(0, 10001)), 1, _GUIDE),
+    ConfigTag(2, "user string, in every +UUDF", _same(None), "", _GUIDE),
+    ConfigTag(3, "angle calculation on at start-up", _same(range(0, 2)), 1, _GUIDE),
+    ConfigTag(4, "anchor id, in every +UUDF", _same(None), None, _GUIDE),
+    ConfigTag(5, "0 azimuth only, 1 azimuth and elevation", _same(range(0, 2)), 1, _GUIDE),
+    ConfigTag(6, "track unlimited tags, worse angles (needs tag 8 = 0)", _same(range(0, 2)), 0, _GUIDE),
+    ConfigTag(7, "output format: 0 +UUDF, 1 CoreHW text ($MEAS), 2 u-locateEmbed binary",
+              {"1.x": range(0, 2), "2.x": range(0, 2), "embed": range(0, 3)}, 0, f"{_GUIDE}; {_LATER}"),
+    ConfigTag(8, "median buffering of the output angle", _same(range(0, 2)), 1, _GUIDE),
+    ConfigTag(9, "report interval, ms", _same(range(0, 10001), ("2.x", "embed")), 20, _LATER),
+    ConfigTag(10, "angle smoothing", _same(range(0, 100), ("2.x", "embed")), 0, _LATER),
+    ConfigTag(11, "fixed smoothing factor", _same(range(0, 101), ("2.x", "embed")), 0, _LATER),
+    ConfigTag(13, "field 3 is 0 the azimuth or 1 the direct angle", _same(range(0, 2), ("2.x", "embed")), 0, _LATER),
+    ConfigTag(121, "unsmoothed angles appended to +UUDF", _same(range(0, 2), ("embed",)), 0, _LATER),
+)}
+"""The ``AT+UDFCFG`` table per firmware family, with ranges and defaults (docs/protocol.md)."""
+
+LIVE_FAMILIES = frozenset({"2.x", "embed"})
+"""Families that apply ``AT+UDFCFG`` at once (1.x only after ``AT&W`` + ``AT+CPWROFF``); a
+host must not rely on either: it reads back and restarts only when the old value stays."""
+
+def family(dialect: Dialect) -> str:
+    """The AT+UDFCFG family of a +UUDF dialect."""
+    return {Dialect.V1_0: "1.x", Dialect.V1_2: "1.x", Dialect.V2: "2.x", Dialect.EMBED: "embed"}[dialect]
+
+
+def accepts(fam: str, tag: int, value: int | str) -> bool:
+    """Whether a ``fam`` board takes ``AT+UDFCFG=<tag>,<value>``."""
+    entry = UDFCFG.get(tag)
+    if entry is None or fam not in entry.ranges:
+        return False
+    valid = entry.ranges[fam]
+    if valid is None:
+        return isinstance(value, str) and is_at_string(value)
+    return isinstance(value, int) and not isinstance(value, bool) and value in valid
+
+
+def is_at_string(text: str) -> bool:
+    """A value a string setting can hold: printable ASCII, no quote, at most 30 characters."""
+    return len(text) <= MAX_STRING and all(" " <= ch <= "~" and ch != '"' for ch in text)
 
 
 class Command(NamedTuple):
@@ -78,17 +137,29 @@ def enable_angles(on: bool) -> Command:
     return Command(f"AT+UDFENABLE={int(bool(on))}")
 
 
-def set_config(tag: int, value: int | str) -> Command:
-    """``AT+UDFCFG=<tag>,<value>``; strings are quoted, numbers range-checked."""
-    if tag not in UDFCFG_RANGES:
-        raise ValueError(f"unknown AT+UDFCFG tag {tag}; known: {sorted(UDFCFG_RANGES)}")
-    valid = UDFCFG_RANGES[tag]
-    if valid is None:
+def _known(tag: int) -> ConfigTag:
+    entry = UDFCFG.get(tag)
+    if entry is None:
+        raise ValueError(f"unknown AT+UDFCFG tag {tag}; known: {sorted(UDFCFG)}")
+    return entry
+
+
+def set_config(tag: int, value: int | str, fam: str | None = None) -> Command:
+    """``AT+UDFCFG=<tag>,<value>``; strings are quoted, numbers range-checked (for ``fam``, or
+    against the widest range any family accepts)."""
+    entry = _known(tag)
+    families = [fam] if fam is not None else [f for f in FAMILIES if f in entry.ranges]
+    if fam is not None and fam not in entry.ranges:
+        raise ValueError(f"AT+UDFCFG tag {tag} does not exist on {fam} firmware "
+                         f"(only {', '.join(entry.ranges)})")
+    if entry.ranges[families[0]] is None:
         text = str(value)
-        if len(text) > 30 or '"' in text or not text.isascii():
-            raise ValueError(f"AT+UDFCFG tag {tag} takes an ASCII string of at most 30 chars")
+        if not is_at_string(text):
+            raise ValueError(f"AT+UDFCFG tag {tag} takes a printable ASCII string of at most "
+                             f"{MAX_STRING} chars, without quotes")
         return Command(f'AT+UDFCFG={tag},"{text}"')
-    if not isinstance(value, int) or value not in valid:
+    if not any(accepts(f, tag, value) for f in families):
+        valid = max((entry.ranges[f] for f in families), key=len)
         raise ValueError(f"AT+UDFCFG tag {tag} takes {valid.start}..{valid.stop - 1}")
     return Command(f"AT+UDFCFG={tag},{value}")
 
@@ -97,9 +168,13 @@ def read_config(tag: int | None = None) -> Command:
     """``AT+UDFCFG=<tag>`` for one tag, ``AT+UDFCFG?`` for all."""
     if tag is None:
         return Command("AT+UDFCFG?")
-    if tag not in UDFCFG_RANGES:
-        raise ValueError(f"unknown AT+UDFCFG tag {tag}")
+    _known(tag)
     return Command(f"AT+UDFCFG={tag}")
+
+
+def config_answer(tag: int, value: int | str) -> str:
+    """The information line that reads back ``AT+UDFCFG=<tag>``."""
+    return f'+UDFCFG:{tag},"{value}"' if isinstance(value, str) else f"+UDFCFG:{tag},{value}"
 
 
 FILTER_NAMESPACE = 1
@@ -130,10 +205,11 @@ def read_filter(kind: int) -> Command:
 
 
 def set_serial(baud: int, flow_control: bool) -> Command:
-    """``AT+UMRS``: takes effect after ``AT&W`` and ``AT+CPWROFF``."""
+    """``AT+UMRS=<baud>,<flow>``, flow 1 on / 2 off: takes effect after ``AT&W`` and
+    ``AT+CPWROFF``."""
     if baud not in BAUD_RATES:
         raise ValueError(f"baud {baud} not supported; choose one of {BAUD_RATES}")
-    return Command(f"AT+UMRS={baud},{int(bool(flow_control))}")
+    return Command(f"AT+UMRS={baud},{FLOW_ON if flow_control else FLOW_OFF}")
 
 
 def read_serial() -> Command:

@@ -30,7 +30,8 @@ class Dialect(enum.Enum):
     V1_2 = "1.2"
     """9 fields; rssi2 is reserved and always 0."""
     V2 = "2.x"
-    """10 fields: adds the periodic-advertising event counter; channel 0..36; rssi2 = 0."""
+    """10 fields: adds the periodic-advertising event counter; channel 0..36; rssi2 "reserved"
+    (documented as 0, real logs show -43, 6, 8)."""
     EMBED = "embed"
     """u-locateEmbed with AT+UDFCFG=121,1: 12 fields, the unsmoothed angles appended."""
 
@@ -55,7 +56,7 @@ def encode_angle_event(event: AngleEvent, dialect: Dialect) -> bytes:
     """One ``+UUDF`` URC as ``dialect`` writes it; raises ValueError on out-of-range fields."""
     if len(event.instance_id) != 12 or not all(c in "0123456789ABCDEF" for c in event.instance_id):
         raise ValueError("instance_id must be 12 upper-case hex digits")
-    rssi2 = event.rssi2 if dialect is Dialect.V1_0 else 0
+    rssi2 = 0 if dialect is Dialect.V1_2 else event.rssi2
     fields = [
         event.instance_id,
         str(_check(event.rssi1, "rssi1", RSSI_RANGE)),

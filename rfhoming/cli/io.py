@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
+from rfhoming.cli.supervise import DeviceNotReady, live, supervise
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.discovery import candidates
 from rfhoming.host.drivers.aoa import AoaDriver
@@ -68,7 +69,11 @@ async def _log_health(drivers: list[Driver]) -> None:
 
 
 async def _run_until(drivers: list[Driver], duration: float | None, extra: list[asyncio.Task] = ()) -> None:
-    tasks = [asyncio.create_task(d.run()) for d in drivers] + list(extra)
+    """Run the drivers until ``duration`` or Ctrl-C; a driver that cannot go on (a port that
+    never opened, a set-up that failed or timed out) ends it with PortError/DeviceNotReady."""
+    tasks = [asyncio.create_task(d.run()) for d in drivers]
+    tasks.append(asyncio.create_task(supervise(live(drivers))))
+    tasks += list(extra)
     tasks.append(asyncio.create_task(_log_health(drivers)))
     main = asyncio.current_task()
     loop = asyncio.get_running_loop()
@@ -76,9 +81,10 @@ async def _run_until(drivers: list[Driver], duration: float | None, extra: list[
         loop.add_signal_handler(sig, main.cancel)
     try:
         if duration is None:
-            done, _ = await asyncio.wait(tasks[: len(drivers)], return_when=asyncio.FIRST_EXCEPTION)
+            done, _ = await asyncio.wait(tasks[: len(drivers) + 1], return_when=asyncio.FIRST_EXCEPTION)
         else:
-            done, _ = await asyncio.wait(tasks[: len(drivers)], timeout=duration, return_when=asyncio.FIRST_EXCEPTION)
+            done, _ = await asyncio.wait(tasks[: len(drivers) + 1], timeout=duration,
+                                         return_when=asyncio.FIRST_EXCEPTION)
         for task in done:
             task.result()  # surface a PortError from a first open
     except asyncio.CancelledError:
@@ -89,7 +95,7 @@ async def _run_until(drivers: list[Driver], duration: float | None, extra: list[
         for task in tasks:
             task.cancel()
         for task in tasks:
-            with contextlib.suppress(asyncio.CancelledError, PortError):
+            with contextlib.suppress(asyncio.CancelledError, PortError, DeviceNotReady):
                 await task
         for d in drivers:
             d.drain()
@@ -124,7 +130,7 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     extra = [asyncio.create_task(_describe_dialects(drivers, capture))] if capture else []
     try:
         await _run_until(drivers, args.duration, extra)
-    except PortError as exc:
+    except (PortError, DeviceNotReady) as exc:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
     finally:
@@ -171,7 +177,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 LISTEN_HELP = """\
 Open each device like the robot would -- set the XPLR-AOA up, follow reboots, reconnect
 after an unplug -- and print every decoded item as it arrives (text, or --json lines).
-On exit (Ctrl-C or --duration) one counters line per device.
+On exit (Ctrl-C or --duration) one counters line per device. Exit status 2, with a message
+naming the device, when a port cannot be opened or a device's first set-up fails or takes
+longer than 20 s (XPLR-AOA) / 5 s (others).
 
 examples:
   rfhoming listen /dev/ttyACM0

@@ -6,12 +6,15 @@ import argparse
 import asyncio
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from rfhoming.cli.io import add_port_defaults
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
+from rfhoming.cli.supervise import DeviceNotReady, deadline, supervise
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaSetup
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
 from rfhoming.host.homing.loop import (
     RunLog,
@@ -22,7 +25,7 @@ from rfhoming.host.homing.loop import (
     trilat_loop,
 )
 from rfhoming.host.ports import PortError
-from rfhoming.host.portspec import PortSpec, PortSpecError
+from rfhoming.host.portspec import KINDS, PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.session import make_driver, resolve, serve_driver
 
@@ -45,6 +48,16 @@ def cmd_config(args: argparse.Namespace) -> int:
 SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble", "anchors": "site"}
 ROLE_KIND = {"aoa": "ublox-aoa", "base": "base", "rss": "rss", "ble": "rss"}
 BLE_KINDS = ("rss", "esp-at", "hci")  # any BLE RSSI receiver feeds the trilateration
+CHOOSE_TAG_S = 2.0
+"""With no tag chosen, listen this long before homing on the only tag in view."""
+
+
+def _tags(values: list[str]) -> tuple[str, ...]:
+    """--tag values (each one id or ids joined by +) -> upper-case ids; ValueError explains."""
+    try:
+        return tuple(dict.fromkeys(t for v in values for t in KINDS["ublox-aoa"]["tags"](v)))
+    except ValueError as exc:
+        raise ValueError(f"--tag takes {exc}") from None
 
 
 def role_kind(role: str, spec: str | PortSpec) -> str:
@@ -84,6 +97,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"rfhoming run: --controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)",
                   file=sys.stderr)
             return 2
+    if args.tag and role != "aoa":
+        print(f"rfhoming run: --tag chooses an XPLR-AOA tag; --controller {args.controller} has none", file=sys.stderr)
+        return 2
     sinks = []
     if args.mcap:
         try:
@@ -100,7 +116,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     runlog = open(args.log, "w") if args.log else None
     try:
         return asyncio.run(_run(args, config, role, specs, capture, runlog, sinks))
-    except (PortError, ValueError) as exc:
+    except (PortError, ValueError, DeviceNotReady) as exc:
         print(f"rfhoming run: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -140,7 +156,10 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
         sensor = serve_driver(served)
         make = aoa_loop if args.controller == "aoa" else dock_loop
     elif role == "aoa":
-        sensor = make_driver(resolved["aoa"], taps)
+        spec = resolved["aoa"]
+        if args.tag:
+            spec = replace(spec, settings={**spec.settings, "tags": _tags(args.tag)})
+        sensor = make_driver(spec, taps, setup=AoaSetup(choose_tag_s=CHOOSE_TAG_S))
         make = aoa_loop if args.controller == "aoa" else dock_loop
     else:
         options = {"ed_scale_db": config.calibration.ed_scale_db} if resolved[role].kind == "rss" else {}
@@ -153,7 +172,20 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
         if hasattr(sink, "watch"):  # the live view draws the loop's state and the anchors
             sink.watch(loop)
             sink.show_anchors(config.trilat.anchors if args.controller == "trilat" else {})
-    outcome = await loop.run()
+    sensor_spec = resolved.get(role)
+    deadlines = {base: deadline(base, resolved["base"].timeout),
+                 sensor: deadline(sensor, sensor_spec.timeout if sensor_spec else None)}
+    homing = asyncio.create_task(loop.run())
+    watch = asyncio.create_task(supervise(deadlines))
+    try:
+        done, _ = await asyncio.wait({homing, watch}, return_when=asyncio.FIRST_COMPLETED)
+        if watch in done:
+            watch.result()  # raises: the run cannot go on
+        outcome = homing.result()
+    finally:
+        for task in (homing, watch):
+            task.cancel()
+        await asyncio.gather(homing, watch, return_exceptions=True)
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
 
@@ -222,10 +254,13 @@ examples:
 RUN_HELP = """\
 Home on a tag with real devices or emulator endpoints. The XPLR-AOA gives bearings; the base
 takes velocity commands and gives odometry. The robot stops when data goes stale, on
-arrival, on any error and on Ctrl-C. Exit status: 0 arrived, 1 did not, 2 usage/port errors.
+arrival, on any error and on Ctrl-C. Exit status: 0 arrived, 1 did not, 2 usage/port errors
+(a port that cannot be opened, a device not set up within its timeout=, several tags in view
+and none chosen with --tag).
 
 examples:
   rfhoming run --aoa /dev/ttyUSB0 --base /dev/ttyACM0 --log run.jsonl --capture run.pcapng
+  rfhoming run --aoa /dev/ttyUSB0 --base /dev/ttyACM0 --tag CCF9578E0D8A
   rfhoming run --aoa /dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A --base /dev/ttyACM0,baud=115200
   rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
   rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
@@ -268,6 +303,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                         "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
                         "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal), "
                         "anchors (fixed XPLR-AOA anchors of --site locate the robot's own tag and the target's)")
+    p.add_argument("--tag", action="append", default=[], metavar="ID",
+                   help="the tag to home on (12 hex digits; repeat or join with + for several ids of one "
+                        "target). Without it, run listens for 2 s and homes on the only tag in view, or "
+                        "stops and lists the tags it hears. Same as tags= in the --aoa spec")
     p.add_argument("--site", type=Path, help="site file for --controller anchors (see rfhoming locate --help)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     add_port_defaults(p)

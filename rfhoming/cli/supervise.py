@@ -1,0 +1,61 @@
+"""Fail fast: watch the drivers a command runs and end the command, with a message naming the
+device, when one cannot go on -- its port never opened, its first set-up failed, it was not
+ready within its deadline, or (``run``) several tags are in view and none was chosen."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.common import Driver
+from rfhoming.host.ports import HostPort, PortError
+
+SETUP_TIMEOUT_S = {"xplr-aoa": 20.0}
+"""How long a device may take to open and be set up; 5 s for the others. A port spec's
+``timeout=`` overrides it where the command knows the spec (``run``)."""
+DEFAULT_SETUP_TIMEOUT_S = 5.0
+
+
+class DeviceNotReady(Exception):
+    """A device the command needs cannot be used; the message names it and says why."""
+
+
+def deadline(driver: Driver, timeout: float | None = None) -> float:
+    return timeout if timeout is not None else SETUP_TIMEOUT_S.get(driver.kind, DEFAULT_SETUP_TIMEOUT_S)
+
+
+def live(drivers: list[Driver]) -> dict[Driver, float]:
+    """Deadlines for the drivers on real ports (a replayed capture has nothing to set up)."""
+    return {d: deadline(d) for d in drivers if isinstance(d.port, HostPort)}
+
+
+def ready(driver: Driver) -> bool:
+    return driver.state == "streaming" if isinstance(driver, AoaDriver) else driver.connected.is_set()
+
+
+async def supervise(deadlines: dict[Driver, float]) -> None:
+    """Raise PortError or DeviceNotReady as soon as a driver cannot go on; runs until cancelled
+    (returns at once when there is nothing to watch, e.g. a replay)."""
+    if not deadlines:
+        return
+    start = time.monotonic()
+    waiting = dict(deadlines)
+    while True:
+        await asyncio.sleep(0.05)
+        for driver in deadlines:
+            if driver.error is not None:
+                if isinstance(driver.error, PortError):
+                    raise PortError(str(driver.error))
+                raise DeviceNotReady(f"{driver.port.name}: {driver.error}")
+            if isinstance(driver, AoaDriver) and driver.ambiguous_tags:
+                raise DeviceNotReady(f"{driver.port.name}: {driver.problem}")
+        for driver, limit in list(waiting.items()):
+            if ready(driver):
+                del waiting[driver]
+            elif driver.state == "setup_failed" or time.monotonic() - start > limit:
+                why = getattr(driver, "problem", None) or f"still {driver.state}"
+                if driver.state == "setup_failed":
+                    raise DeviceNotReady(f"{driver.port.name} ({driver.kind}): set-up failed: {why}")
+                raise DeviceNotReady(f"{driver.port.name} ({driver.kind}) was not ready within {limit:g} s: {why}; "
+                                     "a longer wait: timeout=SECONDS in its port spec")
