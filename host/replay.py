@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from rfhoming.host.capture import DISCONNECTED, parse_description
+from rfhoming.host.capture import DISCONNECTED, SNIFFED, parse_description
 from rfhoming.host.ports import Chunk, Disconnected, EndOfInput, Tap
 from rfhoming.protocol import pcapng
 
@@ -137,13 +138,31 @@ class ReplayPort:
         self._open = False
 
 
-def load_capture(path: Path | str) -> tuple[list[pcapng.Interface], dict[int, list[pcapng.Packet]], int]:
-    """Interfaces, packets per interface, and the size of a torn tail (0 if the file is whole)."""
+def load_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatError], None] | None = None
+                 ) -> tuple[list[pcapng.Interface], dict[int, list[pcapng.Packet]], int]:
+    """Interfaces, packets per interface, and the size of a torn tail (0 if the file is whole).
+
+    The packets are those the live drivers handled: bytes recorded while a port's protocol was
+    sniffed (comment ``sniffed``) are in the file for the record, not replayed.
+
+    A malformed capture raises :class:`~rfhoming.protocol.pcapng.CaptureFormatError` (offset and
+    problem). Given ``partial``, the error goes to it instead and everything before the bad block
+    is returned, the bytes from there on counted as the tail; it still raises if nothing before
+    the bad block was an interface.
+    """
     data = Path(path).read_bytes()
-    interfaces, packets, torn = pcapng.read_all(data)
+    try:
+        interfaces, packets, torn = pcapng.read_all(data)
+    except pcapng.CaptureFormatError as exc:
+        interfaces = [i for i in exc.items if isinstance(i, pcapng.Interface)]
+        if not partial or not interfaces:
+            raise
+        partial(exc)
+        packets, torn = [i for i in exc.items if isinstance(i, pcapng.Packet)], len(data) - exc.offset
     per: dict[int, list[pcapng.Packet]] = {i: [] for i in range(len(interfaces))}
     for p in packets:
-        per[p.interface_id].append(p)
+        if p.comment != SNIFFED:
+            per[p.interface_id].append(p)
     return interfaces, per, torn
 
 

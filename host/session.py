@@ -46,9 +46,14 @@ def what_speaks(data: bytes) -> str | None:
     return None
 
 
-async def sniff(spec: str, baud: int) -> str:
-    """Listen (and, if silent, say AT) to tell which protocol a port speaks."""
-    port = HostPort(spec, baud=baud)
+async def sniff(spec: str, baud: int, seen: list[tuple[str, str, float, bytes]] | None = None) -> str:
+    """Listen (and, if silent, say AT) to tell which protocol a port speaks.
+
+    Every chunk read or written while sniffing is appended to ``seen`` as a tap call's
+    arguments, so a capture started on this port can hold it too.
+    """
+    taps = [] if seen is None else [lambda *call: seen.append(call) if call[1] != "lost" else None]
+    port = HostPort(spec, baud=baud, taps=taps)
     await port.open()
     data = b""
     try:
@@ -80,18 +85,26 @@ def flow_control(protocol: str, flow: str = "auto") -> bool:
 
 async def open_drivers(endpoints: list[str], *, baud: int, taps: list, describe: Callable[..., None] | None = None,
                        flow: str = "auto") -> list[Driver]:
-    """Drivers for the endpoints, their protocols sniffed where not given."""
+    """Drivers for the endpoints, their protocols sniffed where not given.
+
+    The bytes that crossed a port while sniffing reach ``taps`` once the port is described:
+    a capture holds everything, from the first byte on.
+    """
     drivers = []
     for text in endpoints:
         protocol, spec = parse_endpoint(text)
         if spec == "auto":
             spec = resolve_auto(AUTO_KIND[protocol or "ublox-aoa"])
+        seen: list[tuple[str, str, float, bytes]] = []
         if protocol is None:
-            protocol = await sniff(spec, baud)
+            protocol = await sniff(spec, baud, seen)
         port = HostPort(spec, baud=baud, rtscts=flow_control(protocol, flow), taps=taps)
         driver = DRIVERS[protocol](port)
         if describe is not None:
             describe(port.name, protocol=WIRE_PROTOCOL[protocol], kind=driver.kind)
+        for _name, direction, t, data in seen:
+            for tap in taps:
+                tap(port.name, f"sniffed-{direction}", t, data)
         drivers.append(driver)
     return drivers
 

@@ -144,10 +144,15 @@ def _driver_for(fields: dict[str, Any], port: ReplayPort) -> Driver:
 
 
 async def _replay(args: argparse.Namespace) -> int:
+    def warn(exc: CaptureFormatError) -> None:
+        print(f"rfhoming replay: {args.capture}: {exc}; replaying what came before it (--partial)", file=sys.stderr)
+
     try:
-        interfaces, packets, torn = load_capture(args.capture)
+        interfaces, packets, torn = load_capture(args.capture, partial=warn if args.partial else None)
     except (OSError, CaptureFormatError) as exc:
-        print(f"rfhoming replay: cannot read {args.capture}: {exc}", file=sys.stderr)
+        hint = "" if args.partial or not isinstance(exc, CaptureFormatError) else \
+            " (--partial replays what comes before it)"
+        print(f"rfhoming replay: cannot read {args.capture}: {exc}{hint}", file=sys.stderr)
         return 2
     if torn:
         print(f"rfhoming replay: the capture ends in a torn block ({torn} bytes, a killed writer); "
@@ -193,6 +198,10 @@ examples:
   rfhoming replay run.pcapng --json
   rfhoming replay run.pcapng --speed 1
   rfhoming replay run.pcapng --pty
+  rfhoming replay damaged.pcapng --partial
+
+A malformed capture gives one line naming the byte offset and the problem, and exit code 2;
+with --partial, the blocks before it are replayed (exit 0) and the problem is reported.
 """
 
 
@@ -228,6 +237,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=0.0, help="1 = recorded pace, 0 = as fast as possible (default)")
     p.add_argument("--json", action="store_true", help="one JSON object per item")
     p.add_argument("--pty", action="store_true", help="serve the capture on pseudo-terminals")
+    p.add_argument("--partial", action="store_true",
+                   help="on a malformed block, replay what was readable before it instead of refusing")
     p.add_argument("--link-dir", type=Path, help="with --pty: directory for the pty symlinks")
     p.add_argument("--start-delay", type=float, default=1.0,
                    help="with --pty: seconds to wait before playing, so consumers can open the ptys (default 1)")
