@@ -12,7 +12,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rfhoming.host.discovery import resolve_auto
-from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup
 from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.rss import RssDriver
@@ -84,9 +84,10 @@ def flow_control(protocol: str, flow: str = "auto") -> bool:
 
 
 async def open_drivers(endpoints: list[str], *, baud: int, taps: list, describe: Callable[..., None] | None = None,
-                       flow: str = "auto") -> list[Driver]:
+                       flow: str = "auto", probe_baud: bool = False) -> list[Driver]:
     """Drivers for the endpoints, their protocols sniffed where not given.
 
+    ``probe_baud``: an XPLR-AOA that sends only garbage is probed at every documented rate.
     The bytes that crossed a port while sniffing reach ``taps`` once the port is described:
     a capture holds everything, from the first byte on.
     """
@@ -99,7 +100,10 @@ async def open_drivers(endpoints: list[str], *, baud: int, taps: list, describe:
         if protocol is None:
             protocol = await sniff(spec, baud, seen)
         port = HostPort(spec, baud=baud, rtscts=flow_control(protocol, flow), taps=taps)
-        driver = DRIVERS[protocol](port)
+        if protocol == "ublox-aoa":
+            driver: Driver = AoaDriver(port, AoaSetup(probe_baud=probe_baud))
+        else:
+            driver = DRIVERS[protocol](port)
         if describe is not None:
             describe(port.name, protocol=WIRE_PROTOCOL[protocol], kind=driver.kind)
         for _name, direction, t, data in seen:

@@ -106,7 +106,8 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     capture = CaptureWriter(args.output) if getattr(args, "output", None) else None
     try:
         drivers = await open_drivers(args.ports, baud=args.baud, taps=[capture.tap] if capture else [],
-                                     describe=capture.describe if capture else None, flow=args.flow)
+                                     describe=capture.describe if capture else None, flow=args.flow,
+                                     probe_baud=args.probe_baud)
     except (PortError, ValueError) as exc:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
@@ -222,6 +223,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--baud", type=int, default=115200, help="serial rate (default 115200)")
         p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",
                        help="RTS/CTS flow control: auto = on for the XPLR-AOA (its default), off for the others")
+        p.add_argument("--probe-baud", action="store_true",
+                       help="if an XPLR-AOA sends only garbage, try each rate it documents until it answers AT")
         p.add_argument("--duration", type=float, help="stop after this many seconds")
         p.add_argument("--json", action="store_true", help="one JSON object per item")
         if name == "capture":

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup
 from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.rss import RssDriver
 from rfhoming.host.homing.config import DEFAULT_TOML, ConfigError, load
@@ -48,7 +48,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     taps = [capture.tap] if capture else []
     base = BaseDriver(HostPort(args.base, baud=args.baud, taps=taps), command_timeout_ms=config.loop.command_timeout_ms)
     if args.controller in ("aoa", "dock"):
-        sensor = AoaDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("ublox-aoa", args.flow), taps=taps))
+        sensor = AoaDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("ublox-aoa", args.flow), taps=taps),
+                           AoaSetup(probe_baud=args.probe_baud))
         make, protocol = (aoa_loop if args.controller == "aoa" else dock_loop), "ublox-aoa"
     else:
         sensor = RssDriver(HostPort(sensor_port, baud=args.baud, rtscts=flow_control("rss", args.flow), taps=taps),
@@ -160,6 +161,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                         "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--baud", type=int, default=115200)
+    p.add_argument("--probe-baud", action="store_true",
+                   help="if the XPLR-AOA sends only garbage, try each rate it documents until it answers AT")
     p.add_argument("--flow", choices=("auto", "on", "off"), default="auto",
                    help="RTS/CTS on the XPLR-AOA port (auto = on, its documented default)")
     p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
