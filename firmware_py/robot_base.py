@@ -56,11 +56,23 @@ class RobotBaseFirmware(FramedNode):
         self.x, self.y, self.theta = start_pose  # odometry frame, m and rad
         self._next_odometry_us = 0
         self._last_us: int | None = None
+        self._boot_us = 0  # emulator time of the last reset: the MCU clock counts from there
 
     def halt(self) -> None:
         """Stop now and forget the last command (a controller restart)."""
         self.v = self.w = 0.0
         self._target, self._deadline_us = (0.0, 0.0), None
+
+    def reset(self, now_us: int) -> None:
+        """An MCU reset at emulator time ``now_us``: motors stop, the last command is forgotten,
+        the microsecond clock and the record counter restart at 0 (odometry survives: it is kept
+        in RAM that the reset does not clear)."""
+        self.halt()
+        self.watchdog_tripped = False
+        self._boot_us, self._now_us = now_us, 0
+        self._seq = 0
+        self._next_odometry_us = self._next_status_us = 0
+        self._last_us = None
 
     def command(self, cmd: NodeCommand) -> None:
         if cmd.command == 4:
@@ -87,8 +99,9 @@ class RobotBaseFirmware(FramedNode):
         self.watchdog_tripped = False
         self.counters["commands"] += 1
 
-    def step(self, now_us: int) -> tuple[float, float]:
-        """Advance to ``now_us``; returns the applied (v, ω) over the step for the world."""
+    def step(self, sim_us: int) -> tuple[float, float]:
+        """Advance to emulator time ``sim_us``; returns the applied (v, ω) over the step."""
+        now_us = sim_us - self._boot_us  # the MCU's own clock, from its last reset
         dt = 0.0 if self._last_us is None else (now_us - self._last_us) / 1e6
         self._last_us = now_us
         self.tick(now_us)

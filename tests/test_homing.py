@@ -233,3 +233,30 @@ async def test_dead_odometry_is_noticed_and_a_stop_sent(tmp_path: Path) -> None:
     events = [json.loads(line) for line in out.getvalue().splitlines() if '"event"' in line]
     assert any(e["what"] == "odometry stale: stop" for e in events)
     assert base.counters["stops"] >= 1
+
+
+async def test_base_reset_mid_run_is_reanchored_and_the_loop_keeps_going(tmp_path: Path) -> None:
+    """reboot@base restarts the base's t_us at 0: the loop must neither freeze (lockstep would
+    time out, waiting for commands) nor lose its fail-safes; it logs the reset and arrives."""
+    outcome, error, log, em, _ = await closed_loop(tmp_path, (7.0, 3.0), faults=["reboot@base:at=4"])
+    resets = [e for e in log if e["kind"] == "event" and e["what"] == "base clock reset: re-anchored"]
+    assert len(resets) == 1 and resets[0]["base_clock_now"] < 0.1 < 3.9 < resets[0]["base_clock_before"]
+    assert em.counters["lockstep_timeouts"] == 0
+    commands = [e["t"] for e in log if e["kind"] == "command"]
+    assert max(b - a for a, b in zip(commands, commands[1:])) <= 0.1 + 0.02 + 1e-6  # no gap in control
+    assert outcome.arrived and error < 1.0
+
+
+def test_base_reboot_restarts_its_clock() -> None:
+    from rfhoming.firmware.robot_base import RobotBaseFirmware
+    from rfhoming.protocol.frames import FrameDecoder, Odometry
+
+    fw = RobotBaseFirmware()
+    for k in range(0, 3_000_000, 10_000):
+        fw.step(k)
+    fw.reset(3_000_000)
+    for k in range(3_000_000, 3_100_000, 10_000):
+        fw.step(k)
+    stamps = [r.t_us for r in FrameDecoder().feed(fw.read()) if isinstance(r, Odometry)]
+    after = stamps[stamps.index(max(stamps)) + 1:]
+    assert max(stamps) >= 2_980_000 and after and after[0] == 0 and after == sorted(after) and after[-1] < 100_000

@@ -9,6 +9,8 @@ Fail-safes, each logged:
 - a required stream older than ``stale_timeout_s`` (robot time) -> stop, resume when fresh;
 - the base itself silent for ``stale_timeout_s`` of wall time -> stop commands (its watchdog
   stops it anyway);
+- the base's clock going backwards (an MCU reset restarts ``t_us`` at 0) -> robot time is
+  re-anchored to continue from where it was, so no deadline waits for the old clock to return;
 - arrival -> stop, done; ``max_time_s`` -> stop, failed;
 - any exception or cancellation (Ctrl-C) -> stop (the base driver's context manager).
 
@@ -39,6 +41,8 @@ from rfhoming.host.homing.s3_trilat import TrilatController
 from rfhoming.host.homing.types import Decision, Pose
 
 log = logging.getLogger(__name__)
+
+ODOMETRY_PERIOD_S = 0.02  # the base's documented 50 Hz odometry: the step assumed across a reset
 
 
 @dataclass
@@ -172,6 +176,8 @@ class HomingLoop:
         t = 0.0
         last_odometry_wall = time.monotonic()
         odometry_stale = False
+        clock_offset = 0.0  # robot time = base clock + offset, re-anchored on a base reset
+        self.clock_resets = 0
         while True:
             try:
                 item = await asyncio.wait_for(self.inputs.get(), min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s))
@@ -205,7 +211,17 @@ class HomingLoop:
                 continue
             odo = item
             last_odometry_wall, odometry_stale = time.monotonic(), False
-            t = odo.t_robot
+            if t0 is not None and odo.t_robot + clock_offset < t:
+                # the base restarted (its clock runs from 0 again): continue robot time one
+                # odometry period on, so staleness, control cadence and limits keep running
+                new_offset = t + ODOMETRY_PERIOD_S - odo.t_robot
+                self.clock_resets += 1
+                log.warning("base clock went back from %.3f s to %.3f s (a base reset?): re-anchored",
+                            t - clock_offset, odo.t_robot)
+                self.log.write("event", t, what="base clock reset: re-anchored",
+                               base_clock_before=round(t - clock_offset, 6), base_clock_now=round(odo.t_robot, 6))
+                clock_offset = new_offset
+            t = odo.t_robot + clock_offset
             t0 = t if t0 is None else t0
             pose = Pose(odo.x, odo.y, odo.theta)
             if next_control is None:
