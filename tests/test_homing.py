@@ -99,10 +99,10 @@ def test_config_default_and_errors(tmp_path: Path) -> None:
 
 # -- closed loop through ptys in lockstep ---------------------------------------------------
 async def closed_loop(tmp_path: Path, target: tuple[float, float], seed: int = 1, faults: list[str] = (),
-                      config: Config = Config(), capture: bool = False):
+                      config: Config = Config(), capture: bool = False, truth: io.StringIO | None = None):
     scenario = load("s0-open", seed=seed, target=target)
     em = Emulator(scenario, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path,
-                  faults=[Fault.parse(f) for f in faults], lockstep_timeout=2.0)
+                  faults=[Fault.parse(f) for f in faults], lockstep_timeout=2.0, truth=truth)
     await em.start()
     world = asyncio.create_task(em.run())
     writer = CaptureWriter(tmp_path / "run.pcapng") if capture else None
@@ -260,3 +260,42 @@ def test_base_reboot_restarts_its_clock() -> None:
     stamps = [r.t_us for r in FrameDecoder().feed(fw.read()) if isinstance(r, Odometry)]
     after = stamps[stamps.index(max(stamps)) + 1:]
     assert max(stamps) >= 2_980_000 and after and after[0] == 0 and after == sorted(after) and after[-1] < 100_000
+
+
+def driven_after(truth: str, t_from: float) -> tuple[float, float]:
+    """From the emulator's truth lines: (speed at t_from, path length driven from t_from on)."""
+    pts = [(r["t"], r["robot"]["x"], r["robot"]["y"]) for r in map(json.loads, truth.splitlines()) if "robot" in r]
+    i = next(k for k, p in enumerate(pts) if p[0] >= t_from - 1e-9)
+    speed = math.hypot(pts[i][1] - pts[i - 1][1], pts[i][2] - pts[i - 1][2]) / (pts[i][0] - pts[i - 1][0])
+    return speed, sum(math.hypot(b[1] - a[1], b[2] - a[2]) for a, b in zip(pts[i:], pts[i + 1:]))
+
+
+async def test_stopping_distance_on_stale_data_is_bounded_in_truth(tmp_path: Path) -> None:
+    """The angle stream dies while the robot drives at full speed: measured on the emulator's
+    true pose (not the loop's log), it comes to rest within 0.25 m of where the data ended."""
+    truth = io.StringIO()
+    config = replace(Config(), loop=replace(LoopSettings(), max_time_s=8.0))
+    outcome, _, log, em, _ = await closed_loop(tmp_path, (12.0, 0.5), faults=["unplug@aoa:at=5,for=100"],
+                                               config=config, truth=truth)
+    speed, driven = driven_after(truth.getvalue(), 5.0)
+    assert speed > 0.6  # it was at (nearly) full speed when the data ended
+    assert driven <= 0.25
+    assert em.device("base").firmware.v == 0.0 and outcome.stale_stops == 1
+    assert any(e["kind"] == "event" and e["what"] == "brake mode on" and 5.0 < e["t"] < 5.35 for e in log)
+
+
+@pytest.mark.parametrize("brake", [False, True])
+def test_base_brake_mode_sheds_speed_at_its_emergency_deceleration(brake: bool) -> None:
+    from rfhoming.firmware.robot_base import BaseLimits, RobotBaseFirmware
+    from rfhoming.protocol.frames import NodeCommand, VelocityCommand, encode_frame
+
+    fw = RobotBaseFirmware()
+    fw.receive(encode_frame(VelocityCommand(0, 1, 0, 700, 0, 60_000)))
+    for k in range(0, 1_000_000, 10_000):
+        fw.step(k)
+    assert fw.v == pytest.approx(0.7)
+    fw.receive(encode_frame(NodeCommand(0, 2, 0, 5, bytes([int(brake)]))) + encode_frame(VelocityCommand(0, 3, 0, 0, 0, 60_000)))
+    for k in range(1_000_000, 1_100_000, 10_000):  # 0.1 s
+        fw.step(k)
+    a = BaseLimits().a_emergency if brake else BaseLimits().a_max
+    assert fw.v == pytest.approx(max(0.0, 0.7 - a * 0.1))

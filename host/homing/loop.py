@@ -6,7 +6,10 @@ the emulator's lockstep (where wall time means nothing). One velocity command go
 control period, after the odometry that closes the period.
 
 Fail-safes, each logged:
-- a required stream older than ``stale_timeout_s`` (robot time) -> stop, resume when fresh;
+- a required stream older than ``slow_after_s`` -> the speed falls linearly with its age, to 0 at
+  ``stale_timeout_s``, with the base in brake mode (it sheds speed at its emergency deceleration);
+  older than ``stale_timeout_s`` (robot time) -> stop in brake mode, resume when fresh. Together
+  they bound the distance driven on stale data (docs/BENCHMARKS.md, bench/loop_bench.py);
 - the base itself silent for ``stale_timeout_s`` of wall time -> stop commands (its watchdog
   stops it anyway);
 - the base's clock going backwards (an MCU reset restarts ``t_us`` at 0) -> robot time is
@@ -153,6 +156,7 @@ class HomingLoop:
         self._next_plan = 0.0
         self._next_integrate = 0.0
         self.plans = 0
+        self._braking: bool | None = None  # base brake mode as last sent; None: not sent yet
 
     async def run(self) -> Outcome:
         tasks = [asyncio.create_task(self.base.run()), asyncio.create_task(self.sensor.run())]
@@ -235,6 +239,7 @@ class HomingLoop:
                     log.warning("%s stream stale for %.2f s: stopping the robot", self.source, t - last_reading)
                     self.log.write("event", t, what=f"{self.source} stale: stop")
                 stale = True
+                self._brake(True, t)
                 self._send(Decision(0.0, 0.0, None, False, "stale"), t, odo)
                 if t - t0 > cfg.max_time_s:
                     return self._outcome(False, "time limit", t - t0, pose, None)
@@ -248,7 +253,11 @@ class HomingLoop:
                 decision = self.avoidance.adjust(decision, t, emergency_only=waypoint is not None)
             self.log.write("estimate", t, **self.controller.estimate(), phase=self.controller.phase,
                            pose=[round(v, 4) for v in pose])
-            self._send(decision, t, odo)
+            slow = self._age_factor(t - last_reading)
+            self._brake(slow < 1.0, t)
+            if slow < 1.0:
+                decision = decision._replace(v=decision.v * slow, w=decision.w * slow)
+            self._send(decision, t, odo, **({"slowed": round(slow, 3)} if slow < 1.0 else {}))
             if decision.arrived:
                 return self._outcome(True, "arrived", t - t0, pose, decision.goal)
             if t - t0 > cfg.max_time_s:
@@ -270,11 +279,25 @@ class HomingLoop:
             return None
         return lookahead(self._path, pose, cfg.lookahead_m)
 
-    def _send(self, decision: Decision, t: float, odo: Pose2D) -> None:
+    def _age_factor(self, age: float) -> float:
+        """1 for data younger than slow_after_s, falling linearly to 0 at stale_timeout_s."""
+        cfg = self.config.loop
+        if age <= cfg.slow_after_s:
+            return 1.0
+        return max(0.0, (cfg.stale_timeout_s - age) / (cfg.stale_timeout_s - cfg.slow_after_s))
+
+    def _brake(self, on: bool, t: float) -> None:
+        """Base brake mode (emergency deceleration) on or off; sent on change only."""
+        if on != self._braking:
+            self._braking = on
+            self.base.brake(on)
+            self.log.write("event", t, what="brake mode " + ("on" if on else "off"))
+
+    def _send(self, decision: Decision, t: float, odo: Pose2D, **fields: Any) -> None:
         self.base.send_velocity(decision.v, decision.w)
         self.commands += 1
         self.latency_ms.append((time.time() - odo.t_host) * 1000)
-        self.log.write("command", t, v=round(decision.v, 4), w=round(decision.w, 4), note=decision.note)
+        self.log.write("command", t, v=round(decision.v, 4), w=round(decision.w, 4), note=decision.note, **fields)
 
     def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose, goal) -> Outcome:
         self.base.stop()
