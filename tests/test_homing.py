@@ -224,15 +224,24 @@ async def test_dead_odometry_is_noticed_and_a_stop_sent(tmp_path: Path) -> None:
     world = asyncio.create_task(em.run())
     out = io.StringIO()
     base = BaseDriver(HostPort(str(tmp_path / "base")))
+    stops: list[str] = []  # why each stop was sent: what the run log said last
+    send_stop = base.stop
+
+    def stop() -> bool:
+        events = [json.loads(line) for line in out.getvalue().splitlines() if '"event"' in line]
+        stops.append("cancelled" if asyncio.current_task().cancelling() else
+                     events[-1]["what"] if events else "connect")
+        return send_stop()
+
+    base.stop = stop
     loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), Config(), RunLog(out))
     with pytest.raises(asyncio.TimeoutError):  # no odometry, no robot time: the loop waits, stopped
         await asyncio.wait_for(loop.run(), 2.5)
     world.cancel()
     await asyncio.gather(world, return_exceptions=True)
     await em.close()
-    events = [json.loads(line) for line in out.getvalue().splitlines() if '"event"' in line]
-    assert any(e["what"] == "odometry stale: stop" for e in events)
-    assert base.counters["stops"] >= 1
+    # the stops on connect and on cancellation do not count: the watchdog's own stop must be there
+    assert stops.count("odometry stale: stop") == 1 and stops[0] == "connect" and stops[-1] == "cancelled"
 
 
 async def test_base_reset_mid_run_is_reanchored_and_the_loop_keeps_going(tmp_path: Path) -> None:
