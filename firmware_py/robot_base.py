@@ -35,7 +35,7 @@ class BaseLimits:
     v_max: float = 0.7  # m/s
     w_max: float = 1.5  # rad/s
     a_max: float = 1.0  # m/s², speeding up and (normally) slowing down
-    a_emergency: float = 3.0  # m/s², slowing down in brake mode and on a watchdog stop
+    a_emergency: float = 4.0  # m/s², slowing down in brake mode and on a watchdog stop
     alpha_max: float = 4.0  # rad/s²
 
 

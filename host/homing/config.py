@@ -47,7 +47,7 @@ class Calibration:
 
 @dataclass(frozen=True)
 class LoopSettings:
-    stale_timeout_s: float = 0.35  # emergency-stop when a required stream is older than this (robot time)
+    stale_timeout_s: float = 0.3  # emergency-stop when a required stream is older than this (robot time)
     slow_after_s: float = 0.1  # from this age on, speed falls linearly to 0 at stale_timeout_s, braking hard
     odometry_wall_timeout_s: float = 0.5  # stop when the base is silent this long (wall time; inf in lockstep simulation)
     control_period_s: float = 0.1
@@ -137,7 +137,7 @@ d0_m = 1.0
 ed_scale_db = 1.0        # AT86RF212: dB per ED step (datasheet 1.03)
 
 [loop]
-stale_timeout_s = 0.35   # emergency-stop the robot when a required stream is older than this
+stale_timeout_s = 0.3    # emergency-stop the robot when a required stream is older than this
 slow_after_s = 0.1       # from this age on, slow down (base brake mode), reaching 0 at stale_timeout_s
 odometry_wall_timeout_s = 0.5  # stop when the base is silent this long, in wall time (inf: lockstep sims)
 control_period_s = 0.1
