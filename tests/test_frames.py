@@ -179,3 +179,31 @@ def test_antenna_set_groups_readings() -> None:
 def test_velocity_command_host_to_base() -> None:
     cmd = VelocityCommand(0, 5, 0, 250, -520, 300)
     assert decode(encode_frame(cmd)) == [cmd]
+
+
+# -- range checks at their edges (mutation testing found them untested) ----------------------
+def _rf(ed: int = 0, antenna: int = 0):
+    from rfhoming.protocol.frames import RfFrame
+
+    return RfFrame(1, 2, 3, antenna, 1, 0, 0, -91, ed, 200, 0, 9, b"\x01\x02")
+
+
+def _odo(theta: int):
+    from rfhoming.protocol.frames import Odometry
+
+    return Odometry(7, 1, 123456, 1500, -250, theta, 300, -100, 4)
+
+
+EDGES = [(_rf(ed=84), True), (_rf(ed=85), False), (_rf(ed=254), False), (_rf(ed=255), True),
+         (_rf(antenna=3), True), (_rf(antenna=4), False),
+         (_odo(3_141_593), True), (_odo(3_141_594), False), (_odo(-3_141_593), True), (_odo(-3_141_594), False)]
+
+
+@pytest.mark.parametrize("pure", [False, True])
+@pytest.mark.parametrize(("record", "accepted"), EDGES)
+def test_range_checks_at_their_edges(record, accepted: bool, pure: bool) -> None:
+    items = FrameDecoder(pure=pure).feed(encode_frame(record))
+    if accepted:
+        assert items == [record]
+    else:
+        assert len(items) == 1 and isinstance(items[0], Drop) and items[0].reason == "field"
