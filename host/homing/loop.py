@@ -9,7 +9,7 @@ Fail-safes, each logged:
 - a required stream older than ``slow_after_s`` -> the speed falls linearly with its age, to 0 at
   ``stale_timeout_s``, with the base in brake mode (it sheds speed at its emergency deceleration);
   older than ``stale_timeout_s`` (robot time) -> stop in brake mode, resume when fresh. Together
-  they bound the distance driven on stale data (docs/BENCHMARKS.md, bench/loop_bench.py);
+  they bound the distance driven on stale data (docs/BENCHMARKS.md, bench/stopping_bench.py);
 - the base itself silent for ``stale_timeout_s`` of wall time -> stop commands (its watchdog
   stops it anyway);
 - the base's clock going backwards (an MCU reset restarts ``t_us`` at 0) -> robot time is
@@ -156,7 +156,8 @@ class HomingLoop:
         self._next_plan = 0.0
         self._next_integrate = 0.0
         self.plans = 0
-        self._braking: bool | None = None  # base brake mode as last sent; None: not sent yet
+        self._braking: bool | None = None  # base brake mode as last sent; None: unknown, send it
+        self.clock_resets = 0
 
     async def run(self) -> Outcome:
         tasks = [asyncio.create_task(self.base.run()), asyncio.create_task(self.sensor.run())]
@@ -181,7 +182,6 @@ class HomingLoop:
         last_odometry_wall = time.monotonic()
         odometry_stale = False
         clock_offset = 0.0  # robot time = base clock + offset, re-anchored on a base reset
-        self.clock_resets = 0
         while True:
             try:
                 item = await asyncio.wait_for(self.inputs.get(), min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s))
@@ -225,6 +225,7 @@ class HomingLoop:
                 self.log.write("event", t, what="base clock reset: re-anchored",
                                base_clock_before=round(t - clock_offset, 6), base_clock_now=round(odo.t_robot, 6))
                 clock_offset = new_offset
+                self._braking = None  # a reset clears the base's brake mode: send it again
             t = odo.t_robot + clock_offset
             t0 = t if t0 is None else t0
             pose = Pose(odo.x, odo.y, odo.theta)
@@ -288,9 +289,8 @@ class HomingLoop:
 
     def _brake(self, on: bool, t: float) -> None:
         """Base brake mode (emergency deceleration) on or off; sent on change only."""
-        if on != self._braking:
+        if on != self._braking and self.base.brake(on):  # not sent (base away): try again next time
             self._braking = on
-            self.base.brake(on)
             self.log.write("event", t, what="brake mode " + ("on" if on else "off"))
 
     def _send(self, decision: Decision, t: float, odo: Pose2D, **fields: Any) -> None:
