@@ -21,7 +21,7 @@ from rfhoming.host.ports import PortError
 from rfhoming.host.replay import ReplayPort, describe, load_capture
 from rfhoming.host.session import DRIVERS, health, open_drivers
 from rfhoming.protocol.jsonable import as_dict
-from rfhoming.protocol.pcapng import CaptureFormatError
+from rfhoming.protocol.pcapng import CaptureFormatError, Interface
 
 log = logging.getLogger(__name__)
 
@@ -145,17 +145,20 @@ def _driver_for(fields: dict[str, Any], port: ReplayPort) -> Driver:
 
 
 async def _replay(args: argparse.Namespace) -> int:
+    damaged: list[CaptureFormatError] = []
+
     def warn(exc: CaptureFormatError) -> None:
+        damaged.append(exc)
         print(f"rfhoming replay: {args.capture}: {exc}; replaying what came before it (--partial)", file=sys.stderr)
 
     try:
         interfaces, packets, torn = load_capture(args.capture, partial=warn if args.partial else None)
     except (OSError, CaptureFormatError) as exc:
-        hint = "" if args.partial or not isinstance(exc, CaptureFormatError) else \
-            " (--partial replays what comes before it)"
+        readable = isinstance(exc, CaptureFormatError) and any(isinstance(i, Interface) for i in exc.items)
+        hint = " (--partial replays what comes before it)" if readable and not args.partial else ""
         print(f"rfhoming replay: cannot read {args.capture}: {exc}{hint}", file=sys.stderr)
         return 2
-    if torn:
+    if torn and not damaged:
         print(f"rfhoming replay: the capture ends in a torn block ({torn} bytes, a killed writer); "
               "replaying up to the last complete block", file=sys.stderr)
     drivers = []
