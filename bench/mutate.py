@@ -129,10 +129,14 @@ def run_tests(site: Path, repo: Path, tests: list[str], timeout: float) -> str:
     return "survived" if done.returncode == 0 else "killed"
 
 
-def mutate_module(module: str, tests: list[str], max_mutants: int, seed: int, timeout: float) -> dict:
+def mutate_module(module: str, tests: list[str], max_mutants: int, seed: int, timeout: float,
+                  lines: list[int] | None = None) -> dict:
     source = (ROOT / module).read_text()
     found = mutants(ast.parse(source))
-    chosen = sorted(random.Random(f"{seed}-{module}").sample(found, min(max_mutants, len(found))), key=lambda m: m[2])
+    if lines:  # every mutant on these lines (re-checking survivors), no sampling
+        chosen = [m for m in found if m[2] in lines]
+    else:
+        chosen = sorted(random.Random(f"{seed}-{module}").sample(found, min(max_mutants, len(found))), key=lambda m: m[2])
     with tempfile.TemporaryDirectory(prefix="rfhoming-mutants-") as tmp:
         site, repo = private_copy(Path(tmp))
         target = in_site(site, module)
@@ -159,6 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max", type=int, default=40, help="mutants per module, sampled with --seed (default 40)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per test run (default 300)")
+    p.add_argument("--lines", type=int, nargs="+", help="instead of a sample: every mutant on these lines")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     jobs = ([PRESETS[k] for k in PRESETS] if args.preset == "all" else [PRESETS[args.preset]] if args.preset
@@ -166,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     if not all(m and t for m, t in jobs):
         p.error("give --preset, or --module with --tests")
     for module, tests in jobs:
-        result = mutate_module(module, tests, args.max, args.seed, args.timeout)
+        result = mutate_module(module, tests, args.max, args.seed, args.timeout, args.lines)
         if args.json:
             print(json.dumps(result), flush=True)
         else:

@@ -167,7 +167,10 @@ def test_torn_frame_at_end_of_input() -> None:
     d = FrameDecoder()
     assert d.feed(encode_frame(ODO)[:-5]) == []
     (item,) = d.flush()
-    assert item.reason == "torn"
+    assert item.reason == "torn" and item.raw == encode_frame(ODO)[1:-5]  # the frame, no leading zero
+    d.feed(b"\0" + b"\x01" * 200)
+    (item,) = d.flush()
+    assert item.raw == b"\x01" * 64  # a drop's raw bytes are bounded (docs/protocol.md)
 
 
 def test_antenna_set_groups_readings() -> None:
@@ -194,7 +197,11 @@ def _odo(theta: int):
     return Odometry(7, 1, 123456, 1500, -250, theta, 300, -100, 4)
 
 
-EDGES = [(_rf(ed=84), True), (_rf(ed=85), False), (_rf(ed=254), False), (_rf(ed=255), True),
+def _set(ed: int):
+    return AntennaSet(3, 9, 1000, 42, 1, 0, -99, 0b1111, tuple(AntennaReading(ed if i == 2 else 0, 200, -i) for i in range(4)))
+
+
+EDGES = [(_set(84), True), (_set(85), False), (_set(255), True), (_rf(ed=84), True), (_rf(ed=85), False), (_rf(ed=254), False), (_rf(ed=255), True),
          (_rf(antenna=3), True), (_rf(antenna=4), False),
          (_odo(3_141_593), True), (_odo(3_141_594), False), (_odo(-3_141_593), True), (_odo(-3_141_594), False)]
 
