@@ -186,6 +186,10 @@ class HomingLoop:
             try:
                 item = await asyncio.wait_for(self.inputs.get(), min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s))
             except asyncio.TimeoutError:
+                # on 3.11 wait_for can turn a cancellation (Ctrl-C, a caller's timeout) that
+                # coincides with its own timeout into TimeoutError: then the loop must still end
+                if asyncio.current_task().cancelling():
+                    raise asyncio.CancelledError from None
                 item = None
             if not isinstance(item, Pose2D) and time.monotonic() - last_odometry_wall > cfg.odometry_wall_timeout_s:
                 if not odometry_stale:  # the base's own clock is gone: wall time is all there is
