@@ -106,3 +106,24 @@ def test_replay_pty_refuses_an_empty_file(tmp_path: Path) -> None:
     done = subprocess.run([*RFHOMING, "replay", str(path), "--pty", "--link-dir", str(tmp_path),
                            "--start-delay", "0"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "offset 0: empty file" in done.stderr and "Traceback" not in done.stderr
+
+
+# -- edges mutation testing found untested -----------------------------------------------------
+def test_timestamps_beyond_32_bits_of_microseconds_round_trip() -> None:
+    """A capture's time stamps are wall-clock µs: far beyond 2^32 (71 minutes)."""
+    t = 1_795_998_957.775595
+    _, packets, _ = pcapng.read_all(SHB + AOA + pkt(t=t))
+    assert packets[0].t == t
+
+
+def test_minimal_section_header_without_options_is_read() -> None:
+    shb = block(pcapng.SHB, struct.pack("<IHHq", pcapng.BYTE_ORDER_MAGIC, 1, 0, -1))  # 16-byte body
+    interfaces, packets, torn = pcapng.read_all(shb + AOA + pkt())
+    assert len(interfaces) == 1 and len(packets) == 1 and torn == 0
+
+
+def test_options_end_with_opt_endofopt_as_the_spec_writes_it() -> None:
+    """draft-ietf-opsawg-pcapng: options end with opt_endofopt, code 0 length 0."""
+    data = pcapng.packet(0, 1.0, b"ab", pcapng.OUTBOUND)
+    options = data[8 + 20 + 4 : -4]  # after the header, the 20-byte EPB fields and the padded data
+    assert options == struct.pack("<HHI", 2, 4, 2) + struct.pack("<HH", 0, 0)
