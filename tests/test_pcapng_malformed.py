@@ -124,6 +124,8 @@ def test_minimal_section_header_without_options_is_read() -> None:
 
 def test_options_end_with_opt_endofopt_as_the_spec_writes_it() -> None:
     """draft-ietf-opsawg-pcapng: options end with opt_endofopt, code 0 length 0."""
-    data = pcapng.packet(0, 1.0, b"ab", pcapng.OUTBOUND)
+    data = pcapng.packet(0, 1.0, b"ab", pcapng.OUTBOUND, comment="x")
     options = data[8 + 20 + 4 : -4]  # after the header, the 20-byte EPB fields and the padded data
-    assert options == struct.pack("<HHI", 2, 4, 2) + struct.pack("<HH", 0, 0)
+    # epb_flags (2), opt_comment (1), opt_endofopt (0)
+    assert options == struct.pack("<HHI", 2, 4, 2) + struct.pack("<HH", 1, 1) + b"x\0\0\0" + struct.pack("<HH", 0, 0)
+    assert SHB[8 + 16 : 8 + 20] == struct.pack("<HH", 4, len(b"rfhoming"))  # shb_userappl (4)
