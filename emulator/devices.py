@@ -323,8 +323,9 @@ class BaseRunner(DeviceRunner):
             self.commanded.set()
 
     def reboot(self, t: float) -> None:
-        """The motor controller restarts: it stops; its odometry (kept in RAM here) survives."""
-        self.firmware.halt()
+        """The motor controller restarts: it stops and its clock restarts at 0 (t_us from 0, as
+        an MCU reset does); its odometry (kept in RAM here) survives."""
+        self.firmware.reset(int(t * 1e6))
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: RobotBaseFirmware = self.firmware

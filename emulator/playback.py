@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
@@ -19,9 +20,20 @@ from rfhoming.protocol import pcapng
 
 
 async def serve(capture: Path, link_dir: Path, *, speed: float = 1.0, start_delay: float = 1.0,
-                out: IO[str]) -> dict[str, int]:
-    """Play ``capture`` on ptys under ``link_dir``; ``start_delay`` gives consumers time to open them."""
-    interfaces, packets, _torn = pcapng.read_all(capture.read_bytes())
+                out: IO[str], partial: Callable[[pcapng.CaptureFormatError], None] | None = None) -> dict[str, int]:
+    """Play ``capture`` on ptys under ``link_dir``; ``start_delay`` gives consumers time to open them.
+
+    A malformed capture raises CaptureFormatError; given ``partial``, the error goes to it and
+    the blocks before the bad one are played (if they declare an interface).
+    """
+    try:
+        interfaces, packets, _torn = pcapng.read_all(capture.read_bytes())
+    except pcapng.CaptureFormatError as exc:
+        interfaces = [i for i in exc.items if isinstance(i, pcapng.Interface)]
+        if partial is None or not interfaces:
+            raise
+        partial(exc)
+        packets = [i for i in exc.items if isinstance(i, pcapng.Packet)]
     inbound = [p for p in packets if p.direction != pcapng.OUTBOUND]
     links = []
     for i, iface in enumerate(interfaces):

@@ -60,6 +60,8 @@ class Emulator:
         self.truth = truth
         self.t = 0.0
         self.counters = {"steps": 0, "lockstep_timeouts": 0}
+        if transport == "pty" and link_dir is not None and not link_dir.is_dir():
+            raise ValueError(f"link directory {link_dir} is not a directory (create it, or pass none for a temp dir)")
         self.link_dir = link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-"))
         self.faults = list(faults)
         self.devices: list[DeviceRunner] = []

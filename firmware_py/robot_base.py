@@ -5,6 +5,11 @@ applied velocity moves toward it no faster than the acceleration limits allow. A
 ``timeout_ms`` arms the watchdog: when it expires the base brakes to a stop and flags it
 (odometry flags bit 0) -- the second line of defence behind the host's own stop.
 
+Braking: speed is normally shed at ``a_max`` like it is gained. Node command 5 (``brake``, arg
+1/0) switches the base to shed speed at ``a_emergency`` instead, until switched off; a watchdog
+stop always uses it. This is the fault/safety-stop deceleration motor controllers keep apart
+from their normal ramp (docs/protocol.md cites it); the host uses it on stale data.
+
 The emulator asks :meth:`tick` for the applied (v, ω) each step and integrates the true pose;
 the base integrates its own odometry from the same wheel speeds with a configurable wheel-slip
 error (scale on v and ω, plus a yaw drift), so odometry drifts from truth as on a real robot.
@@ -22,13 +27,15 @@ from rfhoming.protocol.frames import NodeCommand, Odometry, RangeScan, VelocityC
 
 ODOMETRY_PERIOD_US = 20_000
 FLAG_WATCHDOG, FLAG_CONTACT, FLAG_MOTORS = 1, 2, 4
+CMD_STATUS, CMD_BRAKE = 4, 5
 
 
 @dataclass(frozen=True)
 class BaseLimits:
     v_max: float = 0.7  # m/s
     w_max: float = 1.5  # rad/s
-    a_max: float = 1.0  # m/s²
+    a_max: float = 1.0  # m/s², speeding up and (normally) slowing down
+    a_emergency: float = 4.0  # m/s², slowing down in brake mode and on a watchdog stop
     alpha_max: float = 4.0  # rad/s²
 
 
@@ -52,19 +59,34 @@ class RobotBaseFirmware(FramedNode):
         self._target = (0.0, 0.0)
         self._deadline_us: int | None = None
         self.watchdog_tripped = False
+        self.braking = False  # brake mode (node command 5): shed speed at a_emergency
         self.contact = False
         self.x, self.y, self.theta = start_pose  # odometry frame, m and rad
         self._next_odometry_us = 0
         self._last_us: int | None = None
+        self._boot_us = 0  # emulator time of the last reset: the MCU clock counts from there
 
     def halt(self) -> None:
         """Stop now and forget the last command (a controller restart)."""
         self.v = self.w = 0.0
         self._target, self._deadline_us = (0.0, 0.0), None
 
+    def reset(self, now_us: int) -> None:
+        """An MCU reset at emulator time ``now_us``: motors stop, the last command is forgotten,
+        the microsecond clock and the record counter restart at 0 (odometry survives: it is kept
+        in RAM that the reset does not clear)."""
+        self.halt()
+        self.watchdog_tripped = self.braking = False
+        self._boot_us, self._now_us = now_us, 0
+        self._seq = 0
+        self._next_odometry_us = self._next_status_us = 0
+        self._last_us = None
+
     def command(self, cmd: NodeCommand) -> None:
-        if cmd.command == 4:
+        if cmd.command == CMD_STATUS:
             self.send_status()
+        elif cmd.command == CMD_BRAKE and len(cmd.args) == 1 and cmd.args[0] in (0, 1):
+            self.braking = bool(cmd.args[0])
         else:
             self.log(f"unknown command {cmd.command}")
 
@@ -87,8 +109,9 @@ class RobotBaseFirmware(FramedNode):
         self.watchdog_tripped = False
         self.counters["commands"] += 1
 
-    def step(self, now_us: int) -> tuple[float, float]:
-        """Advance to ``now_us``; returns the applied (v, ω) over the step for the world."""
+    def step(self, sim_us: int) -> tuple[float, float]:
+        """Advance to emulator time ``sim_us``; returns the applied (v, ω) over the step."""
+        now_us = sim_us - self._boot_us  # the MCU's own clock, from its last reset
         dt = 0.0 if self._last_us is None else (now_us - self._last_us) / 1e6
         self._last_us = now_us
         self.tick(now_us)
@@ -97,7 +120,9 @@ class RobotBaseFirmware(FramedNode):
             self.watchdog_tripped = True
             self.counters["watchdog_stops"] += 1
         tv, tw = self._target
-        self.v += max(-self.limits.a_max * dt, min(self.limits.a_max * dt, tv - self.v))
+        shedding = abs(tv) < abs(self.v) or tv * self.v < 0
+        a = self.limits.a_emergency if shedding and (self.braking or self.watchdog_tripped) else self.limits.a_max
+        self.v += max(-a * dt, min(a * dt, tv - self.v))
         self.w += max(-self.limits.alpha_max * dt, min(self.limits.alpha_max * dt, tw - self.w))
         moving = self.v != 0.0 or self.w != 0.0
         v_odo = self.v * (1 + self.slip.v_scale)

@@ -2,7 +2,9 @@
 
 Use :meth:`CaptureWriter.tap` as a :class:`~host.ports.HostPort` tap. Blocks go to the file as
 they come and are flushed at least once a second, so a killed process loses at most the last
-second and the file stays readable (a torn last block is skipped by every reader).
+second and the file stays readable (a torn last block is skipped by every reader). The section
+header and each interface block are flushed the moment they are written: a capture killed at
+any time holds a whole header.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from rfhoming.protocol import pcapng
 
 FLUSH_INTERVAL = 1.0
 DISCONNECTED = "disconnected"
-SNIFFED = "sniffed"  # the comment on bytes exchanged while sniffing the protocol (no driver saw them)
+SNIFFED = "sniffed"  # bytes seen while the protocol was sniffed: in the file, not for the driver
 
 
 class CaptureWriter:
@@ -24,6 +26,7 @@ class CaptureWriter:
         self.path = Path(path)
         self._file: BinaryIO = open(self.path, "wb")
         self._file.write(pcapng.section_header())
+        self._file.flush()
         self._ids: dict[str, int] = {}
         self.descriptions = dict(descriptions or {})
         self._comments: dict[str, str] = {}
@@ -37,23 +40,32 @@ class CaptureWriter:
         self.descriptions.setdefault(port, {}).update(fields)
         if port in self._ids:
             self._comments[port] = " ".join(f"{k}={v}" for k, v in fields.items())
+        elif "protocol" in fields:  # the interface is known: on disk now, before any data
+            self._interface(port)
+
+    def _interface(self, port: str) -> int:
+        fields = self.descriptions.get(port, {})
+        linktype = pcapng.LINKTYPES.get(fields.get("protocol", ""), pcapng.LINKTYPE_FRAMES)
+        text = " ".join(f"{k}={v}" for k, v in fields.items())
+        self._file.write(pcapng.interface(port, text, linktype))
+        self._file.flush()
+        iface = self._ids[port] = len(self._ids)
+        return iface
 
     def tap(self, port: str, direction: str, t: float, data: bytes) -> None:
         if self._file.closed:  # a port still delivering after the capture ended
             return
         iface = self._ids.get(port)
         if iface is None:
-            fields = self.descriptions.get(port, {})
-            linktype = pcapng.LINKTYPES.get(fields.get("protocol", ""), pcapng.LINKTYPE_FRAMES)
-            text = " ".join(f"{k}={v}" for k, v in fields.items())
-            self._file.write(pcapng.interface(port, text, linktype))
-            iface = self._ids[port] = len(self._ids)
+            iface = self._interface(port)
         if direction == "lost":  # an empty packet marks where the device went away
             self._file.write(pcapng.packet(iface, t, b"", 0, DISCONNECTED))
+        elif direction.startswith(SNIFFED):
+            flag = pcapng.INBOUND if direction.endswith("in") else pcapng.OUTBOUND
+            self._file.write(pcapng.packet(iface, t, data, flag, SNIFFED))
         else:
-            flag = pcapng.INBOUND if direction in ("in", "sniff-in") else pcapng.OUTBOUND
-            comment = SNIFFED if direction.startswith("sniff") else self._comments.pop(port, "")
-            self._file.write(pcapng.packet(iface, t, data, flag, comment))
+            flag = pcapng.INBOUND if direction == "in" else pcapng.OUTBOUND
+            self._file.write(pcapng.packet(iface, t, data, flag, self._comments.pop(port, "")))
         self.packets += 1
         self._schedule_flush()
 

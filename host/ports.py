@@ -25,9 +25,9 @@ import serial_asyncio_fast
 log = logging.getLogger(__name__)
 
 Tap = Callable[[str, str, float, bytes], None]
-"""tap(port_name, direction, host time in seconds, bytes). Directions: 'in', 'out', 'lost' (the
-device went away), and 'sniff-in'/'sniff-out' for the bytes exchanged while the host was finding
-out what protocol the port speaks, before its driver opened it."""
+"""tap(port_name, direction, host time in seconds, bytes). direction: 'in', 'out', 'lost', or
+'sniffed-in'/'sniffed-out' for bytes that crossed while the protocol was sniffed, before any
+driver owned the port (:func:`rfhoming.host.session.open_drivers`)."""
 
 MAX_BACKLOG = 1 << 20
 

@@ -5,14 +5,14 @@ each recorded inbound chunk with its recorded timestamp, as fast as possible or 
 pace (``speed``). A recorded answer that followed one of the host's writes is released only
 after the driver has written again, so the driver's commands are answered from the capture in
 the order they were answered live. Writes that differ from the recording are counted
-(``diverged``): the replayed host did not do what the live one did. Bytes recorded while the
-live host sniffed the port's protocol reached no driver, so they are skipped (``sniffed``).
+(``diverged``): the replayed host did not do what the live one did.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +58,7 @@ class ReplayPort:
         self.baud = 115200
         self.taps: list[Tap] = []
         self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0,
-                         "disconnects": 0, "dropped_bytes": 0, "diverged": 0, "unanswered": 0, "sniffed": 0}
+                         "disconnects": 0, "dropped_bytes": 0, "diverged": 0, "unanswered": 0}
         self._i = 0
         self._written = asyncio.Event()
         self._open = False
@@ -87,12 +87,6 @@ class ReplayPort:
         while self._i < len(self.packets):
             p = self.packets[self._i]
             self._i += 1
-            if p.comment == SNIFFED:
-                self.counters["sniffed"] += len(p.data)
-                if self.sequencer is not None and p.direction != pcapng.OUTBOUND:
-                    await self.sequencer.turn(self.name, self._i - 1)
-                    self.sequencer.taken()
-                continue
             if p.direction == pcapng.OUTBOUND:
                 await self._await_write(p)
                 continue
@@ -144,13 +138,31 @@ class ReplayPort:
         self._open = False
 
 
-def load_capture(path: Path | str) -> tuple[list[pcapng.Interface], dict[int, list[pcapng.Packet]], int]:
-    """Interfaces, packets per interface, and the size of a torn tail (0 if the file is whole)."""
+def load_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatError], None] | None = None
+                 ) -> tuple[list[pcapng.Interface], dict[int, list[pcapng.Packet]], int]:
+    """Interfaces, packets per interface, and the size of a torn tail (0 if the file is whole).
+
+    The packets are those the live drivers handled: bytes recorded while a port's protocol was
+    sniffed (comment ``sniffed``) are in the file for the record, not replayed.
+
+    A malformed capture raises :class:`~rfhoming.protocol.pcapng.CaptureFormatError` (offset and
+    problem). Given ``partial``, the error goes to it instead and everything before the bad block
+    is returned, the bytes from there on counted as the tail; it still raises if nothing before
+    the bad block was an interface.
+    """
     data = Path(path).read_bytes()
-    interfaces, packets, torn = pcapng.read_all(data)
+    try:
+        interfaces, packets, torn = pcapng.read_all(data)
+    except pcapng.CaptureFormatError as exc:
+        interfaces = [i for i in exc.items if isinstance(i, pcapng.Interface)]
+        if not partial or not interfaces:
+            raise
+        partial(exc)
+        packets, torn = [i for i in exc.items if isinstance(i, pcapng.Packet)], len(data) - exc.offset
     per: dict[int, list[pcapng.Packet]] = {i: [] for i in range(len(interfaces))}
     for p in packets:
-        per[p.interface_id].append(p)
+        if p.comment != SNIFFED:
+            per[p.interface_id].append(p)
     return interfaces, per, torn
 
 

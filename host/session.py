@@ -181,13 +181,16 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
         describe(spec.name or spec.where, protocol=WIRE_PROTOCOL[spec.kind], kind=DRIVERS[spec.kind].kind)
     for name, direction, t, data in sniffed:
         for tap in taps:
-            tap(name, f"sniff-{direction}", t, data)
+            tap(name, f"sniffed-{direction}", t, data)
     return spec
 
 
 async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, flow: str | None = None,
-                       taps: list[Tap] = (), describe: Callable[..., None] | None = None) -> list[Driver]:
-    """Drivers for the specs (a ``capture:`` spec gives one per recorded device)."""
+                       taps: list[Tap] = (), describe: Callable[..., None] | None = None,
+                       probe_baud: bool = False) -> list[Driver]:
+    """Drivers for the specs (a ``capture:`` spec gives one per recorded device).
+
+    ``probe_baud``: an XPLR-AOA that sends only garbage is probed at every documented rate."""
     drivers: list[Driver] = []
     for text in specs:
         spec = portspec.parse(text)
@@ -198,7 +201,8 @@ async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, 
             drivers.append(serve_driver(spec))
             continue
         spec = await resolve(spec, baud=baud, flow=flow, taps=taps, describe=describe)
-        drivers.append(make_driver(spec, list(taps)))
+        options = {"setup": AoaSetup(probe_baud=True)} if probe_baud and spec.kind == "ublox-aoa" else {}
+        drivers.append(make_driver(spec, list(taps), **options))
     return drivers
 
 
@@ -213,11 +217,12 @@ def serve_driver(spec: PortSpec) -> Driver:
                        device=spec.settings.get("device"))
 
 
-def replay_drivers(spec: PortSpec) -> list[Driver]:
+def replay_drivers(spec: PortSpec, partial: Callable[[Exception], None] | None = None) -> list[Driver]:
     """One driver per device recorded in a capture (``device=`` picks one), released in the
-    recorded global order; CaptureFormatError / OSError when the file cannot be read."""
-    interfaces, packets, torn = load_capture(spec.where)
-    if torn:
+    recorded global order; CaptureFormatError / OSError when the file cannot be read, or, given
+    ``partial``, the error goes there and what came before the damage is replayed."""
+    interfaces, packets, torn = load_capture(spec.where, partial=partial)
+    if torn and partial is None:
         log.warning("%s ends in a torn block (%d bytes, a killed writer); replaying up to the last "
                     "complete block", spec.where, torn)
     chosen = [i for i, iface in enumerate(interfaces) if spec.settings.get("device") in (None, iface.name)]

@@ -1,4 +1,11 @@
-"""Shared test settings: hypothesis is derandomised so CI runs are reproducible."""
+"""Shared test settings: hypothesis is derandomised so CI runs are reproducible.
+
+Profiles: ``rfhoming`` (the default: derandomised, 150 examples) and ``fuzz`` (random seeds,
+20,000 examples a test) for long hunts: ``python bench/fuzz.py --hypothesis`` or
+``RFHOMING_HYPOTHESIS_PROFILE=fuzz python -m pytest tests/test_frames.py``.
+"""
+
+import os
 
 from hypothesis import HealthCheck, settings
 
@@ -9,4 +16,11 @@ settings.register_profile(
     max_examples=150,
     suppress_health_check=[HealthCheck.too_slow],
 )
-settings.load_profile("rfhoming")
+settings.register_profile(
+    "fuzz",
+    derandomize=False,
+    deadline=None,
+    max_examples=20_000,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+settings.load_profile(os.environ.get("RFHOMING_HYPOTHESIS_PROFILE", "rfhoming"))

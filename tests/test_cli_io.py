@@ -24,7 +24,8 @@ def lines(text: str) -> list[dict]:
 def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None:
     emulator = subprocess.Popen(
         [*RFHOMING, "emulate", "s0-open", "--seed", "4", "--link-dir", str(tmp_path),
-         "--fault", "unplug@aoa:at=2,for=1", "--fault", "reboot@aoa:at=5.5"],
+         # the unplug comes after capture's start-up and sniffing, even on a loaded machine
+         "--fault", "unplug@aoa:at=3.5,for=1", "--fault", "reboot@aoa:at=6"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         endpoints = {e["device"]: e for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}

@@ -136,3 +136,27 @@ def test_bad_arguments_exit_2_with_a_message() -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--target", "x"],
                           capture_output=True, text=True, env={**os.environ})
     assert done.returncode == 2 and "--target takes X,Y" in done.stderr
+
+
+def test_missing_link_dir_is_a_clear_error(tmp_path: Path) -> None:
+    missing = tmp_path / "no" / "such"
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--link-dir", str(missing),
+                           "--duration", "1"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert f"--link-dir {missing} is not a directory" in done.stderr
+
+
+def test_every_option_a_message_names_exists() -> None:
+    """Messages telling the user to "use --x" (the baud mismatch says --probe-baud) name real options."""
+    import re
+
+    from rfhoming.cli.main import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if a.choices and "listen" in a.choices).choices
+    options = {o for sub in commands.values() for a in sub._actions for o in a.option_strings}
+    root = Path(__file__).parent.parent
+    told = {m for folder in ("host", "rfhoming", "emulator") for f in (root / folder).rglob("*.py")
+            for m in re.findall(r"use (--[a-z][a-z-]+)", f.read_text())}
+    assert "--probe-baud" in told
+    assert told <= options, told - options

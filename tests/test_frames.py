@@ -167,7 +167,10 @@ def test_torn_frame_at_end_of_input() -> None:
     d = FrameDecoder()
     assert d.feed(encode_frame(ODO)[:-5]) == []
     (item,) = d.flush()
-    assert item.reason == "torn"
+    assert item.reason == "torn" and item.raw == encode_frame(ODO)[1:-5]  # the frame, no leading zero
+    d.feed(b"\0" + b"\x01" * 200)
+    (item,) = d.flush()
+    assert item.raw == b"\x01" * 64  # a drop's raw bytes are bounded (docs/protocol.md)
 
 
 def test_antenna_set_groups_readings() -> None:
@@ -179,3 +182,35 @@ def test_antenna_set_groups_readings() -> None:
 def test_velocity_command_host_to_base() -> None:
     cmd = VelocityCommand(0, 5, 0, 250, -520, 300)
     assert decode(encode_frame(cmd)) == [cmd]
+
+
+# -- range checks at their edges (mutation testing found them untested) ----------------------
+def _rf(ed: int = 0, antenna: int = 0):
+    from rfhoming.protocol.frames import RfFrame
+
+    return RfFrame(1, 2, 3, antenna, 1, 0, 0, -91, ed, 200, 0, 9, b"\x01\x02")
+
+
+def _odo(theta: int):
+    from rfhoming.protocol.frames import Odometry
+
+    return Odometry(7, 1, 123456, 1500, -250, theta, 300, -100, 4)
+
+
+def _set(ed: int):
+    return AntennaSet(3, 9, 1000, 42, 1, 0, -99, 0b1111, tuple(AntennaReading(ed if i == 2 else 0, 200, -i) for i in range(4)))
+
+
+EDGES = [(_set(84), True), (_set(85), False), (_set(255), True), (_rf(ed=84), True), (_rf(ed=85), False), (_rf(ed=254), False), (_rf(ed=255), True),
+         (_rf(antenna=3), True), (_rf(antenna=4), False),
+         (_odo(3_141_593), True), (_odo(3_141_594), False), (_odo(-3_141_593), True), (_odo(-3_141_594), False)]
+
+
+@pytest.mark.parametrize("pure", [False, True])
+@pytest.mark.parametrize(("record", "accepted"), EDGES)
+def test_range_checks_at_their_edges(record, accepted: bool, pure: bool) -> None:
+    items = FrameDecoder(pure=pure).feed(encode_frame(record))
+    if accepted:
+        assert items == [record]
+    else:
+        assert len(items) == 1 and isinstance(items[0], Drop) and items[0].reason == "field"

@@ -99,10 +99,10 @@ def test_config_default_and_errors(tmp_path: Path) -> None:
 
 # -- closed loop through ptys in lockstep ---------------------------------------------------
 async def closed_loop(tmp_path: Path, target: tuple[float, float], seed: int = 1, faults: list[str] = (),
-                      config: Config = Config(), capture: bool = False):
+                      config: Config = Config(), capture: bool = False, truth: io.StringIO | None = None):
     scenario = load("s0-open", seed=seed, target=target)
     em = Emulator(scenario, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path,
-                  faults=[Fault.parse(f) for f in faults], lockstep_timeout=2.0)
+                  faults=[Fault.parse(f) for f in faults], lockstep_timeout=2.0, truth=truth)
     await em.start()
     world = asyncio.create_task(em.run())
     writer = CaptureWriter(tmp_path / "run.pcapng") if capture else None
@@ -224,12 +224,102 @@ async def test_dead_odometry_is_noticed_and_a_stop_sent(tmp_path: Path) -> None:
     world = asyncio.create_task(em.run())
     out = io.StringIO()
     base = BaseDriver(HostPort(str(tmp_path / "base")))
+    stops: list[str] = []  # why each stop was sent: what the run log said last
+    send_stop = base.stop
+
+    def stop() -> bool:
+        events = [json.loads(line) for line in out.getvalue().splitlines() if '"event"' in line]
+        stops.append("cancelled" if asyncio.current_task().cancelling() else
+                     events[-1]["what"] if events else "connect")
+        return send_stop()
+
+    base.stop = stop
     loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), Config(), RunLog(out))
     with pytest.raises(asyncio.TimeoutError):  # no odometry, no robot time: the loop waits, stopped
         await asyncio.wait_for(loop.run(), 2.5)
     world.cancel()
     await asyncio.gather(world, return_exceptions=True)
     await em.close()
-    events = [json.loads(line) for line in out.getvalue().splitlines() if '"event"' in line]
-    assert any(e["what"] == "odometry stale: stop" for e in events)
-    assert base.counters["stops"] >= 1
+    # the stops on connect and on cancellation do not count: the watchdog's own stop must be there
+    assert stops.count("odometry stale: stop") == 1 and stops[0] == "connect" and stops[-1] == "cancelled"
+
+
+async def test_base_reset_mid_run_is_reanchored_and_the_loop_keeps_going(tmp_path: Path) -> None:
+    """reboot@base restarts the base's t_us at 0: the loop must neither freeze (lockstep would
+    time out, waiting for commands) nor lose its fail-safes; it logs the reset and arrives."""
+    outcome, error, log, em, _ = await closed_loop(tmp_path, (7.0, 3.0), faults=["reboot@base:at=4"])
+    resets = [e for e in log if e["kind"] == "event" and e["what"] == "base clock reset: re-anchored"]
+    assert len(resets) == 1 and resets[0]["base_clock_now"] < 0.1 < 3.9 < resets[0]["base_clock_before"]
+    assert em.counters["lockstep_timeouts"] == 0
+    commands = [e["t"] for e in log if e["kind"] == "command"]
+    assert max(b - a for a, b in zip(commands, commands[1:])) <= 0.1 + 0.02 + 1e-6  # no gap in control
+    assert outcome.arrived and error < 1.0
+
+
+def test_base_reboot_restarts_its_clock() -> None:
+    from rfhoming.firmware.robot_base import RobotBaseFirmware
+    from rfhoming.protocol.frames import FrameDecoder, Odometry
+
+    fw = RobotBaseFirmware()
+    for k in range(0, 3_000_000, 10_000):
+        fw.step(k)
+    fw.reset(3_000_000)
+    for k in range(3_000_000, 3_100_000, 10_000):
+        fw.step(k)
+    stamps = [r.t_us for r in FrameDecoder().feed(fw.read()) if isinstance(r, Odometry)]
+    after = stamps[stamps.index(max(stamps)) + 1:]
+    assert max(stamps) >= 2_980_000 and after and after[0] == 0 and after == sorted(after) and after[-1] < 100_000
+
+
+def driven_after(truth: str, t_from: float) -> tuple[float, float]:
+    """From the emulator's truth lines: (speed at t_from, path length driven from t_from on)."""
+    pts = [(r["t"], r["robot"]["x"], r["robot"]["y"]) for r in map(json.loads, truth.splitlines()) if "robot" in r]
+    i = next(k for k, p in enumerate(pts) if p[0] >= t_from - 1e-9)
+    speed = math.hypot(pts[i][1] - pts[i - 1][1], pts[i][2] - pts[i - 1][2]) / (pts[i][0] - pts[i - 1][0])
+    return speed, sum(math.hypot(b[1] - a[1], b[2] - a[2]) for a, b in zip(pts[i:], pts[i + 1:]))
+
+
+async def test_stopping_distance_on_stale_data_is_bounded_in_truth() -> None:
+    """The angle stream dies while the robot drives at full speed: measured on the emulator's
+    true pose (not the loop's log), it comes to rest within 0.25 m of where the data ended.
+    In-process byte pipe: the machine's load cannot delay one device's bytes against the other's."""
+    from rfhoming.campaigns.closed_loop import PipePort
+
+    truth = io.StringIO()
+    em = Emulator(load("s0-open", seed=1, target=(12.0, 0.5)), transport="pipe", seed=1, lockstep=True,
+                  lockstep_timeout=2.0, truth=truth, faults=[Fault.parse("unplug@aoa:at=5,for=100")])
+    await em.start()
+    world = asyncio.create_task(em.run())
+    config = Config().for_lockstep()
+    config = replace(config, loop=replace(config.loop, max_time_s=8.0))
+    out = io.StringIO()
+    base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
+    try:
+        outcome = await asyncio.wait_for(aoa_loop(BaseDriver(base), AoaDriver(aoa), config, RunLog(out)).run(), 60)
+    finally:
+        world.cancel()
+        await asyncio.gather(world, return_exceptions=True)
+        await em.close()
+    speed, driven = driven_after(truth.getvalue(), 5.0)
+    assert speed > 0.6  # it was at (nearly) full speed when the data ended
+    assert driven <= 0.25
+    assert em.device("base").firmware.v == 0.0 and outcome.stale_stops == 1
+    log = [json.loads(line) for line in out.getvalue().splitlines()]
+    assert any(e["kind"] == "event" and e["what"] == "brake mode on" and 5.0 < e["t"] < 5.3 for e in log)
+
+
+@pytest.mark.parametrize("brake", [False, True])
+def test_base_brake_mode_sheds_speed_at_its_emergency_deceleration(brake: bool) -> None:
+    from rfhoming.firmware.robot_base import BaseLimits, RobotBaseFirmware
+    from rfhoming.protocol.frames import NodeCommand, VelocityCommand, encode_frame
+
+    fw = RobotBaseFirmware()
+    fw.receive(encode_frame(VelocityCommand(0, 1, 0, 700, 0, 60_000)))
+    for k in range(0, 1_000_000, 10_000):
+        fw.step(k)
+    assert fw.v == pytest.approx(0.7)
+    fw.receive(encode_frame(NodeCommand(0, 2, 0, 5, bytes([int(brake)]))) + encode_frame(VelocityCommand(0, 3, 0, 0, 0, 60_000)))
+    for k in range(1_000_000, 1_100_000, 10_000):  # 0.1 s
+        fw.step(k)
+    a = BaseLimits().a_emergency if brake else BaseLimits().a_max
+    assert fw.v == pytest.approx(max(0.0, 0.7 - a * 0.1))

@@ -387,3 +387,44 @@ async def test_tshark_reads_a_capture(tmp_path: Path) -> None:
     assert len(rows) == sum(len(p) for p in packets.values())
     assert {r[0] for r in rows} == {str(tmp_path / "aoa"), str(tmp_path / "base")}
     assert {r[1] for r in rows} >= {"0", "1"}  # sent and received
+
+
+async def test_capture_holds_the_bytes_seen_while_sniffing(tmp_path: Path) -> None:
+    """Sniffing reads, and on a silent port writes AT, before the driver's port opens: the
+    capture must still hold those bytes (they crossed the port)."""
+    from rfhoming.host.session import open_drivers
+
+    master, slave = os.openpty()
+    os.set_blocking(master, False)
+    loop = asyncio.get_running_loop()
+    loop.call_later(0.5, os.write, master, b"\xfe\xfd sniffed noise")  # once the sniffer listens
+
+    def answer() -> None:
+        if b"AT\r" in os.read(master, 4096):
+            os.write(master, b"\r\nOK\r\n")
+
+    loop.add_reader(master, answer)
+    writer = CaptureWriter(tmp_path / "sniff.pcapng")
+    try:
+        drivers = await open_drivers([os.ttyname(slave)], baud=115200, taps=[writer.tap], describe=writer.describe)
+    finally:
+        loop.remove_reader(master)
+        writer.close()
+        os.close(master)
+        os.close(slave)
+    assert [d.kind for d in drivers] == ["xplr-aoa"]
+    interfaces, packets, torn = pcapng.read_all((tmp_path / "sniff.pcapng").read_bytes())
+    assert [i.protocol for i in interfaces] == ["ublox-aoa"] and torn == 0
+    inbound = b"".join(p.data for p in packets if p.direction == pcapng.INBOUND)
+    outbound = b"".join(p.data for p in packets if p.direction == pcapng.OUTBOUND)
+    assert inbound == b"\xfe\xfd sniffed noise\r\nOK\r\n" and outbound == b"AT\r"
+    assert [p.t for p in packets] == sorted(p.t for p in packets)
+
+
+def test_capture_headers_are_on_disk_before_any_data(tmp_path: Path) -> None:
+    """A capture killed right after set-up is readable: section and interface blocks are flushed."""
+    writer = CaptureWriter(tmp_path / "c.pcapng")
+    writer.describe("/dev/ttyACM0", protocol="ublox-aoa", kind="xplr-aoa")
+    interfaces, packets, torn = pcapng.read_all((tmp_path / "c.pcapng").read_bytes())  # before close
+    assert [i.name for i in interfaces] == ["/dev/ttyACM0"] and packets == [] and torn == 0
+    writer.close()

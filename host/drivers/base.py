@@ -14,9 +14,11 @@ from typing import Any, NamedTuple
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.ports import Disconnected, HostPort
-from rfhoming.protocol.frames import FrameDecoder, Odometry, RangeScan, VelocityCommand, encode_frame
+from rfhoming.protocol.frames import FrameDecoder, NodeCommand, Odometry, RangeScan, VelocityCommand, encode_frame
 
 log = logging.getLogger(__name__)
+
+CMD_BRAKE = 5  # node command: 1 = shed speed at the base's emergency deceleration, 0 = normal ramp
 
 
 class Pose2D(NamedTuple):
@@ -48,7 +50,7 @@ class BaseDriver(Driver):
         self.scans = BoundedStream[Scan](20)
         self.latest: Pose2D | None = None
         self.latest_scan: Scan | None = None
-        self.counters.update(commands=0, stops=0, unsent=0)
+        self.counters.update(commands=0, stops=0, unsent=0, brakes=0, brakes_off=0)
         self._seq = 0
         self.clock = NodeClock()
 
@@ -82,6 +84,17 @@ class BaseDriver(Driver):
     def stop(self) -> bool:
         self.counters["stops"] += 1
         return self.send_velocity(0.0, 0.0)
+
+    def brake(self, on: bool) -> bool:
+        """Brake mode on: the base sheds speed at its emergency deceleration (docs/protocol.md)."""
+        self._seq = (self._seq + 1) & 0xFFFF
+        try:
+            self.port.write(encode_frame(NodeCommand(0, self._seq, 0, CMD_BRAKE, bytes([int(on)]))))
+        except Disconnected:
+            self.counters["unsent"] += 1
+            return False
+        self.counters["brakes" if on else "brakes_off"] += 1
+        return True
 
     async def __aenter__(self) -> BaseDriver:
         return self

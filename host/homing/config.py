@@ -48,8 +48,9 @@ class Calibration:
 
 @dataclass(frozen=True)
 class LoopSettings:
-    stale_timeout_s: float = 0.5  # stop when a required stream is older than this (robot time)
+    stale_timeout_s: float = 0.3  # emergency-stop when a required stream is older than this (robot time)
     stale_intervals: float = 3.0  # ... or than this many of its event intervals, if longer; 0: fixed timeout
+    slow_after_s: float = 0.1  # from this age on, speed falls linearly to 0 at the stale timeout, braking hard
     odometry_wall_timeout_s: float = 0.5  # stop when the base is silent this long (wall time; inf in lockstep simulation)
     control_period_s: float = 0.1
     max_time_s: float = 180.0  # give up after this much robot time
@@ -119,6 +120,9 @@ def load(path: Path | str | None) -> Config:
         if bad:
             raise ConfigError(f"[{name}] has unknown keys {sorted(bad)}; known: {sorted(known)}")
         config = replace(config, **{name: replace(getattr(config, name), **table)})
+    if not 0 <= config.loop.slow_after_s < config.loop.stale_timeout_s:
+        raise ConfigError(f"[loop] slow_after_s = {config.loop.slow_after_s} must be at least 0 and below "
+                          f"stale_timeout_s = {config.loop.stale_timeout_s} in {path}")
     return replace(config, devices=_devices(devices, path))
 
 
@@ -154,8 +158,9 @@ d0_m = 1.0
 ed_scale_db = 1.0        # AT86RF212: dB per ED step (datasheet 1.03)
 
 [loop]
-stale_timeout_s = 0.5    # stop the robot when a required stream is older than this
+stale_timeout_s = 0.3    # emergency-stop the robot when a required stream is older than this
 stale_intervals = 3.0    # ... or than this many event intervals (median of the last 20), if that is longer
+slow_after_s = 0.1       # from this age on, slow down (base brake mode), reaching 0 at the stale timeout
 odometry_wall_timeout_s = 0.5  # stop when the base is silent this long, in wall time (inf: lockstep sims)
 control_period_s = 0.1
 max_time_s = 180.0       # give up after this long

@@ -6,12 +6,17 @@ the emulator's lockstep (where wall time means nothing). One velocity command go
 control period, after the odometry that closes the period.
 
 Fail-safes, each logged:
-- a required stream older than its stale timeout (robot time) -> stop, resume when fresh. The
-  timeout is ``stale_timeout_s``, or ``stale_intervals`` times the stream's median interval
+- a required stream older than ``slow_after_s`` -> the speed falls linearly with its age, to 0 at
+  the stale timeout, with the base in brake mode (it sheds speed at its emergency deceleration);
+  older than the stale timeout (robot time) -> stop in brake mode, resume when fresh. Together
+  they bound the distance driven on stale data (docs/BENCHMARKS.md, bench/stopping_bench.py).
+  The timeout is ``stale_timeout_s``, or ``stale_intervals`` times the stream's median interval
   between readings when that is longer: a tag advertising every second (u-connectLocate 2.x
   allows 1000 ms) must not stop the robot between its readings;
 - the base itself silent for ``stale_timeout_s`` of wall time -> stop commands (its watchdog
   stops it anyway);
+- the base's clock going backwards (an MCU reset restarts ``t_us`` at 0) -> robot time is
+  re-anchored to continue from where it was, so no deadline waits for the old clock to return;
 - arrival -> stop, done; ``max_time_s`` -> stop, failed;
 - any exception or cancellation (Ctrl-C) -> stop (the base driver's context manager).
 
@@ -46,6 +51,8 @@ from rfhoming.host.homing.types import Decision, Pose
 from rfhoming.host.site import Site
 
 log = logging.getLogger(__name__)
+
+ODOMETRY_PERIOD_S = 0.02  # the base's documented 50 Hz odometry: the step assumed across a reset
 
 
 @dataclass
@@ -164,6 +171,8 @@ class HomingLoop:
         self._next_integrate = 0.0
         self.plans = 0
         self.intervals: deque[float] = deque(maxlen=20)  # robot-time gaps between readings
+        self._braking: bool | None = None  # base brake mode as last sent; None: unknown, send it
+        self.clock_resets = 0
 
     async def run(self) -> Outcome:
         tasks = [asyncio.create_task(self.base.run())] + [asyncio.create_task(s.run()) for s in self.sensors]
@@ -187,10 +196,15 @@ class HomingLoop:
         t = 0.0
         last_odometry_wall = time.monotonic()
         odometry_stale = False
+        clock_offset = 0.0  # robot time = base clock + offset, re-anchored on a base reset
         while True:
             try:
                 item = await asyncio.wait_for(self.inputs.get(), min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s))
             except asyncio.TimeoutError:
+                # on 3.11 wait_for can turn a cancellation (Ctrl-C, a caller's timeout) that
+                # coincides with its own timeout into TimeoutError: then the loop must still end
+                if asyncio.current_task().cancelling():
+                    raise asyncio.CancelledError from None
                 item = None
             if not isinstance(item, Pose2D) and time.monotonic() - last_odometry_wall > cfg.odometry_wall_timeout_s:
                 if not odometry_stale:  # the base's own clock is gone: wall time is all there is
@@ -222,7 +236,18 @@ class HomingLoop:
                 continue
             odo = item
             last_odometry_wall, odometry_stale = time.monotonic(), False
-            t = odo.t_robot
+            if t0 is not None and odo.t_robot + clock_offset < t:
+                # the base restarted (its clock runs from 0 again): continue robot time one
+                # odometry period on, so staleness, control cadence and limits keep running
+                new_offset = t + ODOMETRY_PERIOD_S - odo.t_robot
+                self.clock_resets += 1
+                log.warning("base clock went back from %.3f s to %.3f s (a base reset?): re-anchored",
+                            t - clock_offset, odo.t_robot)
+                self.log.write("event", t, what="base clock reset: re-anchored",
+                               base_clock_before=round(t - clock_offset, 6), base_clock_now=round(odo.t_robot, 6))
+                clock_offset = new_offset
+                self._braking = None  # a reset clears the base's brake mode: send it again
+            t = odo.t_robot + clock_offset
             t0 = t if t0 is None else t0
             pose = Pose(odo.x, odo.y, odo.theta)
             if next_control is None:
@@ -236,6 +261,7 @@ class HomingLoop:
                     log.warning("%s stream stale for %.2f s: stopping the robot", self.source, t - last_reading)
                     self.log.write("event", t, what=f"{self.source} stale: stop")
                 stale = True
+                self._brake(True, t)
                 self._send(Decision(0.0, 0.0, None, False, "stale"), t, odo)
                 if t - t0 > cfg.max_time_s:
                     return self._outcome(False, "time limit", t - t0, pose, None)
@@ -249,7 +275,11 @@ class HomingLoop:
                 decision = self.avoidance.adjust(decision, t, emergency_only=waypoint is not None)
             self.log.write("estimate", t, **self.controller.estimate(), phase=self.controller.phase,
                            pose=[round(v, 4) for v in pose])
-            self._send(decision, t, odo)
+            slow = self._age_factor(t - last_reading)
+            self._brake(slow < 1.0, t)
+            if slow < 1.0:
+                decision = decision._replace(v=decision.v * slow, w=decision.w * slow)
+            self._send(decision, t, odo, **({"slowed": round(slow, 3)} if slow < 1.0 else {}))
             if decision.arrived:
                 return self._outcome(True, "arrived", t - t0, pose, decision.goal)
             if t - t0 > cfg.max_time_s:
@@ -278,11 +308,24 @@ class HomingLoop:
             return None
         return lookahead(self._path, pose, cfg.lookahead_m)
 
-    def _send(self, decision: Decision, t: float, odo: Pose2D) -> None:
+    def _age_factor(self, age: float) -> float:
+        """1 for data younger than slow_after_s, falling linearly to 0 at the stale timeout."""
+        slow_after, timeout = self.config.loop.slow_after_s, self.stale_timeout()
+        if age <= slow_after:
+            return 1.0
+        return max(0.0, (timeout - age) / (timeout - slow_after))
+
+    def _brake(self, on: bool, t: float) -> None:
+        """Base brake mode (emergency deceleration) on or off; sent on change only."""
+        if on != self._braking and self.base.brake(on):  # not sent (base away): try again next time
+            self._braking = on
+            self.log.write("event", t, what="brake mode " + ("on" if on else "off"))
+
+    def _send(self, decision: Decision, t: float, odo: Pose2D, **fields: Any) -> None:
         self.base.send_velocity(decision.v, decision.w)
         self.commands += 1
         self.latency_ms.append((time.time() - odo.t_host) * 1000)
-        self.log.write("command", t, v=round(decision.v, 4), w=round(decision.w, 4), note=decision.note)
+        self.log.write("command", t, v=round(decision.v, 4), w=round(decision.w, 4), note=decision.note, **fields)
 
     def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose, goal) -> Outcome:
         self.base.stop()

@@ -72,6 +72,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     except (ScenarioError, FaultError) as exc:
         print(f"rfhoming emulate: {exc}", file=sys.stderr)
         return 2
+    if args.link_dir is not None and not args.link_dir.is_dir():
+        print(f"rfhoming emulate: --link-dir {args.link_dir} is not a directory: create it "
+              f"(mkdir -p {args.link_dir}) or leave --link-dir out for a new temporary one", file=sys.stderr)
+        return 2
     truth = open(args.truth, "w") if args.truth else None
     try:
         emulator = Emulator(

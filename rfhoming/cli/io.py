@@ -23,7 +23,7 @@ from rfhoming.host.ports import PortError
 from rfhoming.host.portspec import PortSpec
 from rfhoming.host.session import health, open_drivers, replay_drivers
 from rfhoming.protocol.jsonable import as_dict
-from rfhoming.protocol.pcapng import CaptureFormatError
+from rfhoming.protocol.pcapng import CaptureFormatError, Interface
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +116,7 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     capture = CaptureWriter(args.output) if getattr(args, "output", None) else None
     try:
         drivers = await open_drivers(args.ports, baud=args.baud, flow=args.flow, taps=[capture.tap] if capture else [],
-                                     describe=capture.describe if capture else None)
+                                     describe=capture.describe if capture else None, probe_baud=args.probe_baud)
     except (PortError, ValueError, OSError, CaptureFormatError) as exc:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
@@ -153,10 +153,19 @@ def cmd_capture(args: argparse.Namespace) -> int:
 
 
 async def _replay(args: argparse.Namespace) -> int:
+    damaged: list[CaptureFormatError] = []
+
+    def warn(exc: CaptureFormatError) -> None:
+        damaged.append(exc)
+        print(f"rfhoming replay: {args.capture}: {exc}; replaying what came before it (--partial)", file=sys.stderr)
+
     try:
-        drivers = replay_drivers(PortSpec("capture", str(args.capture), {"speed": args.speed}))
+        drivers = replay_drivers(PortSpec("capture", str(args.capture), {"speed": args.speed}),
+                                 partial=warn if args.partial else None)
     except (OSError, CaptureFormatError) as exc:
-        print(f"rfhoming replay: cannot read {args.capture}: {exc}", file=sys.stderr)
+        readable = isinstance(exc, CaptureFormatError) and any(isinstance(i, Interface) for i in exc.items)
+        hint = " (--partial replays what comes before it)" if readable and not args.partial else ""
+        print(f"rfhoming replay: cannot read {args.capture}: {exc}{hint}", file=sys.stderr)
         return 2
     for driver in drivers:
         driver.listeners.append(printer(args.json))
@@ -201,6 +210,10 @@ examples:
   rfhoming replay run.pcapng --json
   rfhoming replay run.pcapng --speed 1
   rfhoming replay run.pcapng --pty
+  rfhoming replay damaged.pcapng --partial
+
+A malformed capture gives one line naming the byte offset and the problem, and exit code 2;
+with --partial, the blocks before it are replayed (exit 0) and the problem is reported.
 """
 
 
@@ -237,6 +250,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=0.0, help="1 = recorded pace, 0 = as fast as possible (default)")
     p.add_argument("--json", action="store_true", help="one JSON object per item")
     p.add_argument("--pty", action="store_true", help="serve the capture on pseudo-terminals")
+    p.add_argument("--partial", action="store_true",
+                   help="on a malformed block, replay what was readable before it instead of refusing")
     p.add_argument("--link-dir", type=Path, help="with --pty: directory for the pty symlinks")
     p.add_argument("--start-delay", type=float, default=1.0,
                    help="with --pty: seconds to wait before playing, so consumers can open the ptys (default 1)")
@@ -244,12 +259,14 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def add_port_defaults(p: argparse.ArgumentParser) -> None:
-    """--baud and --flow: defaults for every port whose spec does not set its own."""
+    """--baud, --flow and --probe-baud: defaults for every port whose spec does not set its own."""
     p.add_argument("--baud", type=int, metavar="RATE",
                    help="serial rate for ports whose spec gives no baud= (default 115200)")
     p.add_argument("--flow", choices=("auto", "rtscts", "none"),
                    help="RTS/CTS for ports whose spec gives no flow=: auto (default) = on for the XPLR-AOA "
                         "(its documented default), off for the others")
+    p.add_argument("--probe-baud", action="store_true",
+                   help="if an XPLR-AOA sends only garbage, try each rate it documents until it answers AT")
 
 
 def configure_logging(verbose: int) -> None:

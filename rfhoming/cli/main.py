@@ -165,12 +165,15 @@ def serve_capture_on_ptys(args: argparse.Namespace) -> int:
 
     from rfhoming.emulator.playback import serve
 
+    def warn(exc: Exception) -> None:
+        print(f"rfhoming replay: {args.capture}: {exc}; serving what came before it (--partial)", file=sys.stderr)
+
     link_dir = args.link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-replay-"))
     try:
-        stats = asyncio.run(serve(args.capture, link_dir, speed=args.speed or 1.0,
-                                  start_delay=args.start_delay, out=sys.stdout))
+        stats = asyncio.run(serve(args.capture, link_dir, speed=args.speed or 1.0, start_delay=args.start_delay,
+                                  out=sys.stdout, partial=warn if args.partial else None))
     except (OSError, ValueError) as exc:
-        print(f"rfhoming replay: {exc}", file=sys.stderr)
+        print(f"rfhoming replay: cannot serve {args.capture}: {exc}", file=sys.stderr)
         return 2
     print(json.dumps({"kind": "counters", **stats}))
     return 0

@@ -159,7 +159,7 @@ async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict,
         spec = resolved["aoa"]
         if args.tag:
             spec = replace(spec, settings={**spec.settings, "tags": _tags(args.tag)})
-        sensor = make_driver(spec, taps, setup=AoaSetup(choose_tag_s=CHOOSE_TAG_S))
+        sensor = make_driver(spec, taps, setup=AoaSetup(choose_tag_s=CHOOSE_TAG_S, probe_baud=args.probe_baud))
         make = aoa_loop if args.controller == "aoa" else dock_loop
     else:
         options = {"ed_scale_db": config.calibration.ed_scale_db} if resolved[role].kind == "rss" else {}

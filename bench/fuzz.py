@@ -1,0 +1,423 @@
+"""Differential fuzzer for the two decoders and the pcapng reader.
+
+Streams of three sorts, seeded: ``random`` bytes, ``mutated`` valid streams (bit flips, byte
+deletions, insertions, duplications, truncation) and ``structure``-aware ones (valid records or
+lines of every type with random field values, garbage between them; for pcapng, blocks with
+random lengths, options and interface ids, concatenated sections). Each stream is decoded
+
+- by the decoder with the C accelerator (where it is built), fed in random chunks,
+- by the pure-Python decoder (``pure=True``) in the same chunks,
+- by the C decoder fed the whole buffer at once,
+
+and the three outputs must be identical. It counts escaped exceptions (anything but the
+documented result: items and drops from a decoder, CaptureFormatError from the pcapng reader),
+differences between the three, intact frames/lines lost (a frame or line no mutation touched,
+delimiters included, that is missing from the output), and corrupt records accepted (a record
+that is not one of those encoded). For the COBS records that last count is held against the
+CRC-16: a touched frame that still passes COBS, length and type checks is accepted with
+probability 2^-16, so the expected count is at most touched / 65536. The text protocol has no
+checksum: an altered +UUDF line that still parses is reported, not held against anything.
+
+    python bench/fuzz.py --n 20000                     # every target, 20,000 streams each
+    python bench/fuzz.py --target frames --n 1000000 --seconds 3600
+    python bench/fuzz.py --target pcapng --n 100000 --json
+    python bench/fuzz.py --hypothesis                  # the property tests, many more examples
+
+--seconds bounds each target's time; the report says how many streams actually ran.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import construct as cs
+
+from rfhoming.protocol import accel, pcapng
+from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.frames import FrameDecoder, encode_frame
+from rfhoming.protocol.frames.records import RECORD_TYPES, AntennaReading
+from rfhoming.protocol.uconnect import AngleEvent, Dialect, UConnectDecoder, encode_angle_event
+
+KINDS = ("random", "mutated", "structure")
+HYPOTHESIS_FILES = ["tests/test_frames.py", "tests/test_uconnect_decoder.py", "tests/test_accel.py",
+                    "tests/test_pcapng_malformed.py"]
+
+
+# -- mutations ------------------------------------------------------------------------------
+def mutate(rng: random.Random, data: bytes, count: int) -> tuple[bytes, list[int]]:
+    """``count`` random edits; returns the new bytes and the original positions touched."""
+    buf = bytearray(data)
+    touched: list[int] = []
+    for _ in range(count):
+        if not buf:
+            break
+        i = rng.randrange(len(buf))
+        op = rng.randrange(5)
+        if op == 0:
+            buf[i] ^= 1 << rng.randrange(8)
+        elif op == 1:
+            del buf[i]
+        elif op == 2:
+            buf[i:i] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 4)))
+        elif op == 3:
+            buf[i] = rng.choice((0, 0x0D, 0x0A, 0x22, 0x2C, rng.randrange(256)))
+        else:
+            j = min(len(buf), i + rng.randint(1, 16))
+            buf[j:j] = buf[i:j]
+        touched.append(i)
+    return bytes(buf), touched
+
+
+def apply_edits(rng: random.Random, parts: list[bytes], edits: int) -> tuple[bytes, set[int]]:
+    """Mutate the concatenation of ``parts``; the indices of parts no edit touched.
+
+    Edits are made part by part, so "touched" is exact: a part is touched when an edit fell in
+    it. Parts carry their own delimiters (a frame its two zeros, a line its CRLFs).
+    """
+    n = len(parts)
+    hits = [0] * n
+    for _ in range(edits):
+        hits[rng.randrange(n)] += 1
+    out = []
+    for k, part in enumerate(parts):
+        out.append(mutate(rng, part, hits[k])[0] if hits[k] else part)
+    return b"".join(out), {k for k in range(n) if not hits[k]}
+
+
+def chunks_of(rng: random.Random, data: bytes) -> list[bytes]:
+    out, i = [], 0
+    while i < len(data):
+        n = rng.choice((1, 2, 3, 7, 16, 64, 200, 4096))
+        out.append(data[i : i + n])
+        i += n
+    return out
+
+
+# -- structured inputs ----------------------------------------------------------------------
+def _value(rng: random.Random, con: cs.Construct) -> Any:
+    if isinstance(con, cs.FormatField):
+        bits = struct.calcsize(con.fmtstr) * 8
+        lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if con.fmtstr[1:].islower() else (0, (1 << bits) - 1)
+        return rng.choice((lo, hi, 0, rng.randint(lo, hi), rng.randint(max(lo, -100), min(hi, 100))))
+    if isinstance(con, cs.Bytes):
+        n = con.length if isinstance(con.length, int) else rng.randint(0, 64)
+        return rng.randbytes(n)
+    if isinstance(con, cs.Array):
+        if isinstance(con.count, int):
+            return tuple(AntennaReading(*[_value(rng, sc.subcon) for sc in con.subcon.subcons])
+                         for _ in range(con.count))
+        return tuple(_value(rng, con.subcon) for _ in range(rng.randint(0, 40)))
+    if isinstance(con, cs.StringEncoded):
+        return "".join(chr(rng.choice((rng.randint(32, 126), rng.randint(160, 0x2FFF)))) for _ in range(rng.randint(0, 40)))
+    if con is cs.GreedyBytes:
+        return rng.randbytes(rng.randint(0, 8))
+    raise TypeError(con)
+
+
+def random_record(rng: random.Random) -> Any:
+    rt = rng.choice(list(RECORD_TYPES.values()))
+    body = [_value(rng, sc.subcon) for sc in rt.body.subcons if not isinstance(sc.subcon, cs.Rebuild)]
+    return rt.cls(rng.randrange(256), rng.randrange(65536), rng.randrange(2**32), *body)
+
+
+def random_event(rng: random.Random) -> tuple[AngleEvent, Dialect]:
+    dialect = rng.choice(list(Dialect))
+    seq = rng.randrange(65536) if dialect in (Dialect.V2, Dialect.EMBED) else None
+    raw = dialect is Dialect.EMBED
+    text = lambda: "".join(chr(rng.randint(32, 126)) for _ in range(rng.randint(0, 12))).replace('"', "")  # noqa: E731
+    return AngleEvent(
+        "".join(rng.choice("0123456789ABCDEF") for _ in range(12)), rng.randint(-127, 20), rng.randint(-90, 90),
+        rng.randint(-90, 90), rng.randint(-127, 20) if dialect is Dialect.V1_0 else 0,
+        rng.randint(37, 39) if dialect in (Dialect.V1_0, Dialect.V1_2) else rng.randint(0, 36), text(), text(),
+        rng.randint(-(2**31), 2**31 - 1), seq, rng.randint(-90, 90) if raw else None,
+        rng.randint(-90, 90) if raw else None), dialect
+
+
+OTHER_LINES = (b"\r\nOK\r\n", b"\r\nERROR\r\n", b"\r\n+STARTUP\r\n", b"AT+GMM\r", b"\r\n+UUDFP:0,1\r\n",
+               b'\r\n"2.1.0-010"\r\n', b"\r\n+UUDF:bad\r\n")
+
+
+class Counts(dict):
+    def add(self, key: str, n: int = 1) -> None:
+        self[key] = self.get(key, 0) + n
+
+
+# -- decoder targets ------------------------------------------------------------------------
+class DecoderTarget:
+    """A decoder with a C path and a pure path; ``parts`` builds a valid stream of units."""
+
+    name = ""
+    make: Callable[..., Any]
+
+    def parts(self, rng: random.Random) -> tuple[list[bytes], list[Any]]:
+        raise NotImplementedError
+
+    def decode(self, data_chunks: list[bytes], pure: bool) -> list[Any]:
+        d = self.make(pure=pure)
+        out: list[Any] = []
+        for c in data_chunks:
+            out += d.feed(c)
+        return out + d.flush()
+
+    def one(self, rng: random.Random, kind: str, c: Counts, examples: list[str]) -> None:
+        expected: list[Any] = []
+        intact: set[int] = set()
+        if kind == "random":
+            data = rng.randbytes(rng.randint(0, 2000))
+        else:
+            parts, expected = self.parts(rng)
+            if kind == "mutated":
+                data, intact = apply_edits(rng, parts, rng.randint(1, 8))
+            else:  # structure: garbage between valid units
+                glue = [rng.randbytes(rng.randint(0, 20)) if rng.random() < 0.3 else b"" for _ in parts]
+                data = b"".join(g + p for g, p in zip(glue, parts))
+                intact = {k for k in range(len(parts)) if not glue[k] and (k + 1 >= len(glue) or not glue[k + 1])}
+        c.add("streams")
+        c.add("bytes", len(data))
+        pieces = chunks_of(rng, data)
+        try:
+            fast = self.decode(pieces, pure=False)
+            slow = self.decode(pieces, pure=True)
+            whole = self.decode([data], pure=False)
+        except Exception as exc:  # noqa: BLE001 -- counting what escapes is the point
+            c.add("escaped_exceptions")
+            if len(examples) < 5:
+                examples.append(f"{type(exc).__name__}: {exc} on {data[:80]!r}")
+            return
+        if fast != slow:
+            c.add("c_vs_python_differences")
+        if fast != whole:
+            c.add("chunked_vs_whole_differences")
+        accepted = [i for i in fast if not isinstance(i, Drop)]
+        known = [e for e in expected if e is not None]
+        for k in intact:
+            if expected[k] is not None:
+                c.add("intact_units")
+                if expected[k] not in accepted:
+                    c.add("intact_units_lost")
+                    if len(examples) < 5:
+                        examples.append(f"intact unit lost: {expected[k]!r}")
+        if kind == "mutated":
+            touched = len(expected) - len(intact)
+            c.add("touched_units", touched)
+            self.count_corrupt(accepted, known, c)
+
+    def count_corrupt(self, accepted: list[Any], known: list[Any], c: Counts) -> None:
+        c.add("corrupt_accepted", sum(1 for a in accepted if self.is_record(a) and a not in known))
+
+    def is_record(self, item: Any) -> bool:
+        return True
+
+
+class FramesTarget(DecoderTarget):
+    name = "frames"
+    make = FrameDecoder
+
+    def parts(self, rng: random.Random) -> tuple[list[bytes], list[Any]]:
+        parts, expected = [], []
+        for _ in range(rng.randint(1, 12)):
+            record = random_record(rng)
+            try:
+                frame = encode_frame(record)
+            except Exception:  # noqa: BLE001 -- a field value the encoder cannot write: skip
+                continue
+            alone = FrameDecoder(pure=True).feed(frame)
+            parts.append(frame)
+            expected.append(record if alone == [record] else None)  # None: the decoder rightly drops it
+        return parts or [b"\0\0"], expected or [None]
+
+
+class UConnectTarget(DecoderTarget):
+    name = "uconnect"
+    make = UConnectDecoder
+
+    def parts(self, rng: random.Random) -> tuple[list[bytes], list[Any]]:
+        parts, expected = [], []
+        for _ in range(rng.randint(1, 12)):
+            if rng.random() < 0.8:
+                event, dialect = random_event(rng)
+                line = encode_angle_event(event, dialect)
+                alone = [i for i in UConnectDecoder(pure=True).feed(line) if i.kind == "angle"]
+                parts.append(line)
+                expected.append(alone[0] if len(alone) == 1 else None)
+            else:
+                parts.append(rng.choice(OTHER_LINES))
+                expected.append(None)
+        return parts, expected
+
+    def is_record(self, item: Any) -> bool:
+        return isinstance(item, AngleEvent)
+
+
+# -- the pcapng reader ----------------------------------------------------------------------
+def _block(kind: int, body: bytes, length: int | None = None) -> bytes:
+    n = 12 + len(body) if length is None else length
+    return struct.pack("<II", kind, n) + body + struct.pack("<I", n)
+
+
+def _options(rng: random.Random, codes: tuple[int, ...]) -> bytes:
+    out = b""
+    for _ in range(rng.randint(0, 3)):
+        value = rng.randbytes(rng.choice((0, 1, 2, 4, 8, rng.randint(0, 30))))
+        length = len(value) if rng.random() < 0.9 else rng.randint(0, 70)
+        out += struct.pack("<HH", rng.choice(codes), length) + value + b"\0" * (-len(value) % 4)
+    return out + (struct.pack("<HH", 0, 0) if rng.random() < 0.8 else b"")
+
+
+def valid_capture(rng: random.Random) -> bytes:
+    out = b""
+    for _ in range(rng.randint(1, 2)):
+        out += pcapng.section_header()
+        n = rng.randint(1, 3)
+        for k in range(n):
+            out += pcapng.interface(f"/dev/tty{k}", "protocol=rss", rng.choice((147, 148)))
+        for _ in range(rng.randint(0, 10)):
+            out += pcapng.packet(rng.randrange(n), rng.random() * 1e4, rng.randbytes(rng.randint(0, 60)),
+                                 rng.choice((1, 2)), rng.choice(("", "disconnected", "x" * rng.randint(0, 9))))
+    return out
+
+
+def structured_capture(rng: random.Random) -> bytes:
+    out = pcapng.section_header() if rng.random() < 0.9 else b""
+    for _ in range(rng.randint(0, 8)):
+        kind = rng.choice((pcapng.SHB, pcapng.IDB, pcapng.EPB, 5, 3))
+        if kind == pcapng.IDB:
+            body = struct.pack("<HHI", rng.choice((147, 148, 1)), 0, 0)[: rng.choice((0, 2, 8, 8, 8))]
+            body += _options(rng, (pcapng.OPT_IF_NAME, pcapng.OPT_IF_TSRESOL, pcapng.OPT_IF_TSRESOL, 99))
+        elif kind == pcapng.EPB:
+            data = rng.randbytes(rng.randint(0, 40))
+            caplen = len(data) if rng.random() < 0.8 else rng.randint(0, 100)
+            body = struct.pack("<IIIII", rng.choice((0, 0, 1, 2, 2**32 - 1)), rng.randrange(2**32), rng.randrange(2**32),
+                               caplen, len(data))[: rng.choice((20, 20, 20, 8, 0))]
+            body += data + b"\0" * (-len(data) % 4) + _options(rng, (pcapng.OPT_EPB_FLAGS, pcapng.OPT_COMMENT))
+        elif kind == pcapng.SHB:
+            body = struct.pack("<IHHq", pcapng.BYTE_ORDER_MAGIC, 1, 0, -1)[: rng.choice((16, 16, 4))]
+        else:
+            body = rng.randbytes(rng.choice((0, 4, 8)))
+        body += b"\0" * (-len(body) % 4)
+        length = None if rng.random() < 0.9 else rng.choice((0, 8, 12, 13, 16 + len(body), 2**31))
+        out += _block(kind, body, length)
+    return out
+
+
+def _read_chunked(pieces: list[bytes]) -> tuple[list[Any], int, int | None]:
+    reader = pcapng.Reader()
+    items: list[Any] = []
+    try:
+        for p in pieces:
+            items += reader.feed(p)
+    except pcapng.CaptureFormatError as exc:  # the buffer's state then depends on the chunking
+        return items + exc.items, -1, exc.offset
+    return items, reader.pending, None
+
+
+class PcapngTarget:
+    name = "pcapng"
+
+    def one(self, rng: random.Random, kind: str, c: Counts, examples: list[str]) -> None:
+        if kind == "random":
+            data = rng.randbytes(rng.randint(0, 600))
+            if rng.random() < 0.5:
+                data = pcapng.section_header() + data
+        elif kind == "mutated":
+            data = mutate(rng, valid_capture(rng), rng.randint(1, 6))[0]
+        else:
+            data = structured_capture(rng)
+        c.add("streams")
+        c.add("bytes", len(data))
+        try:
+            try:
+                pcapng.read_all(data)
+                c.add("read_whole")
+            except pcapng.CaptureFormatError as exc:
+                c.add("format_errors")
+                if not str(exc).startswith(f"offset {exc.offset}: "):
+                    c.add("errors_without_offset")
+            chunked = _read_chunked(chunks_of(rng, data))
+            whole = _read_chunked([data])
+        except Exception as exc:  # noqa: BLE001 -- counting what escapes is the point
+            c.add("escaped_exceptions")
+            if len(examples) < 5:
+                examples.append(f"{type(exc).__name__}: {exc} on {data[:80]!r}")
+            return
+        if chunked != whole:
+            c.add("chunked_vs_whole_differences")
+
+
+TARGETS: dict[str, Any] = {"frames": FramesTarget(), "uconnect": UConnectTarget(), "pcapng": PcapngTarget()}
+
+
+def run(target: str, n: int, seconds: float, seed: int, progress: bool) -> dict[str, Any]:
+    rng = random.Random(f"{seed}-{target}")
+    counts, examples = Counts(), []
+    for key in ("escaped_exceptions", "chunked_vs_whole_differences") + (
+            ("c_vs_python_differences", "intact_units", "intact_units_lost", "corrupt_accepted") if target != "pcapng" else ()):
+        counts[key] = 0
+    t0 = time.monotonic()
+    slowest = 0.0
+    for k in range(n):
+        s0 = time.monotonic()
+        TARGETS[target].one(rng, KINDS[k % 3], counts, examples)
+        slowest = max(slowest, time.monotonic() - s0)
+        if time.monotonic() - t0 > seconds:
+            break
+        if progress and k and k % 100_000 == 0:
+            print(f"  {target}: {k:,} streams, {time.monotonic() - t0:.0f} s", file=sys.stderr, flush=True)
+    out = {"target": target, "requested": n, **dict(sorted(counts.items())),
+           "seconds": round(time.monotonic() - t0, 1), "slowest_stream_ms": round(slowest * 1000, 2),
+           "examples": examples}
+    if target == "frames":
+        out["corrupt_expected_at_most"] = round(counts.get("touched_units", 0) / 65536, 2)
+    return out
+
+
+def run_hypothesis(profile: str) -> int:
+    """The property tests under the registered ``profile`` (tests/conftest.py)."""
+    root = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "RFHOMING_HYPOTHESIS_PROFILE": profile}
+    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *HYPOTHESIS_FILES],
+                          cwd=root, env=env).returncode
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--target", choices=[*TARGETS, "all"], default="all")
+    p.add_argument("--n", type=int, default=20_000, help="streams per target (default 20,000)")
+    p.add_argument("--seconds", type=float, default=600.0, help="stop a target after this long (default 600)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="one JSON object per target")
+    p.add_argument("--hypothesis", nargs="?", const="fuzz", metavar="PROFILE",
+                   help="instead: run the property tests under a hypothesis profile (default: fuzz)")
+    args = p.parse_args(argv)
+    if args.hypothesis:
+        return run_hypothesis(args.hypothesis)
+    bad = 0
+    print(f"# {accel.describe()}", file=sys.stderr)
+    for target in (TARGETS if args.target == "all" else [args.target]):
+        result = run(target, args.n, args.seconds, args.seed, progress=not args.json)
+        bad += result.get("escaped_exceptions", 0) + result.get("c_vs_python_differences", 0) \
+            + result.get("chunked_vs_whole_differences", 0) + result.get("intact_units_lost", 0)
+        if args.json:
+            print(json.dumps(result), flush=True)
+        else:
+            print(f"{target}:")
+            for key, value in result.items():
+                if key not in ("target", "examples"):
+                    print(f"  {key:<30} {value:,}" if isinstance(value, int) else f"  {key:<30} {value}")
+            for example in result["examples"]:
+                print(f"  example: {example}")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
