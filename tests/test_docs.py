@@ -2,7 +2,7 @@
 
 Rules, so that a reader can trust an example (docs/api.md says the same for users):
 - ```python blocks of one file run in order in one fresh interpreter (later blocks see earlier
-  names), in a scratch folder that holds ``tests`` and ``bench`` of this checkout.
+  names), in a scratch folder that holds ``tests``, ``bench`` and ``docs`` of this checkout.
 - ```sh blocks run line by line in bash in that folder. ``$ CMD`` lines are followed by the
   output CMD must print (``...`` matches anything); other lines must just succeed. ``CMD &``
   starts CMD in the background (stopped at the end of the block).
@@ -13,7 +13,8 @@ Rules, so that a reader can trust an example (docs/api.md says the same for user
   running (or have succeeded) after a few seconds; it is then terminated (servers, campaigns,
   benchmarks: their results are checked by their own tests and recorded in docs/).
 - ``<!-- not-run: needs ... -->`` right before a block: not run, for what the machine cannot
-  have (hardware, a cluster); the reason must say what is needed.
+  have (hardware, a cluster); the reason must say what is needed. ``<!-- needs-hardware -->``
+  is short for ``not-run: needs hardware``.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def blocks(path: Path) -> list[tuple[str, str, str, int]]:
 
 
 def scratch(tmp_path: Path) -> Path:
-    for name in ("tests", "bench"):
+    for name in ("tests", "bench", "docs"):
         (tmp_path / name).symlink_to(ROOT / name)
     return tmp_path
 
@@ -144,6 +145,8 @@ CASES = [(doc, k) for doc in DOCS for k, b in enumerate(blocks(doc)) if b[0] == 
 @pytest.mark.parametrize("doc,index", CASES, ids=[f"{d.relative_to(ROOT)}:{blocks(d)[k][3]}" for d, k in CASES])
 def test_sh_example_runs(doc: Path, index: int, tmp_path: Path) -> None:
     _, mark, body, _ = blocks(doc)[index]
+    if mark == "needs-hardware":
+        pytest.skip("needs hardware")
     if mark.startswith("not-run:"):
         assert re.match(r"not-run: needs \w+", mark), f"say what the example needs: {mark}"
         pytest.skip(mark)
@@ -156,9 +159,10 @@ PY_DOCS = [doc for doc in DOCS if any(b[0] == "python" for b in blocks(doc))]
 
 @pytest.mark.parametrize("doc", PY_DOCS, ids=[str(d.relative_to(ROOT)) for d in PY_DOCS])
 def test_python_examples_run(doc: Path, tmp_path: Path) -> None:
-    runnable = [b for b in blocks(doc) if b[0] == "python" and not b[1].startswith("not-run:")]
+    runnable = [b for b in blocks(doc) if b[0] == "python" and not b[1].startswith("not-run:")
+                and b[1] != "needs-hardware"]
     for lang, mark, body, line in blocks(doc):
-        if lang == "python" and mark:
+        if lang == "python" and mark and mark != "needs-hardware":
             assert re.match(r"not-run: needs \w+", mark), f"{doc.name}:{line}: unknown marker <!-- {mark} -->"
     script = "\n".join(body for _, _, body, _ in runnable)
     started = time.monotonic()

@@ -375,7 +375,7 @@ class AoaDriver(Driver):
                 self.state = "baud_mismatch"
                 self.problem = (f"only garbage for {self.setup.garbage_timeout:g} s at {self.port.baud} baud: "
                                 "the board probably runs at another rate (AT+UMRS); give the board's rate in "
-                                "the port spec, e.g. /dev/ttyUSB0,baud=1000000")
+                                "the port spec, e.g. /dev/ttyUSB0,baud=1000000, or use --probe-baud to try every rate it documents")
                 log.error("%s: %s", self.port.name, self.problem)
                 if self.setup.probe_baud and await self._probe():
                     self._needs_setup.set()
