@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from rfhoming.firmware.ble_scan_radio import ScanRadio, listening_channel
 from rfhoming.firmware.framed_node import FramedNode
 from rfhoming.protocol.frames import AdvReport, NodeCommand
 
-AIR_US_PER_BYTE = 8
 """1 Mb/s LE 1M PHY."""
 
 
@@ -35,33 +35,20 @@ class Esp32ScannerFirmware(FramedNode):
         self.config = config
         self.scanning = True
         self.counters.update(reported=0, duty_cycle=0, wrong_channel=0, collision=0, below_sensitivity=0)
-        self._last_end_us = {37: -1, 38: -1, 39: -1}
+        self.radio = ScanRadio()
 
     def listening_channel(self, t_us: int) -> int | None:
         """The channel the controller listens on at ``t_us``, None outside the window."""
-        phase, index = t_us % self.config.interval_us, t_us // self.config.interval_us
-        if not self.scanning or phase >= self.config.window_us:
-            return None
-        return 37 + index % 3
+        return listening_channel(t_us, self.scanning, self.config.interval_us, self.config.window_us)
 
     def on_advertisement(self, t_us: int, channel: int, addr: bytes, rssi_dbm: float,
                          ad: bytes, tx_power_dbm: int = 127, addr_type: int = 0,
                          adv_props: int = 0x13) -> None:
         """One packet on the air arriving at the antenna at ``t_us``."""
-        end = t_us + (len(ad) + 16) * AIR_US_PER_BYTE
-        collided = t_us < self._last_end_us.get(channel, -1)
-        self._last_end_us[channel] = max(end, self._last_end_us.get(channel, -1))
-        if self.listening_channel(t_us) is None:
-            self.counters["duty_cycle"] += 1
-            return
-        if self.listening_channel(t_us) != channel:
-            self.counters["wrong_channel"] += 1
-            return
-        if collided:
-            self.counters["collision"] += 1
-            return
-        if rssi_dbm < self.config.sensitivity_dbm:
-            self.counters["below_sensitivity"] += 1
+        reason = self.radio.loss(t_us, channel, len(ad), rssi_dbm, self.listening_channel(t_us),
+                                 self.config.sensitivity_dbm)
+        if reason is not None:
+            self.counters[reason] += 1
             return
         rssi = max(-127, min(20, round(rssi_dbm)))
         self.send(AdvReport(self.node_id, self.next_seq(), t_us & 0xFFFFFFFF, addr, addr_type,

@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import re
 
+from rfhoming.firmware.ble_scan_radio import ScanRadio, listening_channel
 from rfhoming.protocol.ad import local_name
 from rfhoming.protocol.espat import ScanReport, encode_scan
 
 TX_BUFFER = 16384
 MAX_COMMAND = 256
-AIR_US_PER_BYTE = 8
 SENSITIVITY_DBM = -97.0
 UNIT_US = 625
 
@@ -43,7 +43,7 @@ class EspAtFirmware:
         self.scanning = False
         self._scan_until: int | None = None
         self._filter: tuple[int, str] | None = None
-        self._last_end_us = {37: -1, 38: -1, 39: -1}
+        self.radio = ScanRadio()
         self._write(b"\r\nready\r\n")
 
     # -- bytes ------------------------------------------------------------------------------
@@ -164,21 +164,14 @@ class EspAtFirmware:
 
     # -- radio ------------------------------------------------------------------------------
     def listening_channel(self, t_us: int) -> int | None:
-        interval, window = self.interval * UNIT_US, self.window * UNIT_US
-        if not self.scanning or t_us % interval >= window:
-            return None
-        return 37 + (t_us // interval) % 3
+        return listening_channel(t_us, self.scanning, self.interval * UNIT_US, self.window * UNIT_US)
 
     def on_advertisement(self, t_us: int, channel: int, address: str, rssi_dbm: float, ad: bytes,
                          addr_type: int = 0) -> None:
         """One packet on the air at ``t_us``; ``address`` MSB first as 12 hex digits."""
-        end = t_us + (len(ad) + 16) * AIR_US_PER_BYTE
-        collided = t_us < self._last_end_us.get(channel, -1)
-        self._last_end_us[channel] = max(end, self._last_end_us.get(channel, -1))
-        listening = self.listening_channel(t_us)
-        reason = ("duty_cycle" if listening is None else "wrong_channel" if listening != channel
-                  else "collision" if collided else "below_sensitivity" if rssi_dbm < SENSITIVITY_DBM
-                  else "filtered" if not self._passes(address, ad) else None)
+        reason = self.radio.loss(t_us, channel, len(ad), rssi_dbm, self.listening_channel(t_us), SENSITIVITY_DBM)
+        if reason is None and not self._passes(address, ad):
+            reason = "filtered"
         if reason is not None:
             self.counters[reason] += 1
             return

@@ -29,11 +29,10 @@ from typing import Any
 
 from bumble import hci
 from bumble.controller import Controller
-
+from rfhoming.firmware.ble_scan_radio import ScanRadio, listening_channel
 from rfhoming.protocol.h4 import H4Splitter
 
 TX_BUFFER = 65536
-AIR_US_PER_BYTE = 8
 SENSITIVITY_DBM = -97.0
 UNIT_US = 625
 LE_META_EVENT_BIT = 1 << 61
@@ -127,7 +126,7 @@ class HciControllerFirmware:
         self._out = bytearray()
         self._splitter = H4Splitter()
         self._controller: _ScanningController | None = None
-        self._last_end_us = {37: -1, 38: -1, 39: -1}
+        self.radio = ScanRadio()
 
     @property
     def controller(self) -> _ScanningController:
@@ -164,20 +163,12 @@ class HciControllerFirmware:
 
     def listening_channel(self, t_us: int) -> int | None:
         c = self.controller
-        interval, window = c.scan_interval * UNIT_US, c.scan_window * UNIT_US
-        if not c.le_scan_enable or t_us % interval >= window:
-            return None
-        return 37 + (t_us // interval) % 3
+        return listening_channel(t_us, c.le_scan_enable, c.scan_interval * UNIT_US, c.scan_window * UNIT_US)
 
     def on_advertisement(self, t_us: int, channel: int, address: str, rssi_dbm: float, ad: bytes,
                          addr_type: int = 0) -> None:
         """One non-connectable advertisement at the antenna; ``address`` as AA:BB:CC:DD:EE:FF."""
-        end = t_us + (len(ad) + 16) * AIR_US_PER_BYTE
-        collided = t_us < self._last_end_us.get(channel, -1)
-        self._last_end_us[channel] = max(end, self._last_end_us.get(channel, -1))
-        listening = self.listening_channel(t_us)
-        reason = ("duty_cycle" if listening is None else "wrong_channel" if listening != channel
-                  else "collision" if collided else "below_sensitivity" if rssi_dbm < SENSITIVITY_DBM else None)
+        reason = self.radio.loss(t_us, channel, len(ad), rssi_dbm, self.listening_channel(t_us), SENSITIVITY_DBM)
         if reason is None:
             reason = self.controller.report(address, addr_type, max(-127, min(20, round(rssi_dbm))), ad)
         self.counters[reason or "reported"] += 1
