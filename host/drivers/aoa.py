@@ -27,7 +27,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver
 from rfhoming.host.ports import HostPort
 from rfhoming.protocol.uconnect import AngleEvent, CommandMatcher, Dialect, Response, UConnectDecoder
 from rfhoming.protocol.uconnect import commands as c
@@ -38,9 +38,6 @@ FLOW_HINT = "check the RTS/CTS wiring, or try flow=none in the port spec (e.g. /
 SILENT_HINT = ("the tag is not advertising (battery, or asleep), or the tag and anchor firmware "
                "generations do not match; see docs/hardware.md, troubleshooting")
 
-
-class CommandFailed(Exception):
-    pass
 
 
 @dataclass(frozen=True)
@@ -137,11 +134,9 @@ class AoaDriver(Driver):
         self._startup = asyncio.Event()
         self._last_valid = time.monotonic()
         self._bytes_at_valid = 0
-        self._needs_setup = asyncio.Event()
         self._streaming_at = 0.0
         self._recent = bytearray()
         self._unknown_lines: deque[str] = deque(maxlen=5)
-        self.problem: str | None = None
 
     # -- reading ----------------------------------------------------------------------
     def on_chunk(self, data: bytes, t_host: float) -> None:
@@ -245,17 +240,7 @@ class AoaDriver(Driver):
         """Set the board up after every open and every reboot; watch for garbage meanwhile."""
         watchdogs = [asyncio.create_task(self._watch_garbage()), asyncio.create_task(self._watch_silence())]
         try:
-            while True:
-                self._needs_setup.clear()
-                try:
-                    await self._set_up()
-                except CommandFailed as exc:
-                    self.state = "setup_failed"
-                    self.problem = str(exc)
-                    log.error("%s: set-up failed: %s", self.port.name, exc)
-                    await asyncio.sleep(1.0)
-                    continue
-                await self._needs_setup.wait()
+            await self.keep_set_up()
         finally:
             for task in watchdogs:
                 task.cancel()

@@ -15,6 +15,10 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 
+class CommandFailed(Exception):
+    """A device refused a set-up command or did not answer it; the message says which."""
+
+
 class BoundedStream(Generic[T]):
     """A bounded queue of readings: when the consumer lags, the oldest go first (counted).
 
@@ -64,6 +68,8 @@ class Driver:
         self.counters: dict[str, int] = {"reconnects": 0}
         self.latency: deque[float] = deque(maxlen=1000)  # seconds to handle one chunk
         self.connected = asyncio.Event()
+        self.problem: str | None = None  # what keeps the device from working, in words
+        self._needs_setup = asyncio.Event()
         self.listeners: list[Callable[[str, float, Any], None]] = []
         self.error: Exception | None = None
         """Why :meth:`run` ended with an exception (e.g. a port that never opened), for a
@@ -81,6 +87,25 @@ class Driver:
     async def session(self) -> None:
         """Called after every successful open, while the reader runs."""
         self.state = "streaming"
+
+    async def keep_set_up(self) -> None:
+        """For devices that need commands after every open and every reboot: run ``_set_up``,
+        then again whenever ``_needs_setup`` is set; a refused set-up is retried each second,
+        with the reason in ``problem`` and state ``setup_failed``."""
+        while True:
+            self._needs_setup.clear()
+            try:
+                await self._set_up()
+            except CommandFailed as exc:
+                self.state = "setup_failed"
+                self.problem = str(exc)
+                log.error("%s: set-up failed: %s", self.port.name, exc)
+                await asyncio.sleep(1.0)
+                continue
+            await self._needs_setup.wait()
+
+    async def _set_up(self) -> None:
+        raise NotImplementedError
 
     async def run(self) -> None:
         """Open, read and route until cancelled; reconnect when the device goes away.

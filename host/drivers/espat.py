@@ -14,7 +14,7 @@ import logging
 from dataclasses import dataclass
 from typing import Any
 
-from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver
 from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.ports import HostPort
 from rfhoming.protocol.espat import EspAtDecoder, Final
@@ -22,9 +22,6 @@ from rfhoming.protocol.espat import EspAtDecoder, Final
 log = logging.getLogger(__name__)
 UNIT_MS = 0.625
 
-
-class CommandFailed(RuntimeError):
-    """The board answered ERROR or nothing."""
 
 
 @dataclass(frozen=True)
@@ -67,10 +64,8 @@ class EspAtDriver(Driver):
         self.decoder = EspAtDecoder()
         self.readings = BoundedStream[Any](queue_size)
         self.counters.update(setups=0, reboots=0, retries=0, scans_done=0)
-        self.problem: str | None = None
         self._answer: asyncio.Future[list[Any]] | None = None
         self._lines: list[Any] = []
-        self._needs_setup = asyncio.Event()
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
         for item in self.decoder.feed(data):
@@ -108,17 +103,7 @@ class EspAtDriver(Driver):
 
     async def session(self) -> None:
         """Set the board up after every open and every reboot."""
-        while True:
-            self._needs_setup.clear()
-            try:
-                await self._set_up()
-            except CommandFailed as exc:
-                self.state = "setup_failed"
-                self.problem = str(exc)
-                log.error("%s: set-up failed: %s", self.port.name, exc)
-                await asyncio.sleep(1.0)
-                continue
-            await self._needs_setup.wait()
+        await self.keep_set_up()
 
     async def _set_up(self) -> None:
         self.state = "setting_up"

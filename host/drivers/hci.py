@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 
 from bumble import hci
 
-from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver
 from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.ports import Disconnected, HostPort, PortError, Tap
 from rfhoming.protocol import ad as adv
@@ -57,9 +57,6 @@ class HciPacket(NamedTuple):
     name: str
     raw: bytes
 
-
-class CommandFailed(RuntimeError):
-    """The controller answered a command with an error status, or not at all."""
 
 
 @dataclass(frozen=True)
@@ -107,9 +104,7 @@ class HciDriver(Driver):
         self.readings = BoundedStream[Any](queue_size)
         self.counters.update(setups=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0)
         self.extended: bool | None = None
-        self.problem: str | None = None
         self._pending: tuple[int, asyncio.Future[Any]] | None = None
-        self._needs_setup = asyncio.Event()
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
         for item in self.splitter.feed(data):
@@ -168,16 +163,8 @@ class HciDriver(Driver):
         return params
 
     async def session(self) -> None:
-        while True:
-            self._needs_setup.clear()
-            try:
-                await self._set_up()
-            except CommandFailed as exc:
-                self.state, self.problem = "setup_failed", str(exc)
-                log.error("%s: set-up failed: %s", self.port.name, exc)
-                await asyncio.sleep(1.0)
-                continue
-            await self._needs_setup.wait()
+        """Set the controller up after every open and every reset."""
+        await self.keep_set_up()
 
     async def _set_up(self) -> None:
         s = self.setup
