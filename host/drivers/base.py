@@ -100,7 +100,7 @@ class BaseDriver(Driver):
         return self
 
     async def __aexit__(self, *exc: Any) -> None:
-        if not self.stop():
+        if not self.stop() and self.port.counters["opens"]:  # a base never reached was never driven
             log.error("%s: could not send the final stop; the base's watchdog stops it within %d ms",
                       self.port.name, self.command_timeout_ms)
         await asyncio.sleep(0)
