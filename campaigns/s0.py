@@ -1,4 +1,8 @@
-"""S0 (Robotics 2023): Table 3 (five noise configurations, open area) and Experiment 2 (house)."""
+"""S0 (Robotics 2023): Table 3 (five noise configurations, open area) and Experiment 2 (house).
+
+In the emulated (realistic) runs the host's RSSI -> distance calibration (P0, n) comes from a
+calibration session through the same emulated radio (campaigns.calibration), never from the
+scenario."""
 
 from __future__ import annotations
 
@@ -7,12 +11,12 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.campaigns import closed_loop, kinematic
+from rfhoming.campaigns import calibration, closed_loop, kinematic
 from rfhoming.campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
 from rfhoming.campaigns.runner import Campaign, Job, Report
 from rfhoming.emulator.radio import S0_PRESETS
 from rfhoming.emulator.scenario import load
-from rfhoming.host.homing.config import Config, LoopSettings
+from rfhoming.host.homing.config import Calibration, Config, LoopSettings
 
 METRICS = ("success_pct", "time_s", "net_velocity_mps", "goal_error_m", "final_error_m", "path_efficiency")
 HEADER = ["success %", "time to target s", "net velocity m/s", "goal error m", "final error m", "path efficiency"]
@@ -35,14 +39,20 @@ def targets(runs: int, seed: int) -> list[tuple[float, float]]:
             for k in range(runs)]
 
 
-def table3_run(config: int, mode: str, target: tuple[float, float], seed: int) -> dict[str, Any]:
+def host_config(scenario: str, campaign_seed: int, preset: int | None = None, base: Config = Config()) -> Config:
+    """``base`` with the RSSI -> distance constants of a calibration session."""
+    fit = calibration.cached(scenario, campaign_seed, preset)
+    return replace(base, calibration=Calibration(p0_dbm=round(fit.p0_dbm, 2), n=round(fit.n, 3)))
+
+
+def table3_run(config: int, mode: str, target: tuple[float, float], seed: int, campaign_seed: int = 0) -> dict[str, Any]:
     """One homing: idealised (the paper's measurements, a kinematic robot) or realistic (the
     emulator's XPLR-AOA with the fold and integer fields, RSSI through the calibration)."""
     if mode == "idealised":
         row = kinematic.home(target, *S0_PRESETS[config], seed=seed)
     else:
         scenario = load("s0-open", seed=seed, target=target, aoa_preset=config)
-        run = closed_loop.run(scenario, Config(), seed)
+        run = closed_loop.run(scenario, host_config("s0-open", campaign_seed, config), seed)
         row = closed_loop.metrics(run, target)
     return {"config": config, "mode": mode, "target": [round(v, 3) for v in target], **row}
 
@@ -53,7 +63,8 @@ def table3_jobs(runs: int, seed: int) -> list[Job]:
         for mode in MODES:
             for k, target in enumerate(targets(runs, seed)):
                 jobs.append(Job(len(jobs), "rfhoming.campaigns.s0:table3_run",
-                                {"config": config, "mode": mode, "target": target, "seed": seed * 100_000 + k}))
+                                {"config": config, "mode": mode, "target": target, "seed": seed * 100_000 + k,
+                                 "campaign_seed": seed}))
     return jobs
 
 
@@ -94,16 +105,16 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
 HOUSE_CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=240.0))
 
 
-def house_run(seed: int) -> dict[str, Any]:
+def house_run(seed: int, campaign_seed: int = 0) -> dict[str, Any]:
     """Experiment 2: the four-room house, configuration 5, a random tag room per seed."""
     scenario = load("s0-house", seed=seed)
     target = scenario.world.targets[0].position
-    run = closed_loop.run(scenario, HOUSE_CONFIG, seed)
+    run = closed_loop.run(scenario, host_config("s0-house", campaign_seed, None, HOUSE_CONFIG), seed)
     return {"seed": seed, "target": [round(v, 3) for v in target], **closed_loop.metrics(run, target)}
 
 
 def house_jobs(runs: int, seed: int) -> list[Job]:
-    return [Job(k, "rfhoming.campaigns.s0:house_run", {"seed": seed * 100_000 + k}) for k in range(runs)]
+    return [Job(k, "rfhoming.campaigns.s0:house_run", {"seed": seed * 100_000 + k, "campaign_seed": seed}) for k in range(runs)]
 
 
 def house_report(rows: list[dict[str, Any]]) -> Report:

@@ -227,4 +227,4 @@ def report(rows: list[dict[str, Any]]) -> Report:
 
 
 CAMPAIGN = Campaign("s4-montecarlo", "S4 Monte Carlo: EKF and UKF beacon localisation from three moving receivers",
-                    "beacons (10 per flight, 500 per job)", 10_000, jobs, report)
+                    "beacons (10 per flight, 500 per job)", 10_000, jobs, report, requires=("filterpy",))

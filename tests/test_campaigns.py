@@ -105,3 +105,35 @@ def test_cli_writes_json_markdown_and_plot(tmp_path, capsys) -> None:
     assert len(saved["rows"]) == 1 + 9 * 3
     assert "| trilateration |" in (tmp_path / "s3-arena.md").read_text()
     assert (tmp_path / "s3-arena.png").stat().st_size > 1000
+
+
+def test_missing_optional_package_fails_before_any_job() -> None:
+    from dataclasses import replace as dc_replace
+
+    from rfhoming.campaigns.runner import CampaignError
+
+    campaign = dc_replace(load("s3-arena"), requires=("no_such_package_rfhoming",))
+    with pytest.raises(CampaignError, match="needs no_such_package_rfhoming: pip install"):
+        campaign.check_requirements()
+    assert load("s4-montecarlo").requires == ("filterpy",)
+
+
+def test_checkpoint_keeps_finished_jobs_across_a_crash(tmp_path) -> None:
+    jobs = load("s3-arena").jobs(1, 3)[:4]
+    broken = jobs[:3] + [Job(3, "rfhoming.campaigns.s3:point_run", {"point": 99, "seed": 1})]  # IndexError
+    checkpoint = tmp_path / "s3.partial.jsonl"
+    with pytest.raises(IndexError):
+        run_jobs(broken, workers=1, checkpoint=checkpoint)
+    assert len(checkpoint.read_text().splitlines()) == 3
+    ran = []
+    rows = run_jobs(jobs, workers=1, checkpoint=checkpoint, progress=ran.append)
+    assert ran == [3, 1]  # three from the checkpoint, one run now
+    assert json.loads(json.dumps(rows)) == json.loads(json.dumps(run_jobs(jobs, workers=1)))
+
+
+def test_a_directory_named_like_a_scenario_does_not_shadow_it(tmp_path, monkeypatch) -> None:
+    from rfhoming.emulator.scenario import load as load_scenario
+
+    (tmp_path / "s1-dock").mkdir()  # e.g. left by `rfhoming campaign s1-dock --out s1-dock`
+    monkeypatch.chdir(tmp_path)
+    assert load_scenario("s1-dock").name == "s1-dock"

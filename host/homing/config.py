@@ -210,6 +210,8 @@ align = true             # at the end, turn onto the station's axis fitted from 
 standoff_m = 0.3         # where rssi_arrival_dbm is received (the docked position)
 path_n = 2.0             # path-loss exponent for the fit's RSSI ranges
 align_min_spread_m = 0.5 # the fit needs this much movement along the approach
+# mission_goal = [0.4, 3.6]  # the station on the robot's map: drive there before the docking stage (default: wait)
+mission_stop_m = 0.8     # the mission stage stops this far from mission_goal
 
 [trilat]                 # S3: go to a goal, localised on BLE beacons at known places
 goal = [0.0, 0.0]        # where to go, in the beacons' frame (m)

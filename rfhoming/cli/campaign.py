@@ -34,7 +34,9 @@ campaigns (default --runs in brackets):
 
 Each writes OUT/NAME.json (every run and the summary), OUT/NAME.md (the table beside the
 paper's, with the command) and OUT/NAME*.png. Seeds are fixed per job, so a campaign gives the
-same numbers on 1 worker, on K processes or on a Dask cluster.
+same numbers on 1 worker, on K processes or on a Dask cluster. Finished jobs are kept in
+OUT/NAME.partial.jsonl until the campaign completes: run the same command again after a crash
+or Ctrl-C and only the unfinished jobs run.
 
 examples:
   rfhoming campaign s0-table3                    # all cores, results under docs/results/
@@ -71,13 +73,20 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if runs < 1:
         print(f"rfhoming campaign: --runs must be at least 1 ({campaign.runs_help})", file=sys.stderr)
         return 2
+    try:
+        campaign.check_requirements()
+    except CampaignError as exc:
+        print(f"rfhoming campaign: {exc}", file=sys.stderr)
+        return 2
     jobs = campaign.jobs(runs, args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    checkpoint = args.out / f"{args.name}.partial.jsonl"  # finished jobs survive a crash or Ctrl-C
     where = f"Dask at {args.dask}" if args.dask else f"{args.workers} worker(s)"
     t0 = time.perf_counter()
     with tqdm(total=len(jobs), desc=f"{args.name} ({where})", unit="job", disable=args.quiet,
               file=sys.stderr, dynamic_ncols=True) as bar:
         try:
-            rows = run_jobs(jobs, args.workers, args.dask, bar.update)
+            rows = run_jobs(jobs, args.workers, args.dask, bar.update, checkpoint)
         except CampaignError as exc:
             bar.close()
             print(f"rfhoming campaign: {exc}", file=sys.stderr)
@@ -88,12 +97,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     meta = {"campaign": args.name, "command": command, "runs": runs, "seed": args.seed, "jobs": len(jobs),
             "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
             "machine": platform.machine()}
-    args.out.mkdir(parents=True, exist_ok=True)
     (args.out / f"{args.name}.json").write_text(json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
     (args.out / f"{args.name}.md").write_text(
         f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where})\n\n{report.markdown}\n")
     for name, write in report.plots.items():
         write(args.out / name)
+    checkpoint.unlink()
     if args.json:
         print(json.dumps({**meta, "summary": report.summary}, indent=1))
     else:
