@@ -29,6 +29,7 @@ from rfhoming.emulator.world import Pose as WorldPose, World
 from rfhoming.host.drivers.aoa import AoaDriver, TimedAngle
 from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.rss import AntennaPowers, RssDriver
+from rfhoming.host.estimation.ranging import fit_log_distance
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import HomingLoop
 from rfhoming.host.homing.types import Decision, Pose
@@ -50,14 +51,6 @@ class Fit:
 
     def summary(self) -> dict[str, float]:
         return {k: round(float(v), 3) for k, v in self.__dict__.items()}
-
-
-def fit_log_distance(distance_m: np.ndarray, rssi_dbm: np.ndarray) -> tuple[float, float, float]:
-    """(P0 at 1 m, n, residual std) by least squares on log10(d)."""
-    x = -10 * np.log10(np.maximum(distance_m, 0.05))
-    a = np.column_stack([np.ones_like(x), x])
-    (p0, n), *_ = np.linalg.lstsq(a, rssi_dbm, rcond=None)
-    return float(p0), float(n), float(np.std(rssi_dbm - (p0 + n * x)))
 
 
 @dataclass
@@ -159,8 +152,9 @@ def calibrate(scenario: Scenario, seed: int) -> Fit:
     pairs = np.array(rec.pairs, float)
     if len(pairs) < 20 or not pairs[:, 2].any():
         raise RuntimeError(f"calibration of {scenario.name} heard only {len(pairs)} readings")
-    p0, n, residual = fit_log_distance(pairs[:, 0], pairs[:, 1])
-    return Fit(p0, n, residual, float(pairs[pairs[:, 2] > 0, 1].mean()), len(pairs))
+    fit = fit_log_distance(np.maximum(pairs[:, 0], 0.05), pairs[:, 1])
+    model = fit.model
+    return Fit(model.p0_dbm, model.n, fit.rssi_residual_db, float(pairs[pairs[:, 2] > 0, 1].mean()), len(pairs))
 
 
 CALIBRATION_SEED = 0xCA1

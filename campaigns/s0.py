@@ -17,6 +17,7 @@ from rfhoming.campaigns.runner import Campaign, Job, Report
 from rfhoming.emulator.radio import S0_PRESETS
 from rfhoming.emulator.scenario import load
 from rfhoming.host.homing.config import Calibration, Config, LoopSettings
+from rfhoming.host.homing.s0_aoa import S0Params
 
 METRICS = ("success_pct", "time_s", "net_velocity_mps", "goal_error_m", "final_error_m", "path_efficiency")
 HEADER = ["success %", "time to target s", "net velocity m/s", "goal error m", "final error m", "path efficiency"]
@@ -28,7 +29,15 @@ TABLE3 = {  # methods.md, S0 Table 3
     5: (100, 12.27, 0.57, 0.11, 0.15, 0.91),
 }
 HOUSE = (96, 44.91, 0.22, 0.12, 0.23, 0.69)  # Experiment 2
-MODES = ("idealised", "realistic")
+MODES = ("idealised-10hz-paper", "idealised-10hz", "idealised", "realistic")
+"""S0's method at 10 Hz (k = 0.8, no near-goal fusion); ours at 10 Hz (k = 0.8 with the fusion);
+ours at the board's 50 Hz (k = 0.3 per reading, the fusion); ours through the emulator."""
+MODE_LABELS = {"idealised-10hz-paper": "S0's method, idealised, 10 Hz (k 0.8)",
+               "idealised-10hz": "ours, idealised, 10 Hz (k 0.8 + near-goal fusion)",
+               "idealised": "ours, idealised, 50 Hz (k 0.3 + near-goal fusion)",
+               "realistic": "ours, emulated XPLR-AOA, 50 Hz, calibrated RSSI"}
+TEN_HZ = {"idealised-10hz-paper": S0Params(folded=False, k=0.8, close_fusion_m=0.0),
+          "idealised-10hz": S0Params(folded=False, k=0.8)}
 
 
 def targets(runs: int, seed: int) -> list[tuple[float, float]]:
@@ -50,6 +59,8 @@ def table3_run(config: int, mode: str, target: tuple[float, float], seed: int, c
     emulator's XPLR-AOA with the fold and integer fields, RSSI through the calibration)."""
     if mode == "idealised":
         row = kinematic.home(target, *S0_PRESETS[config], seed=seed)
+    elif mode in TEN_HZ:
+        row = kinematic.home(target, *S0_PRESETS[config], seed=seed, params=TEN_HZ[mode], reading_s=0.1)
     else:
         scenario = load("s0-open", seed=seed, target=target, aoa_preset=config)
         run = closed_loop.run(scenario, host_config("s0-open", campaign_seed, config), seed)
@@ -82,7 +93,7 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
         for mode in MODES:
             s = summarise([r for r in rows if r["config"] == config and r["mode"] == mode])
             summary[f"{config}/{mode}"] = s
-            lines.append([config, f"ours, {mode} ({s['runs']} runs)", *(s[k] for k in METRICS)])
+            lines.append([config, f"{MODE_LABELS[mode]} ({s['runs']} runs)", *(s[k] for k in METRICS)])
     failures = [r for r in rows if not r["success"]]
     md = table(["config", "source", *HEADER], lines)
     md += failed_runs(failures, lambda r: f"config {r['config']} {r['mode']} target {r['target']}")

@@ -57,12 +57,3 @@ def test_host_radio_constants_come_from_measurements(campaign, monkeypatch) -> N
     assert moved["n"] - plain["n"] == pytest.approx(SHIFT_N, abs=0.35)
     expected = SHIFT_DB if campaign != "s1-dock" else SHIFT_DB - 10 * SHIFT_N * np.log10(0.3)
     assert moved["p0"] - plain["p0"] == pytest.approx(expected, abs=2.0)
-
-
-def test_log_distance_fit_recovers_its_parameters() -> None:
-    rng = np.random.default_rng(4)
-    d = rng.uniform(0.3, 6, 500)
-    rssi = -47.0 - 10 * 2.6 * np.log10(d) + rng.normal(0, 3, d.size)
-    p0, n, residual = calibration.fit_log_distance(d, rssi)
-    assert p0 == pytest.approx(-47.0, abs=0.6) and n == pytest.approx(2.6, abs=0.15)
-    assert residual == pytest.approx(3.0, abs=0.3)

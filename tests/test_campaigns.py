@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from rfhoming.campaigns import kinematic, s1, s3, s4
+from rfhoming.campaigns import kinematic, s0, s1, s3, s4
 from rfhoming.cli.campaign import REGISTRY, load
 from rfhoming.campaigns.runner import Job, execute, run_jobs
 from rfhoming.cli.main import main
@@ -18,7 +18,7 @@ from rfhoming.host.homing.s0_aoa import S0Params
 
 def test_inline_process_and_dask_give_identical_results() -> None:
     distributed = pytest.importorskip("distributed")
-    jobs = load("s0-table3").jobs(2, 7)[:6]  # configuration 1: two idealised, two realistic, …
+    jobs = load("s0-table3").jobs(2, 7)[:8]  # configuration 1: two runs in each mode
 
     def results(rows):  # everything but the wall time
         return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
@@ -27,9 +27,9 @@ def test_inline_process_and_dask_give_identical_results() -> None:
     pooled = results(run_jobs(jobs, workers=2))
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         on_dask = results(run_jobs(jobs, dask_address=cluster.scheduler_address))
-    assert {r["mode"] for r in inline} == {"idealised", "realistic"}
+    assert {r["mode"] for r in inline} == set(s0.MODES)
     assert inline == pooled == on_dask
-    assert [r["index"] for r in inline] == list(range(6))
+    assert [r["index"] for r in inline] == list(range(8))
 
 
 def test_a_job_failure_is_raised_not_swallowed() -> None:
@@ -102,8 +102,9 @@ def test_cli_writes_json_markdown_and_plot(tmp_path, capsys) -> None:
     summary = json.loads(capsys.readouterr().out)
     assert summary["command"] == "rfhoming campaign s3-arena --runs 3 --seed 0"
     saved = json.loads((tmp_path / "s3-arena.json").read_text())
-    assert len(saved["rows"]) == 1 + 9 * 3
-    assert "| trilateration |" in (tmp_path / "s3-arena.md").read_text()
+    assert len(saved["rows"]) == 1 + len(s3.ARENAS) * 9 * 3
+    assert "| paper (one measurement per point) |" in (tmp_path / "s3-arena.md").read_text()
+    assert saved["wall_s"] > 0
     assert (tmp_path / "s3-arena.png").stat().st_size > 1000
 
 
