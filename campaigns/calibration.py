@@ -48,43 +48,65 @@ class Fit:
     residual_db: float  # std of the readings around the fit
     stop_dbm: float  # mean RSSI while dwelling at the stop distance
     samples: int
+    dish_offsets_db: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # S2: each dish's own offset
 
     def summary(self) -> dict[str, float]:
-        return {k: round(float(v), 3) for k, v in self.__dict__.items()}
+        return {k: [round(x, 3) for x in v] if isinstance(v, tuple) else round(float(v), 3)
+                for k, v in self.__dict__.items()}
+
+
+BORESIGHTS_RAD = (0.0, math.pi, math.pi / 2, -math.pi / 2)
+"""S2's dishes x1, x2, y1, y2 (host.estimation.particle's axes): where each one points."""
+TURN_DWELL_S = 1.5
 
 
 @dataclass
 class Recorder:
     """A controller for the homing loop that drives straight ahead until the odometry pose is
-    ``stop_m`` from ``point``, dwells there, and records (distance, RSSI) of every reading."""
+    ``stop_m`` from ``point``, dwells there, optionally turns in place by quarter turns (dwelling
+    at each, so each of S2's dishes faces the transmitter in turn), and records every reading
+    with the distance and the bearing of ``point`` from the robot's heading."""
 
     point: tuple[float, float]
     stop_m: float
-    rssi: Any  # reading -> RSSI in dBm, or None
+    value: Any  # reading -> what to keep of it (RSSI in dBm, or the four dish powers), or None
+    quarter_turns: int = 0
     source: str = "calibration"
     phase: str = "driving"
     reported: Any = None
     uses_planner: bool = False
-    pairs: list[tuple[float, float, bool]] = field(default_factory=list)  # distance, dBm, at the stop
-    _dwell_until: float | None = None
+    samples: list[tuple[float, float, str, Any]] = field(default_factory=list)  # distance, bearing, phase, value
+    _until: float | None = None
+    _turns_done: int = 0
+    _heading: float | None = None
     _t: float = 0.0
 
     def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
-        value = self.rssi(item)
+        value = self.value(item)
         if value is None:
             return None
         self._t = t
-        d = math.dist((pose.x, pose.y), self.point)
-        self.pairs.append((d, value, self.phase == "dwelling"))
+        bearing = math.remainder(math.atan2(self.point[1] - pose.y, self.point[0] - pose.x) - pose.theta, 2 * math.pi)
+        self.samples.append((math.dist((pose.x, pose.y), self.point), bearing, self.phase, value))
         return {}
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         d = math.dist((pose.x, pose.y), self.point)
         if self.phase == "driving" and d > self.stop_m:
             return Decision(min(SPEED_MPS, d - self.stop_m + 0.02), 0.0, None, False, "calibration drive")
-        if self._dwell_until is None:
-            self.phase, self._dwell_until = "dwelling", self._t + DWELL_S
-        return Decision(0.0, 0.0, None, self._t >= self._dwell_until, "calibration dwell")
+        if self._until is None:
+            self.phase, self._until, self._heading = "dwelling", self._t + DWELL_S, pose.theta
+        if self._t < self._until:
+            return Decision(0.0, 0.0, None, False, "calibration dwell")
+        if self._turns_done >= self.quarter_turns:
+            return Decision(0.0, 0.0, None, True, "calibration done")
+        self.phase = "turning"
+        error = math.remainder(self._heading + (self._turns_done + 1) * math.pi / 2 - pose.theta, 2 * math.pi)
+        if abs(error) > math.radians(2):
+            return Decision(0.0, max(-0.6, min(0.6, 1.5 * error)), None, False, "calibration turn")
+        self._turns_done += 1
+        self._until = self._t + TURN_DWELL_S
+        return Decision(0.0, 0.0, None, False, "calibration dwell")
 
     def estimate(self) -> dict[str, Any]:
         return {}
@@ -94,10 +116,9 @@ def _aoa_rssi(item: Any) -> float | None:
     return float(item.event.rssi1) if isinstance(item, TimedAngle) else None
 
 
-def _dish_rssi(item: Any) -> float | None:
-    """The strongest dish (the host's range comes from it, host.estimation.particle)."""
+def _dish_powers(item: Any) -> tuple[float, ...] | None:
     if isinstance(item, AntennaPowers) and all(p is not None for p in item.dbm):
-        return float(max(item.dbm))  # type: ignore[type-var]
+        return tuple(float(p) for p in item.dbm)  # type: ignore[arg-type]
     return None
 
 
@@ -145,16 +166,38 @@ def calibrate(scenario: Scenario, seed: int) -> Fit:
         scenario = _place(scenario, start, None)
     else:
         device = "aoa" if "aoa" in names else "rss"
-        stop = 0.5
-        rec = Recorder((FAR_M, 0.0), stop, _aoa_rssi if device == "aoa" else _dish_rssi)
+        stop = 0.5 if device == "aoa" else 1.0
+        rec = Recorder((FAR_M, 0.0), stop, _aoa_rssi) if device == "aoa" else Recorder((FAR_M, 0.0), stop, _dish_powers, 3)
         scenario = _place(scenario, (0.0, 0.0, 0.0), (FAR_M, 0.0))
     rec = asyncio.run(_record(scenario, seed, device, rec))
-    pairs = np.array(rec.pairs, float)
-    if len(pairs) < 20 or not pairs[:, 2].any():
-        raise RuntimeError(f"calibration of {scenario.name} heard only {len(pairs)} readings")
-    fit = fit_log_distance(np.maximum(pairs[:, 0], 0.05), pairs[:, 1])
-    model = fit.model
-    return Fit(model.p0_dbm, model.n, fit.rssi_residual_db, float(pairs[pairs[:, 2] > 0, 1].mean()), len(pairs))
+    if len(rec.samples) < 20 or not any(s[2] == "dwelling" for s in rec.samples):
+        raise RuntimeError(f"calibration of {scenario.name} heard only {len(rec.samples)} readings")
+    offsets = (0.0, 0.0, 0.0, 0.0)
+    if device == "rss":
+        offsets = dish_offsets(rec.samples)
+        samples = [(d, b, ph, max(p - o for p, o in zip(v, offsets))) for d, b, ph, v in rec.samples if ph != "turning"]
+    else:
+        samples = rec.samples
+    d = np.array([s[0] for s in samples])
+    rssi = np.array([s[3] for s in samples])
+    fit = fit_log_distance(np.maximum(d, 0.05), rssi)
+    stop_dbm = float(np.mean([s[3] for s in samples if s[2] == "dwelling"]))
+    return Fit(fit.model.p0_dbm, fit.model.n, fit.rssi_residual_db or 0.0, stop_dbm, len(samples), offsets)
+
+
+def dish_offsets(samples: list[tuple[float, float, str, Any]]) -> tuple[float, float, float, float]:
+    """Each dish's power while it faced the transmitter (within 10°), at the stop distance,
+    relative to the four dishes' mean: the chips' and dishes' own offsets, as S2's A1/A2
+    calibration would take them."""
+    means = []
+    for i, boresight in enumerate(BORESIGHTS_RAD):
+        facing = [v[i] for d, b, ph, v in samples if ph != "driving"
+                  and abs(math.remainder(b - boresight, 2 * math.pi)) < math.radians(10)]
+        if not facing:
+            raise RuntimeError(f"calibration: dish {i} never faced the transmitter")
+        means.append(float(np.mean(facing)))
+    m = float(np.mean(means))
+    return tuple(round(v - m, 2) for v in means)  # type: ignore[return-value]
 
 
 CALIBRATION_SEED = 0xCA1

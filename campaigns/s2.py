@@ -5,9 +5,11 @@ fixes it filters.
 Success (S2's criterion): arrived and within 0.5 m of the emitter, S2's stopping distance.
 Scenarios C and D place the emitter 4 m in x and 4 m in y from the start (5.66 m), as S2 does.
 
-The host is calibrated (campaigns.calibration): the path-loss P0 (through the strongest dish,
-so its gain and its chip's offset are inside it) and n come from a calibration session's fit,
-never from the scenario.
+The host is calibrated (campaigns.calibration): each dish's offset (the robot turns in place
+so that each dish faces the emitter in turn), and the path-loss P0 (through the strongest dish,
+so its gain is inside it) and n come from a calibration session's fit, never from the
+scenario. The node's chip offsets are the scenario's (one hardware unit, the same in the
+calibration and the runs); the per-link bias is drawn anew in every session.
 Filter error: over a run, every instantaneous fix (dish powers -> bearing and range, placed
 from the robot's odometry pose) and every control step's particle-filter estimate are compared
 with the true emitter; each run's median, averaged over runs, is reported.
@@ -32,7 +34,10 @@ from rfhoming.host.homing.loop import RunLog
 
 SCENARIOS = "abcde"
 SYSTEMS = ("preliminary", "full", "full-bounded")
-"""S2's two systems, and ours: full motion with the particle filter's bounded-range weights."""
+"""S2's two systems, and ours: full motion with the particle filter's bounded-range weights,
+stopping at an estimated ``OURS_STOP_M`` so that a range read short by a link's bias still
+ends within S2's 0.5 m."""
+OURS_STOP_M = 0.25
 PAPER_TIME_S = {"a": (89, 90), "b": (126, 230), "c": (252, 225), "d": (391, 222), "e": (None, 455)}
 """S2's mean times (s), preliminary / full; E failed with the preliminary system."""
 PAPER_DESCRIPTION = {"a": "straight 4 m", "b": "blocked", "c": "partly blocked right angle",
@@ -68,7 +73,10 @@ def host_config(scenario: str, system: str, seed: int, campaign_seed: int = 0) -
     fit = calibration.cached(f"s2-{scenario}", campaign_seed)
     motion, _, likelihood = system.partition("-")
     s2 = replace(Config().s2, motion=motion, seed=seed, likelihood=likelihood or "s2",
-                 p0_dbm=round(fit.p0_dbm, 2), n=round(fit.n, 3), peak_gain_db=0.0)
+                 p0_dbm=round(fit.p0_dbm, 2), n=round(fit.n, 3), peak_gain_db=0.0,
+                 dish_offsets_db=fit.dish_offsets_db)
+    if likelihood == "bounded":
+        s2 = replace(s2, arrival_range_m=OURS_STOP_M)
     return replace(Config(), s2=s2, loop=replace(LoopSettings(), max_time_s=MAX_TIME_S))
 
 

@@ -188,6 +188,7 @@ seed = 0                 # the particle filter's random stream (reproducible run
 motion = "full"          # "full": grid + A* (when scans come); "preliminary": S2's rules
 obstacle_m = 0.2         # preliminary: turn until clear when an obstacle is this close ahead
 likelihood = "s2"        # particle weights: "s2" (the paper's); "bounded": a range as an upper bound (walls)
+dish_offsets_db = [0.0, 0.0, 0.0, 0.0]  # x1, x2, y1, y2: each dish's own offset, subtracted (calibration)
 
 [s1]                     # docking (S1): the station's AoA and RSSI of the robot's tag
 g_a = 0.25               # heading step per dB of RSSI_diff per degree of AoA change
