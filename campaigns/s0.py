@@ -6,6 +6,7 @@ scenario."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Any
 
@@ -114,30 +115,65 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
 
 
 HOUSE_CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=240.0))
+HOUSE_MODES = {"rules": "S0's method: reactive rules (Appendix B) only",
+               "planner": "ours: occupancy grid + A*, with S0's rules for close obstacles"}
+ROOMS = ((-1, -1), (1, -1), (1, 1), (-1, 1))  # the house's quadrants
 
 
-def house_run(seed: int, campaign_seed: int = 0) -> dict[str, Any]:
-    """Experiment 2: the four-room house, configuration 5, a random tag room per seed."""
+def room_point(room: int, rng: np.random.Generator, scenario) -> tuple[float, float]:
+    """A random free point in ``room``, 0.7 m clear of walls and furniture."""
+    sx, sy = ROOMS[room]
+    for _ in range(1000):
+        p = (sx * float(rng.uniform(0.7, 5.2)), sy * float(rng.uniform(0.7, 5.2)))
+        if not any(o.contains(*q) for o in scenario.world.obstacles for q in (p, *_probe_ring(p))):
+            return p
+    raise RuntimeError(f"no free point in room {room}")
+
+
+def _probe_ring(p: tuple[float, float], r: float = 0.7) -> list[tuple[float, float]]:
+    return [(p[0] + r * math.cos(a), p[1] + r * math.sin(a)) for a in np.linspace(0, 2 * math.pi, 12, endpoint=False)]
+
+
+def house_run(seed: int, pair: int, mode: str = "planner", campaign_seed: int = 0) -> dict[str, Any]:
+    """Experiment 2: the four-room house, configuration 5; start and tag in random points of
+    start/goal room pair ``pair`` (0–15), the same for both modes of a seed."""
+    rng = np.random.default_rng([seed, 0x40])
     scenario = load("s0-house", seed=seed)
-    target = scenario.world.targets[0].position
-    run = closed_loop.run(scenario, host_config("s0-house", campaign_seed, None, HOUSE_CONFIG), seed)
-    return {"seed": seed, "target": [round(v, 3) for v in target], **closed_loop.metrics(run, target)}
+    start_room, goal_room = divmod(pair, 4)
+    target = room_point(goal_room, rng, scenario)
+    scenario = load("s0-house", seed=seed, target=target)
+    x, y = room_point(start_room, rng, scenario)
+    while math.dist((x, y), target) < 2.0:  # a homing, not a start on the tag
+        x, y = room_point(start_room, rng, scenario)
+    scenario.world.robot.x, scenario.world.robot.y = x, y
+    scenario.world.robot.theta = float(rng.uniform(-math.pi, math.pi))
+    base = HOUSE_CONFIG if mode == "planner" else replace(HOUSE_CONFIG, plan=replace(HOUSE_CONFIG.plan, enabled=False))
+    run = closed_loop.run(scenario, host_config("s0-house", campaign_seed, None, base), seed)
+    return {"seed": seed, "mode": mode, "rooms": [start_room, goal_room], "start": [round(x, 3), round(y, 3)],
+            "target": [round(v, 3) for v in target], **closed_loop.metrics(run, target)}
 
 
 def house_jobs(runs: int, seed: int) -> list[Job]:
-    return [Job(k, "rfhoming.campaigns.s0:house_run", {"seed": seed * 100_000 + k, "campaign_seed": seed}) for k in range(runs)]
+    return [Job(2 * k + j, "rfhoming.campaigns.s0:house_run",
+                {"seed": seed * 100_000 + k, "pair": k % 16, "mode": mode, "campaign_seed": seed})
+            for k in range(runs) for j, mode in enumerate(HOUSE_MODES)]
 
 
 def house_report(rows: list[dict[str, Any]]) -> Report:
-    s = summarise(rows)
-    md = table(["source", *HEADER], [["paper, Experiment 2 (80 runs)", *HOUSE],
-                                     [f"ours ({s['runs']} runs)", *(s[k] for k in METRICS)]])
+    lines: list[list[Any]] = [["paper, Experiment 2 (80 runs)", *HOUSE]]
+    summary = {}
+    for mode, label in HOUSE_MODES.items():
+        s = summarise([r for r in rows if r["mode"] == mode])
+        summary[mode] = s
+        lines.append([f"{label} ({s['runs']} runs)", *(s[k] for k in METRICS)])
+    s = summary["planner"]
+    md = table(["source", *HEADER], lines)
     failures = [r for r in rows if not r["success"]]
-    md += failed_runs(failures, lambda r: f"seed {r['seed']} target {r['target']}")
+    md += failed_runs(failures, lambda r: f"{r['mode']} seed {r['seed']} rooms {r['rooms']} target {r['target']}")
 
     def plot(path):
         fig, axes = figure(path, 2)
-        ok = [r for r in rows if r["success"]]
+        ok = [r for r in rows if r["success"] and r["mode"] == "planner"]
         axes[0].hist([r["time_s"] for r in ok], bins=20)
         axes[0].axvline(HOUSE[1], color="k", ls="--", label="paper mean")
         axes[0].set_title("time to target (s)")
@@ -147,12 +183,12 @@ def house_report(rows: list[dict[str, Any]]) -> Report:
         axes[1].set_title("path efficiency")
         save(fig, path)
 
-    return Report({"summary": s, "failures": failures}, md, {"s0-house.png": plot})
+    return Report({"summary": summary, "failures": failures}, md, {"s0-house.png": plot})
 
 
 TABLE3_CAMPAIGN = Campaign(
     "s0-table3", "S0 Table 3: 5 noise configurations x targets, idealised and realistic",
     "targets per configuration (split evenly over the quadrants)", 40, table3_jobs, table3_report)
 HOUSE_CAMPAIGN = Campaign(
-    "s0-house", "S0 Experiment 2: four-room house, configuration 5, avoidance and A*",
-    "runs (a random tag room each)", 80, house_jobs, house_report)
+    "s0-house", "S0 Experiment 2: four-room house, configuration 5, S0's rules and ours (A*)",
+    "runs (random start and tag over the 16 room pairs; each run with both methods)", 80, house_jobs, house_report)
