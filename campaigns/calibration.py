@@ -6,7 +6,9 @@ a straight line toward (or, for S1, with its tag toward) a transmitter placed at
 with its own seed, so its per-link biases and noise are those of a separate session, as on real
 hardware. The host's readings (through the real drivers and codecs, as ``rfhoming capture``
 records them) are paired with the odometry pose's distance to that point, and a least-squares
-log-distance fit, RSSI = P0 − 10 n log10(d), gives the calibration constants.
+log-distance fit, RSSI = P0 − 10 n log10(d), gives the calibration constants. For S2's four
+dishes the robot then turns in place by quarter turns at the stop, so that each dish faces the
+transmitter in turn, which gives each dish's own offset.
 
 Only the scenario's geometry (where to put the robot and the transmitter) is touched here; the
 scenario's radio model is never read.

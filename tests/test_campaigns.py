@@ -138,3 +138,14 @@ def test_a_directory_named_like_a_scenario_does_not_shadow_it(tmp_path, monkeypa
     (tmp_path / "s1-dock").mkdir()  # e.g. left by `rfhoming campaign s1-dock --out s1-dock`
     monkeypatch.chdir(tmp_path)
     assert load_scenario("s1-dock").name == "s1-dock"
+
+
+def test_s4_smoother_removes_the_per_link_offsets_the_ekf_keeps() -> None:
+    from rfhoming.host.estimation.beacon import refine_batch
+
+    z, u, rssi, beacons = s4.flights(2, seed=5)
+    ekf, _, _ = s4.run_filter("ekf", z, u, rssi, "area")
+    smoothed, offsets = refine_batch(s4.MODEL, np.repeat(z[1:], s4.BEACONS_PER_FLIGHT, axis=1), rssi, ekf)
+    before, after = (np.linalg.norm(e - beacons, axis=1) for e in (ekf, smoothed))
+    assert after.mean() < 0.15 and after.mean() < before.mean() / 2
+    assert np.median(np.abs(offsets)) > 0.5  # it did find offsets (S4's are ±2 dB per link)
