@@ -36,7 +36,7 @@ Each writes OUT/NAME.json (every run and the summary), OUT/NAME.md (the table be
 paper's, with the command) and OUT/NAME*.png. Seeds are fixed per job, so a campaign gives the
 same numbers on 1 worker, on K processes or on a Dask cluster. Finished jobs are kept in
 OUT/NAME.partial.jsonl until the campaign completes: run the same command again after a crash
-or Ctrl-C and only the unfinished jobs run.
+or Ctrl-C and only the unfinished jobs run (delete that file after changing the code).
 
 examples:
   rfhoming campaign s0-table3                    # all cores, results under docs/results/
