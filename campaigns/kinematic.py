@@ -28,19 +28,21 @@ def _toward(value: float, target: float, step: float) -> float:
 
 
 def home(target: tuple[float, float], angle_deg: float, distance_rel: float, distance_abs_m: float,
-         seed: int, params: S0Params | None = None, max_time_s: float = 180.0) -> dict[str, Any]:
-    """One idealised homing from (0, 0) facing +x; S0 Table 3's metrics."""
+         seed: int, params: S0Params | None = None, max_time_s: float = 180.0,
+         reading_s: float = READING_S) -> dict[str, Any]:
+    """One idealised homing from (0, 0) facing +x, a reading every ``reading_s``; S0 Table 3's
+    metrics."""
     rng = np.random.default_rng(seed)
     s0 = S0Homing(params or replace(S0Params(), folded=False))
     robot = WorldPose(0.0, 0.0, 0.0)
     v = w = 0.0
     cmd_v = cmd_w = 0.0
     travelled, t = 0.0, 0.0
-    per_control = round(CONTROL_S / READING_S)
+    per_control = max(1, round(CONTROL_S / reading_s))
     goal = None
     arrived = False
-    for step in range(int(max_time_s / READING_S)):
-        t = step * READING_S
+    for step in range(int(max_time_s / reading_s)):
+        t = step * reading_s
         pose = Pose(robot.x, robot.y, robot.theta)
         d = math.hypot(target[0] - robot.x, target[1] - robot.y)
         bearing = math.atan2(target[1] - robot.y, target[0] - robot.x) - robot.theta
@@ -55,11 +57,12 @@ def home(target: tuple[float, float], angle_deg: float, distance_rel: float, dis
                 break
             cmd_v = max(-LIMITS.v_max, min(LIMITS.v_max, decision.v))
             cmd_w = max(-LIMITS.w_max, min(LIMITS.w_max, decision.w))
-        v = _toward(v, cmd_v, LIMITS.a_max * READING_S)
-        w = _toward(w, cmd_w, LIMITS.alpha_max * READING_S)
-        x0, y0 = robot.x, robot.y
-        robot.advance(v, w, READING_S)
-        travelled += math.hypot(robot.x - x0, robot.y - y0)
+        for _ in range(max(1, round(reading_s / READING_S))):  # the robot moves in 20 ms steps
+            v = _toward(v, cmd_v, LIMITS.a_max * READING_S)
+            w = _toward(w, cmd_w, LIMITS.alpha_max * READING_S)
+            x0, y0 = robot.x, robot.y
+            robot.advance(v, w, READING_S)
+            travelled += math.hypot(robot.x - x0, robot.y - y0)
     straight = math.hypot(robot.x, robot.y)
     final = math.dist((robot.x, robot.y), target)
     return {"arrived": arrived, "success": arrived and final < 1.0, "time_s": round(t, 3),

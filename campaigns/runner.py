@@ -5,12 +5,17 @@ inline, on local processes (``concurrent.futures.ProcessPoolExecutor``) or on a 
 (``distributed.Client(address).get_executor()``, the same Executor interface). Every job
 carries its own seed derived from the campaign seed and its index, so results do not depend on
 the number of workers or on where a job ran.
+
+A checkpoint file (JSON lines, one finished job each) keeps finished jobs when a campaign is
+stopped or crashes; the next run with the same jobs reads it and runs only the rest.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import importlib
+import importlib.util
+import json
 import logging
 import os
 from collections.abc import Callable, Iterator
@@ -51,6 +56,13 @@ class Campaign:
     default_runs: int
     jobs: Callable[[int, int], list[Job]]  # (runs, seed) -> jobs
     report: Callable[[list[dict[str, Any]]], Report]
+    requires: tuple[str, ...] = ()  # optional packages its jobs import
+
+    def check_requirements(self) -> None:
+        """Fail before the first job, not after hours of them, when a package is missing."""
+        missing = [m for m in self.requires if importlib.util.find_spec(m) is None]
+        if missing:
+            raise CampaignError(f"{self.name} needs {', '.join(missing)}: pip install 'rfhoming[campaign]'")
 
 
 class CampaignError(RuntimeError):
@@ -82,24 +94,63 @@ def executor(workers: int, dask_address: str | None) -> Iterator[cf.Executor | N
         yield pool
 
 
+def _key(job: Job) -> str:
+    return json.dumps([job.index, job.fn, job.kwargs], sort_keys=True, default=str)
+
+
+def load_checkpoint(path: Path, jobs: list[Job]) -> dict[int, dict[str, Any]]:
+    """Results of ``jobs`` already in the checkpoint (same index, function and arguments)."""
+    if not path.is_file():
+        return {}
+    wanted = {_key(j): j.index for j in jobs}
+    done = {}
+    for line in path.read_text().splitlines():
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:  # a line cut short by the crash
+            continue
+        index = wanted.get(entry.get("key"))
+        if index is not None:
+            done[index] = entry["result"]
+    return done
+
+
 def run_jobs(jobs: list[Job], workers: int = os.cpu_count() or 1, dask_address: str | None = None,
-             progress: Callable[[int], None] = lambda n: None) -> list[dict[str, Any]]:
-    """Every job's result, in job order; ``progress(1)`` after each one finishes."""
-    results: dict[int, dict[str, Any]] = {}
+             progress: Callable[[int], None] = lambda n: None, checkpoint: Path | None = None) -> list[dict[str, Any]]:
+    """Every job's result, in job order; ``progress(1)`` after each one finishes. With a
+    ``checkpoint`` file, jobs already in it are not run again and each new result is appended."""
+    results: dict[int, dict[str, Any]] = load_checkpoint(checkpoint, jobs) if checkpoint else {}
+    progress(len(results))
+    todo = [job for job in jobs if job.index not in results]
+    keys = {job.index: _key(job) for job in todo}
+    sink = checkpoint.open("a") if checkpoint else None
+
+    def finished(result: dict[str, Any]) -> None:
+        results[result["index"]] = result
+        if sink is not None:
+            sink.write(json.dumps({"key": keys[result["index"]], "result": result}) + "\n")
+            sink.flush()
+        progress(1)
+
+    try:
+        _run(todo, workers, dask_address, finished)
+    finally:
+        if sink is not None:
+            sink.close()
+    return [results[job.index] for job in jobs]
+
+
+def _run(jobs: list[Job], workers: int, dask_address: str | None, finished: Callable[[dict[str, Any]], None]) -> None:
     with executor(workers, dask_address) as pool:
         if pool is None:
             for job in jobs:
-                results[job.index] = execute(job)
-                progress(1)
+                finished(execute(job))
         else:
             futures = [pool.submit(execute, job) for job in jobs]
             try:
                 for future in cf.as_completed(futures):
-                    result = future.result()
-                    results[result["index"]] = result
-                    progress(1)
+                    finished(future.result())
             except BaseException:
                 for f in futures:
                     f.cancel()
                 raise
-    return [results[job.index] for job in jobs]

@@ -1,18 +1,24 @@
-"""S0 (Robotics 2023): Table 3 (five noise configurations, open area) and Experiment 2 (house)."""
+"""S0 (Robotics 2023): Table 3 (five noise configurations, open area) and Experiment 2 (house).
+
+In the emulated (realistic) runs the host's RSSI -> distance calibration (P0, n) comes from a
+calibration session through the same emulated radio (campaigns.calibration), never from the
+scenario."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from rfhoming.campaigns import closed_loop, kinematic
+from rfhoming.campaigns import calibration, closed_loop, kinematic
 from rfhoming.campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
 from rfhoming.campaigns.runner import Campaign, Job, Report
 from rfhoming.emulator.radio import S0_PRESETS
 from rfhoming.emulator.scenario import load
-from rfhoming.host.homing.config import Config, LoopSettings
+from rfhoming.host.homing.config import Calibration, Config, LoopSettings
+from rfhoming.host.homing.s0_aoa import S0Params
 
 METRICS = ("success_pct", "time_s", "net_velocity_mps", "goal_error_m", "final_error_m", "path_efficiency")
 HEADER = ["success %", "time to target s", "net velocity m/s", "goal error m", "final error m", "path efficiency"]
@@ -24,7 +30,15 @@ TABLE3 = {  # methods.md, S0 Table 3
     5: (100, 12.27, 0.57, 0.11, 0.15, 0.91),
 }
 HOUSE = (96, 44.91, 0.22, 0.12, 0.23, 0.69)  # Experiment 2
-MODES = ("idealised", "realistic")
+MODES = ("idealised-10hz-paper", "idealised-10hz", "idealised", "realistic")
+"""S0's method at 10 Hz (k = 0.8, no near-goal fusion); ours at 10 Hz (k = 0.8 with the fusion);
+ours at the board's 50 Hz (k = 0.3 per reading, the fusion); ours through the emulator."""
+MODE_LABELS = {"idealised-10hz-paper": "S0's method, idealised, 10 Hz (k 0.8)",
+               "idealised-10hz": "ours, idealised, 10 Hz (k 0.8 + near-goal fusion)",
+               "idealised": "ours, idealised, 50 Hz (k 0.3 + near-goal fusion)",
+               "realistic": "ours, emulated XPLR-AOA, 50 Hz, calibrated RSSI"}
+TEN_HZ = {"idealised-10hz-paper": S0Params(folded=False, k=0.8, close_fusion_m=0.0),
+          "idealised-10hz": S0Params(folded=False, k=0.8)}
 
 
 def targets(runs: int, seed: int) -> list[tuple[float, float]]:
@@ -35,14 +49,22 @@ def targets(runs: int, seed: int) -> list[tuple[float, float]]:
             for k in range(runs)]
 
 
-def table3_run(config: int, mode: str, target: tuple[float, float], seed: int) -> dict[str, Any]:
+def host_config(scenario: str, campaign_seed: int, preset: int | None = None, base: Config = Config()) -> Config:
+    """``base`` with the RSSI -> distance constants of a calibration session."""
+    fit = calibration.cached(scenario, campaign_seed, preset)
+    return replace(base, calibration=Calibration(p0_dbm=round(fit.p0_dbm, 2), n=round(fit.n, 3)))
+
+
+def table3_run(config: int, mode: str, target: tuple[float, float], seed: int, campaign_seed: int = 0) -> dict[str, Any]:
     """One homing: idealised (the paper's measurements, a kinematic robot) or realistic (the
     emulator's XPLR-AOA with the fold and integer fields, RSSI through the calibration)."""
     if mode == "idealised":
         row = kinematic.home(target, *S0_PRESETS[config], seed=seed)
+    elif mode in TEN_HZ:
+        row = kinematic.home(target, *S0_PRESETS[config], seed=seed, params=TEN_HZ[mode], reading_s=0.1)
     else:
         scenario = load("s0-open", seed=seed, target=target, aoa_preset=config)
-        run = closed_loop.run(scenario, Config(), seed)
+        run = closed_loop.run(scenario, host_config("s0-open", campaign_seed, config), seed)
         row = closed_loop.metrics(run, target)
     return {"config": config, "mode": mode, "target": [round(v, 3) for v in target], **row}
 
@@ -53,7 +75,8 @@ def table3_jobs(runs: int, seed: int) -> list[Job]:
         for mode in MODES:
             for k, target in enumerate(targets(runs, seed)):
                 jobs.append(Job(len(jobs), "rfhoming.campaigns.s0:table3_run",
-                                {"config": config, "mode": mode, "target": target, "seed": seed * 100_000 + k}))
+                                {"config": config, "mode": mode, "target": target, "seed": seed * 100_000 + k,
+                                 "campaign_seed": seed}))
     return jobs
 
 
@@ -71,7 +94,7 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
         for mode in MODES:
             s = summarise([r for r in rows if r["config"] == config and r["mode"] == mode])
             summary[f"{config}/{mode}"] = s
-            lines.append([config, f"ours, {mode} ({s['runs']} runs)", *(s[k] for k in METRICS)])
+            lines.append([config, f"{MODE_LABELS[mode]} ({s['runs']} runs)", *(s[k] for k in METRICS)])
     failures = [r for r in rows if not r["success"]]
     md = table(["config", "source", *HEADER], lines)
     md += failed_runs(failures, lambda r: f"config {r['config']} {r['mode']} target {r['target']}")
@@ -92,30 +115,65 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
 
 
 HOUSE_CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=240.0))
+HOUSE_MODES = {"rules": "S0's method: reactive rules (Appendix B) only",
+               "planner": "ours: occupancy grid + A*, with S0's rules for close obstacles"}
+ROOMS = ((-1, -1), (1, -1), (1, 1), (-1, 1))  # the house's quadrants
 
 
-def house_run(seed: int) -> dict[str, Any]:
-    """Experiment 2: the four-room house, configuration 5, a random tag room per seed."""
+def room_point(room: int, rng: np.random.Generator, scenario) -> tuple[float, float]:
+    """A random free point in ``room``, 0.7 m clear of walls and furniture."""
+    sx, sy = ROOMS[room]
+    for _ in range(1000):
+        p = (sx * float(rng.uniform(0.7, 5.2)), sy * float(rng.uniform(0.7, 5.2)))
+        if not any(o.contains(*q) for o in scenario.world.obstacles for q in (p, *_probe_ring(p))):
+            return p
+    raise RuntimeError(f"no free point in room {room}")
+
+
+def _probe_ring(p: tuple[float, float], r: float = 0.7) -> list[tuple[float, float]]:
+    return [(p[0] + r * math.cos(a), p[1] + r * math.sin(a)) for a in np.linspace(0, 2 * math.pi, 12, endpoint=False)]
+
+
+def house_run(seed: int, pair: int, mode: str = "planner", campaign_seed: int = 0) -> dict[str, Any]:
+    """Experiment 2: the four-room house, configuration 5; start and tag in random points of
+    start/goal room pair ``pair`` (0–15), the same for both modes of a seed."""
+    rng = np.random.default_rng([seed, 0x40])
     scenario = load("s0-house", seed=seed)
-    target = scenario.world.targets[0].position
-    run = closed_loop.run(scenario, HOUSE_CONFIG, seed)
-    return {"seed": seed, "target": [round(v, 3) for v in target], **closed_loop.metrics(run, target)}
+    start_room, goal_room = divmod(pair, 4)
+    target = room_point(goal_room, rng, scenario)
+    scenario = load("s0-house", seed=seed, target=target)
+    x, y = room_point(start_room, rng, scenario)
+    while math.dist((x, y), target) < 2.0:  # a homing, not a start on the tag
+        x, y = room_point(start_room, rng, scenario)
+    scenario.world.robot.x, scenario.world.robot.y = x, y
+    scenario.world.robot.theta = float(rng.uniform(-math.pi, math.pi))
+    base = HOUSE_CONFIG if mode == "planner" else replace(HOUSE_CONFIG, plan=replace(HOUSE_CONFIG.plan, enabled=False))
+    run = closed_loop.run(scenario, host_config("s0-house", campaign_seed, None, base), seed)
+    return {"seed": seed, "mode": mode, "rooms": [start_room, goal_room], "start": [round(x, 3), round(y, 3)],
+            "target": [round(v, 3) for v in target], **closed_loop.metrics(run, target)}
 
 
 def house_jobs(runs: int, seed: int) -> list[Job]:
-    return [Job(k, "rfhoming.campaigns.s0:house_run", {"seed": seed * 100_000 + k}) for k in range(runs)]
+    return [Job(2 * k + j, "rfhoming.campaigns.s0:house_run",
+                {"seed": seed * 100_000 + k, "pair": k % 16, "mode": mode, "campaign_seed": seed})
+            for k in range(runs) for j, mode in enumerate(HOUSE_MODES)]
 
 
 def house_report(rows: list[dict[str, Any]]) -> Report:
-    s = summarise(rows)
-    md = table(["source", *HEADER], [["paper, Experiment 2 (80 runs)", *HOUSE],
-                                     [f"ours ({s['runs']} runs)", *(s[k] for k in METRICS)]])
+    lines: list[list[Any]] = [["paper, Experiment 2 (80 runs)", *HOUSE]]
+    summary = {}
+    for mode, label in HOUSE_MODES.items():
+        s = summarise([r for r in rows if r["mode"] == mode])
+        summary[mode] = s
+        lines.append([f"{label} ({s['runs']} runs)", *(s[k] for k in METRICS)])
+    s = summary["planner"]
+    md = table(["source", *HEADER], lines)
     failures = [r for r in rows if not r["success"]]
-    md += failed_runs(failures, lambda r: f"seed {r['seed']} target {r['target']}")
+    md += failed_runs(failures, lambda r: f"{r['mode']} seed {r['seed']} rooms {r['rooms']} target {r['target']}")
 
     def plot(path):
         fig, axes = figure(path, 2)
-        ok = [r for r in rows if r["success"]]
+        ok = [r for r in rows if r["success"] and r["mode"] == "planner"]
         axes[0].hist([r["time_s"] for r in ok], bins=20)
         axes[0].axvline(HOUSE[1], color="k", ls="--", label="paper mean")
         axes[0].set_title("time to target (s)")
@@ -125,12 +183,12 @@ def house_report(rows: list[dict[str, Any]]) -> Report:
         axes[1].set_title("path efficiency")
         save(fig, path)
 
-    return Report({"summary": s, "failures": failures}, md, {"s0-house.png": plot})
+    return Report({"summary": summary, "failures": failures}, md, {"s0-house.png": plot})
 
 
 TABLE3_CAMPAIGN = Campaign(
     "s0-table3", "S0 Table 3: 5 noise configurations x targets, idealised and realistic",
     "targets per configuration (split evenly over the quadrants)", 40, table3_jobs, table3_report)
 HOUSE_CAMPAIGN = Campaign(
-    "s0-house", "S0 Experiment 2: four-room house, configuration 5, avoidance and A*",
-    "runs (a random tag room each)", 80, house_jobs, house_report)
+    "s0-house", "S0 Experiment 2: four-room house, configuration 5, S0's rules and ours (A*)",
+    "runs (random start and tag over the 16 room pairs; each run with both methods)", 80, house_jobs, house_report)

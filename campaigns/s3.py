@@ -1,11 +1,18 @@
-"""S3 (2025): RSSI filters on Table I's noise profile, and trilateration vs multilateration on
-the 5 × 5 m arena with four corner beacons.
+"""S3 (2025): RSSI filters on Table I's noise profile, and trilateration vs multilateration
+with four corner beacons at S3's nine test points, (−2.5, 0, 2.5 m)².
 
 RSSI at a distance is drawn from S3's own measurements (Table I: mean and std per distance,
-linearly interpolated between the tabulated distances; ESP32 RSSI is an integer). Filters run
-in the host's fixed point (Q8.8 dBm): running median of 5, EMA (α = 1/8), scalar Kalman
-(q = 0.05, r = 16 dB², the [trilat] defaults). Ranges come from the paper's log-distance fit
-(RSSI(1 m) = −64.3 dBm, n = 2.7).
+linearly interpolated between the tabulated distances; ESP32 RSSI is an integer; beyond 5 m the
+mean continues on a log-distance curve with n = 2.7 and the std stays at 5 m's). Each beacon
+link also carries a bias drawn once per fix (σ ``LINK_SIGMA_DB``; S3 gives none, the real
+recordings show 3–6 dB). Filters run in the host's fixed point (Q8.8 dBm): running median of
+5, EMA (α = 1/8), scalar Kalman (q = 0.05, r = 16 dB², the [trilat] defaults). Ranges come from
+S3's own exponential fit, d = 0.0165 e^(−0.0662 RSSI) (the model S3 chose over n = 2.7).
+
+S3 reports one measurement per test point; here every fix is one measurement (5 s of
+Kalman-filtered RSSI per beacon), repeated ``runs`` times per point to give its spread. The
+arena's size is not given: the beacons sit at the corners of a 6 m and of a 7 m square (the
+test points must lie inside), and both are shown.
 """
 
 from __future__ import annotations
@@ -19,16 +26,22 @@ from rfhoming.campaigns.runner import Campaign, Job, Report
 from rfhoming.host.estimation.bearings import Degenerate
 from rfhoming.host.estimation.filters import ema_batch, kalman_batch, running_median_batch
 from rfhoming.host.estimation.lateration import multilaterate, strongest_three, trilaterate
-from rfhoming.host.estimation.ranging import LogDistance
+from rfhoming.host.estimation.ranging import Exponential, LogDistance
 
 TABLE1_D = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0])
 TABLE1_MEAN = np.array([-17.04, -44.80, -64.30, -69.48, -75.62, -76.92, -79.44, -79.60, -83.84, -79.45, -87.23])
 TABLE1_STD = np.array([0.21, 3.13, 4.36, 6.66, 1.58, 3.39, 3.20, 2.10, 4.67, 5.38, 7.01])
 PAPER_KALMAN_STD = (0.017, 1.092)  # after filtering, dB (range over the distances)
 PAPER_ERROR_CM = {"trilateration": (0, 216), "multilateration": (54, 361)}  # over 9 test points
-ANCHORS = np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 5.0], [0.0, 5.0]])
-POINTS = [(x, y) for y in (1.25, 2.5, 3.75) for x in (1.25, 2.5, 3.75)]
-RANGING = LogDistance(-64.3, 2.7, 1.0)
+ARENAS = {"6 m": 3.0, "7 m": 3.5}  # beacons at (±h, ±h)
+POINTS = [(x, y) for y in (2.5, 0.0, -2.5) for x in (-2.5, 0.0, 2.5)]
+PAPER_POINT_CM = {  # S3 Tables II and III: one measurement per point
+    (0.0, 0.0): (0, 281.68), (2.5, 2.5): (25.50, 75.56), (-2.5, 2.5): (63.38, 53.85), (-2.5, -2.5): (41.16, 361.46),
+    (2.5, -2.5): (216.08, 129.95), (0.0, 2.5): (105.06, 179.65), (-2.5, 0.0): (59.98, 107.88),
+    (0.0, -2.5): (141.20, 210.43), (2.5, 0.0): (116.70, 89.49)}
+RANGING = Exponential(0.0165, -0.0662)  # S3's fit
+BEYOND_TABLE = LogDistance(-64.3, 2.7, 1.0)  # the simulated radio beyond Table I's 5 m
+LINK_SIGMA_DB = 3.0
 SAMPLES = 500  # per distance, as in Table I
 FIX_SAMPLES = 50  # RSSI samples per beacon behind one position fix (5 s at 10 Hz)
 
@@ -37,7 +50,7 @@ def rssi_at(distance: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarra
     """(n, len(distance)) integer RSSI with Table I's mean and std at each distance (beyond 5 m
     the last std, the mean continued by the fit)."""
     d = np.asarray(distance, float)
-    mean = np.where(d <= 5.0, np.interp(d, TABLE1_D, TABLE1_MEAN), RANGING.rssi(np.maximum(d, 1e-3)))
+    mean = np.where(d <= 5.0, np.interp(d, TABLE1_D, TABLE1_MEAN), BEYOND_TABLE.rssi(np.maximum(d, 1e-3)))
     std = np.interp(np.minimum(d, 5.0), TABLE1_D, TABLE1_STD)
     return np.round(mean + std * rng.standard_normal((n, len(d))))
 
@@ -52,15 +65,21 @@ def filters_run(seed: int) -> dict[str, Any]:
     return {"kind": "filters", **{k: np.round(v[20:].std(axis=0), 4).tolist() for k, v in out.items()}}
 
 
-def point_run(point: int, seed: int) -> dict[str, Any]:
+def anchors(arena: str) -> np.ndarray:
+    h = ARENAS[arena]
+    return np.array([[-h, -h], [h, -h], [h, h], [-h, h]])
+
+
+def point_run(point: int, seed: int, arena: str = "6 m") -> dict[str, Any]:
     """One fix at test point ``point``: Kalman-filtered RSSI per beacon -> ranges -> both methods."""
     rng = np.random.default_rng(seed)
     truth = np.array(POINTS[point])
+    ANCHORS = anchors(arena)
     d = np.linalg.norm(ANCHORS - truth, axis=1)
-    raw = rssi_at(d, FIX_SAMPLES, rng)
+    raw = rssi_at(d, FIX_SAMPLES, rng) + np.round(rng.normal(0, LINK_SIGMA_DB, len(d)))
     rssi = kalman_batch((raw * 256).astype(np.int64), 0.05, 16.0)[-1] / 256
     ranges = np.asarray(RANGING.distance(rssi), float)
-    row: dict[str, Any] = {"kind": "fix", "point": point}
+    row: dict[str, Any] = {"kind": "fix", "point": point, "arena": arena}
     try:
         top = strongest_three(rssi)
         row["trilateration_m"] = round(float(np.linalg.norm(trilaterate(ANCHORS[top], ranges[top]) - truth)), 4)
@@ -75,9 +94,11 @@ def point_run(point: int, seed: int) -> dict[str, Any]:
 
 def jobs(runs: int, seed: int) -> list[Job]:
     out = [Job(0, "rfhoming.campaigns.s3:filters_run", {"seed": seed})]
-    for p in range(len(POINTS)):
-        for k in range(runs):
-            out.append(Job(len(out), "rfhoming.campaigns.s3:point_run", {"point": p, "seed": seed * 100_000 + p * 10_000 + k}))
+    for arena in ARENAS:
+        for p in range(len(POINTS)):
+            for k in range(runs):
+                out.append(Job(len(out), "rfhoming.campaigns.s3:point_run",
+                               {"point": p, "seed": seed * 100_000 + p * 10_000 + k, "arena": arena}))
     return out
 
 
@@ -90,25 +111,45 @@ def report(rows: list[dict[str, Any]]) -> Report:
     md += (f"\n\nPaper: Kalman-filtered std {PAPER_KALMAN_STD[0]}–{PAPER_KALMAN_STD[1]} dB; ours "
            f"{min(filt['kalman']):.3f}–{max(filt['kalman']):.3f} dB.\n\n")
     fixes = [r for r in rows if r["kind"] == "fix"]
-    summary: dict[str, Any] = {"filters_std_db": {n: filt[n] for n in names}, "points": []}
-    plines = []
-    for p, xy in enumerate(POINTS):
-        rs = [r for r in fixes if r["point"] == p]
-        t = [r["trilateration_m"] for r in rs if r["trilateration_m"] is not None]
-        m = [r["multilateration_m"] for r in rs if r["multilateration_m"] is not None]
-        entry = {"point": xy, "fixes": len(rs), "trilateration_cm": round(100 * float(np.mean(t)), 1) if t else None,
-                 "multilateration_cm": round(100 * float(np.mean(m)), 1) if m else None}
-        summary["points"].append(entry)
-        plines.append([f"({xy[0]:g}, {xy[1]:g})", entry["fixes"], entry["trilateration_cm"], entry["multilateration_cm"]])
-    for method in ("trilateration", "multilateration"):
-        values = [e[f"{method}_cm"] for e in summary["points"] if e[f"{method}_cm"] is not None]
-        summary[method] = {"min_cm": min(values), "max_cm": max(values), "mean_cm": round(float(np.mean(values)), 1)}
-    md += "Mean position error (cm) per test point, Kalman-filtered RSSI over 5 s per beacon:\n\n"
-    md += table(["point m", "fixes", "trilateration (3 strongest)", "multilateration (all 4)"], plines)
-    md += "\n\n" + table(["method", "paper range cm", "ours range cm", "ours mean cm"],
-                         [[m, "–".join(map(str, PAPER_ERROR_CM[m])),
-                           f"{summary[m]['min_cm']}–{summary[m]['max_cm']}", summary[m]["mean_cm"]]
-                          for m in PAPER_ERROR_CM])
+    summary: dict[str, Any] = {"filters_std_db": {n: filt[n] for n in names}, "arenas": {}}
+    methods = ("trilateration", "multilateration")
+    for arena in ARENAS:
+        plines, entries = [], []
+        for p, xy in enumerate(POINTS):
+            rs = [r for r in fixes if r["point"] == p and r["arena"] == arena]
+            entry: dict[str, Any] = {"point": xy, "fixes": len(rs)}
+            for m in methods:
+                v = 100 * np.array([r[f"{m}_m"] for r in rs if r[f"{m}_m"] is not None])
+                entry[m] = {"median_cm": round(float(np.median(v)), 1), "p10_cm": round(float(np.percentile(v, 10)), 1),
+                            "p90_cm": round(float(np.percentile(v, 90)), 1)} if len(v) else None
+            entries.append(entry)
+            paper = PAPER_POINT_CM[xy]
+            plines.append([f"({xy[0]:g}, {xy[1]:g})", entry["fixes"], paper[0],
+                           *(f"{e['median_cm']} ({e['p10_cm']}–{e['p90_cm']})" if e else None
+                             for e in [entry["trilateration"]]), paper[1],
+                           *(f"{e['median_cm']} ({e['p10_cm']}–{e['p90_cm']})" if e else None
+                             for e in [entry["multilateration"]])])
+        wins = sum(1 for e in entries if e["trilateration"] and e["multilateration"]
+                   and e["trilateration"]["median_cm"] < e["multilateration"]["median_cm"])
+        medians = {m: [e[m]["median_cm"] for e in entries if e[m]] for m in methods}
+        summary["arenas"][arena] = {"points": entries, "trilateration_better_at": wins,
+                                    **{m: {"min_cm": min(medians[m]), "max_cm": max(medians[m]),
+                                           "mean_cm": round(float(np.mean(medians[m])), 1)} for m in methods}}
+        md += (f"Arena {arena} (beacons at its corners): position error (cm) per test point, one fix = 5 s of "
+               f"Kalman-filtered RSSI per beacon; ours: median (10th–90th percentile) over the fixes:\n\n")
+        md += table(["point m", "fixes", "paper trilateration", "ours trilateration (3 strongest)",
+                     "paper multilateration", "ours multilateration (all 4)"], plines)
+        md += "\n\n"
+    paper_wins = sum(1 for t, m in PAPER_POINT_CM.values() if t < m)
+    md += table(["source", "trilateration range over points cm", "multilateration range cm",
+                 "points where trilateration is better"],
+                [["paper (one measurement per point)", "–".join(map(str, PAPER_ERROR_CM["trilateration"])),
+                  "–".join(map(str, PAPER_ERROR_CM["multilateration"])), f"{paper_wins}/9"]]
+                + [[f"ours, arena {a} (medians per point)",
+                    f"{summary['arenas'][a]['trilateration']['min_cm']}–{summary['arenas'][a]['trilateration']['max_cm']}",
+                    f"{summary['arenas'][a]['multilateration']['min_cm']}–{summary['arenas'][a]['multilateration']['max_cm']}",
+                    f"{summary['arenas'][a]['trilateration_better_at']}/9"] for a in ARENAS])
+    summary["paper_trilateration_better_at"] = paper_wins
 
     def plot(path):
         fig, axes = figure(path, 2)
@@ -118,15 +159,18 @@ def report(rows: list[dict[str, Any]]) -> Report:
         axes[0].set_title("RSSI std after filtering (dB)")
         axes[0].legend()
         x = np.arange(len(POINTS))
-        axes[1].bar(x - 0.2, [e["trilateration_cm"] for e in summary["points"]], 0.4, label="trilateration")
-        axes[1].bar(x + 0.2, [e["multilateration_cm"] for e in summary["points"]], 0.4, label="multilateration")
+        first = summary["arenas"][next(iter(ARENAS))]["points"]
+        for i, m in enumerate(("trilateration", "multilateration")):
+            axes[1].bar(x + (i - 0.5) * 0.4, [e[m]["median_cm"] if e[m] else np.nan for e in first], 0.4, label=f"ours {m}")
+            axes[1].plot(x, [PAPER_POINT_CM[p][i] for p in POINTS], "o" if i == 0 else "s", color="k",
+                         label=f"paper {m}", mfc="none" if i else "k")
         axes[1].set_xticks(x, [f"{p[0]:g},{p[1]:g}" for p in POINTS], rotation=45)
-        axes[1].set_title("mean error per test point (cm)")
-        axes[1].legend()
+        axes[1].set_title(f"error per test point, arena {next(iter(ARENAS))} (cm)")
+        axes[1].legend(fontsize=7)
         save(fig, path)
 
     return Report(summary, md, {"s3-arena.png": plot})
 
 
 CAMPAIGN = Campaign("s3-arena", "S3: RSSI filters on Table I's noise; trilateration vs multilateration",
-                    "fixes per test point", 200, jobs, report)
+                    "fixes per test point (in each arena size)", 100, jobs, report)

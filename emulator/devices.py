@@ -20,7 +20,7 @@ from rfhoming.emulator.world import Target, World
 from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
 from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware
 from rfhoming.firmware.esp_at import EspAtFirmware
-from rfhoming.firmware.robot_base import RobotBaseFirmware
+from rfhoming.firmware.robot_base import RobotBaseFirmware, Slip
 from rfhoming.firmware.xplr_aoa import Advertisement, XplrAoaFirmware
 from rfhoming.protocol.uconnect import Dialect
 
@@ -308,9 +308,11 @@ class BaseRunner(DeviceRunner):
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], start: tuple[float, float, float], radius: float) -> None:
-        super().__init__(name, lambda: RobotBaseFirmware(0, start_pose=start), link, faults, rng)
+        slip = Slip(*map(float, options.get("slip", (0.0, 0.0, 0.0))))  # odometry: v scale, ω scale, yaw drift rad/s
+        super().__init__(name, lambda: RobotBaseFirmware(0, start_pose=start, slip=slip), link, faults, rng)
         self.baud = int(options.get("baud", DEFAULT_BAUD))
         self.scan = bool(options.get("scan", False))
+        self.scan_noise_m = float(options.get("scan_noise_m", 0.0))  # σ of each range
         self.radius = radius
         self.commanded = asyncio.Event()
         self._next_scan = 0.0
@@ -340,6 +342,8 @@ class BaseRunner(DeviceRunner):
             self._next_scan = t1 + self.SCAN_PERIOD_S
             angles = np.linspace(-math.pi / 2, math.pi / 2, self.SCAN_BEAMS)
             ranges = world.cast((r.x, r.y), angles + r.theta, self.SCAN_RANGE_M)
+            if self.scan_noise_m > 0:
+                ranges = np.maximum(ranges + self.rng.normal(0, self.scan_noise_m, len(ranges)), 0.0)
             fw.send_scan(-math.pi / 2, math.pi / (self.SCAN_BEAMS - 1),
                          [None if not math.isfinite(d) else float(d) for d in ranges])
 

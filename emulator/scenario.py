@@ -52,7 +52,7 @@ def presets() -> list[str]:
 def _read(name_or_path: str) -> dict[str, Any]:
     path = Path(name_or_path)
     try:
-        if path.suffix == ".toml" or path.exists():
+        if path.suffix == ".toml" or path.is_file():  # a directory named like a preset is not a scenario
             text = path.read_text()
         else:
             resource = resources.files("rfhoming.emulator.scenarios") / f"{name_or_path}.toml"

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from rfhoming.campaigns import kinematic, s1, s3, s4
+from rfhoming.campaigns import kinematic, s0, s1, s3, s4
 from rfhoming.cli.campaign import REGISTRY, load
 from rfhoming.campaigns.runner import Job, execute, run_jobs
 from rfhoming.cli.main import main
@@ -18,7 +18,7 @@ from rfhoming.host.homing.s0_aoa import S0Params
 
 def test_inline_process_and_dask_give_identical_results() -> None:
     distributed = pytest.importorskip("distributed")
-    jobs = load("s0-table3").jobs(2, 7)[:6]  # configuration 1: two idealised, two realistic, …
+    jobs = load("s0-table3").jobs(2, 7)[:8]  # configuration 1: two runs in each mode
 
     def results(rows):  # everything but the wall time
         return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
@@ -27,9 +27,9 @@ def test_inline_process_and_dask_give_identical_results() -> None:
     pooled = results(run_jobs(jobs, workers=2))
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         on_dask = results(run_jobs(jobs, dask_address=cluster.scheduler_address))
-    assert {r["mode"] for r in inline} == {"idealised", "realistic"}
+    assert {r["mode"] for r in inline} == set(s0.MODES)
     assert inline == pooled == on_dask
-    assert [r["index"] for r in inline] == list(range(6))
+    assert [r["index"] for r in inline] == list(range(8))
 
 
 def test_a_job_failure_is_raised_not_swallowed() -> None:
@@ -102,6 +102,50 @@ def test_cli_writes_json_markdown_and_plot(tmp_path, capsys) -> None:
     summary = json.loads(capsys.readouterr().out)
     assert summary["command"] == "rfhoming campaign s3-arena --runs 3 --seed 0"
     saved = json.loads((tmp_path / "s3-arena.json").read_text())
-    assert len(saved["rows"]) == 1 + 9 * 3
-    assert "| trilateration |" in (tmp_path / "s3-arena.md").read_text()
+    assert len(saved["rows"]) == 1 + len(s3.ARENAS) * 9 * 3
+    assert "| paper (one measurement per point) |" in (tmp_path / "s3-arena.md").read_text()
+    assert saved["wall_s"] > 0
     assert (tmp_path / "s3-arena.png").stat().st_size > 1000
+
+
+def test_missing_optional_package_fails_before_any_job() -> None:
+    from dataclasses import replace as dc_replace
+
+    from rfhoming.campaigns.runner import CampaignError
+
+    campaign = dc_replace(load("s3-arena"), requires=("no_such_package_rfhoming",))
+    with pytest.raises(CampaignError, match="needs no_such_package_rfhoming: pip install"):
+        campaign.check_requirements()
+    assert load("s4-montecarlo").requires == ("filterpy",)
+
+
+def test_checkpoint_keeps_finished_jobs_across_a_crash(tmp_path) -> None:
+    jobs = load("s3-arena").jobs(1, 3)[:4]
+    broken = jobs[:3] + [Job(3, "rfhoming.campaigns.s3:point_run", {"point": 99, "seed": 1})]  # IndexError
+    checkpoint = tmp_path / "s3.partial.jsonl"
+    with pytest.raises(IndexError):
+        run_jobs(broken, workers=1, checkpoint=checkpoint)
+    assert len(checkpoint.read_text().splitlines()) == 3
+    ran = []
+    rows = run_jobs(jobs, workers=1, checkpoint=checkpoint, progress=ran.append)
+    assert ran == [3, 1]  # three from the checkpoint, one run now
+    assert json.loads(json.dumps(rows)) == json.loads(json.dumps(run_jobs(jobs, workers=1)))
+
+
+def test_a_directory_named_like_a_scenario_does_not_shadow_it(tmp_path, monkeypatch) -> None:
+    from rfhoming.emulator.scenario import load as load_scenario
+
+    (tmp_path / "s1-dock").mkdir()  # e.g. left by `rfhoming campaign s1-dock --out s1-dock`
+    monkeypatch.chdir(tmp_path)
+    assert load_scenario("s1-dock").name == "s1-dock"
+
+
+def test_s4_smoother_removes_the_per_link_offsets_the_ekf_keeps() -> None:
+    from rfhoming.host.estimation.beacon import refine_batch
+
+    z, u, rssi, beacons = s4.flights(2, seed=5)
+    ekf, _, _ = s4.run_filter("ekf", z, u, rssi, "area")
+    smoothed, offsets = refine_batch(s4.MODEL, np.repeat(z[1:], s4.BEACONS_PER_FLIGHT, axis=1), rssi, ekf)
+    before, after = (np.linalg.norm(e - beacons, axis=1) for e in (ekf, smoothed))
+    assert after.mean() < 0.15 and after.mean() < before.mean() / 2
+    assert np.median(np.abs(offsets)) > 0.5  # it did find offsets (S4's are ±2 dB per link)

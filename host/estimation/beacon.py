@@ -254,3 +254,51 @@ def initial_state(model: S4Model, receivers: np.ndarray, beacon: np.ndarray, bea
     p[:, :rd, :rd] = np.eye(rd) * model.r_pos
     p[:, rd:, rd:] = beacon_cov
     return x, p
+
+
+def refine_batch(model: S4Model, receivers: np.ndarray, rssi: np.ndarray, beacon: np.ndarray,
+                 offset_sigma_db: float = 2.0, iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """A smoother after the filter: the beacon position and one RSSI offset per receiver link,
+    fitted jointly to every reading of the flight (Gauss-Newton, from the filter's estimate).
+
+    The per-link offset (S4's μχ, drawn once per link) is a bias the forward filter cannot
+    average away; jointly over the whole flight it is separable from range, because the
+    receivers pass the beacon from many sides. The offsets carry a zero-mean prior of
+    ``offset_sigma_db`` so that a link heard from one side only cannot trade its offset
+    against range without bound. receivers (S, K, M, D) measured positions; rssi (S, K, M), NaN
+    where unheard; beacon (K, D). Returns (beacon (K, D), offsets (K, M) dB)."""
+    b = np.array(beacon, float)[:, :2].copy()
+    k, m = b.shape[0], model.receivers
+    pos = np.asarray(receivers, float)[..., :2]
+    heard = ~np.isnan(rssi)
+    s_obs = np.nan_to_num(rssi)
+    offsets = np.zeros((k, m))
+    slope = 10 * model.n / LN10
+    prior = 1.0 / offset_sigma_db**2
+    count = heard.sum(axis=0)  # readings per link, (K, M)
+    px, py = pos[..., 0], pos[..., 1]
+    for _ in range(iterations):
+        dx, dy = px - b[None, :, None, 0], py - b[None, :, None, 1]  # p - b, (S, K, M)
+        d2 = np.maximum(dx * dx + dy * dy, 1e-4)
+        pred = model.p0_dbm + offsets[None] - 5 * model.n * np.log10(d2)
+        r = np.where(heard, s_obs - pred, 0.0)
+        w = np.where(heard, slope / d2, 0.0)
+        gx, gy = w * dx, w * dy  # ∂pred/∂b, (S, K, M)
+        a = np.zeros((k, 2 + m, 2 + m))
+        a[:, 0, 0] = np.einsum("skm,skm->k", gx, gx)
+        a[:, 1, 1] = np.einsum("skm,skm->k", gy, gy)
+        a[:, 0, 1] = a[:, 1, 0] = np.einsum("skm,skm->k", gx, gy)
+        a[:, 0, 2:] = a[:, 2:, 0] = gx.sum(axis=0)  # against ∂pred/∂o_m = 1
+        a[:, 1, 2:] = a[:, 2:, 1] = gy.sum(axis=0)
+        a[:, 2:, 2:] = (count + prior)[:, :, None] * np.eye(m)[None]
+        rhs = np.concatenate([np.einsum("skm,skm->k", gx, r)[:, None], np.einsum("skm,skm->k", gy, r)[:, None],
+                              r.sum(axis=0) - prior * offsets], axis=1)
+        a[:, :2, :2] += np.eye(2) * 1e-3 * (a[:, 0, 0] + a[:, 1, 1])[:, None, None]  # damping
+        step = np.linalg.solve(a, rhs[..., None])[..., 0]
+        move = step[:, :2]
+        norm = np.linalg.norm(move, axis=1, keepdims=True)
+        b += move * np.minimum(1.0, 0.5 / np.maximum(norm, 1e-12))  # at most 0.5 m a step
+        offsets += step[:, 2:]
+    out = np.array(beacon, float).copy()
+    out[:, :2] = b
+    return out, offsets

@@ -215,6 +215,7 @@ seed = 0                 # the particle filter's random stream (reproducible run
 motion = "full"          # "full": grid + A* (when scans come); "preliminary": S2's rules
 obstacle_m = 0.2         # preliminary: turn until clear when an obstacle is this close ahead
 likelihood = "s2"        # particle weights: "s2" (the paper's); "bounded": a range as an upper bound (walls)
+dish_offsets_db = [0.0, 0.0, 0.0, 0.0]  # x1, x2, y1, y2: each dish's own offset, subtracted (calibration)
 
 [s1]                     # docking (S1): the station's AoA and RSSI of the robot's tag
 g_a = 0.25               # heading step per dB of RSSI_diff per degree of AoA change
@@ -237,6 +238,8 @@ align = true             # at the end, turn onto the station's axis fitted from 
 standoff_m = 0.3         # where rssi_arrival_dbm is received (the docked position)
 path_n = 2.0             # path-loss exponent for the fit's RSSI ranges
 align_min_spread_m = 0.5 # the fit needs this much movement along the approach
+# mission_goal = [0.4, 3.6]  # the station on the robot's map: drive there before the docking stage (default: wait)
+mission_stop_m = 0.8     # the mission stage stops this far from mission_goal
 
 [trilat]                 # S3: go to a goal, localised on BLE beacons at known places
 goal = [0.0, 0.0]        # where to go, in the beacons' frame (m)

@@ -5,8 +5,9 @@ The station's array measures the robot's tag; the robot receives those readings 
 and of AoA (fixed point, host.estimation.filters). RSSI_diff = RSSI_arrival − RSSÎ.
 
 Stages, with hysteresis: docking when RSSÎ > −73 dBm, back to mission below −76 dBm, kept in
-between (in "mission" the robot waits: reaching the station's neighbourhood is another
-controller's job). While docking and RSSI_diff > α, steps of
+between. In "mission" S1's robot navigates on its map toward the station; here, with
+``mission_goal`` (the station's position on the robot's map, in the odometry frame) the robot
+drives toward it and stops ``mission_stop_m`` short, and without it the robot waits. While docking and RSSI_diff > α, steps of
     Δθ = G_a · RSSI_diff · (AoÂ_k − AoÂ_{k−1})   (degrees)
     Δr = G_d · RSSI_diff                          (metres, capped by ``max_step_m``)
 are taken: rotate by Δθ, then drive Δr. Re-alignment: when RSSI_diff < β and |AoÂ| > γ, the
@@ -36,7 +37,7 @@ import numpy as np
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.estimation.filters import MovingAverage
 from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
-from rfhoming.host.homing.types import Decision, Pose
+from rfhoming.host.homing.types import Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,8 @@ class S1Params:
     standoff_m: float = 0.3  # where rssi_arrival_dbm is received (the docked position)
     path_n: float = 2.0  # path-loss exponent for the fit's RSSI ranges
     align_min_spread_m: float = 0.5  # the fit needs the robot to have moved this far along the approach
+    mission_goal: tuple[float, float] | None = None  # the station on the robot's map (mission stage)
+    mission_stop_m: float = 0.8  # the mission stage stops this far from mission_goal
 
 
 class DockController:
@@ -128,7 +131,7 @@ class DockController:
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         p = self.params
         if self.stage != "docking" or self.rssi is None:
-            return Decision(0.0, 0.0, None, False, "waiting: not in the docking stage")
+            return self._mission(pose)
         if self.rssi_diff <= p.alpha_db or self.axis is not None:
             if p.align and self.axis is None:
                 self.axis = self.approach_heading()
@@ -149,6 +152,18 @@ class DockController:
             return Decision(0.0, 0.0, (x, y), False, "step done")
         v = max(p.v_min, min(p.v_max, remaining))
         return Decision(v, max(-p.w_max, min(p.w_max, 1.5 * turn)), (x, y), False, "driving")
+
+    def _mission(self, pose: Pose) -> Decision:
+        """Before the docking stage: toward the station on the map (S1's mission stage), or wait."""
+        p = self.params
+        if p.mission_goal is None or self.rssi is None:
+            return Decision(0.0, 0.0, None, False, "waiting: not in the docking stage")
+        gx, gy = p.mission_goal
+        d = math.hypot(gx - pose.x, gy - pose.y) - p.mission_stop_m
+        if d <= 0:
+            return Decision(0.0, 0.0, None, False, "mission: at the station, waiting for the docking stage")
+        v, w = velocity_law(wrap_rad(math.atan2(gy - pose.y, gx - pose.x) - pose.theta), d, p.v_max, p.w_max, 1.5, 0.8)
+        return Decision(v, w, (gx, gy), False, "mission: toward the station on the map")
 
     def approach_heading(self) -> float | None:
         """The heading that faces the station along its axis, in the odometry frame; None when

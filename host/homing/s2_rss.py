@@ -15,7 +15,10 @@ nearest to S2's rule, since such a range reads long and almost never short.
 
 Calibration (config [s2]): the emitter's power at 1 m for an isotropic antenna (p0_dbm), the
 path-loss exponent, and the dishes' peak gain (6.6 dBi for 0.3 m dishes at 915 MHz,
-10 log10(0.55 (π d / λ)²)).
+10 log10(0.55 (π d / λ)²)); or, from a calibration run through the dishes themselves, p0_dbm
+with the gain inside it (peak_gain_db = 0). ``dish_offsets_db`` (x1, x2, y1, y2) are each
+dish's own offset (chip and dish), measured with each dish facing the emitter in turn and
+subtracted from its power before the direction and range are computed.
 """
 
 from __future__ import annotations
@@ -50,6 +53,12 @@ class S2Params:
     motion: str = "full"  # "full": the loop's grid + A*; "preliminary": S2's rule-based motion
     obstacle_m: float = 0.2  # preliminary: an obstacle this close ahead means turn until clear
     likelihood: str = "s2"  # the particle filter's weights: "s2" or "bounded" (host.estimation.particle)
+    dish_offsets_db: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # x1, x2, y1, y2
+
+    def __post_init__(self) -> None:  # a TOML list becomes the tuple the default is
+        object.__setattr__(self, "dish_offsets_db", tuple(float(v) for v in self.dish_offsets_db))
+        if len(self.dish_offsets_db) != 4:
+            raise ValueError("[s2] dish_offsets_db needs four values: x1, x2, y1, y2")
 
 
 class RssController:
@@ -87,8 +96,9 @@ class RssController:
             self.incomplete += 1
             return {"incomplete": True}
         p = self.params
-        theta, diff_db = direction(*item.dbm)
-        rng = differential_to_range(np.array(item.dbm), p.p0_dbm, p.n, p.peak_gain_db)
+        dbm = [v - o for v, o in zip(item.dbm, p.dish_offsets_db)]  # type: ignore[operator]
+        theta, diff_db = direction(*dbm)
+        rng = differential_to_range(np.array(dbm), p.p0_dbm, p.n, p.peak_gain_db)
         if self._last_t is not None:
             self.pf.predict(max(t - self._last_t, 0.0))
         self._last_t = t

@@ -34,10 +34,12 @@ campaigns (default --runs in brackets):
 
 Each writes OUT/NAME.json (every run and the summary), OUT/NAME.md (the table beside the
 paper's, with the command) and OUT/NAME*.png. Seeds are fixed per job, so a campaign gives the
-same numbers on 1 worker, on K processes or on a Dask cluster.
+same numbers on 1 worker, on K processes or on a Dask cluster. Finished jobs are kept in
+OUT/NAME.partial.jsonl until the campaign completes: run the same command again after a crash
+or Ctrl-C and only the unfinished jobs run (delete that file after changing the code).
 
 examples:
-  rfhoming campaign s0-table3                    # all cores, results in ./rfhoming-s0-table3-DATE-TIME/
+  rfhoming campaign s0-table3                    # all cores, results in ./rfhoming-s0-table3-runs40-seed0/
   rfhoming campaign s0-table3 --out docs/results # refresh the committed tables (from the repository)
   rfhoming campaign s1-dock --runs 10 --json     # a quick look, JSON on stdout
   rfhoming campaign s4-montecarlo --dask tcp://10.0.0.5:8786
@@ -53,20 +55,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="local worker processes (default: all cores; 1 runs inline)")
     p.add_argument("--dask", metavar="ADDRESS", help="run the jobs on the Dask scheduler at ADDRESS instead")
-    p.add_argument("--out", type=Path, help="output directory (default: a new ./rfhoming-NAME-DATE-TIME; "
+    p.add_argument("--out", type=Path, help="output directory (default: ./rfhoming-NAME-runsN-seedS, named for the run; "
                    "docs/results to refresh the repository's committed tables)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_campaign)
 
 
-def fresh_folder(name: str) -> Path:
-    """A folder under the current directory that no earlier run wrote."""
-    stem = f"rfhoming-{name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    path, k = Path(stem), 1
-    while path.exists():
-        path, k = Path(f"{stem}-{k}"), k + 1
-    return path
+def default_folder(name: str, runs: int, seed: int) -> Path:
+    """Under the current directory, named for the run (never docs/results): the same command
+    finds its own checkpoint there after a crash."""
+    return Path(f"rfhoming-{name}-runs{runs}-seed{seed}")
 
 
 def load(name: str) -> Campaign:
@@ -82,13 +81,21 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if runs < 1:
         print(f"rfhoming campaign: --runs must be at least 1 ({campaign.runs_help})", file=sys.stderr)
         return 2
+    try:
+        campaign.check_requirements()
+    except CampaignError as exc:
+        print(f"rfhoming campaign: {exc}", file=sys.stderr)
+        return 2
     jobs = campaign.jobs(runs, args.seed)
+    args.out = args.out or default_folder(args.name, runs, args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    checkpoint = args.out / f"{args.name}.partial.jsonl"  # finished jobs survive a crash or Ctrl-C
     where = f"Dask at {args.dask}" if args.dask else f"{args.workers} worker(s)"
     t0 = time.perf_counter()
     with tqdm(total=len(jobs), desc=f"{args.name} ({where})", unit="job", disable=args.quiet,
               file=sys.stderr, dynamic_ncols=True) as bar:
         try:
-            rows = run_jobs(jobs, args.workers, args.dask, bar.update)
+            rows = run_jobs(jobs, args.workers, args.dask, bar.update, checkpoint)
         except CampaignError as exc:
             bar.close()
             print(f"rfhoming campaign: {exc}", file=sys.stderr)
@@ -99,13 +106,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     meta = {"campaign": args.name, "command": command, "runs": runs, "seed": args.seed, "jobs": len(jobs),
             "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
             "machine": platform.machine()}
-    args.out = args.out or fresh_folder(args.name)
-    args.out.mkdir(parents=True, exist_ok=True)
     (args.out / f"{args.name}.json").write_text(json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
     (args.out / f"{args.name}.md").write_text(
         f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where})\n\n{report.markdown}\n")
     for name, write in report.plots.items():
         write(args.out / name)
+    checkpoint.unlink()
     if args.json:
         print(json.dumps({**meta, "summary": report.summary}, indent=1))
     else:
