@@ -56,7 +56,7 @@ class AoaSetup:
     silence_timeout: float = 5.0
     """Streaming without one +UUDF this long: say why that may be."""
     choose_tag_s: float | None = None
-    """With no ``host_filter``: hold every event back for this long, listening; then home on
+    """With no ``host_filter``: hold every event back for this long of the board's time, listening; then home on
     the only tag heard, or report the tags heard (:attr:`AoaDriver.ambiguous_tags`) and keep
     holding. None: pass every tag on (listen, capture)."""
     probe_baud: bool = False
@@ -129,7 +129,7 @@ class AoaDriver(Driver):
         self.last_event: float | None = None
         self.chosen: frozenset[str] = setup.host_filter
         self.ambiguous_tags: list[str] = []
-        self._choosing_since: float | None = None
+        self._choosing_since: int | None = None  # the board's clock (ms) at the first event heard
         self._answer: asyncio.Future[Response] | None = None
         self._startup = asyncio.Event()
         self._last_valid = time.monotonic()
@@ -179,19 +179,19 @@ class AoaDriver(Driver):
                 log.info("%s: +UUDF has %s fields: dialect %s, not %s", self.port.name,
                          found.field_count, found.value, self.dialect.value)
                 self.dialect = found
-        if not self.chosen and self.setup.choose_tag_s is not None and not self._choose():
+        if not self.chosen and self.setup.choose_tag_s is not None and not self._choose(event.timestamp_ms):
             self.counters["held"] += 1
         elif self.chosen and event.instance_id not in self.chosen:
             self.counters["filtered"] += 1
         else:
             self.events.put(TimedAngle(t_host, event))
 
-    def _choose(self) -> bool:
-        """Listening for the tags in view: True once the only one heard is chosen."""
-        now = time.monotonic()
+    def _choose(self, board_ms: int) -> bool:
+        """Listening for the tags in view: True once the only one heard is chosen. Measured on
+        the board's clock, so a slow host (or a lockstep world) hears the same span of air."""
         if self._choosing_since is None:
-            self._choosing_since = now
-        if now - self._choosing_since < self.setup.choose_tag_s or self.ambiguous_tags:
+            self._choosing_since = board_ms
+        if board_ms - self._choosing_since < self.setup.choose_tag_s * 1000 or self.ambiguous_tags:
             return False
         if len(self.tags_heard) > 1:
             self.ambiguous_tags = sorted(self.tags_heard)
