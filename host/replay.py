@@ -4,14 +4,17 @@
 each recorded inbound chunk with its recorded timestamp, as fast as possible or at the recorded
 pace (``speed``). A recorded answer that followed one of the host's writes is released only
 after the driver has written again, so the driver's commands are answered from the capture in
-the order they were answered live. Writes that differ from the recording are counted
-(``diverged``): the replayed host did not do what the live one did.
+the order they were answered live. The replayed host's writes are matched one for one, in order,
+with the recorded ones (a host may write several times between two reads: the base's brake mode
+and its velocity); writes that differ from the recording are counted (``diverged``): the
+replayed host did not do what the live one did.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,6 +24,7 @@ from rfhoming.host.ports import Chunk, Disconnected, EndOfInput, Tap
 from rfhoming.protocol import pcapng
 
 ANSWER_TIMEOUT = 2.0
+MAX_PENDING_WRITES = 256  # writes not yet matched with the recording; beyond, the oldest go (diverged)
 
 
 class Sequencer:
@@ -60,12 +64,12 @@ class ReplayPort:
         self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0,
                          "disconnects": 0, "dropped_bytes": 0, "diverged": 0, "unanswered": 0}
         self._i = 0
+        self._writes: deque[bytes] = deque(maxlen=MAX_PENDING_WRITES)  # made, not yet matched
         self._written = asyncio.Event()
         self._open = False
         self._t0: tuple[float, float] | None = None
         self.sequencer = sequencer
         self._holding = False
-        self._last_write = b""
 
     @property
     def is_open(self) -> bool:
@@ -109,20 +113,24 @@ class ReplayPort:
         raise EndOfInput(f"{self.name}: end of capture")
 
     async def _await_write(self, expected: pcapng.Packet) -> None:
-        """The live host wrote here: wait until the replayed one writes too."""
-        if not self._written.is_set():
+        """The live host wrote here: match the replayed host's next write, waiting for it if
+        it has not come yet. Only the oldest unmatched write will do: keeping just the latest
+        would pair two writes in a row with one recorded write and leave the next unanswered."""
+        if not self._writes:
+            self._written.clear()
             try:
                 await asyncio.wait_for(self._written.wait(), ANSWER_TIMEOUT)
             except asyncio.TimeoutError:
                 self.counters["unanswered"] += 1
                 return
-        self._written.clear()
-        if self._last_write != expected.data:
+        if self._writes.popleft() != expected.data:
             self.counters["diverged"] += 1
 
     def write(self, data: bytes) -> None:
         self.counters["bytes_out"] += len(data)
-        self._last_write = data
+        if len(self._writes) == self._writes.maxlen:  # the oldest is never matched now
+            self.counters["diverged"] += 1
+        self._writes.append(data)
         self._written.set()
 
     async def _pace(self, t: float) -> None:

@@ -82,4 +82,6 @@ async def s3_replay(tmp_path: Path, live: dict[str, Any], make: Callable[[Any], 
     loop = trilat_loop(BaseDriver(ports["rss"]), sensor, s3_config(live["scenario"]), RunLog(out))
     reading_log(sensor, readings)
     outcome = await asyncio.wait_for(loop.run(), 60)
+    for port in ports.values():  # the replayed host wrote exactly what the live one did
+        assert port.counters["diverged"] == port.counters["unanswered"] == 0, (port.name, port.counters)
     return {"outcome": outcome, "log": [json.loads(x) for x in out.getvalue().splitlines()], "readings": readings}

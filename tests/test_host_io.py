@@ -344,6 +344,25 @@ async def replay(path: Path) -> dict[str, list]:
     return out
 
 
+async def test_replay_matches_writes_in_a_row_one_for_one() -> None:
+    """Two writes between reads (the loop's brake mode, then its velocity): each recorded write
+    is matched by its own replayed write, in order, and the answer after them is released."""
+    packets = [pcapng.Packet(0, 1.0, b"brake", pcapng.OUTBOUND), pcapng.Packet(0, 1.1, b"velocity", pcapng.OUTBOUND),
+               pcapng.Packet(0, 1.2, b"odometry", pcapng.INBOUND)]
+    port = ReplayPort("base", packets)
+    await port.open()
+    port.write(b"brake")
+    port.write(b"velocity")
+    chunk = await asyncio.wait_for(port.read(), 1.0)
+    assert chunk.data == b"odometry"
+    assert port.counters["diverged"] == 0 and port.counters["unanswered"] == 0
+    port = ReplayPort("base", packets)
+    port.write(b"velocity")
+    port.write(b"brake")  # the replayed host wrote in another order: both count
+    await port.read()
+    assert port.counters["diverged"] == 2
+
+
 async def test_capture_then_replay_gives_identical_records(tmp_path: Path) -> None:
     path, live = await record(tmp_path, 6.0, faults=["unplug@aoa:at=2,for=1", "reboot@aoa:at=4.5"])
     replayed = await replay(path)
