@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rfhoming.campaigns.closed_loop import PipePort
 from rfhoming.emulator.faults import Fault
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
@@ -168,27 +169,33 @@ async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) 
 
 
 async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int, config: Config = Config()):
-    """Closed loop on a preset with its own target, through ptys in lockstep; the controller
+    """Closed loop on a preset with its own target, in lockstep on the emulator's in-process
+    byte pipe (as campaigns run: the same bytes whatever the machine's load); the controller
     follows the scenario's sensor (XPLR-AOA -> S0, AT86RF212 node -> S2)."""
     sc = load(scenario, seed=seed)
     config = config.for_lockstep()
-    em = Emulator(sc, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path, lockstep_timeout=2.0)
+    em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=30.0)
     await em.start()
     world = asyncio.create_task(em.run())
     out = io.StringIO()
-    base = BaseDriver(HostPort(str(tmp_path / "base")))
+    names = {d.name for d in sc.devices}
+
+    def port(name: str) -> PipePort:
+        return PipePort(name, em.device(name).link.host)
+
+    base = BaseDriver(port("base"))
     target = sc.world.targets[0].position
-    if (tmp_path / "ble").exists():  # S3: a goal in the beacons' frame
+    if "ble" in names:  # S3: a goal in the beacons' frame
         config = replace(config, trilat=TrilatParams(anchors={t.id: list(t.position) for t in sc.world.targets},
                                                        goal=[4.0, 4.0]))
-        loop = trilat_loop(base, RssDriver(HostPort(str(tmp_path / "ble"))), config, RunLog(out))
+        loop = trilat_loop(base, RssDriver(port("ble")), config, RunLog(out))
         target = (4.0, 4.0)
-    elif (tmp_path / "dock_aoa").exists():
-        loop = dock_loop(base, AoaDriver(HostPort(str(tmp_path / "dock_aoa"))), config, RunLog(out))
-    elif (tmp_path / "aoa").exists():
-        loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), config, RunLog(out))
+    elif "dock_aoa" in names:
+        loop = dock_loop(base, AoaDriver(port("dock_aoa")), config, RunLog(out))
+    elif "aoa" in names:
+        loop = aoa_loop(base, AoaDriver(port("aoa")), config, RunLog(out))
     else:
-        loop = rss_loop(base, RssDriver(HostPort(str(tmp_path / "rss"))), config, RunLog(out))
+        loop = rss_loop(base, RssDriver(port("rss")), config, RunLog(out))
     try:
         outcome = await asyncio.wait_for(loop.run(), 120)
     finally:
