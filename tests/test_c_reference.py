@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from rfhoming.protocol.frames import RECORD_TYPES, AntennaReading, FrameDecoder, encode_frame
 from rfhoming.protocol.frames.codec import MAX_ENCODED
 from rfhoming.protocol.frames.records import MAX_INNER
-from tests.strategies import records
+from strategies import records
 
 SOURCE = Path(__file__).resolve().parent.parent / "c_reference"
 U8, I8, U16, I16, U32, I32 = C.c_uint8, C.c_int8, C.c_uint16, C.c_int16, C.c_uint32, C.c_int32

@@ -17,8 +17,8 @@ from rfhoming.host import portspec
 from rfhoming.host.drivers.espat import EspAtDriver, EspAtSetup
 from rfhoming.host.session import esp_at_setup
 from rfhoming.protocol.espat import EspAtDecoder, Final, Info, ScanReport, encode_scan, parse_scan
-from tests.receivers import s3_live, s3_replay
-from tests.strategies import chunked
+from receivers import s3_live, s3_replay
+from strategies import chunked
 
 reports = st.builds(ScanReport, st.text("0123456789ABCDEF", min_size=12, max_size=12), st.integers(-128, 20),
                     st.binary(max_size=31), st.binary(max_size=31), st.integers(0, 3))

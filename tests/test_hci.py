@@ -28,8 +28,8 @@ from rfhoming.host.drivers.rss import BleRssi  # noqa: E402
 from rfhoming.host.session import hci_setup, make_driver  # noqa: E402
 from rfhoming.protocol import ad  # noqa: E402
 from rfhoming.protocol.h4 import H4Splitter  # noqa: E402
-from tests.receivers import s3_live, s3_replay  # noqa: E402
-from tests.strategies import chunked  # noqa: E402
+from receivers import s3_live, s3_replay  # noqa: E402
+from strategies import chunked  # noqa: E402
 
 h4_packets = st.one_of(
     st.binary(max_size=255).flatmap(lambda p: st.binary(min_size=2, max_size=2).map(

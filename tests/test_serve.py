@@ -24,7 +24,7 @@ from rfhoming.host.session import open_drivers
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.jsonable import as_dict, from_dict
 from rfhoming.protocol.uconnect import UConnectDecoder
-from tests.strategies import records
+from strategies import records
 
 GOLDEN = Path(__file__).parent / "golden"
 ITEMS = 2500  # per reading client
