@@ -32,6 +32,7 @@ import foxglove
 import numpy as np
 from foxglove import channels, messages
 
+from rfhoming.host.sink import Sink
 from rfhoming.protocol.jsonable import as_dict
 
 log = logging.getLogger(__name__)
@@ -45,7 +46,7 @@ DEFAULT_PORT = 8765  # Foxglove's own default
 LAYOUT = files("rfhoming.host").joinpath("foxglove_layout.json")
 
 
-class FoxgloveView:
+class FoxgloveView(Sink):
     """Starts a Foxglove WebSocket server on ``host:port`` (0 = any free port) at once."""
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1", name: str = "rfhoming") -> None:
@@ -73,20 +74,8 @@ class FoxgloveView:
         self.published = 0
         self.failed = 0  # items that could not be drawn (logged once)
 
-    # -- the two inputs (neither ever raises into a driver or the loop) ---------------------
-    def on_item(self, device: str, t_host: float, item: Any) -> None:
-        try:
-            self._on_item(device, t_host, item)
-        except Exception as exc:  # noqa: BLE001 - a view must not stop the devices
-            self._failed(getattr(item, "kind", type(item).__name__), exc)
-
-    def on_runlog(self, record: dict[str, Any]) -> None:
-        try:
-            self._on_runlog(record)
-        except Exception as exc:  # noqa: BLE001 - a view must not stop the loop
-            self._failed(str(record.get("kind")), exc)
-
     def _failed(self, kind: str, exc: Exception) -> None:
+        """An item that cannot be drawn: counted, logged once."""
         if not self.failed:
             log.warning("Foxglove view: cannot publish a %s (%s); counting such failures", kind, exc)
         self.failed += 1

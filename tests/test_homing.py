@@ -168,7 +168,7 @@ async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) 
     assert [json.loads(line) for line in out.getvalue().splitlines()] == live
 
 
-async def closed_loop_scenario(tmp_path: Path, scenario: str, seed: int, config: Config = Config()):
+async def closed_loop_scenario(scenario: str, seed: int, config: Config = Config()):
     """Closed loop on a preset with its own target, in lockstep on the emulator's in-process
     byte pipe (as campaigns run: the same bytes whatever the machine's load); the controller
     follows the scenario's sensor (XPLR-AOA -> S0, AT86RF212 node -> S2)."""

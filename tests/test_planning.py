@@ -82,53 +82,53 @@ def test_sectors_and_avoidance_rules() -> None:
 
 
 @pytest.mark.parametrize("seed", [4, 7])
-async def test_s0_homes_through_the_house(tmp_path, seed: int) -> None:
-    outcome, error, log = await closed_loop_scenario(tmp_path, "s0-house", seed)
+async def test_s0_homes_through_the_house(seed: int) -> None:
+    outcome, error, log = await closed_loop_scenario("s0-house", seed)
     assert outcome.arrived and error < 1.0
     assert any(e["kind"] == "plan" for e in log)
 
 
 @pytest.mark.parametrize(("scenario", "seed"), [("s2-a", 0), ("s2-b", 0), ("s2-c", 2)])
-async def test_s2_rss_homing_completes_the_warehouse_scenarios(tmp_path, scenario: str, seed: int) -> None:
-    outcome, error, log = await closed_loop_scenario(tmp_path, scenario, seed)
+async def test_s2_rss_homing_completes_the_warehouse_scenarios(scenario: str, seed: int) -> None:
+    outcome, error, log = await closed_loop_scenario(scenario, seed)
     assert outcome.arrived and error < 1.0  # S2 stops at an estimated 0.5 m
     assert sum(1 for e in log if e["kind"] == "measurement") > 50
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-async def test_s1_docks_at_the_station(tmp_path, seed: int) -> None:
-    outcome, error, log = await closed_loop_scenario(tmp_path, "s1-dock", seed)
+async def test_s1_docks_at_the_station(seed: int) -> None:
+    outcome, error, log = await closed_loop_scenario("s1-dock", seed)
     assert outcome.arrived
     assert error < 0.3 + 0.2  # error is to the station itself: docked 0.3 m in front of it
     assert any(e["kind"] == "estimate" and e.get("stage") == "docking" for e in log)
 
 
 @pytest.mark.parametrize("seed", [0, 3])
-async def test_s3_goes_to_a_goal_localised_on_beacons(tmp_path, seed: int) -> None:
-    outcome, error, log = await closed_loop_scenario(tmp_path, "s3-arena", seed)
+async def test_s3_goes_to_a_goal_localised_on_beacons(seed: int) -> None:
+    outcome, error, log = await closed_loop_scenario("s3-arena", seed)
     assert outcome.arrived
     assert error < 2.16  # S3's published trilateration errors: 0–216 cm
     assert sum(1 for e in log if e["kind"] == "measurement" and "fix" in e) > 50
 
 
 @pytest.mark.parametrize("scenario", ["s2-d", "s2-e"])
-async def test_s2_bounded_weights_home_around_blocked_corners(tmp_path, scenario: str) -> None:
+async def test_s2_bounded_weights_home_around_blocked_corners(scenario: str) -> None:
     from dataclasses import replace
 
     from rfhoming.host.homing.config import Config
 
     config = replace(Config(), s2=replace(Config().s2, likelihood="bounded", seed=1))
-    outcome, error, _ = await closed_loop_scenario(tmp_path, scenario, 1, config)
+    outcome, error, _ = await closed_loop_scenario(scenario, 1, config)
     assert outcome.arrived and error < 1.0  # with S2's weights D failed every seed (docs/RESULTS.md)
 
 
-async def test_s2_preliminary_rules_reach_the_emitter_in_the_open(tmp_path) -> None:
+async def test_s2_preliminary_rules_reach_the_emitter_in_the_open() -> None:
     from dataclasses import replace
 
     from rfhoming.host.homing.config import Config
     from rfhoming.host.homing.s2_rss import S2Params
 
-    outcome, error, log = await closed_loop_scenario(tmp_path, "s2-a", 0, config=replace(Config(), s2=S2Params(motion="preliminary")))
+    outcome, error, log = await closed_loop_scenario("s2-a", 0, config=replace(Config(), s2=S2Params(motion="preliminary")))
     assert outcome.arrived and error < 1.0
     notes = {e["note"] for e in log if e["kind"] == "command"}
     assert "target within ±15°: forward" in notes and not any(e["kind"] == "plan" for e in log)

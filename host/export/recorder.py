@@ -30,13 +30,14 @@ from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.export import rosmsgs
 from rfhoming.host.replay import ReplayPort, load_capture
 from rfhoming.host.session import DRIVERS, recorded_kind
+from rfhoming.host.sink import Sink
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.pcapng import OUTBOUND
 
 log = logging.getLogger(__name__)
 
 
-class McapRecorder:
+class McapRecorder(Sink):
     """Writes ROS 2 messages to an MCAP file. ``clock`` is "robot" (a base is present) or "host".
 
     ``commands_from``: "runlog" when a run log will give the velocity commands (live runs and
@@ -56,23 +57,8 @@ class McapRecorder:
         self.skipped: Counter[str] = Counter()  # items not written, per reason
         self._closed = False
 
-    # -- the two inputs ------------------------------------------------------------------
-    def on_item(self, device: str, t_host: float, item: Any) -> None:
-        """A driver listener: one decoded record or line of ``device``. An item that cannot be
-        written is counted and logged, never raised into the driver."""
-        try:
-            self._on_item(device, t_host, item)
-        except Exception as exc:  # noqa: BLE001 - a log must not stop the devices
-            self._unwritable(getattr(item, "kind", type(item).__name__), exc)
-
-    def on_runlog(self, record: dict[str, Any]) -> None:
-        """A RunLog listener: one run log record (robot time ``t``); like :meth:`on_item`, never raises."""
-        try:
-            self._on_runlog(record)
-        except Exception as exc:  # noqa: BLE001 - a log must not stop the loop
-            self._unwritable(str(record.get("kind")), exc)
-
-    def _unwritable(self, kind: str, exc: Exception) -> None:
+    def _failed(self, kind: str, exc: Exception) -> None:
+        """An item that cannot be written: counted as skipped, logged once per kind."""
         if not self.skipped[f"unwritable {kind}"]:
             log.warning("MCAP: cannot write a %s (%s); counting such items as skipped", kind, exc)
         self.skipped[f"unwritable {kind}"] += 1
