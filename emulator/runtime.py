@@ -40,6 +40,8 @@ from rfhoming.emulator.links import Link, PipeLink, PtyLink, TcpLink
 from rfhoming.emulator.scenario import Scenario
 
 TRANSPORTS = ("pty", "tcp", "pipe")
+SETTLE_LIMIT = 1000
+"""Yields after a step before an in-process host that is still busy is counted and stepped past."""
 
 
 class Emulator:
@@ -57,9 +59,10 @@ class Emulator:
         self.lockstep = lockstep
         self.control_period_s = control_period_ms / 1000
         self.lockstep_timeout = lockstep_timeout
+        self.transport = transport
         self.truth = truth
         self.t = 0.0
-        self.counters = {"steps": 0, "lockstep_timeouts": 0}
+        self.counters = {"steps": 0, "lockstep_timeouts": 0, "settle_overruns": 0}
         if transport == "pty" and link_dir is not None and not link_dir.is_dir():
             raise ValueError(f"link directory {link_dir} is not a directory (create it, or pass none for a temp dir)")
         self.link_dir = link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-"))
@@ -189,24 +192,43 @@ class Emulator:
         while self.t + 1e-9 < end:
             await self.step()
             if self.lockstep:
+                await self._let_host_run()
                 if self.t + 1e-9 >= self._next_control:
                     self._next_control += self.control_period_s
                     await self._await_host()
-                else:
-                    await asyncio.sleep(0)
             elif math.isinf(self.speed):
                 await asyncio.sleep(0)
             else:
                 lag = sim0 + (time.monotonic() - wall0) * self.speed
                 await asyncio.sleep(max(0.0, (self.t - lag) / self.speed))
 
+    async def _let_host_run(self) -> None:
+        """Yield to the host after a step. In process (``pipe``), yield until every other task
+        is idle -- waiting for bytes or a timer -- so the host has handled this step's bytes
+        and sent its answer before the next step: a run's result then depends on the bytes
+        alone, not on how many awaits the host takes between them. Across processes a host's
+        progress cannot be seen; the control-period wait (:meth:`_await_host`) paces it."""
+        await asyncio.sleep(0)
+        if self.transport != "pipe":
+            return
+        ready = asyncio.get_running_loop()._ready  # type: ignore[attr-defined]  # asyncio's run queue
+        for _ in range(SETTLE_LIMIT):
+            if not ready:
+                return
+            await asyncio.sleep(0)
+        self.counters["settle_overruns"] += 1  # a host that never idles: step on, counted
+
     async def _await_host(self) -> None:
+        """At a control period's end: wait (up to ``lockstep_timeout``) for a velocity command
+        since the last one."""
         base = self.base
         assert base is not None
-        try:
-            await asyncio.wait_for(base.commanded.wait(), self.lockstep_timeout)
-        except asyncio.TimeoutError:
-            self.counters["lockstep_timeouts"] += 1
+        if not base.commanded.is_set():
+            try:
+                async with asyncio.timeout(self.lockstep_timeout):
+                    await base.commanded.wait()
+            except TimeoutError:
+                self.counters["lockstep_timeouts"] += 1
         base.commanded.clear()
 
 

@@ -181,8 +181,9 @@ class HostPort:
         transport, self._transport = self._transport, None
         if transport is not None:
             transport.close()  # the fd (and its exclusive lock) goes when connection_lost runs
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self._gone.wait(), 1.0)
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(1.0):
+                    await self._gone.wait()
 
 
 async def reopen(port: HostPort, *, first: float = 0.2, longest: float = 5.0,

@@ -119,8 +119,9 @@ class ReplayPort:
         if not self._writes:
             self._written.clear()
             try:
-                await asyncio.wait_for(self._written.wait(), ANSWER_TIMEOUT)
-            except asyncio.TimeoutError:
+                async with asyncio.timeout(ANSWER_TIMEOUT):  # not wait_for: on 3.11 it can swallow a
+                    await self._written.wait()                # cancellation that meets the awaited write
+            except TimeoutError:
                 self.counters["unanswered"] += 1
                 return
         if self._writes.popleft() != expected.data:

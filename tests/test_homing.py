@@ -206,6 +206,27 @@ async def closed_loop_scenario(scenario: str, seed: int, config: Config = Config
     return outcome, error, [json.loads(line) for line in out.getvalue().splitlines()]
 
 
+async def test_in_process_lockstep_result_does_not_depend_on_the_hosts_awaits(monkeypatch) -> None:
+    """The emulator lets an in-process host settle after every step, so a host that takes
+    more awaits per reading (a slower machine's scheduling, a refactor) gets the same run:
+    the same log, line for line, and the same final pose."""
+    from rfhoming.host.drivers.common import BoundedStream
+
+    quick = await closed_loop_scenario("s0-open", 3)
+    get = BoundedStream.get
+
+    async def slow_get(self):
+        for _ in range(3):
+            await asyncio.sleep(0)
+        return await get(self)
+
+    monkeypatch.setattr(BoundedStream, "get_nowait", lambda self: None)  # every item through the slow path
+    monkeypatch.setattr(BoundedStream, "get", slow_get)
+    slow = await closed_loop_scenario("s0-open", 3)
+    assert quick[0].arrived and len(quick[2]) > 100
+    assert slow[2] == quick[2] and slow[1] == quick[1]
+
+
 # -- the commands ---------------------------------------------------------------------------
 def test_demo_command_succeeds_and_writes_its_files(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--json", "--out", str(tmp_path)],

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rfhoming.host.drivers.base import Scan
 from rfhoming.host.homing.avoidance import AvoidParams, ObstacleAvoidance, sectors
@@ -19,6 +21,38 @@ def wall_scan(distance: float, beams: int = 181, width: float = 20.0) -> Scan:
     angles = np.linspace(-math.pi / 2, math.pi / 2, beams)
     ranges = tuple(distance / math.cos(a) if abs(a) < math.atan2(width / 2, distance) else None for a in angles)
     return Scan(0.0, -math.pi / 2, math.pi / (beams - 1), ranges)
+
+
+def integrate_beam_by_beam(grid: OccupancyGrid, pose: Pose, scan: Scan) -> None:
+    """The grid's scan rule written out one beam at a time: each beam frees every cell it
+    crosses once, and adds 3 hits to the cell its return lands in (clipped to the grid)."""
+    r = grid.params.resolution
+    for k, d in enumerate(scan.ranges):
+        angle = pose.theta + scan.angle_min + scan.angle_increment * k
+        length = grid.params.max_range if d is None else min(d, grid.params.max_range)
+        cells = set()
+        for i in range(int(length / (r / 2)) + 2):
+            s = i * (r / 2)
+            if s < length - r / 2:
+                cx, cy = int((pose.x + s * math.cos(angle) - grid.x0) / r), int((pose.y + s * math.sin(angle) - grid.y0) / r)
+                if 0 <= cx < grid.n and 0 <= cy < grid.n:
+                    cells.add((cx, cy))
+        for cell in cells:
+            grid.misses[cell] += 1
+        if d is not None and d <= grid.params.max_range:
+            grid.hits[grid.cell(pose.x + d * math.cos(angle), pose.y + d * math.sin(angle))] += 3
+
+
+@settings(max_examples=40, deadline=None)
+@given(x=st.floats(-12, 12), y=st.floats(-12, 12), theta=st.floats(-4, 4),
+       ranges=st.lists(st.none() | st.floats(0.0, 10.0), min_size=1, max_size=40))
+def test_scan_integration_matches_the_beam_by_beam_rule(x, y, theta, ranges) -> None:
+    params = GridParams(resolution=0.3, size_m=20.0)
+    fast, slow = OccupancyGrid((0.0, 0.0), params), OccupancyGrid((0.0, 0.0), params)
+    scan = Scan(0.0, -math.pi / 2, math.pi / max(len(ranges) - 1, 1), tuple(ranges))
+    fast.integrate(Pose(x, y, theta), scan)
+    integrate_beam_by_beam(slow, Pose(x, y, theta), scan)
+    assert (fast.hits == slow.hits).all() and (fast.misses == slow.misses).all()
 
 
 def test_scan_marks_free_and_occupied_cells() -> None:

@@ -214,8 +214,9 @@ class AoaDriver(Driver):
             self.matcher.cancel()
             self.port.write(self.matcher.send(command))
             try:
-                response = await asyncio.wait_for(self._answer, timeout)
-            except asyncio.TimeoutError:
+                async with asyncio.timeout(timeout):
+                    response = await self._answer
+            except TimeoutError:
                 self.matcher.cancel()
                 self.counters["retries"] += 1
                 continue
@@ -279,8 +280,9 @@ class AoaDriver(Driver):
         await self.command(c.restart())
         self.counters["restarts"] += 1
         try:
-            await asyncio.wait_for(self._startup.wait(), self.setup.restart_timeout)
-        except asyncio.TimeoutError:
+            async with asyncio.timeout(self.setup.restart_timeout):
+                await self._startup.wait()
+        except TimeoutError:
             raise CommandFailed("no +STARTUP after AT+CPWROFF") from None
         await self._wake()
 
@@ -379,8 +381,9 @@ class AoaDriver(Driver):
             try:
                 self._answer = asyncio.get_running_loop().create_future()
                 self.port.write(self.matcher.send(c.at()))
-                response = await asyncio.wait_for(self._answer, 0.5)
-            except asyncio.TimeoutError:
+                async with asyncio.timeout(0.5):
+                    response = await self._answer
+            except TimeoutError:
                 self.matcher.cancel()
                 continue
             if not response.restarted:  # OK or ERROR: either way the board understood us

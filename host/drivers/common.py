@@ -37,6 +37,11 @@ class BoundedStream(Generic[T]):
         self._items.append(item)
         self._ready.set()
 
+    def get_nowait(self) -> T | None:
+        """The oldest item, or None when there is none (no await: the loop's fast path)."""
+        self._read = True
+        return self._items.popleft() if self._items else None
+
     async def get(self) -> T:
         self._read = True
         while not self._items:
@@ -46,6 +51,10 @@ class BoundedStream(Generic[T]):
 
     def __len__(self) -> int:
         return len(self._items)
+
+    def unread(self) -> list[T]:
+        """The items waiting, oldest first, without taking them (what a run left unread)."""
+        return list(self._items)
 
     async def __aiter__(self) -> AsyncIterator[T]:
         while True:

@@ -91,8 +91,9 @@ class EspAtDriver(Driver):
             self._answer, self._lines = asyncio.get_running_loop().create_future(), []
             self.port.write(text.encode() + b"\r\n")
             try:
-                answer = await asyncio.wait_for(self._answer, self.setup.command_timeout)
-            except asyncio.TimeoutError:
+                async with asyncio.timeout(self.setup.command_timeout):
+                    answer = await self._answer
+            except TimeoutError:
                 self.counters["retries"] += 1
                 continue
             if not answer[-1].ok:

@@ -150,8 +150,9 @@ class HciDriver(Driver):
         self._pending = (command.op_code, future)
         self.port.write(bytes(command))
         try:
-            event = await asyncio.wait_for(future, self.setup.command_timeout)
-        except asyncio.TimeoutError:
+            async with asyncio.timeout(self.setup.command_timeout):
+                event = await future
+        except TimeoutError:
             raise CommandFailed(f"{command.name}: no answer in {self.setup.command_timeout:g} s; is this an HCI "
                                 "controller (H4) at this baud rate?") from None
         finally:

@@ -53,21 +53,26 @@ class OccupancyGrid:
         return self.x0 + (cell[0] + 0.5) * r, self.y0 + (cell[1] + 0.5) * r
 
     def integrate(self, pose: Pose, scan: Scan) -> None:
-        """One scan taken at ``pose``: beams free the cells they cross, returns mark hits."""
-        p, r = self.params, self.params.resolution
+        """One scan taken at ``pose``: beams free the cells they cross (once per beam), returns
+        mark hits. All beams at once: a beam-by-beam loop was a tenth of a run's time."""
+        p, r, n = self.params, self.params.resolution, self.n
         ranges = np.array([np.inf if d is None else d for d in scan.ranges])
         angles = pose.theta + scan.angle_min + scan.angle_increment * np.arange(len(ranges))
+        cos = np.array([math.cos(a) for a in angles])[:, None]  # libm, as a scalar loop would
+        sin = np.array([math.sin(a) for a in angles])[:, None]
         reach = np.minimum(ranges, p.max_range)
-        steps = np.arange(0, reach.max() + 1e-9, r / 2)
-        for angle, length, rng in zip(angles, reach, ranges):
-            s = steps[steps < length - r / 2]
-            xs = ((pose.x + s * math.cos(angle) - self.x0) / r).astype(int)
-            ys = ((pose.y + s * math.sin(angle) - self.y0) / r).astype(int)
-            ok = (xs >= 0) & (xs < self.n) & (ys >= 0) & (ys < self.n)
-            self.misses[xs[ok], ys[ok]] += 1
-            if np.isfinite(rng) and rng <= p.max_range:
-                cx, cy = self.cell(pose.x + rng * math.cos(angle), pose.y + rng * math.sin(angle))
-                self.hits[cx, cy] += 3
+        steps = np.arange(0, reach.max() + 1e-9, r / 2)[None, :]
+        xs = ((pose.x + steps * cos - self.x0) / r).astype(int)
+        ys = ((pose.y + steps * sin - self.y0) / r).astype(int)
+        along = (steps < reach[:, None] - r / 2) & (xs >= 0) & (xs < n) & (ys >= 0) & (ys < n)
+        beam = np.broadcast_to(np.arange(len(ranges))[:, None], xs.shape)
+        crossed = np.unique(beam[along] * (n * n) + xs[along] * n + ys[along]) % (n * n)
+        self.misses += np.bincount(crossed, minlength=n * n).reshape(n, n).astype(np.int32)
+        hit = np.isfinite(ranges) & (ranges <= p.max_range)
+        if hit.any():
+            hx = np.clip(((pose.x + ranges[hit] * cos[hit, 0] - self.x0) / r).astype(int), 0, n - 1)
+            hy = np.clip(((pose.y + ranges[hit] * sin[hit, 0] - self.y0) / r).astype(int), 0, n - 1)
+            self.hits += 3 * np.bincount(hx * n + hy, minlength=n * n).reshape(n, n).astype(np.int32)
 
     def occupied(self) -> np.ndarray:
         return self.hits > self.misses

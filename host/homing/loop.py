@@ -198,14 +198,13 @@ class HomingLoop:
         odometry_stale = False
         clock_offset = 0.0  # robot time = base clock + offset, re-anchored on a base reset
         while True:
-            try:
-                item = await asyncio.wait_for(self.inputs.get(), min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s))
-            except asyncio.TimeoutError:
-                # on 3.11 wait_for can turn a cancellation (Ctrl-C, a caller's timeout) that
-                # coincides with its own timeout into TimeoutError: then the loop must still end
-                if asyncio.current_task().cancelling():
-                    raise asyncio.CancelledError from None
-                item = None
+            item = self.inputs.get_nowait()  # most items are already here: no timer, no task
+            if item is None:
+                try:  # asyncio.timeout, not wait_for: no task per item, and a cancellation stays one
+                    async with asyncio.timeout(min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s)):
+                        item = await self.inputs.get()
+                except TimeoutError:
+                    item = None
             if not isinstance(item, Pose2D) and time.monotonic() - last_odometry_wall > cfg.odometry_wall_timeout_s:
                 if not odometry_stale:  # the base's own clock is gone: wall time is all there is
                     odometry_stale = True
