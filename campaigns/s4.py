@@ -181,13 +181,13 @@ def batch(index: int, seed: int, flights_: int, reference: int) -> dict[str, Any
 
 def jobs(runs: int, seed: int) -> list[Job]:
     """``runs`` beacons, FLIGHTS_PER_JOB flights (500 beacons) per job; the first job also runs
-    the filterpy reference on 20 beacons."""
+    the filterpy reference on 20 beacons (all of them if it has fewer)."""
     n_flights = math.ceil(runs / BEACONS_PER_FLIGHT)
     out = []
     for i, start in enumerate(range(0, n_flights, FLIGHTS_PER_JOB)):
-        out.append(Job(i, "rfhoming.campaigns.s4:batch", {"index": i, "seed": seed * 100_000 + i,
-                                                 "flights_": min(FLIGHTS_PER_JOB, n_flights - start),
-                                                 "reference": 20 if i == 0 else 0}))
+        flights_ = min(FLIGHTS_PER_JOB, n_flights - start)
+        out.append(Job(i, "rfhoming.campaigns.s4:batch", {"index": i, "seed": seed * 100_000 + i, "flights_": flights_,
+                                                 "reference": min(20, flights_ * BEACONS_PER_FLIGHT) if i == 0 else 0}))
     return out
 
 
