@@ -30,15 +30,20 @@ TABLE3 = {  # methods.md, S0 Table 3
     5: (100, 12.27, 0.57, 0.11, 0.15, 0.91),
 }
 HOUSE = (96, 44.91, 0.22, 0.12, 0.23, 0.69)  # Experiment 2
-MODES = ("idealised-10hz-paper", "idealised-10hz", "idealised", "realistic")
-"""S0's method at 10 Hz (k = 0.8, no near-goal fusion); ours at 10 Hz (k = 0.8 with the fusion);
-ours at the board's 50 Hz (k = 0.3 per reading, the fusion); ours through the emulator."""
+MODES = ("idealised-10hz-paper", "idealised-10hz", "idealised-50hz-paper", "idealised", "realistic")
+"""S0's method (the hybrid's report, no fusion) and ours (the least-squares ray fusion reported)
+at 10 Hz, k 0.8 per reading, and at the board's 50 Hz (S0: the paper's k 0.8 per reading; ours:
+k 0.3, as far per 0.1 s); ours through the emulator."""
 MODE_LABELS = {"idealised-10hz-paper": "S0's method, idealised, 10 Hz (k 0.8)",
-               "idealised-10hz": "ours, idealised, 10 Hz (k 0.8 + near-goal fusion)",
-               "idealised": "ours, idealised, 50 Hz (k 0.3 + near-goal fusion)",
-               "realistic": "ours, emulated XPLR-AOA, 50 Hz, calibrated RSSI"}
-TEN_HZ = {"idealised-10hz-paper": S0Params(folded=False, k=0.8, close_fusion_m=0.0),
-          "idealised-10hz": S0Params(folded=False, k=0.8)}
+               "idealised-10hz": "ours, idealised, 10 Hz (k 0.8 + near-goal and ray fusion)",
+               "idealised-50hz-paper": "S0's method, idealised, 50 Hz (k 0.8)",
+               "idealised": "ours, idealised, 50 Hz (k 0.3 + near-goal and ray fusion)",
+               "realistic": "ours, emulated XPLR-AOA, 50 Hz, calibrated RSSI (as ours at 50 Hz)"}
+PARAMS = {"idealised-10hz-paper": (S0Params(folded=False, k=0.8, ray_fusion=False), 0.1),
+          "idealised-10hz": (S0Params(folded=False, k=0.8), 0.1),
+          "idealised-50hz-paper": (S0Params(folded=False, k=0.8, ray_fusion=False), kinematic.READING_S),
+          "idealised": (S0Params(folded=False), kinematic.READING_S)}
+"""Each idealised mode's controller and reading period (s)."""
 
 
 def targets(runs: int, seed: int) -> list[tuple[float, float]]:
@@ -58,10 +63,9 @@ def host_config(scenario: str, campaign_seed: int, preset: int | None = None, ba
 def table3_run(config: int, mode: str, target: tuple[float, float], seed: int, campaign_seed: int = 0) -> dict[str, Any]:
     """One homing: idealised (the paper's measurements, a kinematic robot) or realistic (the
     emulator's XPLR-AOA with the fold and integer fields, RSSI through the calibration)."""
-    if mode == "idealised":
-        row = kinematic.home(target, *S0_PRESETS[config], seed=seed)
-    elif mode in TEN_HZ:
-        row = kinematic.home(target, *S0_PRESETS[config], seed=seed, params=TEN_HZ[mode], reading_s=0.1)
+    if mode in PARAMS:
+        params, reading_s = PARAMS[mode]
+        row = kinematic.home(target, *S0_PRESETS[config], seed=seed, params=params, reading_s=reading_s)
     else:
         scenario = load("s0-open", seed=seed, target=target, aoa_preset=config)
         run = closed_loop.run(scenario, host_config("s0-open", campaign_seed, config), seed)

@@ -18,7 +18,8 @@ from rfhoming.host.homing.s0_aoa import S0Params
 
 def test_inline_process_and_dask_give_identical_results() -> None:
     distributed = pytest.importorskip("distributed")
-    jobs = load("s0-table3").jobs(2, 7)[:8]  # configuration 1: two runs in each mode
+    n = 2 * len(s0.MODES)
+    jobs = load("s0-table3").jobs(2, 7)[:n]  # configuration 1: two runs in each mode
 
     def results(rows):  # everything but the wall time
         return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
@@ -29,7 +30,7 @@ def test_inline_process_and_dask_give_identical_results() -> None:
         on_dask = results(run_jobs(jobs, dask_address=cluster.scheduler_address))
     assert {r["mode"] for r in inline} == set(s0.MODES)
     assert inline == pooled == on_dask
-    assert [r["index"] for r in inline] == list(range(8))
+    assert [r["index"] for r in inline] == list(range(n))
 
 
 def test_a_job_failure_is_raised_not_swallowed() -> None:
@@ -68,7 +69,7 @@ def test_a_single_noisy_reading_does_not_end_a_run() -> None:
 
 def test_paper_gain_is_reproducible_with_the_unfolded_sensor() -> None:
     row = kinematic.home((-5.0, 5.0), 5.0, 0.05, 0.0, seed=1, params=S0Params(folded=False, k=0.8, tau=5.0,
-                                                                              close_fusion_m=0.0))
+                                                                              ray_fusion=False))
     assert row["success"]
 
 
