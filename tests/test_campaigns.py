@@ -8,12 +8,15 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from rfhoming.campaigns import kinematic, s0, s1, s3, s4
 from rfhoming.cli.campaign import REGISTRY, load
 from rfhoming.campaigns.runner import Job, execute, run_jobs
 from rfhoming.cli.main import main
 from rfhoming.host.homing.s0_aoa import S0Params
+from rfhoming.host.homing.types import Pose
 
 
 def test_inline_process_and_dask_give_identical_results() -> None:
@@ -31,6 +34,23 @@ def test_inline_process_and_dask_give_identical_results() -> None:
     assert {r["mode"] for r in inline} == set(s0.MODES)
     assert inline == pooled == on_dask
     assert [r["index"] for r in inline] == list(range(n))
+
+
+@given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-3, 3), st.floats(-1, 1), st.floats(-1, 1), st.floats(-0.5, 0.5))
+def test_goal_seen_from_the_robot_cancels_odometry_drift(gx, gy, rx, ry, dx, dtheta) -> None:
+    """A perfect estimate in a drifted odometry frame is the true goal seen from the robot; a
+    wrong one keeps its error."""
+    true_pose = (rx, ry, 0.7)
+    c, s_ = math.cos(dtheta), math.sin(dtheta)
+
+    def drifted(x: float, y: float) -> tuple[float, float]:  # the odometry frame: turned and shifted
+        return c * x - s_ * y + dx, s_ * x + c * y + dx / 2
+
+    odometry = Pose(*drifted(rx, ry), true_pose[2] + dtheta)
+    seen = s0.goal_seen_from_robot(drifted(gx, gy), odometry, true_pose)
+    assert math.dist(seen, (gx, gy)) < 1e-9
+    off = s0.goal_seen_from_robot(drifted(gx + 0.3, gy), odometry, true_pose)
+    assert math.dist(off, (gx, gy)) == pytest.approx(0.3, abs=1e-9)
 
 
 def test_a_job_failure_is_raised_not_swallowed() -> None:
