@@ -40,9 +40,11 @@ MODE_LABELS = {"idealised-10hz-paper": "S0's method, idealised, 10 Hz (k 0.8)",
                "idealised-50hz-paper": "S0's method, idealised, 50 Hz (k 0.8)",
                "idealised": "ours, idealised, 50 Hz (k 0.3 + near-goal and ray fusion)",
                "realistic": "ours, emulated XPLR-AOA, 50 Hz, calibrated RSSI (as ours at 50 Hz)"}
-PARAMS = {"idealised-10hz-paper": (S0Params(folded=False, k=0.8, ray_fusion=False), 0.1),
+PAPER_S0 = S0Params(k=0.8, close_fusion_m=0.0, ray_fusion=False)
+"""S0's estimator: the paper's k per reading, its hybrid's report, none of our fusions."""
+PARAMS = {"idealised-10hz-paper": (replace(PAPER_S0, folded=False), 0.1),
           "idealised-10hz": (S0Params(folded=False, k=0.8), 0.1),
-          "idealised-50hz-paper": (S0Params(folded=False, k=0.8, ray_fusion=False), kinematic.READING_S),
+          "idealised-50hz-paper": (replace(PAPER_S0, folded=False), kinematic.READING_S),
           "idealised": (S0Params(folded=False), kinematic.READING_S)}
 """Each idealised mode's controller and reading period (s)."""
 
@@ -120,8 +122,6 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
 
 
 HOUSE_CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=240.0))
-PAPER_S0 = replace(Config().s0, k=0.8, close_fusion_m=0.0, ray_fusion=False)
-"""S0's estimator on the board: the paper's k per reading, its hybrid's report, no fusion."""
 HOUSE_MODES = {"rules": "S0's method: hybrid (k 0.8, no fusion), reactive rules (Appendix B) only",
                "planner": "ours: occupancy grid + A*, with S0's rules for close obstacles"}
 ROOMS = ((-1, -1), (1, -1), (1, 1), (-1, 1))  # the house's quadrants

@@ -53,6 +53,15 @@ def test_goal_seen_from_the_robot_cancels_odometry_drift(gx, gy, rx, ry, dx, dth
     assert math.dist(off, (gx, gy)) == pytest.approx(0.3, abs=1e-9)
 
 
+def test_s0_method_rows_run_the_papers_estimator() -> None:
+    """Issue 16: S0's rows keep S0's k = 0.8 per reading and hybrid report, without our fusions."""
+    for mode in ("idealised-10hz-paper", "idealised-50hz-paper"):
+        params, _ = s0.PARAMS[mode]
+        assert (params.k, params.close_fusion_m, params.ray_fusion) == (0.8, 0.0, False)
+    assert s0.PARAMS["idealised-10hz-paper"][1] == 0.1
+    assert s0.PAPER_S0.folded  # the house runs the board: S0's estimator behind the fold handling
+
+
 def test_a_job_failure_is_raised_not_swallowed() -> None:
     with pytest.raises(KeyError):
         run_jobs([Job(0, "rfhoming.campaigns.s0:table3_run", {"config": 9, "mode": "idealised", "target": (1, 1), "seed": 0})],
