@@ -43,9 +43,9 @@ MODE_LABELS = {"idealised-10hz-paper": "S0's method, idealised, 10 Hz (k 0.8)",
 PAPER_S0 = S0Params(k=0.8, close_fusion_m=0.0, ray_fusion=False)
 """S0's estimator: the paper's k per reading, its hybrid's report, none of our fusions."""
 PARAMS = {"idealised-10hz-paper": (replace(PAPER_S0, folded=False), 0.1),
-          "idealised-10hz": (S0Params(folded=False, k=0.8), 0.1),
+          "idealised-10hz": (S0Params(folded=False, k=0.8, ray_fusion=True), 0.1),
           "idealised-50hz-paper": (replace(PAPER_S0, folded=False), kinematic.READING_S),
-          "idealised": (S0Params(folded=False), kinematic.READING_S)}
+          "idealised": (S0Params(folded=False, ray_fusion=True), kinematic.READING_S)}
 """Each idealised mode's controller and reading period (s)."""
 
 
@@ -57,7 +57,11 @@ def targets(runs: int, seed: int) -> list[tuple[float, float]]:
             for k in range(runs)]
 
 
-def host_config(scenario: str, campaign_seed: int, preset: int | None = None, base: Config = Config()) -> Config:
+OURS = replace(Config(), s0=replace(Config().s0, ray_fusion=True))
+"""Ours on the board: k 0.3 per reading, the near-goal and the ray fusion (on a calibrated host)."""
+
+
+def host_config(scenario: str, campaign_seed: int, preset: int | None = None, base: Config = OURS) -> Config:
     """``base`` with the RSSI -> distance constants of a calibration session."""
     fit = calibration.cached(scenario, campaign_seed, preset)
     return replace(base, calibration=Calibration(p0_dbm=round(fit.p0_dbm, 2), n=round(fit.n, 3)))
@@ -121,7 +125,7 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
     return Report({"configurations": summary, "failures": failures}, md, {"s0-table3.png": plot})
 
 
-HOUSE_CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=240.0))
+HOUSE_CONFIG = replace(OURS, loop=replace(LoopSettings(), max_time_s=240.0))
 HOUSE_MODES = {"rules": "S0's method: hybrid (k 0.8, no fusion), reactive rules (Appendix B) only",
                "planner": "ours: occupancy grid + A*, with S0's rules for close obstacles"}
 ROOMS = ((-1, -1), (1, -1), (1, 1), (-1, 1))  # the house's quadrants

@@ -25,7 +25,10 @@ paper's rule and report):
   vector goal). Ours reports the inverse-variance mean of every raw vector goal taken within
   3 m of the goal (:mod:`rfhoming.host.estimation.ray_fusion`) once it holds 10, as long as it
   stays within ``arrival_agreement`` of g_p: ranges that disagree with the bearings (a biased
-  RSSI link) are not trusted, and g_p is reported instead.
+  RSSI link) are not trusted, and g_p is reported instead. Off by default: it needs ranges
+  from a calibration. Without one, a link whose ranges read short by a factor makes every
+  older (farther) reading land shorter still, and the mean trails the tag further than the
+  hybrid does. The campaigns calibrate first and turn it on.
 Arrival also needs g_p, or a full buffer of vector goals when no parallax formed: one noisy
 first reading must not end a run.
 
@@ -74,7 +77,7 @@ class S0Params:
     folded: bool = True  # the sensor folds bearings into ±90° (the XPLR-AOA); False: a 360° sensor
     close_fusion_m: float = 2.0  # nearer than this, inlier vector goals pull g_p (0: the paper's rule)
     close_fusion_gain: float = 0.1
-    ray_fusion: bool = True  # report the fusion of readings near the goal (False: the hybrid's g_p, as the paper)
+    ray_fusion: bool = False  # report the fusion of readings near the goal (needs calibrated ranges)
     fusion_min_readings: int = 10  # readings near the goal before the fusion is reported
 
 
