@@ -5,9 +5,10 @@ a straight line toward (or, for S1, with its tag toward) a transmitter placed at
 "user" chose, stops at a known distance and dwells there, all in one lockstep emulator session
 with its own seed, so its per-link biases and noise are those of a separate session, as on real
 hardware. The host's readings (through the real drivers and codecs, as ``rfhoming capture``
-records them) are paired with the odometry pose's distance to that point, and a least-squares
-log-distance fit, RSSI = P0 − 10 n log10(d), gives the calibration constants. For S2's four
-dishes the robot then turns in place by quarter turns at the stop, so that each dish faces the
+records them) are paired with the odometry pose's distance to that point, and a log-distance
+fit, RSSI = P0 − 10 n log10(d), through each 0.25 m distance bin's median gives the calibration
+constants (medians: S0's ±1 m range noise piles readings at the floor near the stop, which
+pulled a plain least-squares n from 2.2 to 2.7). For S2's four dishes the robot then turns in place by quarter turns at the stop, so that each dish faces the
 transmitter in turn, which gives each dish's own offset.
 
 Only the scenario's geometry (where to put the robot and the transmitter) is touched here; the
@@ -31,7 +32,7 @@ from rfhoming.emulator.world import Pose as WorldPose, World
 from rfhoming.host.drivers.aoa import AoaDriver, TimedAngle
 from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.rss import AntennaPowers, RssDriver
-from rfhoming.host.estimation.ranging import fit_log_distance
+from rfhoming.host.estimation.ranging import fit_log_distance_binned
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import HomingLoop
 from rfhoming.host.homing.types import Decision, Pose
@@ -182,7 +183,7 @@ def calibrate(scenario: Scenario, seed: int) -> Fit:
         samples = rec.samples
     d = np.array([s[0] for s in samples])
     rssi = np.array([s[3] for s in samples])
-    fit = fit_log_distance(np.maximum(d, 0.05), rssi)
+    fit = fit_log_distance_binned(np.maximum(d, 0.05), rssi)
     stop_dbm = float(np.mean([s[3] for s in samples if s[2] == "dwelling"]))
     return Fit(fit.model.p0_dbm, fit.model.n, fit.rssi_residual_db or 0.0, stop_dbm, len(samples), offsets)
 

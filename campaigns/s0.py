@@ -19,6 +19,7 @@ from rfhoming.emulator.radio import S0_PRESETS
 from rfhoming.emulator.scenario import load
 from rfhoming.host.homing.config import Calibration, Config, LoopSettings
 from rfhoming.host.homing.s0_aoa import S0Params
+from rfhoming.host.homing.types import Pose
 
 METRICS = ("success_pct", "time_s", "net_velocity_mps", "goal_error_m", "final_error_m", "path_efficiency")
 HEADER = ["success %", "time to target s", "net velocity m/s", "goal error m", "final error m", "path efficiency"]
@@ -30,15 +31,22 @@ TABLE3 = {  # methods.md, S0 Table 3
     5: (100, 12.27, 0.57, 0.11, 0.15, 0.91),
 }
 HOUSE = (96, 44.91, 0.22, 0.12, 0.23, 0.69)  # Experiment 2
-MODES = ("idealised-10hz-paper", "idealised-10hz", "idealised", "realistic")
-"""S0's method at 10 Hz (k = 0.8, no near-goal fusion); ours at 10 Hz (k = 0.8 with the fusion);
-ours at the board's 50 Hz (k = 0.3 per reading, the fusion); ours through the emulator."""
+MODES = ("idealised-10hz-paper", "idealised-10hz", "idealised-50hz-paper", "idealised", "realistic")
+"""S0's method (the hybrid's report, no fusion) and ours (the least-squares ray fusion reported)
+at 10 Hz, k 0.8 per reading, and at the board's 50 Hz (S0: the paper's k 0.8 per reading; ours:
+k 0.3, as far per 0.1 s); ours through the emulator."""
 MODE_LABELS = {"idealised-10hz-paper": "S0's method, idealised, 10 Hz (k 0.8)",
-               "idealised-10hz": "ours, idealised, 10 Hz (k 0.8 + near-goal fusion)",
-               "idealised": "ours, idealised, 50 Hz (k 0.3 + near-goal fusion)",
-               "realistic": "ours, emulated XPLR-AOA, 50 Hz, calibrated RSSI"}
-TEN_HZ = {"idealised-10hz-paper": S0Params(folded=False, k=0.8, close_fusion_m=0.0),
-          "idealised-10hz": S0Params(folded=False, k=0.8)}
+               "idealised-10hz": "ours, idealised, 10 Hz (k 0.8 + near-goal and ray fusion)",
+               "idealised-50hz-paper": "S0's method, idealised, 50 Hz (k 0.8)",
+               "idealised": "ours, idealised, 50 Hz (k 0.3 + near-goal and ray fusion)",
+               "realistic": "ours, emulated XPLR-AOA, 50 Hz, calibrated RSSI (as ours at 50 Hz)"}
+PAPER_S0 = S0Params(k=0.8, close_fusion_m=0.0, ray_fusion=False)
+"""S0's estimator: the paper's k per reading, its hybrid's report, none of our fusions."""
+PARAMS = {"idealised-10hz-paper": (replace(PAPER_S0, folded=False), 0.1),
+          "idealised-10hz": (S0Params(folded=False, k=0.8, ray_fusion=True), 0.1),
+          "idealised-50hz-paper": (replace(PAPER_S0, folded=False), kinematic.READING_S),
+          "idealised": (S0Params(folded=False, ray_fusion=True), kinematic.READING_S)}
+"""Each idealised mode's controller and reading period (s)."""
 
 
 def targets(runs: int, seed: int) -> list[tuple[float, float]]:
@@ -49,7 +57,11 @@ def targets(runs: int, seed: int) -> list[tuple[float, float]]:
             for k in range(runs)]
 
 
-def host_config(scenario: str, campaign_seed: int, preset: int | None = None, base: Config = Config()) -> Config:
+OURS = replace(Config(), s0=replace(Config().s0, ray_fusion=True))
+"""Ours on the board: k 0.3 per reading, the near-goal and the ray fusion (on a calibrated host)."""
+
+
+def host_config(scenario: str, campaign_seed: int, preset: int | None = None, base: Config = OURS) -> Config:
     """``base`` with the RSSI -> distance constants of a calibration session."""
     fit = calibration.cached(scenario, campaign_seed, preset)
     return replace(base, calibration=Calibration(p0_dbm=round(fit.p0_dbm, 2), n=round(fit.n, 3)))
@@ -58,10 +70,9 @@ def host_config(scenario: str, campaign_seed: int, preset: int | None = None, ba
 def table3_run(config: int, mode: str, target: tuple[float, float], seed: int, campaign_seed: int = 0) -> dict[str, Any]:
     """One homing: idealised (the paper's measurements, a kinematic robot) or realistic (the
     emulator's XPLR-AOA with the fold and integer fields, RSSI through the calibration)."""
-    if mode == "idealised":
-        row = kinematic.home(target, *S0_PRESETS[config], seed=seed)
-    elif mode in TEN_HZ:
-        row = kinematic.home(target, *S0_PRESETS[config], seed=seed, params=TEN_HZ[mode], reading_s=0.1)
+    if mode in PARAMS:
+        params, reading_s = PARAMS[mode]
+        row = kinematic.home(target, *S0_PRESETS[config], seed=seed, params=params, reading_s=reading_s)
     else:
         scenario = load("s0-open", seed=seed, target=target, aoa_preset=config)
         run = closed_loop.run(scenario, host_config("s0-open", campaign_seed, config), seed)
@@ -114,8 +125,8 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
     return Report({"configurations": summary, "failures": failures}, md, {"s0-table3.png": plot})
 
 
-HOUSE_CONFIG = replace(Config(), loop=replace(LoopSettings(), max_time_s=240.0))
-HOUSE_MODES = {"rules": "S0's method: reactive rules (Appendix B) only",
+HOUSE_CONFIG = replace(OURS, loop=replace(LoopSettings(), max_time_s=240.0))
+HOUSE_MODES = {"rules": "S0's method: hybrid (k 0.8, no fusion), reactive rules (Appendix B) only",
                "planner": "ours: occupancy grid + A*, with S0's rules for close obstacles"}
 ROOMS = ((-1, -1), (1, -1), (1, 1), (-1, 1))  # the house's quadrants
 
@@ -147,10 +158,25 @@ def house_run(seed: int, pair: int, mode: str = "planner", campaign_seed: int = 
         x, y = room_point(start_room, rng, scenario)
     scenario.world.robot.x, scenario.world.robot.y = x, y
     scenario.world.robot.theta = float(rng.uniform(-math.pi, math.pi))
-    base = HOUSE_CONFIG if mode == "planner" else replace(HOUSE_CONFIG, plan=replace(HOUSE_CONFIG.plan, enabled=False))
+    base = HOUSE_CONFIG if mode == "planner" else replace(
+        HOUSE_CONFIG, plan=replace(HOUSE_CONFIG.plan, enabled=False), s0=PAPER_S0)
     run = closed_loop.run(scenario, host_config("s0-house", campaign_seed, None, base), seed)
+    row = closed_loop.metrics(run, target)
+    goal, odometry = run.outcome.goal, run.outcome.pose
+    relative = None if goal is None or odometry is None else goal_seen_from_robot(goal, odometry, run.robot)
     return {"seed": seed, "mode": mode, "rooms": [start_room, goal_room], "start": [round(x, 3), round(y, 3)],
-            "target": [round(v, 3) for v in target], **closed_loop.metrics(run, target)}
+            "target": [round(v, 3) for v in target], **row, "goal_error_world_m": row["goal_error_m"],
+            "goal_error_m": None if relative is None else round(math.dist(relative, target), 4)}
+
+
+def goal_seen_from_robot(goal: tuple[float, float], odometry: Pose, true: tuple[float, float, float]) -> tuple[float, float]:
+    """The goal estimate (odometry frame) placed where the robot's own view of it points: its
+    offset from the odometry pose, turned by the heading error, from the true pose. Odometry
+    drift moves the whole odometry frame and cancels here; the estimator's error stays."""
+    turn = true[2] - odometry.theta
+    dx, dy = goal[0] - odometry.x, goal[1] - odometry.y
+    c, s = math.cos(turn), math.sin(turn)
+    return true[0] + c * dx - s * dy, true[1] + s * dx + c * dy
 
 
 def house_jobs(runs: int, seed: int) -> list[Job]:
@@ -159,15 +185,22 @@ def house_jobs(runs: int, seed: int) -> list[Job]:
             for k in range(runs) for j, mode in enumerate(HOUSE_MODES)]
 
 
+HOUSE_HEADER = [*HEADER[:3], "goal error m (seen from the robot)", *HEADER[4:],
+                "goal error m (world frame, with odometry drift)"]
+"""S0's simulated robot had Gazebo's odometry, in effect exact: its goal error is the
+estimator's alone, which is the goal error seen from the robot here (the verdict column); the
+world-frame error adds our base's odometry drift (ours, for reference)."""
+
+
 def house_report(rows: list[dict[str, Any]]) -> Report:
-    lines: list[list[Any]] = [["paper, Experiment 2 (80 runs)", *HOUSE]]
+    lines: list[list[Any]] = [["paper, Experiment 2 (80 runs)", *HOUSE, None]]
     summary = {}
     for mode, label in HOUSE_MODES.items():
         s = summarise([r for r in rows if r["mode"] == mode])
+        s["goal_error_world_m"] = mean([r for r in rows if r["mode"] == mode and r["success"]], "goal_error_world_m")
         summary[mode] = s
-        lines.append([f"{label} ({s['runs']} runs)", *(s[k] for k in METRICS)])
-    s = summary["planner"]
-    md = table(["source", *HEADER], lines)
+        lines.append([f"{label} ({s['runs']} runs)", *(s[k] for k in METRICS), s["goal_error_world_m"]])
+    md = table(["source", *HOUSE_HEADER], lines)
     failures = [r for r in rows if not r["success"]]
     md += failed_runs(failures, lambda r: f"{r['mode']} seed {r['seed']} rooms {r['rooms']} target {r['target']}")
 

@@ -8,19 +8,22 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from rfhoming.campaigns import kinematic, s0, s1, s3, s4
 from rfhoming.cli.campaign import REGISTRY, load
 from rfhoming.campaigns.runner import Job, execute, run_jobs
 from rfhoming.cli.main import main
 from rfhoming.host.homing.s0_aoa import S0Params
+from rfhoming.host.homing.types import Pose
 
 
 def test_inline_process_and_dask_give_identical_results() -> None:
     """Every campaign's jobs (a few of each: every S0 mode, both S0 house methods, S1, each S2
     system, S3, S4) give the same results inline, on two worker processes and on Dask."""
     distributed = pytest.importorskip("distributed")
-    picks = {"s0-table3": 4, "s0-house": 2, "s1-dock": 2, "s2-scenarios": 3, "s3-arena": 2, "s4-montecarlo": 1}
+    picks = {"s0-table3": len(s0.MODES), "s0-house": 2, "s1-dock": 2, "s2-scenarios": 3, "s3-arena": 2, "s4-montecarlo": 1}
     jobs = [job for name, n in picks.items() for job in load(name).jobs(1, 7)[:n]]
     jobs = [Job(i, job.fn, job.kwargs) for i, job in enumerate(jobs)]
 
@@ -32,10 +35,36 @@ def test_inline_process_and_dask_give_identical_results() -> None:
     pooled = results(run_jobs(jobs, workers=2))
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         on_dask = results(run_jobs(jobs, dask_address=cluster.scheduler_address))
-    assert {r["mode"] for r in inline[:4]} == set(s0.MODES)
+    assert {r["mode"] for r in inline[:len(s0.MODES)]} == set(s0.MODES)
     assert {r["system"] for r in inline if "system" in r} == {"preliminary", "full", "full-bounded"}
     assert inline == pooled == on_dask
     assert [r["index"] for r in inline] == list(range(len(jobs)))
+
+
+@given(st.floats(-5, 5), st.floats(-5, 5), st.floats(-3, 3), st.floats(-1, 1), st.floats(-1, 1), st.floats(-0.5, 0.5))
+def test_goal_seen_from_the_robot_cancels_odometry_drift(gx, gy, rx, ry, dx, dtheta) -> None:
+    """A perfect estimate in a drifted odometry frame is the true goal seen from the robot; a
+    wrong one keeps its error."""
+    true_pose = (rx, ry, 0.7)
+    c, s_ = math.cos(dtheta), math.sin(dtheta)
+
+    def drifted(x: float, y: float) -> tuple[float, float]:  # the odometry frame: turned and shifted
+        return c * x - s_ * y + dx, s_ * x + c * y + dx / 2
+
+    odometry = Pose(*drifted(rx, ry), true_pose[2] + dtheta)
+    seen = s0.goal_seen_from_robot(drifted(gx, gy), odometry, true_pose)
+    assert math.dist(seen, (gx, gy)) < 1e-9
+    off = s0.goal_seen_from_robot(drifted(gx + 0.3, gy), odometry, true_pose)
+    assert math.dist(off, (gx, gy)) == pytest.approx(0.3, abs=1e-9)
+
+
+def test_s0_method_rows_run_the_papers_estimator() -> None:
+    """Issue 16: S0's rows keep S0's k = 0.8 per reading and hybrid report, without our fusions."""
+    for mode in ("idealised-10hz-paper", "idealised-50hz-paper"):
+        params, _ = s0.PARAMS[mode]
+        assert (params.k, params.close_fusion_m, params.ray_fusion) == (0.8, 0.0, False)
+    assert s0.PARAMS["idealised-10hz-paper"][1] == 0.1
+    assert s0.PAPER_S0.folded  # the house runs the board: S0's estimator behind the fold handling
 
 
 def test_a_job_failure_is_raised_not_swallowed() -> None:
@@ -74,7 +103,7 @@ def test_a_single_noisy_reading_does_not_end_a_run() -> None:
 
 def test_paper_gain_is_reproducible_with_the_unfolded_sensor() -> None:
     row = kinematic.home((-5.0, 5.0), 5.0, 0.05, 0.0, seed=1, params=S0Params(folded=False, k=0.8, tau=5.0,
-                                                                              close_fusion_m=0.0))
+                                                                              ray_fusion=False))
     assert row["success"]
 
 

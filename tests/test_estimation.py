@@ -14,6 +14,7 @@ from rfhoming.host.estimation.beacon import BeaconEkf, BeaconUkf, CircleInitiali
 from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update, triangulate
 from rfhoming.host.estimation.lateration import multilaterate, strongest_three, trilaterate
 from rfhoming.host.estimation.particle import ParticleFilter, PfParams, direction
+from rfhoming.host.estimation.ray_fusion import FusionPrior, RayRangeFusion
 
 coord = st.floats(-20, 20)
 
@@ -49,10 +50,66 @@ def test_s3_table_means_path_loss_vs_exponential() -> None:
     assert ranging.fit_log_distance(d, mean).distance_rmse_m < rmse(paper_log)
 
 
+def test_binned_fit_ignores_a_pile_at_the_floor() -> None:
+    """S0 configuration 5 as a calibration drive sees it: 5 m -> 0.5 m, a dwell at 0.5 m, the
+    range d(1 ± 0.2) ± 1 m floored at 0.05 m and turned into RSSI by the true curve."""
+    rng = np.random.default_rng(3)
+    d = np.concatenate([np.linspace(5.0, 0.5, 1100), np.full(150, 0.5)])
+    noisy = np.maximum(d * (1 + rng.uniform(-0.2, 0.2, d.size)) + rng.uniform(-1, 1, d.size), 0.05)
+    rssi = -59.0 - 22.0 * np.log10(noisy)
+    plain, binned = ranging.fit_log_distance(d, rssi), ranging.fit_log_distance_binned(d, rssi)
+    assert abs(plain.model.n - 2.2) > 0.3  # the floor pile skews a plain fit
+    assert binned.model.n == pytest.approx(2.2, abs=0.15) and binned.model.p0_dbm == pytest.approx(-59.0, abs=1.0)
+    gaussian = -60.0 - 24.0 * np.log10(d) + rng.normal(0, 3.0, d.size)  # symmetric noise: as the plain fit
+    assert ranging.fit_log_distance_binned(d, gaussian).model.n == pytest.approx(
+        ranging.fit_log_distance(d, gaussian).model.n, abs=0.1)
+    with pytest.raises(ValueError, match="two 0.25 m distance bins"):
+        ranging.fit_log_distance_binned(np.full(20, 1.0), np.full(20, -60.0))
+
+
 @pytest.mark.parametrize(("d", "rssi", "words"), [([1, 1], [-50, -51], "one distance"), ([1], [-50], "two"), ([0, 1], [-1, -2], "positive")])
 def test_fits_refuse_what_cannot_be_fitted(d, rssi, words) -> None:
     with pytest.raises(ValueError, match=words):
         ranging.fit_log_distance(np.array(d, float), np.array(rssi, float))
+
+
+# -- ray fusion -----------------------------------------------------------------------------
+def approach(seed: int) -> tuple[list[tuple[float, float, float, float]], tuple[float, float]]:
+    """Readings (x, y, bearing, range) at 10 Hz on a straight 3 m -> 0.3 m approach to (5, 2),
+    S0 configuration 5's noise: ±20°, range d(1 ± 0.2) ± 1 m floored at 0.05 m."""
+    rng = np.random.default_rng(seed)
+    target, heading = (5.0, 2.0), 0.3
+    out = []
+    for d in np.linspace(3.0, 0.3, 60):
+        x, y = target[0] - d * math.cos(heading), target[1] - d * math.sin(heading)
+        noisy = max(d * (1 + rng.uniform(-0.2, 0.2)) + rng.uniform(-1, 1), 0.05)
+        out.append((x, y, heading + math.radians(rng.uniform(-20, 20)), noisy))
+    return out, target
+
+
+def test_ray_fusion_averages_the_whole_approach() -> None:
+    """On a straight approach only ranges tell how far: keeping every reading beats S0's mean of
+    the last 20 raw vector goals."""
+    fused_err, last20_err = [], []
+    for seed in range(30):
+        readings, target = approach(seed)
+        fusion = RayRangeFusion()
+        for k, (x, y, a, d) in enumerate(readings):
+            fusion.add(0.1 * k, x, y, a, d, fusion.estimate())
+        fused_err.append(math.dist(fusion.estimate(), target))
+        raw = [(x + d * math.cos(a), y + d * math.sin(a)) for x, y, a, d in readings[-20:]]
+        last20_err.append(math.dist(np.mean(raw, axis=0), target))
+    assert np.mean(fused_err) < 0.85 * np.mean(last20_err)
+
+
+def test_ray_fusion_keeps_out_far_readings_and_forgets() -> None:
+    fusion = RayRangeFusion(FusionPrior(max_range_m=3.0, half_life_s=1.0))
+    assert fusion.estimate() is None
+    fusion.add(0.0, 0.0, 0.0, 0.0, 8.0, None)  # 8 m away: left out
+    assert fusion.estimate() is None and fusion.readings == 0
+    fusion.add(0.0, 0.0, 0.0, 0.0, 2.0, None)
+    fusion.add(10.0, 0.0, 0.0, 0.0, 1.0, (2.0, 0.0))  # ten half-lives later: the first is gone
+    assert fusion.estimate()[0] == pytest.approx(1.0, abs=0.01)
 
 
 # -- bearings -------------------------------------------------------------------------------

@@ -62,10 +62,41 @@ def test_parallax_and_vector_goals_converge_and_arrive() -> None:
     heading = math.atan2(3, 6)
     path = [Pose(0.05 * k * math.cos(heading) + 0.2 * math.sin(k / 5), 0.05 * k * math.sin(heading), heading) for k in range(100)]
     feed(ctrl, target, path)
-    assert ctrl.g_p is not None and np.linalg.norm(ctrl.reported - target) < 0.5
+    assert ctrl.g_p is not None and math.dist(ctrl.reported, target) < 0.5
     near = Pose(5.85, 2.95, heading)
     decision = ctrl.decide(near)
     assert decision.arrived and decision.v == 0.0
+
+
+def test_running_z_test_matches_the_buffer_statistics() -> None:
+    """The per-reading z-test keeps running sums; it must say what the buffer's mean and std say."""
+    rng = np.random.default_rng(4)
+    ctrl = S0Homing(S0Params(folded=False))
+    for k in range(200):
+        raw = (5 + rng.normal(0, 0.5 + (k % 7) * 0.2), -3 + rng.normal(0, 0.3))
+        buffer = np.array(ctrl._raw) if ctrl._raw else np.zeros((0, 2))
+        if len(buffer) >= 5:
+            z = np.abs(np.array(raw) - buffer.mean(axis=0)) / np.maximum(buffer.std(axis=0), 1e-3)
+            assert ctrl._is_outlier(raw) == bool(z.max() > 1.645)
+        ctrl.on_reading(0.1 * k, Pose(0.01 * k, 0, 0), math.atan2(raw[1], raw[0] - 0.01 * k),
+                        math.hypot(raw[0] - 0.01 * k, raw[1]))
+
+
+def test_ray_fusion_is_ours_and_off_restores_the_hybrid() -> None:
+    target = (4.0, 1.0)
+    path = [Pose(0.03 * k, 0.25 * k / 130, 0.0) for k in range(130)]
+    reports = {}
+    for fusion in (False, True):
+        ctrl = S0Homing(S0Params(folded=False, k=0.8, ray_fusion=fusion))
+        rng = np.random.default_rng(2)
+        for k, pose in enumerate(path):
+            rel = math.atan2(target[1] - pose.y, target[0] - pose.x) + math.radians(rng.uniform(-20, 20))
+            d = max(math.dist(target, (pose.x, pose.y)) * (1 + rng.uniform(-0.2, 0.2)) + rng.uniform(-1, 1), 0.05)
+            ctrl.on_reading(0.1 * k, pose, rel, d)
+        reports[fusion] = ctrl.reported
+        if not fusion:
+            assert ctrl.reported == ctrl.g_p  # the paper's report: the hybrid's parallax goal
+    assert reports[True] != reports[False]
 
 
 def test_velocity_law_eq15() -> None:

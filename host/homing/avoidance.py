@@ -8,8 +8,10 @@ Thresholds from S0 Table A1: obsThreshold1 1.5 m, obsThreshold2 0.35 m, sideObsT
 S0 gives the thresholds but its rule flowchart (Figure A6) is not in the text; these rules are
 our reconstruction:
 - something within obsThreshold2 ahead (centre 2 or centre): stop and turn to the freer side;
-- something within obsThreshold1 in the centre: slow down in proportion and steer to the freer
-  side unless the homing command already does;
+- something within obsThreshold1 in the centre while driving forward: slow down in proportion
+  and steer to the freer side unless the homing command already does (a turn in place is left
+  alone: steering it away from something ahead it does not approach held the robot facing a
+  sofa, turning back and forth, while the goal lay behind it);
 - a side closer than sideObsThreshold: turn away from it.
 Once avoiding, the chosen side is kept until the centre has been clear for ``release_s``
 (robot time): a reactive rule that re-chooses every step dithers in front of a wall between
@@ -76,8 +78,8 @@ class ObstacleAvoidance:
             return decision
         v, w, note = decision.v, decision.w, decision.note
         ahead = min(s.centre, s.centre2)
-        if emergency_only and ahead >= p.obs_threshold2:
-            pass
+        if (emergency_only or v <= 0.0) and ahead >= p.obs_threshold2:
+            pass  # a planner steers, or the robot turns in place: nothing ahead to slow for
         elif ahead < p.obs_threshold1:
             self._clear_since = None
             if not self._side:

@@ -185,6 +185,8 @@ disambiguation_w = 0.8
 folded = true            # the board folds bearings into +-90 deg; false for a 360-degree sensor
 close_fusion_m = 2.0     # nearer than this, vector goals pull the parallax goal (0: paper's rule)
 close_fusion_gain = 0.1
+ray_fusion = false       # true: report a fusion of the readings within 3 m (calibrated ranges)
+fusion_min_readings = 10 # readings within 3 m of the goal before the fusion is reported
 
 [avoid]                  # S0 Appendix B, on the base's front range scan (when it sends one)
 enabled = true

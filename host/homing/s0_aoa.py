@@ -15,11 +15,22 @@ Estimates:
   raw vector goal against the previous 20 (per axis, 1.645): an inlier moves g_p to the mean of
   g_p and g_v, an outlier is ignored.
 
-Beyond the paper (``close_fusion_m``; 0 restores the paper's rule): the parallax goal's error
-along the rays is never corrected once the robot drives straight at it, while near the goal
-the vector goal's relative distance error is small. Within 2 m each inlier vector goal pulls
-g_p by 0.1. Arrival also needs g_p, or a full buffer of vector goals when no parallax formed:
-one noisy first reading must not end a run.
+Beyond the paper (both ours; ``close_fusion_m = 0`` and ``ray_fusion = False`` restore the
+paper's rule and report):
+- near-goal fusion: the parallax goal's error along the rays is never corrected once the robot
+  drives straight at it, while near the goal the vector goal's relative distance error is
+  small. Within 2 m each inlier vector goal pulls g_p by 0.1.
+- ray fusion: on that straight approach every ray agrees and only ranges tell how far the goal
+  is, and the paper's estimates rest on the last few readings (Kohonen's k, a 20-reading
+  vector goal). Ours reports the inverse-variance mean of every raw vector goal taken within
+  3 m of the goal (:mod:`rfhoming.host.estimation.ray_fusion`) once it holds 10, as long as it
+  stays within ``arrival_agreement`` of g_p: ranges that disagree with the bearings (a biased
+  RSSI link) are not trusted, and g_p is reported instead. Off by default: it needs ranges
+  from a calibration. Without one, a link whose ranges read short by a factor makes every
+  older (farther) reading land shorter still, and the mean trails the tag further than the
+  hybrid does. The campaigns calibrate first and turn it on.
+Arrival also needs g_p, or a full buffer of vector goals when no parallax formed: one noisy
+first reading must not end a run.
 
 What the paper left open, and how it is handled here:
 - the board's ±90° limit and front/back fold: each reading has two world-bearing hypotheses,
@@ -38,10 +49,9 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update
 from rfhoming.host.estimation.fixed import wrap_rad
+from rfhoming.host.estimation.ray_fusion import RayRangeFusion
 from rfhoming.host.homing.types import Decision, Pose, velocity_law
 
 
@@ -67,6 +77,8 @@ class S0Params:
     folded: bool = True  # the sensor folds bearings into ±90° (the XPLR-AOA); False: a 360° sensor
     close_fusion_m: float = 2.0  # nearer than this, inlier vector goals pull g_p (0: the paper's rule)
     close_fusion_gain: float = 0.1
+    ray_fusion: bool = False  # report the fusion of readings near the goal (needs calibrated ranges)
+    fusion_min_readings: int = 10  # readings near the goal before the fusion is reported
 
 
 @dataclass
@@ -79,11 +91,14 @@ class _Ray:
 @dataclass
 class S0Homing:
     params: S0Params = field(default_factory=S0Params)
-    g_p: np.ndarray | None = None
-    g_v: np.ndarray | None = None
-    reported: np.ndarray | None = None
+    g_p: tuple[float, float] | None = None
+    g_v: tuple[float, float] | None = None
+    reported: tuple[float, float] | None = None
     phase: str = "disambiguating"
-    _raw: deque = field(default_factory=lambda: deque(maxlen=20))
+    _raw: deque = field(init=False)  # the last ``buffer`` raw vector goals
+    _weights: list[float] = field(init=False)  # g_v's weights, newest first
+    _sums: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # Σx, Σy, Σx², Σy² of _raw
+    _z_outlier: bool = False
     _first: _Ray | None = None
     _disamb: list[tuple[float, float, float]] = field(default_factory=list)  # (front α, back α, t)
     _mirror: bool = False
@@ -94,6 +109,9 @@ class S0Homing:
     def __post_init__(self) -> None:
         if not self.params.folded:  # nothing to tell apart: home from the first reading
             self.phase = "homing"
+        self._raw = deque(maxlen=self.params.buffer)
+        self._weights = [math.exp(-k / self.params.tau) for k in range(self.params.buffer)]
+        self._fusion = RayRangeFusion() if self.params.ray_fusion else None
 
     def world_bearing(self, pose: Pose, theta_s: float) -> float:
         """The reading's world bearing under the current front/back choice."""
@@ -136,7 +154,14 @@ class S0Homing:
             return  # near the array's edge: steer only
         self._update_vector(pose, alpha, distance)
         self._update_parallax(pose, alpha)
+        previous = self.reported
         self._hybrid(pose)
+        if self._fusion is not None:
+            self._fusion.add(t, pose.x, pose.y, alpha, distance, previous)
+            fused = self._fusion.estimate()
+            if (fused is not None and self.g_p is not None and self._fusion.readings >= p.fusion_min_readings
+                    and math.dist(fused, self.g_p) < p.arrival_agreement):
+                self.reported = fused
 
     def _decide_front_back(self) -> None:
         def spread(angles: list[float]) -> float:
@@ -151,25 +176,36 @@ class S0Homing:
         self.phase = "homing"
 
     def _update_vector(self, pose: Pose, alpha: float, distance: float) -> None:
-        raw = np.array([pose.x + distance * math.cos(alpha), pose.y + distance * math.sin(alpha)])
+        raw = (pose.x + distance * math.cos(alpha), pose.y + distance * math.sin(alpha))
         self._z_outlier = self._is_outlier(raw)
+        if len(self._raw) == self._raw.maxlen:  # the oldest leaves the z-test's running sums
+            ox, oy = self._raw[0]
+            self._sums = _minus(self._sums, ox, oy)
         self._raw.append(raw)
-        goals = np.array(self._raw)[::-1]  # newest first
-        w = np.exp(-np.arange(len(goals)) / self.params.tau)
-        self.g_v = (w[:, None] * goals).sum(axis=0) / w.sum()
+        self._sums = _plus(self._sums, *raw)
+        sx = sy = sw = 0.0  # the paper's g_v: w_k = exp(−(k−1)/τ), k = 1 the newest
+        for w, (x, y) in zip(self._weights, reversed(self._raw)):
+            sx, sy, sw = sx + w * x, sy + w * y, sw + w
+        self.g_v = (sx / sw, sy / sw)
 
-    def _is_outlier(self, raw: np.ndarray) -> bool:
-        if len(self._raw) < 5:
+    def _is_outlier(self, raw: tuple[float, float]) -> bool:
+        """The paper's z-test of a new raw vector goal against the buffer, per axis, from running
+        sums (this runs for every reading)."""
+        n = len(self._raw)
+        if n < 5:
             return False
-        prev = np.array(self._raw)
-        std = prev.std(axis=0)
-        z = np.abs(raw - prev.mean(axis=0)) / np.maximum(std, 1e-3)
-        return bool(np.max(z) > self.params.z_threshold)
+        sx, sy, sxx, syy = self._sums
+        z_max = 0.0
+        for value, s, ss in ((raw[0], sx, sxx), (raw[1], sy, syy)):
+            mean = s / n
+            std = math.sqrt(max(ss / n - mean * mean, 0.0))
+            z_max = max(z_max, abs(value - mean) / max(std, 1e-3))
+        return z_max > self.params.z_threshold
 
     def _update_parallax(self, pose: Pose, alpha: float) -> None:
         p = self.params
         if self.g_p is not None:
-            self.g_p = np.array(kohonen_update(self.g_p, (pose.x, pose.y), alpha, p.k))
+            self.g_p = kohonen_update(self.g_p, (pose.x, pose.y), alpha, p.k)
             return
         if self._first is None:
             self._first = _Ray(pose.x, pose.y, alpha)
@@ -183,7 +219,7 @@ class S0Homing:
         except Degenerate:
             self._first = _Ray(pose.x, pose.y, alpha)  # slide the baseline forward
             return
-        self.g_p = np.array(point)
+        self.g_p = point
 
     def _hybrid(self, pose: Pose) -> None:
         if self.g_v is None:
@@ -191,15 +227,16 @@ class S0Homing:
         if self.g_p is None:
             self.reported = self.g_v
             return
-        here = np.array([pose.x, pose.y])
-        d_p, d_v = np.linalg.norm(self.g_p - here), np.linalg.norm(self.g_v - here)
-        err = np.linalg.norm(self.g_p - self.g_v) / max(0.5 * (d_p + d_v), 1e-6)
+        (px, py), (vx, vy) = self.g_p, self.g_v
+        d_p, d_v = math.hypot(px - pose.x, py - pose.y), math.hypot(vx - pose.x, vy - pose.y)
+        err = math.hypot(px - vx, py - vy) / max(0.5 * (d_p + d_v), 1e-6)
         if err >= self.params.err_threshold and not self._z_outlier:
-            self.g_p = (self.g_p + self.g_v) / 2
+            self.g_p = ((px + vx) / 2, (py + vy) / 2)
         elif d_v < self.params.close_fusion_m and not self._z_outlier:
             # near the goal a relative distance error is small, but the parallax goal's error
             # along the rays is never corrected: let the vector goal pull it
-            self.g_p = self.g_p + self.params.close_fusion_gain * (self.g_v - self.g_p)
+            gain = self.params.close_fusion_gain
+            self.g_p = (px + gain * (vx - px), py + gain * (vy - py))
         self.reported = self.g_p
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
@@ -218,7 +255,8 @@ class S0Homing:
             return Decision(0.0, self._turn(theta_g), None, False, "turning toward the bearing")
         dx, dy = goal[0] - pose.x, goal[1] - pose.y
         d_g = math.hypot(dx, dy)
-        agree = self.g_v is not None and self.g_p is not None and np.linalg.norm(self.g_p - self.g_v) < p.arrival_agreement
+        agree = (self.g_v is not None and self.g_p is not None
+                 and math.dist(self.g_p, self.g_v) < p.arrival_agreement)
         if d_g < p.arrival_radius and (agree or (self.g_p is None and len(self._raw) == self._raw.maxlen)):
             return Decision(0.0, 0.0, tuple(goal), True, "arrived")
         if steer_to is not None:
@@ -237,3 +275,11 @@ class S0Homing:
             self._turn_sign = math.copysign(1.0, w)
         return w
 
+
+
+def _plus(sums: tuple[float, float, float, float], x: float, y: float) -> tuple[float, float, float, float]:
+    return sums[0] + x, sums[1] + y, sums[2] + x * x, sums[3] + y * y
+
+
+def _minus(sums: tuple[float, float, float, float], x: float, y: float) -> tuple[float, float, float, float]:
+    return sums[0] - x, sums[1] - y, sums[2] - x * x, sums[3] - y * y
