@@ -70,9 +70,28 @@ class At86rf212NodeFirmware(FramedNode):
         if not self.receiving:
             return
         gains = self.antenna_gains_db(bearing_rad)
+        self._receive(t_us, emitter_seq, [incident_dbm[i] + gains[i] for i in range(4)], psdu)
+
+    def on_paths(self, t_us: int, emitter_seq: int, paths: Sequence[tuple[float, float]],
+                 noise_db: Sequence[float], psdu: bytes = b"") -> None:
+        """One emitter frame over several paths, each (bearing_rad, incident dBm): each dish
+        weights each path by its own gain toward that path's arrival and sums the powers, so
+        behind a wall the dish facing a reflection can be the strongest; ``noise_db[i]`` is
+        dish i's fading and bias, added after the sum."""
+        if not self.receiving:
+            return
+        powers = []
+        for i, boresight in enumerate(BORESIGHT_RAD):
+            total = sum(10 ** ((p + dish_gain_db(b - boresight, self.dish_diameter_m, self.front_back_db)) / 10)
+                        for b, p in paths)
+            powers.append(10 * math.log10(total) + noise_db[i])
+        self._receive(t_us, emitter_seq, powers, psdu)
+
+    def _receive(self, t_us: int, emitter_seq: int, powers: list[float], psdu: bytes) -> None:
+        """Each chip measures its dish's power (dBm at the chip's input)."""
         readings, mask = [], 0
         for i in range(4):
-            power = incident_dbm[i] + gains[i]
+            power = powers[i]
             if power < self.sensitivity_dbm:
                 readings.append(AntennaReading(255, 0, 0))
                 continue
