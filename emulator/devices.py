@@ -15,7 +15,6 @@ import numpy as np
 
 from rfhoming.emulator.faults import ByteFaults, scramble
 from rfhoming.emulator.links import Link, TcpLink
-from rfhoming.emulator.multipath import Path
 from rfhoming.emulator.radio import (AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth,
                                      power_sum_dbm)
 from rfhoming.emulator.world import Target, World
@@ -93,12 +92,16 @@ class DeviceRunner:
         self.firmware = self.make_firmware()
 
 
-def reflected(world: World, model: PathLossModel, source: tuple[float, float],
-              receiver: tuple[float, float]) -> list[Path]:
-    """The reflected paths from source to receiver, if the scenario's radio has reflections."""
+def arrivals(world: World, model: PathLossModel, source: tuple[float, float], receiver: tuple[float, float],
+             tx_power_dbm: float, walls: int) -> list[tuple[float, float]]:
+    """(world direction toward the arrival, mean dBm) of each path from source to receiver: the
+    direct one first (``walls`` crossed), then each wall reflection if the radio has them."""
+    direct = (math.atan2(source[1] - receiver[1], source[0] - receiver[0]),
+              model.mean_dbm(math.dist(source, receiver), tx_power_dbm, walls))
     if not model.reflections:
-        return []
-    return world.reflected_paths(source, receiver, model.reflect_bounds)
+        return [direct]
+    return [direct] + [(p.direction_rad, model.path_dbm(p.distance_m, tx_power_dbm, p.walls, p.reflections))
+                       for p in world.reflected_paths(source, receiver, model.reflect_bounds)]
 
 
 class _Schedule:
@@ -177,21 +180,15 @@ class AoaRunner(DeviceRunner):
                 bx, by, bth = self.board_pose(world)
                 distance = math.hypot(pos[0] - bx, pos[1] - by)
                 walls = world.obstacles_crossed((bx, by), pos)
-                direction = math.atan2(pos[1] - by, pos[0] - bx)
-                paths = reflected(world, self.path_loss, pos, (bx, by))
-                if paths:  # NLOS: the board reads the strongest path's bearing; powers add
-                    m = self.path_loss
-                    powers = [m.mean_dbm(distance, tx, walls)] + [m.path_dbm(p.distance_m, tx, p.walls, 1) for p in paths]
-                    strongest = max(range(len(powers)), key=powers.__getitem__)
-                    if strongest:
-                        direction = paths[strongest - 1].direction_rad
+                paths = arrivals(world, self.path_loss, pos, (bx, by), tx, walls)
+                # NLOS: the board reads the strongest path's bearing (docs/emulator.md)
+                direction = max(paths, key=lambda p: p[1])[0] if len(paths) > 1 else paths[0][0]
                 if self.aoa.idealised_rssi:
                     rssi = idealised_rssi(self.aoa, self.path_loss, distance, tx, self.rng)
                 else:
                     if distance > self.path_loss.max_range_m:
                         continue
-                    mean = power_sum_dbm(powers) if paths else self.path_loss.mean_dbm(distance, tx, walls)
-                    rssi = self.channel.sample((tag_id, self.name), mean)
+                    rssi = self.channel.sample((tag_id, self.name), power_sum_dbm([p for _, p in paths]))
                     if rssi < -100:
                         continue
                 relative = math.degrees(direction - bth)
@@ -313,17 +310,14 @@ class RssRunner(DeviceRunner):
                 continue
             seq = self.emitter_seq[emitter.id] = (self.emitter_seq.get(emitter.id, 0) + 1) & 0xFFFF
             bearing = math.atan2(pos[1] - r.y, pos[0] - r.x) - r.theta
-            paths = reflected(world, m, pos, (r.x, r.y))
-            tx = emitter.tx_power_dbm
-            if not paths:
-                incident = [self.channel.received_dbm((emitter.id, f"{self.name}.{i}"), distance, tx, walls)
-                            for i in range(4)]
+            paths = arrivals(world, m, pos, (r.x, r.y), emitter.tx_power_dbm, walls)
+            if len(paths) == 1:
+                incident = [self.channel.received_dbm((emitter.id, f"{self.name}.{i}"), distance,
+                                                      emitter.tx_power_dbm, walls) for i in range(4)]
                 fw.on_frame(int(t * 1e6), seq, bearing, incident)  # type: ignore[arg-type]
                 continue
-            arrivals = [(bearing, m.mean_dbm(distance, tx, walls))]
-            arrivals += [(p.direction_rad - r.theta, m.path_dbm(p.distance_m, tx, p.walls, 1)) for p in paths]
             noise = [self.channel.sample((emitter.id, f"{self.name}.{i}"), 0.0) for i in range(4)]
-            fw.on_paths(int(t * 1e6), seq, arrivals, noise)
+            fw.on_paths(int(t * 1e6), seq, [(d - r.theta, p) for d, p in paths], noise)
         fw.tick(int(t1 * 1e6))
 
 

@@ -80,12 +80,17 @@ class At86rf212NodeFirmware(FramedNode):
         dish i's fading and bias, added after the sum."""
         if not self.receiving:
             return
-        powers = []
-        for i, boresight in enumerate(BORESIGHT_RAD):
+        powers = [p + n for p, n in zip(self.dish_powers(paths), noise_db)]
+        self._receive(t_us, emitter_seq, powers, psdu)
+
+    def dish_powers(self, paths: Sequence[tuple[float, float]]) -> list[float]:
+        """Each dish's power (dBm) from paths (bearing_rad, incident dBm): gain-weighted power sum."""
+        out = []
+        for boresight in BORESIGHT_RAD:
             total = sum(10 ** ((p + dish_gain_db(b - boresight, self.dish_diameter_m, self.front_back_db)) / 10)
                         for b, p in paths)
-            powers.append(10 * math.log10(total) + noise_db[i])
-        self._receive(t_us, emitter_seq, powers, psdu)
+            out.append(10 * math.log10(total))
+        return out
 
     def _receive(self, t_us: int, emitter_seq: int, powers: list[float], psdu: bytes) -> None:
         """Each chip measures its dish's power (dBm at the chip's input)."""
