@@ -100,7 +100,7 @@ class World:
         self._reflections: dict[bool, Reflections] = {}
 
     def reflected_paths(self, source: tuple[float, float], receiver: tuple[float, float],
-                        bounds_reflect: bool = False) -> list[Path]:
+                        bounds_reflect: bool = False) -> tuple[Path, ...]:
         """First-order reflections off the obstacles (and the bounds) from source to receiver."""
         r = self._reflections.get(bounds_reflect)
         if r is None:
@@ -120,7 +120,7 @@ class World:
             t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / denom
             u = (w[:, 0] * d[1] - w[:, 1] * d[0]) / denom
         hit = (np.abs(denom) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
-        return len(np.unique(self._owner[hit]))
+        return int(np.count_nonzero(np.bincount(self._owner[hit])))  # distinct owners; faster than np.unique
 
     def cast(self, origin: tuple[float, float], angles: np.ndarray, max_range: float) -> np.ndarray:
         """Range along each world angle to the nearest obstacle edge; inf beyond ``max_range``."""

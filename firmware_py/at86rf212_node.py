@@ -85,10 +85,14 @@ class At86rf212NodeFirmware(FramedNode):
 
     def dish_powers(self, paths: Sequence[tuple[float, float]]) -> list[float]:
         """Each dish's power (dBm) from paths (bearing_rad, incident dBm): gain-weighted power sum."""
+        peak = dish_gain_db(0.0, self.dish_diameter_m, self.front_back_db)
+        k = 12.0 / beam_width_deg(self.dish_diameter_m) ** 2
         out = []
-        for boresight in BORESIGHT_RAD:
-            total = sum(10 ** ((p + dish_gain_db(b - boresight, self.dish_diameter_m, self.front_back_db)) / 10)
-                        for b, p in paths)
+        for boresight in BORESIGHT_RAD:  # dish_gain_db inlined: this runs for every path of every frame
+            total = 0.0
+            for b, p in paths:
+                off = math.degrees(math.remainder(b - boresight, 2 * math.pi))
+                total += 10 ** ((p + peak + max(-k * off * off, -self.front_back_db)) / 10)
             out.append(10 * math.log10(total))
         return out
 

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from rfhoming.emulator.devices import arrivals
-from rfhoming.emulator.multipath import Reflections
+from rfhoming.emulator.multipath import CELL_M, Reflections
 from rfhoming.emulator.radio import PathLossModel
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
@@ -40,9 +40,9 @@ def test_a_side_wall_reflects_by_its_image() -> None:
 
 def test_no_reflection_from_behind_a_face_or_past_its_end() -> None:
     w = world(MIRROR)
-    assert w.reflected_paths(EMITTER, (0.0, 2.5)) == []  # receiver on the far side of the wall
+    assert not w.reflected_paths(EMITTER, (0.0, 2.5))  # receiver on the far side of the wall
     short = world(Obstacle.rect(-2.0, 1.5, 0.5, 1.7))  # the reflection point (1, 1.5) is off its end
-    assert short.reflected_paths(EMITTER, (0.0, 0.0)) == []
+    assert not short.reflected_paths(EMITTER, (0.0, 0.0))
 
 
 def test_a_reflected_leg_through_a_wall_counts_it() -> None:
@@ -54,21 +54,29 @@ def test_a_reflected_leg_through_a_wall_counts_it() -> None:
 
 def test_bounds_reflect_only_when_asked() -> None:
     w = world()
-    assert w.reflected_paths(EMITTER, (0.0, 0.0)) == []
+    assert not w.reflected_paths(EMITTER, (0.0, 0.0))
     assert len(w.reflected_paths(EMITTER, (0.0, 0.0), bounds_reflect=True)) == 4
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.floats(-4.5, 7.5), st.floats(-4.5, 1.4), st.floats(-4.5, 7.5), st.floats(-4.5, 1.4))
-def test_every_reflected_path_obeys_the_mirror_law(sx: float, sy: float, rx: float, ry: float) -> None:
+@given(st.floats(-4.5, 7.5), st.floats(-4.5, 1.4), st.integers(-90, 150), st.integers(-90, 28))
+def test_every_reflected_path_obeys_the_mirror_law(sx: float, sy: float, i: int, j: int) -> None:
     """A reflected path is never shorter than the direct one, and it arrives from a point on
-    the reflecting face (receiver-image line meets y = 1.5 between the wall's ends)."""
+    the reflecting face (receiver-image line meets y = 1.5 between the wall's ends). Receivers
+    on the 5 cm grid, where paths are traced from."""
+    rx, ry = i * CELL_M, j * CELL_M
     for p in Reflections([MIRROR], None).paths((sx, sy), (rx, ry)):
         assert p.distance_m >= math.dist((sx, sy), (rx, ry)) - 1e-9
-        dy = 1.5 - ry
         assert math.sin(p.direction_rad) > 0
-        x_at_face = rx + dy / math.tan(p.direction_rad) if abs(math.tan(p.direction_rad)) > 1e-9 else rx
+        x_at_face = rx + (1.5 - ry) * math.cos(p.direction_rad) / math.sin(p.direction_rad)
         assert -2.0 - 1e-6 <= x_at_face <= 6.0 + 1e-6
+
+
+def test_paths_are_traced_once_per_receiver_cell() -> None:
+    r = Reflections([BLOCK, MIRROR], None)
+    here = r.paths(EMITTER, (0.0, 0.0))
+    assert r.paths(EMITTER, (0.01, -0.01)) is here  # the same 5 cm cell
+    assert r.paths(EMITTER, (0.2, 0.0)) != here
 
 
 HEADING = math.radians(-20)  # the emitter 20° to the robot's left, the reflection 76°
