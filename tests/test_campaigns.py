@@ -13,12 +13,12 @@ from rfhoming.campaigns import kinematic, s0, s1, s3, s4
 from rfhoming.cli.campaign import REGISTRY, load
 from rfhoming.campaigns.runner import Job, execute, run_jobs
 from rfhoming.cli.main import main
+from rfhoming.emulator.scenario import load as scenario
 from rfhoming.host.homing.s0_aoa import S0Params
 
 
-def test_inline_process_and_dask_give_identical_results() -> None:
+def _inline_pooled_dask(jobs: list[Job]) -> tuple[list, list, list]:
     distributed = pytest.importorskip("distributed")
-    jobs = load("s0-table3").jobs(2, 7)[:8]  # configuration 1: two runs in each mode
 
     def results(rows):  # everything but the wall time
         return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
@@ -27,9 +27,24 @@ def test_inline_process_and_dask_give_identical_results() -> None:
     pooled = results(run_jobs(jobs, workers=2))
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         on_dask = results(run_jobs(jobs, dask_address=cluster.scheduler_address))
+    return inline, pooled, on_dask
+
+
+def test_inline_process_and_dask_give_identical_results() -> None:
+    jobs = load("s0-table3").jobs(2, 7)[:8]  # configuration 1: two runs in each mode
+    inline, pooled, on_dask = _inline_pooled_dask(jobs)
     assert {r["mode"] for r in inline} == set(s0.MODES)
     assert inline == pooled == on_dask
     assert [r["index"] for r in inline] == list(range(8))
+
+
+def test_wall_reflections_give_identical_results_everywhere() -> None:
+    """S2 B (a wall, the hall's walls reflecting): the reflection caches are per session."""
+    assert scenario("s2-b").path_loss.reflections and scenario("s2-b").path_loss.reflect_bounds
+    jobs = [j for j in load("s2-scenarios").jobs(1, 0) if j.kwargs["scenario"] == "b" and j.kwargs["system"] != "preliminary"]
+    inline, pooled, on_dask = _inline_pooled_dask(jobs)
+    assert len(inline) == 2 and all(r["arrived"] for r in inline)
+    assert inline == pooled == on_dask
 
 
 def test_a_job_failure_is_raised_not_swallowed() -> None:
