@@ -15,7 +15,8 @@ import numpy as np
 
 from rfhoming.emulator.faults import ByteFaults, scramble
 from rfhoming.emulator.links import Link, TcpLink
-from rfhoming.emulator.radio import AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth
+from rfhoming.emulator.radio import (AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth,
+                                     power_sum_dbm)
 from rfhoming.emulator.world import Target, World
 from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
 from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware
@@ -89,6 +90,18 @@ class DeviceRunner:
     def reboot(self, t: float) -> None:
         """Power-cycle: fresh firmware, all state lost (binary nodes restart their counters)."""
         self.firmware = self.make_firmware()
+
+
+def arrivals(world: World, model: PathLossModel, source: tuple[float, float], receiver: tuple[float, float],
+             tx_power_dbm: float, walls: int) -> list[tuple[float, float]]:
+    """(world direction toward the arrival, mean dBm) of each path from source to receiver: the
+    direct one first (``walls`` crossed), then each wall reflection if the radio has them."""
+    direct = (math.atan2(source[1] - receiver[1], source[0] - receiver[0]),
+              model.mean_dbm(math.dist(source, receiver), tx_power_dbm, walls))
+    if not model.reflections:
+        return [direct]
+    return [direct] + [(p.direction_rad, model.path_dbm(p.distance_m, tx_power_dbm, p.walls, p.reflections))
+                       for p in world.reflected_paths(source, receiver, model.reflect_bounds)]
 
 
 class _Schedule:
@@ -167,14 +180,18 @@ class AoaRunner(DeviceRunner):
                 bx, by, bth = self.board_pose(world)
                 distance = math.hypot(pos[0] - bx, pos[1] - by)
                 walls = world.obstacles_crossed((bx, by), pos)
+                paths = arrivals(world, self.path_loss, pos, (bx, by), tx, walls)
+                # NLOS: the board reads the strongest path's bearing (docs/emulator.md)
+                direction = max(paths, key=lambda p: p[1])[0] if len(paths) > 1 else paths[0][0]
                 if self.aoa.idealised_rssi:
                     rssi = idealised_rssi(self.aoa, self.path_loss, distance, tx, self.rng)
                 else:
-                    sample = self.channel.received_dbm((tag_id, self.name), distance, tx, walls)
-                    if sample is None or sample < -100:
+                    if distance > self.path_loss.max_range_m:
                         continue
-                    rssi = sample
-                relative = math.degrees(math.atan2(pos[1] - by, pos[0] - bx) - bth)
+                    rssi = self.channel.sample((tag_id, self.name), power_sum_dbm([p for _, p in paths]))
+                    if rssi < -100:
+                        continue
+                relative = math.degrees(direction - bth)
                 azimuth = measure_azimuth(self.aoa, relative, self.rng)
                 if self.upside_down:
                     azimuth = -azimuth
@@ -287,14 +304,20 @@ class RssRunner(DeviceRunner):
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: At86rf212NodeFirmware = self.firmware
         r = world.robot
+        m = self.channel.model
         for emitter, t, pos, distance, walls in self.transmissions(world, "rf_emitter", t0, t1):
-            incident = [self.channel.received_dbm((emitter.id, f"{self.name}.{i}"), distance,
-                                                  emitter.tx_power_dbm, walls) for i in range(4)]
-            if any(p is None for p in incident):
+            if distance > m.max_range_m:
                 continue
             seq = self.emitter_seq[emitter.id] = (self.emitter_seq.get(emitter.id, 0) + 1) & 0xFFFF
             bearing = math.atan2(pos[1] - r.y, pos[0] - r.x) - r.theta
-            fw.on_frame(int(t * 1e6), seq, bearing, incident)  # type: ignore[arg-type]
+            paths = arrivals(world, m, pos, (r.x, r.y), emitter.tx_power_dbm, walls)
+            if len(paths) == 1:
+                incident = [self.channel.received_dbm((emitter.id, f"{self.name}.{i}"), distance,
+                                                      emitter.tx_power_dbm, walls) for i in range(4)]
+                fw.on_frame(int(t * 1e6), seq, bearing, incident)  # type: ignore[arg-type]
+                continue
+            noise = [self.channel.sample((emitter.id, f"{self.name}.{i}"), 0.0) for i in range(4)]
+            fw.on_paths(int(t * 1e6), seq, [(d - r.theta, p) for d, p in paths], noise)
         fw.tick(int(t1 * 1e6))
 
 

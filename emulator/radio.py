@@ -5,6 +5,11 @@ Received power (dBm) = tx + P0 − 10 n log10(d / d0) − L_wall · (obstacles c
 with ``b_link ~ N(0, σ_link²)`` drawn once per link. The defaults give about 5.3 dB of scatter
 around the log-distance fit, like the real recordings in shared/data (5–6 dB indoors).
 
+With ``reflections`` on, each first-order reflection off a wall (emulator/multipath.py) is a
+path of its own: the same law over the image's distance, its own walls, and
+``reflection_loss_db`` more. Paths add as powers (incoherently): the fast noise already stands
+for the fading that their phases would make, and is drawn once per reception, after the sum.
+
 AoA: the true bearing of the tag relative to the board's boresight (CCW, degrees) is folded
 into the front half-plane (a planar array cannot tell front from back: 120° reads as 60°), noise
 is added (Gaussian growing toward ±90°, or S0's uniform presets), the result is clipped to
@@ -29,10 +34,17 @@ class PathLossModel:
     wall_loss_db: float = 6.0
     rician_k: float | None = None
     max_range_m: float = 60.0
+    reflections: bool | None = None  # None: on when the scenario has obstacles (scenario.load)
+    reflection_loss_db: float = 8.0  # concrete at normal incidence, ITU-R P.2040 (docs/emulator.md)
+    reflect_bounds: bool = False  # the world's bounds are walls that reflect (a hall's)
 
     def mean_dbm(self, distance_m: float, tx_power_dbm: float = 0.0, walls: int = 0) -> float:
         d = max(distance_m, 0.05)
         return tx_power_dbm + self.p0_dbm - 10 * self.n * math.log10(d / self.d0_m) - self.wall_loss_db * walls
+
+    def path_dbm(self, distance_m: float, tx_power_dbm: float, walls: int, reflections: int) -> float:
+        """Mean power along one path of a multipath set."""
+        return self.mean_dbm(distance_m, tx_power_dbm, walls) - self.reflection_loss_db * reflections
 
     def distance_for(self, rssi_dbm: float, tx_power_dbm: float = 0.0) -> float:
         """Inverse of :meth:`mean_dbm` without walls."""
@@ -50,19 +62,30 @@ class RadioChannel:
     def received_dbm(self, link: tuple[str, str], distance_m: float, tx_power_dbm: float,
                      walls: int) -> float | None:
         """One sample, or None beyond the model's range."""
-        m = self.model
-        if distance_m > m.max_range_m:
+        if distance_m > self.model.max_range_m:
             return None
+        return self.sample(link, self.model.mean_dbm(distance_m, tx_power_dbm, walls))
+
+    def sample(self, link: tuple[str, str], mean_dbm: float) -> float:
+        """One reception of a link whose mean power is ``mean_dbm``: its bias, fast noise, fading."""
+        m = self.model
         bias = self._bias.get(link)
         if bias is None:
             bias = self._bias[link] = float(self.rng.normal(0, m.link_sigma_db))
-        power = m.mean_dbm(distance_m, tx_power_dbm, walls) + bias + float(self.rng.normal(0, m.fast_sigma_db))
+        power = mean_dbm + bias + float(self.rng.normal(0, m.fast_sigma_db))
         if m.rician_k is not None:
             k = m.rician_k
             los = math.sqrt(k / (k + 1))
             scatter = self.rng.normal(0, math.sqrt(1 / (2 * (k + 1))), 2)
             power += 20 * math.log10(max(math.hypot(los + scatter[0], scatter[1]), 1e-6))
         return power
+
+
+def power_sum_dbm(powers_dbm: list[float]) -> float:
+    """Incoherent sum of path powers (dBm)."""
+    if len(powers_dbm) == 1:
+        return powers_dbm[0]
+    return 10 * math.log10(sum(10 ** (p / 10) for p in powers_dbm))
 
 
 S0_PRESETS: dict[int, tuple[float, float, float]] = {

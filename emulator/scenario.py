@@ -8,7 +8,7 @@ a (scenario, seed) pair always builds the same world.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -138,13 +138,16 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
         if isinstance(exc, ScenarioError):
             raise
         raise ScenarioError(f"scenario {name_or_path}: {exc}") from None
+    path_loss = _model(PathLossModel, raw.get("radio", {}), "radio")
+    if path_loss.reflections is None:  # walls reflect where there are walls (docs/emulator.md)
+        path_loss = replace(path_loss, reflections=bool(obstacles))
     if aoa_preset is not None and aoa_preset not in range(1, 6):
         raise ScenarioError("AoA preset must be 1..5 (S0 Table 2)")
     return Scenario(
         name=str(raw.get("name", name_or_path)),
         description=str(raw.get("description", "")),
         world=World(start, targets, obstacles, bounds),  # type: ignore[arg-type]
-        path_loss=_model(PathLossModel, raw.get("radio", {}), "radio"),
+        path_loss=path_loss,
         aoa=aoa,
         devices=devices,
         robot_radius=float(robot.get("radius", 0.25)),

@@ -70,9 +70,37 @@ class At86rf212NodeFirmware(FramedNode):
         if not self.receiving:
             return
         gains = self.antenna_gains_db(bearing_rad)
+        self._receive(t_us, emitter_seq, [incident_dbm[i] + gains[i] for i in range(4)], psdu)
+
+    def on_paths(self, t_us: int, emitter_seq: int, paths: Sequence[tuple[float, float]],
+                 noise_db: Sequence[float], psdu: bytes = b"") -> None:
+        """One emitter frame over several paths, each (bearing_rad, incident dBm): each dish
+        weights each path by its own gain toward that path's arrival and sums the powers, so
+        behind a wall the dish facing a reflection can be the strongest; ``noise_db[i]`` is
+        dish i's fading and bias, added after the sum."""
+        if not self.receiving:
+            return
+        powers = [p + n for p, n in zip(self.dish_powers(paths), noise_db)]
+        self._receive(t_us, emitter_seq, powers, psdu)
+
+    def dish_powers(self, paths: Sequence[tuple[float, float]]) -> list[float]:
+        """Each dish's power (dBm) from paths (bearing_rad, incident dBm): gain-weighted power sum."""
+        peak = dish_gain_db(0.0, self.dish_diameter_m, self.front_back_db)
+        k = 12.0 / beam_width_deg(self.dish_diameter_m) ** 2
+        out = []
+        for boresight in BORESIGHT_RAD:  # dish_gain_db inlined: this runs for every path of every frame
+            total = 0.0
+            for b, p in paths:
+                off = math.degrees(math.remainder(b - boresight, 2 * math.pi))
+                total += 10 ** ((p + peak + max(-k * off * off, -self.front_back_db)) / 10)
+            out.append(10 * math.log10(total))
+        return out
+
+    def _receive(self, t_us: int, emitter_seq: int, powers: list[float], psdu: bytes) -> None:
+        """Each chip measures its dish's power (dBm at the chip's input)."""
         readings, mask = [], 0
         for i in range(4):
-            power = incident_dbm[i] + gains[i]
+            power = powers[i]
             if power < self.sensitivity_dbm:
                 readings.append(AntennaReading(255, 0, 0))
                 continue

@@ -382,3 +382,30 @@ def test_base_brake_mode_sheds_speed_at_its_emergency_deceleration(brake: bool) 
         fw.step(k)
     a = BaseLimits().a_emergency if brake else BaseLimits().a_max
     assert fw.v == pytest.approx(max(0.0, 0.7 - a * 0.1))
+
+
+def _preliminary_after_fixes(ranges: list[float | None]) -> str:
+    """The preliminary system's decision with the emitter dead ahead and one scan of ``ranges``
+    (±90°), after enough fixes to home."""
+    from rfhoming.host.drivers.base import Scan
+    from rfhoming.host.drivers.rss import AntennaPowers
+    from rfhoming.host.homing.s2_rss import RssController, S2Params
+
+    c = RssController(S2Params(motion="preliminary", peak_gain_db=0.0))
+    for k in range(12):  # x1 strongest, x2 weakest, sides equal: ahead, about 3 m
+        c.on_input(0.05 * k, Pose(0.0, 0.0, 0.0), AntennaPowers(0.05 * k, 1, k, (-50.0, -70.0, -60.0, -60.0)))
+    c.on_scan(Scan(0.0, -math.pi / 2, math.pi / (len(ranges) - 1), ranges))
+    return c.decide(Pose(0.0, 0.0, 0.0)).note
+
+
+def test_preliminary_20_cm_are_from_the_robots_body() -> None:
+    free = [None] * 181
+    assert "forward" in _preliminary_after_fixes(free)
+    ahead = free[:]
+    ahead[90] = 0.40  # 0.15 m from a 0.25 m body: inside S2's 20 cm, though 0.4 m from the scanner
+    assert "obstacle" in _preliminary_after_fixes(ahead)
+    ahead[90] = 0.50
+    assert "forward" in _preliminary_after_fixes(ahead)
+    beside = free[:]
+    beside[0] = 0.27  # touching on the right, outside the ±30° ahead
+    assert "obstacle" in _preliminary_after_fixes(beside)

@@ -216,6 +216,8 @@ search_w = 0.5           # turn while no fix has come yet
 seed = 0                 # the particle filter's random stream (reproducible runs)
 motion = "full"          # "full": grid + A* (when scans come); "preliminary": S2's rules
 obstacle_m = 0.2         # preliminary: turn until clear when an obstacle is this close ahead
+body_radius_m = 0.25     # preliminary: obstacle_m is from the robot's round body, not the scanner
+touch_m = 0.05           # preliminary: this near the body anywhere in the scan counts as ahead
 likelihood = "s2"        # particle weights: "s2" (the paper's); "bounded": a range as an upper bound (walls)
 dish_offsets_db = [0.0, 0.0, 0.0, 0.0]  # x1, x2, y1, y2: each dish's own offset, subtracted (calibration)
 

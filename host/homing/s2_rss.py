@@ -7,7 +7,9 @@ particle filter (N = 1000, S2's weights) smooths the fixes into the emitter's po
 robot steers to it (or to the planner's waypoint) with S0's velocity law and stops when the
 estimated range is below 0.5 m (S2: "stop when front+back RSS says < 50 cm"). With
 ``motion = "preliminary"`` it moves by S2's first rule set instead (20 cm, ±15°, ±90°), with no
-map and no planner.
+map and no planner. Its 20 cm are from the robot's body (scan range minus ``body_radius_m``):
+measured from the scanner at the centre of a 0.25 m robot they were never reached before the
+bumper, and the robot pushed against the wall until time ran out.
 
 With ``likelihood = "bounded"`` (ours; see host.estimation.particle) the robot stops only when
 the dishes agree as well: the median range of the last five fixes must be below 0.5 m, the
@@ -52,6 +54,8 @@ class S2Params:
     seed: int = 0
     motion: str = "full"  # "full": the loop's grid + A*; "preliminary": S2's rule-based motion
     obstacle_m: float = 0.2  # preliminary: an obstacle this close ahead means turn until clear
+    body_radius_m: float = 0.25  # preliminary: obstacle_m is measured from the robot's round body, not the scanner
+    touch_m: float = 0.05  # preliminary: an obstacle this near the body anywhere in the scan counts as ahead
     likelihood: str = "s2"  # the particle filter's weights: "s2" or "bounded" (host.estimation.particle)
     dish_offsets_db: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # x1, x2, y1, y2
 
@@ -109,10 +113,17 @@ class RssController:
         return {"theta": round(theta, 4), "range": round(rng, 3), "diff_db": round(diff_db, 2)}
 
     def on_scan(self, scan: Any) -> None:
-        """Preliminary motion: the shortest range within ±30° ahead."""
-        ranges = [r for i, r in enumerate(scan.ranges)
-                  if r is not None and abs(scan.angle_min + i * scan.angle_increment) <= math.pi / 6]
-        self.front_m = min(ranges) if ranges else math.inf
+        """Preliminary motion: the nearest obstacle to the robot's body within ±30° ahead (S2's
+        20 cm are from the robot, not its scanner), or anywhere in the scan if it touches the
+        body (``touch_m``: one beside the robot stops it as surely as one ahead)."""
+        p = self.params
+        ahead, beside = math.inf, math.inf
+        for i, r in enumerate(scan.ranges):
+            if r is not None:
+                beside = min(beside, r - p.body_radius_m)
+                if abs(scan.angle_min + i * scan.angle_increment) <= math.pi / 6:
+                    ahead = min(ahead, r - p.body_radius_m)
+        self.front_m = ahead if beside >= p.touch_m else min(ahead, beside)
 
     def _preliminary(self, pose: Pose, goal: Any) -> Decision:
         """S2's rules: an obstacle within 20 cm -> turn until clear; target within ±15° ->
