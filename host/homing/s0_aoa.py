@@ -97,6 +97,7 @@ class S0Homing:
     phase: str = "disambiguating"
     _raw: deque = field(init=False)  # the last ``buffer`` raw vector goals
     _weights: list[float] = field(init=False)  # g_v's weights, newest first
+    _fusion: RayRangeFusion | None = field(init=False)  # ours: every reading near the goal
     _sums: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # Σx, Σy, Σx², Σy² of _raw
     _z_outlier: bool = False
     _first: _Ray | None = None
