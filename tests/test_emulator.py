@@ -10,6 +10,8 @@ from collections import Counter
 
 import pytest
 import serial
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
@@ -317,3 +319,23 @@ async def test_umrs_moves_the_board_and_the_host_must_follow(tmp_path) -> None:
     assert any(i.kind == "final" and i.ok for i in items) and len([i for i in items if i.kind == "angle"]) > 5
     port.close()
     await em.close()
+
+
+HOUSE = load("s0-house", seed=0).world
+
+
+def _segment_distance(px: float, py: float, a: tuple[float, float], b: tuple[float, float]) -> float:
+    ex, ey = b[0] - a[0], b[1] - a[1]
+    s = min(max(((px - a[0]) * ex + (py - a[1]) * ey) / max(ex * ex + ey * ey, 1e-12), 0.0), 1.0)
+    return math.hypot(a[0] + s * ex - px, a[1] + s * ey - py)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-7, 7), st.floats(-7, 7), st.floats(0.05, 0.6))
+def test_collision_check_matches_every_edge_by_brute_force(x: float, y: float, radius: float) -> None:
+    """The robot's collision check looks only at obstacles near it; brute force over every edge
+    of the house agrees (away from a float-rounding tie)."""
+    nearest = min(_segment_distance(x, y, a, b) for o in HOUSE.obstacles for a, b in o.edges())
+    inside = any(o.contains(x, y) for o in HOUSE.obstacles)
+    assume(inside or abs(nearest - radius) > 1e-9)
+    assert HOUSE.collides(x, y, radius) == (inside or nearest < radius)
