@@ -339,3 +339,24 @@ def test_collision_check_matches_every_edge_by_brute_force(x: float, y: float, r
     inside = any(o.contains(x, y) for o in HOUSE.obstacles)
     assume(inside or abs(nearest - radius) > 1e-9)
     assert HOUSE.collides(x, y, radius) == (inside or nearest < radius)
+
+
+def _crosses(p, q, a, b) -> bool:
+    """Segment p-q meets edge a-b (parametric form, both parameters in [0, 1])."""
+    dx, dy, ex, ey = q[0] - p[0], q[1] - p[1], b[0] - a[0], b[1] - a[1]
+    denom = dx * ey - dy * ex
+    if abs(denom) <= 1e-12:
+        return False
+    wx, wy = a[0] - p[0], a[1] - p[1]
+    t, u = (wx * ey - wy * ex) / denom, (wx * dy - wy * dx) / denom
+    return 0 <= t <= 1 and 0 <= u <= 1
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-6, 6), st.floats(-6, 6), st.floats(-6, 6), st.floats(-6, 6))
+def test_obstacles_crossed_matches_every_edge_by_brute_force(px: float, py: float, qx: float, qy: float) -> None:
+    """Line of sight looks only at obstacles whose box meets the segment's; brute force over
+    every edge of every obstacle of the house counts the same obstacles."""
+    p, q = (px, py), (qx, qy)
+    expected = sum(any(_crosses(p, q, a, b) for a, b in o.edges()) for o in HOUSE.obstacles)
+    assert HOUSE.obstacles_crossed(p, q) == expected
