@@ -222,8 +222,8 @@ class PipeLink(Link):
 class PipeEnd:
     """The host's end of a :class:`PipeLink`; ``read()`` returns b"" while unplugged.
 
-    Chunks wait in a deque with one waiter future: an asyncio.Queue's bookkeeping was a tenth
-    of a lockstep run's time. Each read returns one delivered chunk, as a port read would."""
+    Chunks wait in a deque with one waiter future (an asyncio.Queue's bookkeeping showed in the
+    lockstep profile). Each read returns one delivered chunk, as a port read would."""
 
     def __init__(self, link: PipeLink) -> None:
         self._link = link
