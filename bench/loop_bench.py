@@ -2,6 +2,7 @@
 in-process, and the host's byte-in -> command-out latency (p50/p99).
 
     python bench/loop_bench.py [--runs 20] [--json]
+    python bench/loop_bench.py --profile [--step-ms 20]   # in-process only: where the time goes
 
 Each run is a full S0 homing on s0-open (a different seed and target each run); the host is the
 real stack (drivers, decoders, estimator, controller) and the emulator the real one. Through
@@ -10,15 +11,22 @@ loop's start, not the interpreter's); in-process both share one process and a by
 Simulated time is the robot's clock from its first odometry to the end of the run. The host
 keeps its real fail-safes, the 0.5 s wall-clock odometry check included: a stop that check
 makes when the machine stalls is counted as a stale-data stop (and logged).
+
+``--profile`` runs the in-process homings under cProfile and prints each layer's share of the
+own time (emulator and firmware models, host, wire codecs, asyncio) and the event-loop
+iterations per world step; ``--step-ms`` sets the world's step for the in-process runs (10 ms
+by default, as campaigns run), to see what a coarser step would buy.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import cProfile
 import json
 import math
 import platform
+import pstats
 import signal
 import sys
 import tempfile
@@ -60,12 +68,10 @@ async def pty_run(seed: int, target: tuple[float, float]) -> dict:
             "lockstep_timeouts": None}  # counted in the other process
 
 
-async def pipe_run(seed: int, target: tuple[float, float]) -> dict:
+async def pipe_run(seed: int, target: tuple[float, float], step_ms: int = 10) -> dict:
     """Emulator and host in this process, sharing the in-process byte pipe."""
-    transport = "pipe"
-    link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-bench-"))
-    em = Emulator(load("s0-open", seed=seed, target=target), transport=transport, seed=seed, lockstep=True,
-                  link_dir=link_dir, lockstep_timeout=2.0)
+    em = Emulator(load("s0-open", seed=seed, target=target), transport="pipe", seed=seed, lockstep=True,
+                  lockstep_timeout=2.0, step_ms=step_ms)
     await em.start()
     world = asyncio.create_task(em.run())
     base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
@@ -79,7 +85,40 @@ async def pipe_run(seed: int, target: tuple[float, float]) -> dict:
     return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall,
             "final_error_m": math.hypot(robot.x - target[0], robot.y - target[1]),
             "latency_ms": outcome.latency_ms, "stale_stops": outcome.stale_stops,
-            "lockstep_timeouts": em.counters["lockstep_timeouts"]}
+            "lockstep_timeouts": em.counters["lockstep_timeouts"], "steps": em.counters["steps"]}
+
+
+LAYERS = (("emulator and firmware", ("/emulator/", "/firmware_py/", "/firmware/")), ("host", ("/host/",)),
+          ("wire codecs", ("/protocol/",)), ("asyncio", ("asyncio", "selectors")))
+
+
+def profile(runs: int, step_ms: int) -> dict:
+    """In-process homings under cProfile: each layer's share of the own time (a C builtin's time
+    goes to the layer that called it) and event-loop iterations per world step."""
+    prof = cProfile.Profile()
+    prof.enable()
+    done = [asyncio.run(pipe_run(seed, TARGETS[seed % len(TARGETS)], step_ms)) for seed in range(runs)]
+    prof.disable()
+    stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+
+    def layer(path: str) -> str:
+        return next((name for name, parts in LAYERS if any(p in path for p in parts)), "other")
+
+    shares: dict[str, float] = {}
+    iterations = 0
+    for (path, _, name), (_, calls, own, _, callers) in stats.items():
+        if name == "_run_once" and "asyncio" in path:
+            iterations += calls
+        if path == "~":  # a builtin: split its time over its callers
+            total = sum(c[2] for c in callers.values()) or 1.0
+            for (cpath, _, _), c in callers.items():
+                shares[layer(cpath)] = shares.get(layer(cpath), 0.0) + own * c[2] / total
+        else:
+            shares[layer(path)] = shares.get(layer(path), 0.0) + own
+    total = sum(shares.values())
+    return {"runs": runs, "step_ms": step_ms, "sim_s": round(sum(r["sim_s"] for r in done), 2),
+            "own_time_share_pct": {k: round(100 * v / total, 1) for k, v in sorted(shares.items(), key=lambda kv: -kv[1])},
+            "loop_iterations_per_step": round(iterations / sum(r["steps"] for r in done), 2)}
 
 
 def summarise(runs: list[dict]) -> dict:
@@ -98,11 +137,19 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=20, help="homing runs per transport (default 20)")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--profile", action="store_true", help="in-process runs under cProfile: each layer's share")
+    parser.add_argument("--step-ms", type=int, default=10, help="the world's step for in-process runs (default 10)")
     args = parser.parse_args()
     result = {"python": platform.python_version()}
+    if args.profile:
+        result["profile"] = profile(args.runs, args.step_ms)
+        print(json.dumps(result, indent=1))
+        return 0
     for transport in ("pty", "pipe"):
-        run = pty_run if transport == "pty" else pipe_run
-        runs = [asyncio.run(run(seed, TARGETS[seed % len(TARGETS)])) for seed in range(args.runs)]
+        if transport == "pty":
+            runs = [asyncio.run(pty_run(seed, TARGETS[seed % len(TARGETS)])) for seed in range(args.runs)]
+        else:
+            runs = [asyncio.run(pipe_run(seed, TARGETS[seed % len(TARGETS)], args.step_ms)) for seed in range(args.runs)]
         result[transport] = summarise(runs)
     if args.json:
         print(json.dumps(result, indent=1))
