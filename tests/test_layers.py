@@ -1,14 +1,12 @@
 """The layering of docs/architecture.md holds: import-linter's contracts (pyproject.toml) pass.
 
-import-linter finds modules by walking the package's folder. An editable install maps
-``rfhoming.protocol`` etc. to the repository's top-level folders, which that walk cannot see,
-so the test lays the installed package out as a wheel would (file symlinks in a scratch folder)
-and lints that: the same check for an editable install and for a wheel.
+Every import name is a path (``rfhoming/host -> ../host`` and the other layers are directory
+symlinks in git), so ``lint-imports`` runs from the repository's root as a user would run it,
+with nothing staged; the same walk serves mypy, pyright and jedi.
 """
 
 from __future__ import annotations
 
-import importlib
 import os
 import shutil
 import subprocess
@@ -21,41 +19,39 @@ ROOT = Path(__file__).resolve().parent.parent
 LAYERS = ("protocol", "firmware", "emulator", "host", "campaigns")
 
 
-def stage(into: Path) -> Path:
-    package = into / "rfhoming"
-    top = Path(importlib.import_module("rfhoming").__file__).parent
-    places = {package: top, **{package / name: Path(importlib.import_module(f"rfhoming.{name}").__path__[0])
-                               for name in LAYERS}}
-    for target, source in places.items():
-        for path in source.rglob("*.py"):
-            relative = path.relative_to(source)
-            if target == package and relative.parts[0] in LAYERS:
-                continue  # a wheel's own copy of a layer: staged from its import location
-            (target / relative).parent.mkdir(parents=True, exist_ok=True)
-            (target / relative).symlink_to(path)
-    return into
-
-
-def lint(staged: Path, config: Path) -> subprocess.CompletedProcess:
+def lint(cwd: Path) -> subprocess.CompletedProcess:
     lint_imports = shutil.which("lint-imports")
     assert lint_imports, "import-linter is part of the test extra: pip install -e '.[test]'"
-    return subprocess.run([lint_imports, "--config", str(config), "--no-cache"], cwd=staged, text=True,
-                          capture_output=True, env={**os.environ, "PYTHONPATH": str(staged)}, timeout=120)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    return subprocess.run([lint_imports, "--config", str(cwd / "pyproject.toml"), "--no-cache"], cwd=cwd, text=True,
+                          capture_output=True, env={**env, "PYTHONPATH": str(cwd)}, timeout=120)
 
 
-def test_import_contracts_hold(tmp_path: Path) -> None:
-    done = lint(stage(tmp_path), ROOT / "pyproject.toml")
+def test_import_contracts_hold_from_the_root() -> None:
+    done = lint(ROOT)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "Contracts: 5 kept, 0 broken" in done.stdout
 
 
 def test_a_wrong_arrow_breaks_a_contract(tmp_path: Path) -> None:
-    """The check can fail: host importing the emulator is caught."""
-    staged = stage(tmp_path)
-    bad = staged / "rfhoming" / "host" / "wrong_arrow.py"
-    bad.write_text("from rfhoming.emulator import scenario\n")
-    done = lint(staged, ROOT / "pyproject.toml")
+    """The check can fail: host importing the emulator is caught (in a copy of the tree)."""
+    shutil.copytree(ROOT / "rfhoming", tmp_path / "rfhoming", ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    (tmp_path / "rfhoming" / "host" / "wrong_arrow.py").write_text("from rfhoming.emulator import scenario\n")
+    done = lint(tmp_path)
     assert done.returncode != 0 and "rfhoming.host.wrong_arrow -> rfhoming.emulator" in done.stdout
+
+
+@pytest.mark.parametrize("layer", LAYERS)
+def test_each_layer_is_a_committed_directory_symlink(layer: str) -> None:
+    """``rfhoming/LAYER`` is a relative link to the card's top-level folder, as git keeps it."""
+    link = ROOT / "rfhoming" / layer
+    assert link.is_symlink() and not os.path.isabs(os.readlink(link)), link
+    folder = "firmware_py" if layer == "firmware" else layer
+    assert link.resolve() == (ROOT / folder).resolve()
+    mode = subprocess.run(["git", "ls-files", "-s", f"rfhoming/{layer}"], cwd=ROOT, capture_output=True,
+                          text=True).stdout.split(" ")[0]
+    assert mode in ("120000", ""), mode  # "" outside a git checkout (an sdist)
 
 
 @pytest.mark.parametrize("name", LAYERS)
