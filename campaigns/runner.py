@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rfhoming.protocol.errors import Error
+
 log = logging.getLogger(__name__)
 
 
@@ -65,7 +67,7 @@ class Campaign:
             raise CampaignError(f"{self.name} needs {', '.join(missing)}: pip install 'rfhoming[campaign]'")
 
 
-class CampaignError(RuntimeError):
+class CampaignError(Error, RuntimeError):
     """A campaign that cannot run here; the message says what to do."""
 
 

@@ -19,11 +19,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rfhoming.protocol.errors import Error
+
 KINDS = {"ber": {"rate"}, "drop": {"rate"}, "garbage": {"every", "len"}, "unplug": {"at", "for"},
          "reboot": {"at"}, "baud": {"at", "rate"}}
 
 
-class FaultError(ValueError):
+class FaultError(Error, ValueError):
     pass
 
 

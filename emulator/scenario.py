@@ -17,11 +17,12 @@ import numpy as np
 
 from rfhoming.emulator.radio import AoaModel, PathLossModel
 from rfhoming.emulator.world import Obstacle, Pose, Target, World
+from rfhoming.protocol.errors import Error
 
 DEVICE_TYPES = ("xplr-aoa", "esp32", "esp-at", "hci", "at86rf212", "base")
 
 
-class ScenarioError(ValueError):
+class ScenarioError(Error, ValueError):
     """A scenario that cannot be built; the message says what to fix."""
 
 

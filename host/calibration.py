@@ -19,6 +19,7 @@ import numpy as np
 
 from rfhoming.host.estimation.anchors3d import board_angles, rotation
 from rfhoming.host.site import Anchor, Calibration, Site
+from rfhoming.protocol.errors import Error
 from rfhoming.protocol.uconnect import AngleEvent
 
 PRIOR_DEG = 5.0
@@ -28,7 +29,7 @@ MIN_EVENTS = 10
 """Angle events an (anchor, point) pair needs to count."""
 
 
-class CalibrationError(ValueError):
+class CalibrationError(Error, ValueError):
     """Not enough data to calibrate an anchor; the message says what to record."""
 
 

@@ -16,11 +16,12 @@ import errno
 import logging
 import time
 from collections.abc import Callable
-
 from typing import NamedTuple
 
 import serial
 import serial_asyncio_fast
+
+from rfhoming.protocol.errors import Error
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +40,7 @@ class Chunk(NamedTuple):
     data: bytes
 
 
-class PortError(Exception):
+class PortError(Error):
     """A port that cannot be opened or used; the message says what to do."""
 
 

@@ -24,8 +24,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from rfhoming.protocol.errors import Error
 
-class PortSpecError(ValueError):
+
+class PortSpecError(Error, ValueError):
     """A port spec that cannot be understood; the message says what is allowed."""
 
 

@@ -43,10 +43,11 @@ import numpy as np
 
 from rfhoming.host import portspec
 from rfhoming.host.estimation.anchors3d import rotation
-from rfhoming.host.portspec import PortSpecError, TAG_ID
+from rfhoming.host.portspec import TAG_ID, PortSpecError
+from rfhoming.protocol.errors import Error
 
 
-class SiteError(ValueError):
+class SiteError(Error, ValueError):
     """A site file that cannot be used; the message names the table and key to fix."""
 
 

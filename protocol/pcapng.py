@@ -15,6 +15,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
+from rfhoming.protocol.errors import Error
+
 SHB, IDB, EPB = 0x0A0D0D0A, 0x00000001, 0x00000006
 BYTE_ORDER_MAGIC = 0x1A2B3C4D
 LINKTYPE_UCONNECT = 147
@@ -85,7 +87,7 @@ class Packet:
     comment: str = ""
 
 
-class CaptureFormatError(ValueError):
+class CaptureFormatError(Error, ValueError):
     """A capture that is not readable from ``offset`` on; ``items`` are what was read before it
     in the failing :meth:`Reader.feed` call (earlier calls already returned theirs)."""
 

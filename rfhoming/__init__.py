@@ -20,7 +20,7 @@ _API = {  # public name -> the module that holds it
     "parse_spec": "rfhoming.host.portspec:parse", "PortSpec": "rfhoming.host.portspec",
     "PortSpecError": "rfhoming.host.portspec", "PortError": "rfhoming.host.ports",
     "UConnectDecoder": "rfhoming.protocol.uconnect", "FrameDecoder": "rfhoming.protocol.frames",
-    "AngleEvent": "rfhoming.protocol.uconnect",
+    "AngleEvent": "rfhoming.protocol.uconnect", "Error": "rfhoming.protocol.errors",
 }
 
 __all__ = ["__version__", *_API]

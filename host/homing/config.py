@@ -20,6 +20,7 @@ from rfhoming.host.homing.s0_aoa import S0Params
 from rfhoming.host.homing.s1_dock import S1Params
 from rfhoming.host.homing.s2_rss import S2Params
 from rfhoming.host.homing.s3_trilat import TrilatParams
+from rfhoming.protocol.errors import Error
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,7 @@ SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettin
             "trilat": TrilatParams}
 
 
-class ConfigError(ValueError):
+class ConfigError(Error, ValueError):
     pass
 
 
