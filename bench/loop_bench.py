@@ -36,13 +36,11 @@ from pathlib import Path
 import numpy as np
 
 from rfhoming.campaigns.closed_loop import PipePort
+from rfhoming.demo import read_truth, start_emulator
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
-from rfhoming.host.drivers.aoa import AoaDriver
-from rfhoming.demo import read_truth, start_emulator
-from rfhoming.host.drivers.base import BaseDriver
-from rfhoming.host.homing.loop import aoa_loop
-from rfhoming.host.ports import HostPort
+from rfhoming.host.homing import assembly
+from rfhoming.host.homing.assembly import Device, Homing
 
 TARGETS = [(6.0, 4.0), (-7.0, 3.0), (-5.0, -8.0), (8.0, -6.0), (3.0, 8.0), (-8.0, -2.0), (9.0, 1.0), (-2.0, 7.0)]
 
@@ -52,10 +50,10 @@ async def pty_run(seed: int, target: tuple[float, float]) -> dict:
     out = Path(tempfile.mkdtemp(prefix="rfhoming-bench-"))
     proc, endpoints = start_emulator("s0-open", seed, out / "truth.jsonl", out, f"{target[0]},{target[1]}")
     try:
-        base = BaseDriver(HostPort(endpoints["base"]["path"]))
-        aoa = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"]))
+        plan = Homing("aoa", [Device("base", spec=f"base:{endpoints['base']['path']}"),
+                              Device("aoa", spec=f"xplr-aoa:{endpoints['xplr-aoa']['path']}")])
         wall0 = time.perf_counter()
-        outcome = await asyncio.wait_for(aoa_loop(base, aoa).run(), 120)
+        outcome = await asyncio.wait_for(assembly.run(plan), 120)
         wall = time.perf_counter() - wall0
     finally:
         proc.send_signal(signal.SIGINT)
@@ -76,7 +74,7 @@ async def pipe_run(seed: int, target: tuple[float, float], step_ms: int = 10) ->
     world = asyncio.create_task(em.run())
     base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
     wall0 = time.perf_counter()
-    outcome = await asyncio.wait_for(aoa_loop(BaseDriver(base), AoaDriver(aoa)).run(), 120)
+    outcome = await asyncio.wait_for(assembly.run(Homing("aoa", [Device("base", port=base), Device("aoa", port=aoa)])), 120)
     wall = time.perf_counter() - wall0
     world.cancel()
     await asyncio.gather(world, return_exceptions=True)

@@ -25,10 +25,9 @@ from rfhoming.campaigns.closed_loop import PipePort
 from rfhoming.emulator.faults import Fault
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
-from rfhoming.host.drivers.aoa import AoaDriver
-from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.homing import assembly
+from rfhoming.host.homing.assembly import Device, Homing
 from rfhoming.host.homing.config import Config
-from rfhoming.host.homing.loop import aoa_loop
 
 TARGETS = [(12.0, 0.5), (-11.0, 3.0), (2.0, 12.0), (9.0, -8.0)]
 
@@ -54,7 +53,8 @@ async def one(seed: int, target: tuple[float, float], at: float) -> dict:
     config = replace(config, loop=replace(config.loop, max_time_s=at + 3))
     try:
         base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
-        await asyncio.wait_for(aoa_loop(BaseDriver(base), AoaDriver(aoa), config).run(), 120)
+        await asyncio.wait_for(assembly.run(Homing("aoa", [Device("base", port=base), Device("aoa", port=aoa)], config)),
+                               120)
     finally:
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)

@@ -28,14 +28,15 @@ import numpy as np
 from rfhoming.campaigns import closed_loop
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import Scenario
-from rfhoming.emulator.world import Pose as WorldPose, World
-from rfhoming.host.drivers.aoa import AoaDriver, TimedAngle
-from rfhoming.host.drivers.base import BaseDriver
-from rfhoming.host.drivers.rss import AntennaPowers, RssDriver
+from rfhoming.emulator.world import Pose as WorldPose
+from rfhoming.emulator.world import World
+from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.drivers.rss import AntennaPowers
 from rfhoming.host.estimation.ranging import fit_log_distance_binned
+from rfhoming.host.homing import assembly
+from rfhoming.host.homing.assembly import Device, Homing
 from rfhoming.host.homing.config import Config
-from rfhoming.host.homing.loop import HomingLoop
-from rfhoming.host.homing.types import Decision, Pose
+from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose
 
 FAR_M = 5.0  # the drive starts this far from the transmitter
 SPEED_MPS = 0.2
@@ -64,7 +65,7 @@ TURN_DWELL_S = 1.5
 
 
 @dataclass
-class Recorder:
+class Recorder(ControllerDefaults):
     """A controller for the homing loop that drives straight ahead until the odometry pose is
     ``stop_m`` from ``point``, dwells there, optionally turns in place by quarter turns (dwelling
     at each, so each of S2's dishes faces the transmitter in turn), and records every reading
@@ -133,11 +134,12 @@ async def _record(scenario: Scenario, seed: int, device: str, recorder: Recorder
         def port(name: str) -> closed_loop.PipePort:
             return closed_loop.PipePort(name, em.device(name).link.host)
 
-        sensor = AoaDriver(port(device)) if device in ("aoa", "dock_aoa") else RssDriver(port(device))
+        role = "aoa" if device in ("aoa", "dock_aoa") else "rss"
         config = Config().for_lockstep()
         config = replace(config, avoid=replace(config.avoid, enabled=False),
                          loop=replace(config.loop, max_time_s=120.0))
-        await asyncio.wait_for(HomingLoop(BaseDriver(port("base")), sensor, recorder, config).run(), 600)
+        plan = Homing(recorder, [Device("base", port=port("base")), Device(role, port=port(device))], config)
+        await asyncio.wait_for(assembly.run(plan), 600)
     finally:
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)

@@ -13,12 +13,12 @@ from typing import Any
 from rfhoming.emulator.links import PipeEnd
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import Scenario
-from rfhoming.host.drivers.aoa import AoaDriver
-from rfhoming.host.drivers.base import BaseDriver
-from rfhoming.host.drivers.rss import RssDriver
+from rfhoming.host.homing import assembly
+from rfhoming.host.homing.assembly import SENSORS, Device, Homing
 from rfhoming.host.homing.config import Config
-from rfhoming.host.homing.loop import HomingLoop, Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
+from rfhoming.host.homing.loop import Outcome, RunLog
 from rfhoming.host.ports import Chunk
+from rfhoming.protocol import devices
 
 
 class PipePort:
@@ -83,22 +83,19 @@ class Run:
         return r.x, r.y, r.theta
 
 
-def make_loop(scenario: Scenario, em: Emulator, config: Config, runlog: RunLog | None = None) -> HomingLoop:
-    """The host side a scenario's devices call for, wired to the emulator's pipes."""
+def plan(scenario: Scenario, em: Emulator, config: Config, runlog: RunLog | None = None) -> Homing:
+    """The homing run a scenario's devices call for, on the emulator's pipes."""
     def port(name: str) -> PipePort:
         return PipePort(name, em.device(name).link.host)
 
-    base = BaseDriver(port("base"))
     names = {d.name: d.type for d in scenario.devices}
-    if "dock_aoa" in names:
-        return dock_loop(base, AoaDriver(port("dock_aoa")), config, runlog)
-    if "aoa" in names:
-        return aoa_loop(base, AoaDriver(port("aoa")), config, runlog)
-    if "rss" in names:
-        return rss_loop(base, RssDriver(port("rss")), config, runlog)
-    if "ble" in names:
-        return trilat_loop(base, RssDriver(port("ble")), config, runlog)
-    raise ValueError(f"scenario {scenario.name} has no device a homing loop can use: {sorted(names)}")
+    sensor = next((name for name in SENSORS if name in names), None)
+    if sensor is None:
+        raise ValueError(f"scenario {scenario.name} has no device a homing loop can use: {sorted(names)}")
+    controller, role = SENSORS[sensor]
+    kind = devices.BOARDS[names[sensor]][0].name
+    return Homing(controller, [Device("base", port=port("base")), Device(role, port=port(sensor), kind=kind)],
+                  config, runlog=runlog)
 
 
 async def _run(scenario: Scenario, config: Config, seed: int, timeout_s: float, runlog: RunLog | None) -> Run:
@@ -108,7 +105,7 @@ async def _run(scenario: Scenario, config: Config, seed: int, timeout_s: float, 
     world = asyncio.create_task(em.run())
     wall0 = time.perf_counter()
     try:
-        outcome = await asyncio.wait_for(make_loop(scenario, em, config, runlog).run(), timeout_s)
+        outcome = await asyncio.wait_for(assembly.run(plan(scenario, em, config, runlog)), timeout_s)
     finally:
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)

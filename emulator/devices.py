@@ -15,14 +15,21 @@ import numpy as np
 
 from rfhoming.emulator.faults import ByteFaults, scramble
 from rfhoming.emulator.links import Link, TcpLink
-from rfhoming.emulator.radio import (AoaModel, PathLossModel, RadioChannel, idealised_rssi, measure_azimuth,
-                                     power_sum_dbm)
+from rfhoming.emulator.radio import (
+    AoaModel,
+    PathLossModel,
+    RadioChannel,
+    idealised_rssi,
+    measure_azimuth,
+    power_sum_dbm,
+)
 from rfhoming.emulator.world import Target, World
 from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
 from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware
 from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.firmware.robot_base import RobotBaseFirmware, Slip
 from rfhoming.firmware.xplr_aoa import Advertisement, XplrAoaFirmware
+from rfhoming.protocol import devices
 from rfhoming.protocol.uconnect import Dialect
 
 BOARD_HEIGHT_M = 0.2
@@ -32,7 +39,7 @@ DEFAULT_BAUD = 115200
 class DeviceRunner:
     """One device: firmware + link + faults. Subclasses sense the world in :meth:`step`."""
 
-    protocol = "rss"
+    board = "device"  # its name in the device table's boards (rfhoming.protocol.devices.BOARDS)
 
     def __init__(self, name: str, make_firmware: Callable[[], Any], link: Link, faults: ByteFaults,
                  rng: np.random.Generator) -> None:
@@ -47,9 +54,11 @@ class DeviceRunner:
         link.on_receive = self.on_host_bytes
 
     def describe(self) -> dict[str, Any]:
-        return {"device": self.name, "type": self.kind, "protocol": self.protocol, **self.link.describe()}
-
-    kind = "device"
+        """What ``rfhoming emulate`` prints of it: its board, the device kind a host names it
+        by in a port spec, its wire protocol, and where its link is."""
+        record = devices.BOARDS[self.board][0]
+        return {"device": self.name, "type": self.board, "kind": record.name, "protocol": record.protocol,
+                **self.link.describe()}
 
     def device_baud(self) -> int:
         return self.forced_baud or self.baud
@@ -126,8 +135,7 @@ class _Schedule:
 class AoaRunner(DeviceRunner):
     """An XPLR-AOA board on the robot (``mount_yaw_deg``) or fixed (``mount = [x, y, θ]``)."""
 
-    protocol = "ublox-aoa"
-    kind = "xplr-aoa"
+    board = "xplr-aoa"
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
@@ -210,7 +218,7 @@ def _address(target_id: str) -> bytes:
 class Esp32Runner(DeviceRunner):
     """The robot's ESP32 scanner; every beacon advertises on 37, 38, 39 in turn."""
 
-    kind = "esp32"
+    board = "esp32"
 
     def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
                  rng: np.random.Generator, path_loss: PathLossModel) -> None:
@@ -236,8 +244,7 @@ BEACON_AD = b"\x02\x01\x06\x03\x03\xaa\xfe"
 class EspAtRunner(DeviceRunner):
     """An ESP32 with Espressif's ESP-AT firmware on the robot, scanning when the host says so."""
 
-    protocol = "esp-at"
-    kind = "esp-at"
+    board = "esp-at"
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  path_loss: PathLossModel, options: dict[str, Any]) -> None:
@@ -260,12 +267,13 @@ class HciRunner(DeviceRunner):
     """A Bluetooth controller in HCI-UART mode on the robot (H4, 1 Mbaud by default), scanning
     when the host's HCI commands say so. Its model needs bumble (the ``hci`` extra)."""
 
-    protocol = "hci"
-    kind = "hci"
+    board = "hci"
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  path_loss: PathLossModel, options: dict[str, Any]) -> None:
-        from rfhoming.firmware.hci_controller import HciControllerFirmware  # bumble only where used
+        from rfhoming.firmware.hci_controller import (
+            HciControllerFirmware,  # bumble only where used
+        )
 
         address = str(options.get("address", "C0:FF:EE:00:00:01"))
         super().__init__(name, lambda: HciControllerFirmware(address), link, faults, rng)
@@ -290,7 +298,7 @@ class HciRunner(DeviceRunner):
 class RssRunner(DeviceRunner):
     """The four-dish AT86RF212 node on the robot, hearing 915 MHz emitters."""
 
-    kind = "at86rf212"
+    board = "at86rf212"
 
     def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
                  rng: np.random.Generator, path_loss: PathLossModel, options: dict[str, Any]) -> None:
@@ -324,7 +332,7 @@ class RssRunner(DeviceRunner):
 class BaseRunner(DeviceRunner):
     """The robot base: its applied velocity moves the true pose; scans come from the world."""
 
-    kind = "base"
+    board = "base"
     SCAN_PERIOD_S = 0.1
     SCAN_BEAMS = 181
     SCAN_RANGE_M = 8.0

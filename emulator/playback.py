@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import IO
 
 from rfhoming.emulator.links import PtyLink
-from rfhoming.protocol import pcapng
+from rfhoming.protocol import devices, pcapng
 
 
 async def serve(capture: Path, link_dir: Path, *, speed: float = 1.0, start_delay: float = 1.0,
@@ -40,7 +40,8 @@ async def serve(capture: Path, link_dir: Path, *, speed: float = 1.0, start_dela
         link = PtyLink(link_dir / (Path(iface.name).name or f"if{i}"))
         await link.start()
         links.append(link)
-        out.write(json.dumps({"device": iface.name, "protocol": iface.protocol, "path": str(link.symlink)}) + "\n")
+        wire = devices.by_linktype(iface.linktype)
+        out.write(json.dumps({"device": iface.name, "protocol": wire.name if wire else None, "path": str(link.symlink)}) + "\n")
     out.flush()
     await asyncio.sleep(start_delay)
     written = {"packets": 0, "bytes": 0}

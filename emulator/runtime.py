@@ -35,9 +35,9 @@ from rfhoming.emulator.devices import (
     RssRunner,
     target_positions,
 )
-from rfhoming.emulator.faults import ByteFaults, Fault
+from rfhoming.emulator.faults import ByteFaults, Fault, FaultError
 from rfhoming.emulator.links import Link, PipeLink, PtyLink, TcpLink
-from rfhoming.emulator.scenario import Scenario
+from rfhoming.emulator.scenario import Scenario, ScenarioError
 
 TRANSPORTS = ("pty", "tcp", "pipe")
 SETTLE_LIMIT = 1000
@@ -51,7 +51,7 @@ class Emulator:
                  faults: list[Fault] = (), truth: IO[str] | None = None,
                  link_dir: Path | None = None) -> None:
         if transport not in TRANSPORTS:
-            raise ValueError(f"transport must be one of {TRANSPORTS}")
+            raise ScenarioError(f"transport must be one of {TRANSPORTS}")
         self.scenario = scenario
         self.world = scenario.world
         self.step_s = step_ms / 1000
@@ -64,14 +64,14 @@ class Emulator:
         self.t = 0.0
         self.counters = {"steps": 0, "lockstep_timeouts": 0, "settle_overruns": 0}
         if transport == "pty" and link_dir is not None and not link_dir.is_dir():
-            raise ValueError(f"link directory {link_dir} is not a directory (create it, or pass none for a temp dir)")
+            raise ScenarioError(f"link directory {link_dir} is not a directory (create it, or pass none for a temp dir)")
         self.link_dir = link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-"))
         self.faults = list(faults)
         self.devices: list[DeviceRunner] = []
         unknown = {f.device for f in self.faults if f.device} - {d.name for d in scenario.devices}
         if unknown:
             names = ", ".join(d.name for d in scenario.devices)
-            raise ValueError(f"fault names unknown device(s) {sorted(unknown)}; this scenario has: {names}")
+            raise FaultError(f"fault names unknown device(s) {sorted(unknown)}; this scenario has: {names}")
         for k, spec in enumerate(scenario.devices):
             rng = np.random.default_rng([seed, k])
             link = self._link(transport, spec.name)
@@ -93,21 +93,22 @@ class Emulator:
             return TcpLink()
         return PipeLink()
 
-    def _device(self, kind: str, name: str, k: int, link: Link, faults: ByteFaults,
+    def _device(self, board: str, name: str, k: int, link: Link, faults: ByteFaults,
                 rng: np.random.Generator, options: dict[str, Any]) -> DeviceRunner:
+        """The runner of one of the device table's boards (a scenario device's ``type``)."""
         sc = self.scenario
         tag = (sc.robot_tag, sc.robot_tag_interval_ms) if sc.robot_tag else None
-        if kind == "xplr-aoa" and "position" in options:  # a fixed anchor in 3-D (emulator/anchors.py)
+        if board == "xplr-aoa" and "position" in options:  # a fixed anchor in 3-D (emulator/anchors.py)
             return FixedAnchorRunner(name, link, faults, rng, options, sc.aoa, sc.path_loss, tag)
-        if kind == "xplr-aoa":
+        if board == "xplr-aoa":
             return AoaRunner(name, link, faults, rng, options, sc.aoa, sc.path_loss, tag)
-        if kind == "esp32":
+        if board == "esp32":
             return Esp32Runner(name, k + 1, link, faults, rng, sc.path_loss)
-        if kind == "esp-at":
+        if board == "esp-at":
             return EspAtRunner(name, link, faults, rng, sc.path_loss, options)
-        if kind == "hci":
+        if board == "hci":
             return HciRunner(name, link, faults, rng, sc.path_loss, options)
-        if kind == "at86rf212":
+        if board == "at86rf212":
             return RssRunner(name, k + 1, link, faults, rng, sc.path_loss, options)
         r = self.world.robot
         return BaseRunner(name, link, faults, rng, options, (r.x, r.y, r.theta), sc.robot_radius)

@@ -17,9 +17,10 @@ import numpy as np
 
 from rfhoming.emulator.radio import AoaModel, PathLossModel
 from rfhoming.emulator.world import Obstacle, Pose, Target, World
+from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
 
-DEVICE_TYPES = ("xplr-aoa", "esp32", "esp-at", "hci", "at86rf212", "base")
+DEVICE_TYPES = tuple(devices.BOARDS)  # a device's ``type``: a board of the device table
 
 
 class ScenarioError(Error, ValueError):
@@ -84,7 +85,7 @@ def _random_free_point(bounds, obstacles, rng: np.random.Generator, margin: floa
     raise ScenarioError("no free point for a random target: the bounds are full of obstacles")
 
 
-BLE_RECEIVERS = ("esp32", "esp-at", "hci")
+BLE_RECEIVERS = tuple(name for name, (kind, _) in devices.BOARDS.items() if "ble" in kind.roles)
 """Interchangeable BLE RSSI receivers: ``receiver=`` puts one in place of the scenario's."""
 
 
@@ -124,7 +125,7 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
         aoa_table = dict(raw.get("aoa", {}))
         preset = aoa_preset if aoa_preset is not None else aoa_table.get("preset")
         aoa = AoaModel.s0_preset(int(preset)) if preset is not None else _model(AoaModel, aoa_table, "aoa")
-        devices = []
+        specs = []
         for name, spec in raw.get("devices", {}).items():
             options = dict(spec)
             kind = options.pop("type", None)
@@ -132,7 +133,7 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
                 raise ScenarioError(f"[devices.{name}] type must be one of {DEVICE_TYPES}, not {kind!r}")
             if receiver is not None and kind in BLE_RECEIVERS:
                 kind = receiver
-            devices.append(DeviceSpec(name, kind, options))
+            specs.append(DeviceSpec(name, kind, options))
     except KeyError as exc:
         raise ScenarioError(f"scenario {name_or_path} lacks {exc}") from None
     except (TypeError, ValueError) as exc:
@@ -150,7 +151,7 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
         world=World(start, targets, obstacles, bounds),  # type: ignore[arg-type]
         path_loss=path_loss,
         aoa=aoa,
-        devices=devices,
+        devices=specs,
         robot_radius=float(robot.get("radius", 0.25)),
         robot_tag=robot.get("tag"),
         robot_tag_interval_ms=float(robot.get("tag_interval_ms", 20.0)),

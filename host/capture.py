@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import BinaryIO
 
-from rfhoming.protocol import pcapng
+from rfhoming.protocol import devices, pcapng
 
 FLUSH_INTERVAL = 1.0
 DISCONNECTED = "disconnected"
@@ -35,8 +35,12 @@ class CaptureWriter:
         self.packets = 0
 
     def describe(self, port: str, **fields: str) -> None:
-        """Set ``protocol``, ``kind``, ``dialect`` … of a port's interface; once its interface is
-        written, later facts (the dialect found at set-up) ride on the next packet's comment."""
+        """Set ``kind``, ``dialect`` … of a port's interface; once its interface is written,
+        later facts (the dialect found at set-up) ride on the next packet's comment. A ``kind``
+        is recorded by its canonical name in the device table, with its wire ``protocol``."""
+        if "kind" in fields:
+            record = devices.kind(fields["kind"])
+            fields = {**fields, "kind": record.name, "protocol": record.protocol}
         self.descriptions.setdefault(port, {}).update(fields)
         if port in self._ids:
             self._comments[port] = " ".join(f"{k}={v}" for k, v in fields.items())
@@ -45,7 +49,7 @@ class CaptureWriter:
 
     def _interface(self, port: str) -> int:
         fields = self.descriptions.get(port, {})
-        linktype = pcapng.LINKTYPES.get(fields.get("protocol", ""), pcapng.LINKTYPE_FRAMES)
+        linktype = devices.protocol(fields["protocol"]).linktype if "protocol" in fields else pcapng.LINKTYPE_FRAMES
         text = " ".join(f"{k}={v}" for k, v in fields.items())
         self._file.write(pcapng.interface(port, text, linktype))
         self._file.flush()

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 from serial.tools import list_ports
 
+from rfhoming.host.ports import PortError
+
 KNOWN_VENDORS: dict[int, tuple[str, str]] = {
     0x0403: ("xplr-aoa", "FTDI USB-UART (the XPLR-AOA's bridge)"),
     0x10C4: ("esp32", "Silicon Labs CP210x (common on ESP32 boards)"),
@@ -43,11 +45,11 @@ def candidates() -> list[Candidate]:
 
 
 def resolve_auto(kind: str) -> str:
-    """The one port recognised as ``kind``; ValueError that lists the choices otherwise."""
+    """The one port recognised as ``kind``; PortError that lists the choices otherwise."""
     found = [c for c in candidates() if c.kind == kind]
     if len(found) == 1:
         return found[0].device
     listing = "; ".join(f"{c.device} ({c.reason})" for c in candidates()) or "no serial ports at all"
     if not found:
-        raise ValueError(f"auto: no {kind} device recognised. Ports seen: {listing}. Name the port explicitly.")
-    raise ValueError(f"auto: several {kind} devices ({', '.join(c.device for c in found)}); name the one to use")
+        raise PortError(f"auto: no {kind} device recognised. Ports seen: {listing}. Name the port explicitly.")
+    raise PortError(f"auto: several {kind} devices ({', '.join(c.device for c in found)}); name the one to use")

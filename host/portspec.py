@@ -2,18 +2,20 @@
 
 In the spirit of bumble's transport strings, ``KIND:WHERE[,key=value...]``::
 
-    ublox-aoa:/dev/ttyUSB0,baud=1000000,flow=rtscts,tags=CCF9578E0D8A+CCF9578E0D8B
-    rss:socket://127.0.0.1:5001
+    xplr-aoa:/dev/ttyUSB0,baud=1000000,flow=rtscts,tags=CCF9578E0D8A+CCF9578E0D8B
+    rss-node:socket://127.0.0.1:5001
     esp-at:/dev/ttyUSB0,active=yes,interval=100,window=50
     hci:serial:/dev/ttyACM0,1000000,extended=auto     (any bumble transport: hci:usb:0, hci:tcp-client:H:P)
     base:/dev/ttyACM1,baud=115200
-    auto                      (the one recognised device; ublox-aoa:auto for a kind)
+    auto                      (the one recognised device; xplr-aoa:auto for a kind)
     /dev/ttyACM0              (no KIND: the protocol is sniffed from what the port says)
     capture:run.pcapng        (a recorded capture, wherever a live port is accepted)
     serve://127.0.0.1:2947    (the devices an ``rfhoming serve`` owns, shared with other clients)
 
-WHERE is a device path, a pyserial URL (``socket://HOST:PORT``) or ``auto``; commas inside it
-that are not followed by ``key=`` stay part of it. Unknown kinds and keys, and bad values, raise
+KIND is a device kind of the device table (rfhoming.protocol.devices: its canonical name or an
+old alias such as ``ublox-aoa`` or ``rss``) or a source (``capture``, ``serve``). WHERE is a
+device path, a pyserial URL (``socket://HOST:PORT``) or ``auto``; commas inside it that are not
+followed by ``key=`` stay part of it. Unknown kinds and keys, and bad values, raise
 :class:`PortSpecError`, whose one-line message names the key and the allowed values.
 """
 
@@ -24,6 +26,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
 
 
@@ -80,9 +83,6 @@ def _name(text: str) -> str:
     return text
 
 
-SERIAL_KEYS: dict[str, Callable[[str], Any]] = {"baud": _baud, "flow": _flow, "name": _name, "timeout": _seconds}
-
-
 def _scan_ms(text: str) -> float:
     try:
         value = float(text)
@@ -123,24 +123,28 @@ def _content(text: str) -> str:
     return text
 
 
-SCAN_KEYS: dict[str, Callable[[str], Any]] = {"active": _yes_no, "interval": _scan_ms, "window": _scan_ms,
-                                               "mac": _mac, "adname": _ad_name}
-"""BLE scanning settings of the RSSI receivers (esp-at, hci): scan type, timing, filter."""
+SETTINGS: dict[str, Callable[[str], Any]] = {
+    "baud": _baud, "flow": _flow, "name": _name, "timeout": _seconds,  # serial ports
+    "tags": _tags,  # the XPLR-AOA's tag filter
+    "active": _yes_no, "interval": _scan_ms, "window": _scan_ms, "mac": _mac, "adname": _ad_name,  # BLE scans
+    "extended": _extended, "content": _content, "dedup": _yes_no,  # HCI scans
+}
+"""Every setting's parser (text -> value; ValueError says what is allowed). Which settings a
+device kind takes is its record's ``settings`` in the device table."""
 
-KINDS: dict[str, dict[str, Callable[[str], Any]]] = {
-    "ublox-aoa": {**SERIAL_KEYS, "tags": _tags},  # u-blox XPLR-AOA (u-connectLocate text)
-    "rss": dict(SERIAL_KEYS),  # rfhoming's framed records from an RSS node (ESP32, AT86RF212)
-    "base": dict(SERIAL_KEYS),  # rfhoming's framed records from the robot base
-    "esp-at": {**SERIAL_KEYS, **SCAN_KEYS},  # ESP32 with Espressif's ESP-AT firmware (BLE scan)
-    # a Bluetooth controller through a bumble transport: hci:serial:/dev/ttyACM0,1000000, hci:usb:0
-    "hci": {"name": _name, "timeout": _seconds, **SCAN_KEYS, "extended": _extended, "content": _content,
-            "dedup": _yes_no},
+SOURCES: dict[str, dict[str, Callable[[str], Any]]] = {
     "capture": {"device": _name, "speed": _speed},  # a pcapng capture replayed as live ports
     "serve": {"device": _name},  # the devices of an `rfhoming serve` at serve://HOST:PORT
 }
-"""Each kind's settings and their parsers (text -> value; ValueError says what is allowed)."""
+"""Port spec kinds that are not devices: where recorded or shared devices come from."""
 
-SNIFFED_KEYS = KINDS["ublox-aoa"]  # without a KIND any serial setting may be given
+
+def allowed(kind: str | None) -> dict[str, Callable[[str], Any]]:
+    """The settings a kind takes; without a kind (sniffed) any serial setting and tags."""
+    if kind in SOURCES:
+        return SOURCES[kind]
+    names = devices.kind(kind, notice=False).settings if kind else devices.KINDS["xplr-aoa"].settings
+    return {name: SETTINGS[name] for name in names}
 
 
 @dataclass(frozen=True)
@@ -183,13 +187,18 @@ class PortSpec:
             return self
         return replace(self, kind=self.kind or base.kind, settings={**base.settings, **self.settings})
 
+    @property
+    def device(self) -> devices.DeviceKind | None:
+        """The device table's record of this spec's kind (None: sniffed, or a source)."""
+        return devices.KINDS.get(self.kind or "")
+
     def with_kind(self, kind: str) -> PortSpec:
         """The spec once its protocol is known (sniffed); its settings must suit that kind."""
-        allowed = KINDS[kind]
-        bad = sorted(set(self.settings) - set(allowed))
+        takes = allowed(kind)
+        bad = sorted(set(self.settings) - set(takes))
         if bad:
             raise PortSpecError(f"{self.where} speaks {kind}, which has no setting {', '.join(bad)}; "
-                                f"its settings are {', '.join(sorted(allowed))}")
+                                f"its settings are {', '.join(sorted(takes))}")
         return replace(self, kind=kind)
 
     def __str__(self) -> str:
@@ -210,30 +219,35 @@ def parse(text: str | PortSpec) -> PortSpec:
     if not text:
         raise PortSpecError("an empty port spec; give a path, socket://HOST:PORT, auto or KIND:WHERE")
     head, eq, tail = text.partition("=")
-    if eq and head in KINDS and "," not in head:
+    if eq and _known(head) and "," not in head:
         raise PortSpecError(f"{text!r}: write {head}:{tail} (KIND:WHERE) instead of {head}={tail}")
-    kind, colon, rest = text.partition(":")
-    if colon and kind in KINDS:
-        body = rest
-    elif colon and re.fullmatch(r"[a-z][a-z0-9-]*", kind) and not rest.startswith("//") and len(kind) > 1:
-        raise PortSpecError(f"unknown device kind {kind!r} in {text!r}; the kinds are {', '.join(KINDS)} "
-                            "(or leave KIND: out to sniff the protocol)")
+    named, colon, rest = text.partition(":")
+    kind: str | None
+    if colon and _known(named):
+        kind, body = (named if named in SOURCES else devices.kind(named).name), rest
+    elif colon and re.fullmatch(r"[a-z][a-z0-9-]*", named) and not rest.startswith("//") and len(named) > 1:
+        raise PortSpecError(f"unknown device kind {named!r} in {text!r}; the kinds are "
+                            f"{', '.join([*devices.KINDS, *SOURCES])} (or leave KIND: out to sniff the protocol)")
     else:
         kind, body = None, text
     where, settings = _split(body, text)
     if not where:
         raise PortSpecError(f"{text!r} names no device: give a path, socket://HOST:PORT or auto after the kind")
-    allowed = KINDS[kind] if kind else SNIFFED_KEYS
+    takes = allowed(kind)
     values: dict[str, Any] = {}
     for key, raw in settings:
-        if key not in allowed:
+        if key not in takes:
             raise PortSpecError(f"unknown setting {key!r} in {text!r}; "
-                                f"{kind or 'a serial port'} takes {', '.join(sorted(allowed))}")
+                                f"{kind or 'a serial port'} takes {', '.join(sorted(takes))}")
         try:
-            values[key] = allowed[key](raw)
+            values[key] = takes[key](raw)
         except ValueError as exc:
             raise PortSpecError(f"bad {key}={raw!r} in {text!r}: expected {exc}") from None
     return PortSpec(kind, where, values)
+
+
+def _known(name: str) -> bool:
+    return name in SOURCES or devices.is_kind(name)
 
 
 def _split(body: str, text: str) -> tuple[str, list[tuple[str, str]]]:
@@ -256,7 +270,7 @@ def _split(body: str, text: str) -> tuple[str, list[tuple[str, str]]]:
 def from_table(table: Mapping[str, Any], where: str = "config") -> PortSpec:
     """A ``[devices.NAME]`` table of the TOML config -> PortSpec (``port`` plus settings)."""
     if "port" not in table:
-        raise PortSpecError(f"[{where}] needs port = \"KIND:WHERE\" (e.g. \"ublox-aoa:/dev/ttyUSB0\")")
+        raise PortSpecError(f"[{where}] needs port = \"KIND:WHERE\" (e.g. \"xplr-aoa:/dev/ttyUSB0\")")
     spec = parse(str(table["port"]))
     extra = ",".join(f"{k}={_text(tuple(v) if isinstance(v, list) else v)}" for k, v in table.items() if k != "port")
     if not extra:

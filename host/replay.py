@@ -21,7 +21,7 @@ from typing import Any
 
 from rfhoming.host.capture import DISCONNECTED, SNIFFED, parse_description
 from rfhoming.host.ports import Chunk, Disconnected, EndOfInput, Tap
-from rfhoming.protocol import pcapng
+from rfhoming.protocol import devices, pcapng
 
 ANSWER_TIMEOUT = 2.0
 MAX_PENDING_WRITES = 256  # writes not yet matched with the recording; beyond, the oldest go (diverged)
@@ -176,4 +176,5 @@ def load_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatErr
 
 
 def describe(iface: pcapng.Interface) -> dict[str, Any]:
-    return {"protocol": iface.protocol, **parse_description(iface.description)}
+    wire = devices.by_linktype(iface.linktype)
+    return {"protocol": wire.name if wire else None, **parse_description(iface.description)}

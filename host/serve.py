@@ -173,17 +173,16 @@ class ServeDriver(Driver):
     """A client of ``rfhoming serve``: the items of the server's devices, as if local.
 
     Each item is rebuilt from its JSON form and shown to the listeners under its own device's
-    name and time; angle events also go to :attr:`events` (as from an AoaDriver). ``device``
+    name and time; angle events also go to :attr:`out` (as from an AoaDriver). ``device``
     keeps only one device's items. Bad lines are counted, never fatal; the server's ``dropped``
     notices add up in ``counters["server_dropped"]``."""
 
     kind = "serve"
 
     def __init__(self, port: HostPort, *, device: str | None = None, queue_size: int = 1000,
-                 reconnect: bool = True) -> None:
-        super().__init__(port, reconnect=reconnect)
+                 reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
+        super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.device = device
-        self.events = BoundedStream[TimedAngle](queue_size)
         self.counters.update(items=0, bad_lines=0, server_dropped=0)
         self.hello: dict[str, Any] = {}
         self._partial = b""
@@ -224,7 +223,7 @@ class ServeDriver(Driver):
         for listener in self.listeners:
             listener(device, t, item)
         if kind == "angle":
-            self.events.put(TimedAngle(t, item))
+            self.out.put(TimedAngle(t, item))
 
     async def session(self) -> None:
         self._partial = b""

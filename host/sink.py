@@ -25,6 +25,12 @@ class Sink:
         except Exception as exc:  # noqa: BLE001 - a watcher must not stop the loop
             self._failed(str(record.get("kind")), exc)
 
+    def watch(self, loop: Any) -> None:
+        """The homing loop, for sinks that draw its state (the live view); others ignore it."""
+
+    def show_anchors(self, anchors: dict[str, list[float]]) -> None:
+        """Beacons at surveyed places (S3's ``[trilat.anchors]``), for sinks that draw them."""
+
     def _on_item(self, device: str, t_host: float, item: Any) -> None:
         raise NotImplementedError
 

@@ -12,7 +12,7 @@ calibrated, and which tags to locate.
 
     [anchors.north]
     id = "CCF9578E0D01"               # its +UUDF anchor id (AT+UDFCFG tag 4; default its MAC)
-    port = "ublox-aoa:/dev/ttyUSB0"   # a port spec (docs/usage.md)
+    port = "xplr-aoa:/dev/ttyUSB0"   # a port spec (docs/usage.md)
     position = [6.0, 6.0, 2.2]        # metres, world frame, z up
     yaw_deg = -90                     # boresight heading, CCW from +x
     pitch_deg = -20                   # boresight tilt, negative = down (ceiling: -90)
@@ -44,6 +44,7 @@ import numpy as np
 from rfhoming.host import portspec
 from rfhoming.host.estimation.anchors3d import rotation
 from rfhoming.host.portspec import TAG_ID, PortSpecError
+from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
 
 
@@ -151,8 +152,8 @@ def _anchor(name: str, table: Any) -> Anchor:
             spec = portspec.parse(str(port))
         except PortSpecError as exc:
             raise SiteError(f"[{where}] port: {exc}") from None
-        if spec.kind not in (None, "ublox-aoa", "capture"):
-            raise SiteError(f"[{where}] port {port!r} is a {spec.kind} port; an anchor is ublox-aoa:WHERE")
+        if spec.kind not in (None, "capture") and "anchor" not in devices.kind(spec.kind).roles:
+            raise SiteError(f"[{where}] port {port!r} is a {spec.kind} port; an anchor is xplr-aoa:WHERE")
     pos = table.get("position")
     if (not isinstance(pos, list) or len(pos) != 3
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in pos)):

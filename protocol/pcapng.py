@@ -23,9 +23,6 @@ LINKTYPE_UCONNECT = 147
 LINKTYPE_FRAMES = 148
 LINKTYPE_ESP_AT = 149
 LINKTYPE_H4_STREAM = 150
-LINKTYPES = {"ublox-aoa": LINKTYPE_UCONNECT, "rss": LINKTYPE_FRAMES, "esp-at": LINKTYPE_ESP_AT,
-             "hci": LINKTYPE_H4_STREAM}
-PROTOCOLS = {v: k for k, v in LINKTYPES.items()}
 OPT_END, OPT_COMMENT, OPT_SHB_USERAPPL = 0, 1, 4
 OPT_IF_NAME, OPT_IF_DESCRIPTION, OPT_IF_TSRESOL = 2, 3, 9
 OPT_EPB_FLAGS = 2
@@ -71,11 +68,7 @@ def packet(interface_id: int, t: float, data: bytes, direction: int, comment: st
 class Interface:
     name: str
     description: str
-    linktype: int
-
-    @property
-    def protocol(self) -> str | None:
-        return PROTOCOLS.get(self.linktype)
+    linktype: int  # which protocol it is: rfhoming.protocol.devices.by_linktype
 
 
 @dataclass(frozen=True)

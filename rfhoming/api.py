@@ -45,7 +45,7 @@ class Received(NamedTuple):
 class Devices:
     """Open devices: iterate to get :class:`Received` items; ``health()`` for counters.
 
-    ``specs`` are port specs (``ublox-aoa:/dev/ttyUSB0,baud=1000000,tags=...``,
+    ``specs`` are port specs (``xplr-aoa:/dev/ttyUSB0,baud=1000000,tags=...``,
     ``capture:run.pcapng``, ``auto`` ...). ``kinds`` keeps only those item kinds (``"angle"``,
     ``"rss_report"``, ``"drop"`` ...); by default everything but the AT conversation.
     ``duration`` ends the stream after that many seconds; a capture ends by itself.
@@ -54,7 +54,7 @@ class Devices:
     def __init__(self, *specs: str | PortSpec, kinds: Iterable[str] | None = None,
                  duration: float | None = None, baud: int | None = None, flow: str | None = None) -> None:
         if not specs:
-            raise ValueError("give at least one port spec, e.g. rfhoming.open('ublox-aoa:/dev/ttyUSB0')")
+            raise ValueError("give at least one port spec, e.g. rfhoming.open('xplr-aoa:/dev/ttyUSB0')")
         self.specs = specs
         self.kinds = frozenset(kinds) if kinds is not None else None
         self.duration = duration

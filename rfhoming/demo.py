@@ -19,15 +19,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from rfhoming.host import portspec
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver
-from rfhoming.host.drivers.base import BaseDriver
-from rfhoming.host.drivers.rss import RssDriver
+from rfhoming.host.homing import assembly
+from rfhoming.host.homing.assembly import CHOOSE_TAG_S, SENSORS, Device, Homing
 from rfhoming.host.homing.config import Config
-from rfhoming.host.homing.loop import Outcome, RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
-from rfhoming.host.ports import HostPort
-from rfhoming.host.session import make_driver
+from rfhoming.host.homing.loop import Outcome, RunLog
 
 SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e", "s3-arena"}  # S0–S3
 
@@ -51,41 +47,25 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
     return proc, endpoints
 
 
-async def home(endpoints: dict, out: Path, config: Config, docking: bool = False,
-               sinks: tuple = ()) -> tuple[Outcome, dict]:
-    """``sinks`` see every decoded item (``on_item``) and run log record (``on_runlog``): an
-    MCAP recorder, a live view."""
-    capture = CaptureWriter(out / "capture.pcapng")
-    base = BaseDriver(HostPort(endpoints["base"]["path"], taps=[capture.tap]), command_timeout_ms=config.loop.command_timeout_ms)
-    capture.describe(base.port.name, protocol="rss", kind="base")
-    ble = next((t for t in ("esp32", "esp-at", "hci") if t in endpoints), None)
-    if ble is not None:  # the same S3 loop whichever receiver the robot carries
-        spec = {"esp32": "rss", "esp-at": "esp-at", "hci": "hci:serial"}[ble] + ":" + endpoints[ble]["path"]
-        sensor = make_driver(portspec.parse(spec), [capture.tap])
-        capture.describe(sensor.port.name, protocol=endpoints[ble]["protocol"], kind=ble)
-        make = trilat_loop
-    elif "xplr-aoa" in endpoints:
-        sensor = AoaDriver(HostPort(endpoints["xplr-aoa"]["path"], rtscts=True, taps=[capture.tap]))  # its default
-        capture.describe(sensor.port.name, protocol="ublox-aoa", kind="xplr-aoa")
-        make = dock_loop if docking else aoa_loop
-    else:
-        sensor = RssDriver(HostPort(endpoints["at86rf212"]["path"], taps=[capture.tap]))
-        capture.describe(sensor.port.name, protocol="rss", kind="rss-node")
-        make = rss_loop
-    for driver in (base, sensor):
-        driver.listeners += [sink.on_item for sink in sinks]
+def plan(endpoints: dict[str, dict], out: Path, config: Config, sinks: tuple = ()) -> Homing:
+    """The same homing run ``rfhoming run`` makes, on the ptys the emulator printed: each
+    device by its port spec (the kind it printed and its path), with a capture of every byte."""
+    named = {e["device"]: e for e in endpoints.values()}
+    sensor = next(name for name in SENSORS if name in named)
+    controller, role = SENSORS[sensor]
+    specs = {r: f"{named[n]['kind']}:{named[n]['path']}" for r, n in ((role, sensor), ("base", "base"))}
+    return Homing(controller, [Device(role, spec=specs[role]), Device("base", spec=specs["base"])], config,
+                  sinks=sinks, capture=CaptureWriter(out / "capture.pcapng"), choose_tag_s=CHOOSE_TAG_S)
+
+
+async def home(plan: Homing, out: Path) -> Outcome:
     with open(out / "run.jsonl", "w") as runlog:
-        loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
-        for sink in sinks:
-            if hasattr(sink, "watch"):  # the live view draws the loop's state and the anchors
-                sink.watch(loop)
-                sink.show_anchors(config.trilat.anchors if make is trilat_loop else {})
+        plan.runlog = RunLog(runlog)
         try:
-            outcome = await loop.run()
+            return await assembly.run(plan)
         finally:
-            capture.close()
-    links = {sensor.kind: sensor.health(), "base": base.health()}
-    return outcome, links
+            if plan.capture is not None:
+                plan.capture.close()
 
 
 def trilat_config(config: Config, truth: Path, target: str | None) -> Config:
@@ -168,16 +148,11 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
 
 
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-             receiver: str | None = None, mcap: Path | None = None, sinks: list | tuple = ()) -> dict[str, Any]:
+             receiver: str | None = None, sinks: list | tuple = ()) -> dict[str, Any]:
     """One demo run. ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that
-    device; ``mcap`` also records the run as ROS 2 messages in this MCAP file; ``sinks`` (a
-    live view) see every item and run log record too, and stay open."""
+    device; ``sinks`` (an MCAP recorder, a live view) see every item and run log record too,
+    and stay open."""
     out.mkdir(parents=True, exist_ok=True)
-    own = []
-    if mcap is not None:
-        from rfhoming.host.export.recorder import McapRecorder
-
-        own.append(McapRecorder(mcap))
     truth = out / "truth.jsonl"
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
@@ -185,19 +160,15 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
         config = trilat_config(config, truth, target)
     try:
-        outcome, links = asyncio.run(asyncio.wait_for(home(endpoints, out, config, scenario.startswith("s1"), (*own, *sinks)),
-                                                      config.loop.max_time_s + 60))
+        outcome = asyncio.run(asyncio.wait_for(home(plan(endpoints, out, config, tuple(sinks)), out),
+                                               config.loop.max_time_s + 60))
     finally:
-        for sink in own:
-            sink.close()
         proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
-    summary = summarise(outcome, truth, links, config.trilat.goal if scenario == "s3-arena" else None)
+    summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
     plot(truth, out / "run.jsonl", out / "trajectory.png")
     summary["files"] = {name: str(out / name) for name in ("trajectory.png", "capture.pcapng", "run.jsonl", "truth.jsonl")}
-    if mcap is not None:
-        summary["files"]["mcap"] = str(mcap)
     return summary

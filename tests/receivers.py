@@ -7,22 +7,23 @@ import asyncio
 import io
 import json
 import math
-from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from loops import loop_on
+
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.homing.config import Config
-from rfhoming.host.homing.loop import HomingLoop, RunLog, trilat_loop
+from rfhoming.host.homing.loop import HomingLoop, RunLog
 from rfhoming.host.homing.s3_trilat import TrilatParams
 from rfhoming.host.ports import HostPort
 from rfhoming.host.replay import ReplayPort, Sequencer, load_capture
+from rfhoming.host.session import recorded_kind
 
 GOAL = (4.0, 4.0)
 
@@ -35,14 +36,14 @@ def s3_config(scenario: Any) -> Config:
 def reading_log(driver: Driver, into: list) -> None:
     """Collect every BLE RSSI reading the driver puts out (the loop shares the stream with the
     base's odometry, so only BleRssi items are taken)."""
-    put = driver.readings.put
+    put = driver.out.put
 
     def tap(item: Any) -> None:
         if isinstance(item, BleRssi):
             into.append(tuple(item))
         put(item)
 
-    driver.readings.put = tap
+    driver.out.put = tap
 
 
 def consumed(loop: HomingLoop, readings: list) -> None:
@@ -52,20 +53,21 @@ def consumed(loop: HomingLoop, readings: list) -> None:
     del readings[len(readings) - left:]
 
 
-async def s3_live(tmp_path: Path, receiver: str, make: Callable[[HostPort], Driver], protocol: str,
-                  seed: int = 1) -> dict[str, Any]:
+async def s3_live(tmp_path: Path, receiver: str, kind: str, seed: int = 1) -> dict[str, Any]:
     """S3 homing with the robot's receiver served as ``receiver``; a capture of both links."""
     sc = load("s3-arena", seed=seed, receiver=receiver)
     em = Emulator(sc, transport="pty", seed=seed, lockstep=True, link_dir=tmp_path, lockstep_timeout=2.0)
     await em.start()
     world = asyncio.create_task(em.run())
     writer = CaptureWriter(tmp_path / "run.pcapng")
-    base = BaseDriver(HostPort(str(tmp_path / "base"), taps=[writer.tap]))
-    sensor = make(HostPort(str(tmp_path / "ble"), taps=[writer.tap]))
-    writer.describe(base.port.name, protocol="rss", kind="base")
-    writer.describe(sensor.port.name, protocol=protocol, kind=receiver)
+    baud = 1_000_000 if kind == "hci" else 115_200  # an HCI controller's UART: bumble's serial default
+    base = HostPort(str(tmp_path / "base"), taps=[writer.tap])
+    ble = HostPort(str(tmp_path / "ble"), baud=baud, taps=[writer.tap])
+    writer.describe(base.name, kind="base")
+    writer.describe(ble.name, kind=kind)
     out, readings = io.StringIO(), []
-    loop = trilat_loop(base, sensor, s3_config(sc), RunLog(out))
+    loop = loop_on("trilat", base, ble, s3_config(sc), RunLog(out), kind=kind)
+    sensor = loop.sensors[0]
     reading_log(sensor, readings)
     try:
         outcome = await asyncio.wait_for(loop.run(), 120)
@@ -80,14 +82,14 @@ async def s3_live(tmp_path: Path, receiver: str, make: Callable[[HostPort], Driv
             "readings": readings, "sensor": sensor, "emulator": em, "scenario": sc}
 
 
-async def s3_replay(tmp_path: Path, live: dict[str, Any], make: Callable[[Any], Driver], protocol: str) -> dict[str, Any]:
+async def s3_replay(tmp_path: Path, live: dict[str, Any], kind: str) -> dict[str, Any]:
     """The same loop on the capture's bytes: its readings and log."""
     interfaces, packets, _ = load_capture(tmp_path / "run.pcapng")
     sequencer = Sequencer({iface.name: packets[i] for i, iface in enumerate(interfaces)})
-    ports = {i.protocol: ReplayPort(i.name, packets[n], sequencer=sequencer) for n, i in enumerate(interfaces)}
-    sensor = make(ports[protocol])
+    ports = {recorded_kind(i).name: ReplayPort(i.name, packets[n], sequencer=sequencer) for n, i in enumerate(interfaces)}
     out, readings = io.StringIO(), []
-    loop = trilat_loop(BaseDriver(ports["rss"]), sensor, s3_config(live["scenario"]), RunLog(out))
+    loop = loop_on("trilat", ports["base"], ports[kind], s3_config(live["scenario"]), RunLog(out), kind=kind)
+    sensor = loop.sensors[0]
     reading_log(sensor, readings)
     outcome = await asyncio.wait_for(loop.run(), 60)
     consumed(loop, readings)

@@ -15,16 +15,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from loops import loop_on
 
 from rfhoming.campaigns.closed_loop import PipePort
 from rfhoming.emulator import scenario as scenarios
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.host import site as sites
-from rfhoming.host.drivers.aoa import AoaDriver
-from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.homing.anchors import align
 from rfhoming.host.homing.config import Config
-from rfhoming.host.homing.loop import anchors_loop
 
 SITE = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-home.toml"
 
@@ -47,10 +45,10 @@ async def _home(seed: int):
     await em.start()
     world = asyncio.create_task(em.run())
     site = sites.load(SITE)
-    anchors = [AoaDriver(PipePort(a.name, em.device(a.name).link.host)) for a in site.anchors]
-    base = BaseDriver(PipePort("base", em.device("base").link.host))
+    anchors = [PipePort(a.name, em.device(a.name).link.host) for a in site.anchors]
+    base = PipePort("base", em.device("base").link.host)
     try:
-        outcome = await asyncio.wait_for(anchors_loop(base, anchors, site, Config().for_lockstep()).run(), 300)
+        outcome = await asyncio.wait_for(loop_on("anchors", base, anchors, Config().for_lockstep(), site=site).run(), 300)
     finally:
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)

@@ -17,7 +17,7 @@ GOLDEN = Path(__file__).parent / "golden"
 
 
 @pytest.mark.parametrize(
-    ("name", "protocol"), [("xplr_aoa_session", "ublox-aoa"), ("rss_node_stream", "rss")]
+    ("name", "protocol"), [("xplr_aoa_session", "uconnect"), ("rss_node_stream", "frames")]
 )
 def test_golden_captures_decode_as_recorded(name: str, protocol: str, capsys) -> None:
     assert main(["decode", "--protocol", protocol, str(GOLDEN / f"{name}.raw")]) == 0
@@ -26,7 +26,7 @@ def test_golden_captures_decode_as_recorded(name: str, protocol: str, capsys) ->
 
 
 def test_counters_line_sums_every_item(capsys) -> None:
-    main(["decode", "--protocol", "rss", str(GOLDEN / "rss_node_stream.raw")])
+    main(["decode", "--protocol", "frames", str(GOLDEN / "rss_node_stream.raw")])
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     counters = lines[-1]
     assert counters.pop("kind") == "counters"
@@ -37,14 +37,14 @@ def test_counters_line_sums_every_item(capsys) -> None:
 def test_stdin_and_installed_entry_point() -> None:
     raw = (GOLDEN / "xplr_aoa_session.raw").read_bytes()
     done = subprocess.run(
-        [sys.executable, "-m", "rfhoming", "decode", "--protocol", "ublox-aoa", "-"],
+        [sys.executable, "-m", "rfhoming", "decode", "--protocol", "uconnect", "-"],
         input=raw, capture_output=True, check=True,
     )
     assert done.stdout.decode() == (GOLDEN / "xplr_aoa_session.jsonl").read_text()
 
 
 def test_missing_file_is_a_clear_error(capsys, tmp_path) -> None:
-    assert main(["decode", "--protocol", "rss", str(tmp_path / "nope.bin")]) == 2
+    assert main(["decode", "--protocol", "frames", str(tmp_path / "nope.bin")]) == 2
     assert "cannot open" in capsys.readouterr().err
 
 
@@ -52,7 +52,7 @@ def test_help_teaches_with_examples(capsys) -> None:
     with pytest.raises(SystemExit):
         main(["decode", "--help"])
     out = capsys.readouterr().out
-    assert "examples:" in out and "ublox-aoa" in out
+    assert "examples:" in out and "uconnect" in out
 
 
 def _actions(parser: argparse.ArgumentParser, path: str = "rfhoming"):

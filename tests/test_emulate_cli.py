@@ -64,7 +64,7 @@ def test_plain_pyserial_at_session_and_angles_match_truth(tmp_path: Path) -> Non
                               "--truth", str(truth_file), "--link-dir", str(tmp_path), devices=2)
     try:
         aoa = endpoints["aoa"]
-        assert aoa["protocol"] == "ublox-aoa" and Path(aoa["path"]).exists()
+        assert (aoa["kind"], aoa["protocol"]) == ("xplr-aoa", "uconnect") and Path(aoa["path"]).exists()
         port = serial.Serial(aoa["path"], 115200, rtscts=False, timeout=0.05)
         wake(port)
         assert b"NINA-B411-40B" in command(port, b"AT+GMM")

@@ -11,14 +11,14 @@ from pathlib import Path
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from receivers import s3_live, s3_replay
+from strategies import chunked
 
 from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.host import portspec
-from rfhoming.host.drivers.espat import EspAtDriver, EspAtSetup
-from rfhoming.host.session import esp_at_setup
+from rfhoming.host.drivers.espat import EspAtSetup
+from rfhoming.host.drivers.espat import setup_from_spec as esp_at_setup
 from rfhoming.protocol.espat import EspAtDecoder, Final, Info, ScanReport, encode_scan, parse_scan
-from receivers import s3_live, s3_replay
-from strategies import chunked
 
 reports = st.builds(ScanReport, st.text("0123456789ABCDEF", min_size=12, max_size=12), st.integers(-128, 20),
                     st.binary(max_size=31), st.binary(max_size=31), st.integers(0, 3))
@@ -108,12 +108,12 @@ def test_port_spec_settings_reach_the_scan_commands() -> None:
 
 
 async def test_s3_homes_on_esp_at_readings_and_the_capture_replays_them_exactly(tmp_path: Path) -> None:
-    live = await s3_live(tmp_path, "esp-at", EspAtDriver, "esp-at")
+    live = await s3_live(tmp_path, "esp-at", "esp-at")
     assert live["outcome"].arrived and live["error"] < 1.0
     assert live["sensor"].counters["setups"] == 1 and len(live["readings"]) > 50
     fw = live["emulator"].device("ble").firmware
     assert fw.counters["reported"] >= len(live["readings"]) and fw.counters["errors"] == 0
-    replayed = await s3_replay(tmp_path, live, EspAtDriver, "esp-at")
+    replayed = await s3_replay(tmp_path, live, "esp-at")
     assert replayed["readings"] == live["readings"]
     assert replayed["log"] == live["log"]
 

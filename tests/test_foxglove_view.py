@@ -17,7 +17,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-from rfhoming.host.drivers.base import Scan
+from rfhoming.host.drivers.robot_base import Scan
 from rfhoming.host.foxglove_view import LAYOUT, FoxgloveView
 from rfhoming.host.homing.grid import OccupancyGrid
 from rfhoming.host.homing.types import Pose

@@ -4,11 +4,11 @@ closed-loop S3 trilateration on HCI advertising reports (live and replayed)."""
 
 from __future__ import annotations
 
+import asyncio
 import json
+import math
 import subprocess
 import sys
-import asyncio
-import math
 from pathlib import Path
 
 import pytest
@@ -18,18 +18,18 @@ from hypothesis import strategies as st
 pytest.importorskip("bumble", reason="the hci receiver needs bumble: pip install 'rfhoming[hci]'")
 
 from bumble import hci  # noqa: E402
+from receivers import s3_live, s3_replay  # noqa: E402
+from strategies import chunked  # noqa: E402
 
 from rfhoming.emulator.runtime import Emulator  # noqa: E402
 from rfhoming.emulator.scenario import load  # noqa: E402
 from rfhoming.firmware.hci_controller import HciControllerFirmware  # noqa: E402
 from rfhoming.host import portspec  # noqa: E402
 from rfhoming.host.drivers.hci import BumbleTransportPort, HciDriver, HciSetup, open_port  # noqa: E402
+from rfhoming.host.drivers.hci import setup_from_spec as hci_setup  # noqa: E402
 from rfhoming.host.drivers.rss import BleRssi  # noqa: E402
-from rfhoming.host.session import hci_setup, make_driver  # noqa: E402
 from rfhoming.protocol import ad  # noqa: E402
 from rfhoming.protocol.h4 import H4Splitter  # noqa: E402
-from receivers import s3_live, s3_replay  # noqa: E402
-from strategies import chunked  # noqa: E402
 
 h4_packets = st.one_of(
     st.binary(max_size=255).flatmap(lambda p: st.binary(min_size=2, max_size=2).map(
@@ -136,7 +136,7 @@ async def readings_for(driver: HciDriver, count: int) -> list[BleRssi]:
     got: list[BleRssi] = []
     try:
         while len(got) < count:
-            got.append(await asyncio.wait_for(driver.readings.get(), 10))
+            got.append(await asyncio.wait_for(driver.out.get(), 10))
     finally:
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
@@ -158,18 +158,15 @@ async def test_legacy_scanning_through_a_bumble_tcp_transport(tmp_path: Path) ->
     assert driver.extended is False and not em.device("ble").firmware.controller.extended
     anchors = {t.id for t in em.world.targets}
     assert {r.address for r in got} <= anchors and all(-100 <= r.rssi_dbm <= 20 for r in got)
-    assert endpoints["ble"]["protocol"] == "hci"
+    assert endpoints["ble"]["kind"] == "hci" and endpoints["ble"]["protocol"] == "h4"
 
 
 async def test_s3_homes_on_hci_reports_and_the_capture_replays_them_exactly(tmp_path: Path) -> None:
-    def make(port):
-        return make_driver(portspec.parse(f"hci:serial:{port.spec}"), port.taps)
-
-    live = await s3_live(tmp_path, "hci", make, "hci")
+    live = await s3_live(tmp_path, "hci", "hci")
     assert live["outcome"].arrived and live["error"] < 1.0
     assert live["sensor"].extended is True and live["sensor"].counters["setups"] == 1
     assert len(live["readings"]) > 50
-    replayed = await s3_replay(tmp_path, live, HciDriver, "hci")
+    replayed = await s3_replay(tmp_path, live, "hci")
     assert replayed["readings"] == live["readings"]
     assert replayed["log"] == live["log"]
 

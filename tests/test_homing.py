@@ -13,23 +13,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from loops import loop_on
 
 from rfhoming.campaigns.closed_loop import PipePort
 from rfhoming.emulator.faults import Fault
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver
-from rfhoming.host.drivers.base import BaseDriver
-from rfhoming.host.drivers.rss import RssDriver
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, LoopSettings, Mounting
 from rfhoming.host.homing.config import load as load_config
-from rfhoming.host.homing.loop import RunLog, aoa_loop, dock_loop, rss_loop, trilat_loop
+from rfhoming.host.homing.loop import RunLog
 from rfhoming.host.homing.s0_aoa import S0Homing, S0Params
 from rfhoming.host.homing.s3_trilat import TrilatParams
 from rfhoming.host.homing.types import Pose
 from rfhoming.host.ports import HostPort
 from rfhoming.host.replay import ReplayPort, Sequencer, load_capture
+from rfhoming.host.session import recorded_kind
 
 
 # -- the controller alone -------------------------------------------------------------------
@@ -139,13 +138,13 @@ async def closed_loop(tmp_path: Path, target: tuple[float, float], seed: int = 1
     world = asyncio.create_task(em.run())
     writer = CaptureWriter(tmp_path / "run.pcapng") if capture else None
     taps = [writer.tap] if writer else []
-    base = BaseDriver(HostPort(str(tmp_path / "base"), taps=taps))
-    aoa = AoaDriver(HostPort(str(tmp_path / "aoa"), taps=taps))
+    base, aoa_port = HostPort(str(tmp_path / "base"), taps=taps), HostPort(str(tmp_path / "aoa"), taps=taps)
     if writer:
-        writer.describe(base.port.name, protocol="rss", kind="base")
-        writer.describe(aoa.port.name, protocol="ublox-aoa", kind="xplr-aoa")
+        writer.describe(base.name, kind="base")
+        writer.describe(aoa_port.name, kind="xplr-aoa")
     out = io.StringIO()
-    loop = aoa_loop(base, aoa, config.for_lockstep(), RunLog(out))
+    loop = loop_on("aoa", base, aoa_port, config.for_lockstep(), RunLog(out))
+    aoa = loop.sensors[0]
     try:
         outcome = await asyncio.wait_for(loop.run(), 90)
     finally:
@@ -191,10 +190,10 @@ async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) 
     outcome, _, live, _, _ = await closed_loop(tmp_path, (5.0, -3.0), capture=True)
     interfaces, packets, _ = load_capture(tmp_path / "run.pcapng")
     sequencer = Sequencer({iface.name: packets[i] for i, iface in enumerate(interfaces)})
-    ports = {i.protocol: ReplayPort(i.name, packets[n], sequencer=sequencer) for n, i in enumerate(interfaces)}
+    ports = {recorded_kind(i).name: ReplayPort(i.name, packets[n], sequencer=sequencer) for n, i in enumerate(interfaces)}
     out = io.StringIO()
     replayed = await asyncio.wait_for(
-        aoa_loop(BaseDriver(ports["rss"]), AoaDriver(ports["ublox-aoa"]), Config().for_lockstep(), RunLog(out)).run(), 60)
+        loop_on("aoa", ports["base"], ports["xplr-aoa"], Config().for_lockstep(), RunLog(out)).run(), 60)
     assert replayed.arrived == outcome.arrived
     assert [json.loads(line) for line in out.getvalue().splitlines()] == live
 
@@ -214,19 +213,19 @@ async def closed_loop_scenario(scenario: str, seed: int, config: Config = Config
     def port(name: str) -> PipePort:
         return PipePort(name, em.device(name).link.host)
 
-    base = BaseDriver(port("base"))
+    base = port("base")
     target = sc.world.targets[0].position
     if "ble" in names:  # S3: a goal in the beacons' frame
         config = replace(config, trilat=TrilatParams(anchors={t.id: list(t.position) for t in sc.world.targets},
                                                        goal=[4.0, 4.0]))
-        loop = trilat_loop(base, RssDriver(port("ble")), config, RunLog(out))
+        loop = loop_on("trilat", base, port("ble"), config, RunLog(out))
         target = (4.0, 4.0)
     elif "dock_aoa" in names:
-        loop = dock_loop(base, AoaDriver(port("dock_aoa")), config, RunLog(out))
+        loop = loop_on("dock", base, port("dock_aoa"), config, RunLog(out))
     elif "aoa" in names:
-        loop = aoa_loop(base, AoaDriver(port("aoa")), config, RunLog(out))
+        loop = loop_on("aoa", base, port("aoa"), config, RunLog(out))
     else:
-        loop = rss_loop(base, RssDriver(port("rss")), config, RunLog(out))
+        loop = loop_on("rss", base, port("rss"), config, RunLog(out))
     try:
         outcome = await asyncio.wait_for(loop.run(), 120)
     finally:
@@ -282,7 +281,8 @@ async def test_dead_odometry_is_noticed_and_a_stop_sent(tmp_path: Path) -> None:
     await em.start()
     world = asyncio.create_task(em.run())
     out = io.StringIO()
-    base = BaseDriver(HostPort(str(tmp_path / "base")))
+    loop = loop_on("aoa", HostPort(str(tmp_path / "base")), HostPort(str(tmp_path / "aoa")), Config(), RunLog(out))
+    base = loop.base
     stops: list[str] = []  # why each stop was sent: what the run log said last
     send_stop = base.stop
 
@@ -293,7 +293,6 @@ async def test_dead_odometry_is_noticed_and_a_stop_sent(tmp_path: Path) -> None:
         return send_stop()
 
     base.stop = stop
-    loop = aoa_loop(base, AoaDriver(HostPort(str(tmp_path / "aoa"))), Config(), RunLog(out))
     with pytest.raises(asyncio.TimeoutError):  # no odometry, no robot time: the loop waits, stopped
         await asyncio.wait_for(loop.run(), 2.5)
     world.cancel()
@@ -354,7 +353,7 @@ async def test_stopping_distance_on_stale_data_is_bounded_in_truth() -> None:
     out = io.StringIO()
     base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
     try:
-        outcome = await asyncio.wait_for(aoa_loop(BaseDriver(base), AoaDriver(aoa), config, RunLog(out)).run(), 60)
+        outcome = await asyncio.wait_for(loop_on("aoa", base, aoa, config, RunLog(out)).run(), 60)
     finally:
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)
@@ -387,7 +386,7 @@ def test_base_brake_mode_sheds_speed_at_its_emergency_deceleration(brake: bool) 
 def _preliminary_after_fixes(ranges: list[float | None]) -> str:
     """The preliminary system's decision with the emitter dead ahead and one scan of ``ranges``
     (±90°), after enough fixes to home."""
-    from rfhoming.host.drivers.base import Scan
+    from rfhoming.host.drivers.robot_base import Scan
     from rfhoming.host.drivers.rss import AntennaPowers
     from rfhoming.host.homing.s2_rss import RssController, S2Params
 

@@ -18,10 +18,11 @@ from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.aoa import AoaDriver, AoaSetup, identify_dialect, looks_binary
-from rfhoming.host.drivers.base import BaseDriver
+from rfhoming.host.drivers.robot_base import BaseDriver
 from rfhoming.host.drivers.rss import AntennaPowers, Associator, LossCounter, NodeClock, RssDriver
 from rfhoming.host.ports import HostPort, PortError, explain
 from rfhoming.host.replay import ReplayPort, load_capture
+from rfhoming.host.session import recorded_kind
 from rfhoming.protocol import pcapng
 from rfhoming.protocol.uconnect import Dialect
 
@@ -95,7 +96,7 @@ async def test_setup_identifies_every_dialect(tmp_path: Path, dialect: str) -> N
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.state == "streaming")
     assert driver.dialect is Dialect(dialect)
-    event = await asyncio.wait_for(driver.events.get(), 10)
+    event = await asyncio.wait_for(driver.out.get(), 10)
     assert (event.event.seq is not None) == (dialect in ("2.x", "embed"))
     await stop(em, task)
 
@@ -112,9 +113,9 @@ async def test_config_is_applied_stored_and_survives_reboot(tmp_path: Path) -> N
     driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(config={2: "dock-7", 1: 40}))
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.counters["reboots"] == 1 and driver.state == "streaming", 15)
-    while len(driver.events):  # events from before the set-up finished
-        await driver.events.get()
-    event = (await asyncio.wait_for(driver.events.get(), 5)).event
+    while len(driver.out):  # events from before the set-up finished
+        await driver.out.get()
+    event = (await asyncio.wait_for(driver.out.get(), 5)).event
     assert event.user_str == "dock-7"
     assert driver.counters["setups"] == 2
     assert em.device("aoa").firmware.saved.udfcfg[1] == 40
@@ -151,7 +152,7 @@ async def test_identification_errors_degrade_and_the_field_count_decides(tmp_pat
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.state == "streaming")
     assert driver.identity == {"model": "", "version": "", "software": ""}
-    await asyncio.wait_for(driver.events.get(), 10)
+    await asyncio.wait_for(driver.out.get(), 10)
     assert driver.dialect is Dialect.V2  # 10 fields: the guess (1.2) gave way
     await stop(em, task)
 
@@ -163,9 +164,9 @@ async def test_settings_read_back_restart_only_where_needed(tmp_path: Path, dial
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.state == "streaming")
     assert driver.counters["restarts"] == restarts
-    while len(driver.events):
-        await driver.events.get()
-    assert (await asyncio.wait_for(driver.events.get(), 5)).event.user_str == "dock-7"
+    while len(driver.out):
+        await driver.out.get()
+    assert (await asyncio.wait_for(driver.out.get(), 5)).event.user_str == "dock-7"
     assert em.device("aoa").firmware.saved.udfcfg[2] == "dock-7"  # stored either way
     await stop(em, task)
 
@@ -234,7 +235,7 @@ async def test_host_side_tag_filter(tmp_path: Path) -> None:
     driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(host_filter=frozenset({"000000000000"})))
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.counters["filtered"] > 10)
-    assert len(driver.events) == 0
+    assert len(driver.out) == 0
     await stop(em, task)
 
 
@@ -242,7 +243,7 @@ async def test_aoa_over_tcp(tmp_path: Path) -> None:
     em = await start(tmp_path, transport="tcp")
     driver = AoaDriver(HostPort(where(em, "aoa")))
     task = asyncio.create_task(driver.run())
-    event = await asyncio.wait_for(driver.events.get(), 10)
+    event = await asyncio.wait_for(driver.out.get(), 10)
     assert abs(event.event.azimuth + math.degrees(math.atan2(2, 3))) < 15
     await stop(em, task)
 
@@ -286,7 +287,7 @@ async def test_rss_driver_gives_four_antenna_powers(tmp_path: Path, sets: bool) 
     task = asyncio.create_task(driver.run())
     readings = []
     while len(readings) < 20:
-        r = await asyncio.wait_for(driver.readings.get(), 10)
+        r = await asyncio.wait_for(driver.out.get(), 10)
         if isinstance(r, AntennaPowers):
             readings.append(r)
     front = sum(r.dbm[0] for r in readings) / len(readings)
@@ -317,8 +318,8 @@ async def record(tmp_path: Path, seconds: float, faults: list[str] = ()) -> tupl
     live: dict[str, list] = {}
     drivers = [AoaDriver(HostPort(where(em, "aoa"), taps=[capture.tap])),
                RssDriver(HostPort(where(em, "base"), taps=[capture.tap]))]
-    capture.describe(drivers[0].port.name, protocol="ublox-aoa", kind="xplr-aoa")
-    capture.describe(drivers[1].port.name, protocol="rss", kind="rss-node")
+    capture.describe(drivers[0].port.name, kind="xplr-aoa")
+    capture.describe(drivers[1].port.name, kind="rss-node")
     for d in drivers:
         d.listeners.append(lambda dev, t, item: live.setdefault(dev, []).append((t, item)))
     tasks = [asyncio.create_task(d.run()) for d in drivers]
@@ -337,7 +338,7 @@ async def replay(path: Path) -> dict[str, list]:
     drivers = []
     for i, iface in enumerate(interfaces):
         port = ReplayPort(iface.name, packets[i])
-        d = AoaDriver(port) if iface.protocol == "ublox-aoa" else RssDriver(port)
+        d = AoaDriver(port) if recorded_kind(iface).name == "xplr-aoa" else RssDriver(port)
         d.listeners.append(lambda dev, t, item: out.setdefault(dev, []).append((t, item)))
         drivers.append(d)
     await asyncio.wait_for(asyncio.gather(*(d.run() for d in drivers)), 30)
@@ -433,7 +434,7 @@ async def test_capture_holds_the_bytes_seen_while_sniffing(tmp_path: Path) -> No
         os.close(slave)
     assert [d.kind for d in drivers] == ["xplr-aoa"]
     interfaces, packets, torn = pcapng.read_all((tmp_path / "sniff.pcapng").read_bytes())
-    assert [i.protocol for i in interfaces] == ["ublox-aoa"] and torn == 0
+    assert [recorded_kind(i).name for i in interfaces] == ["xplr-aoa"] and torn == 0
     inbound = b"".join(p.data for p in packets if p.direction == pcapng.INBOUND)
     outbound = b"".join(p.data for p in packets if p.direction == pcapng.OUTBOUND)
     assert inbound == b"\xfe\xfd sniffed noise\r\nOK\r\n" and outbound == b"AT\r"
@@ -443,7 +444,7 @@ async def test_capture_holds_the_bytes_seen_while_sniffing(tmp_path: Path) -> No
 def test_capture_headers_are_on_disk_before_any_data(tmp_path: Path) -> None:
     """A capture killed right after set-up is readable: section and interface blocks are flushed."""
     writer = CaptureWriter(tmp_path / "c.pcapng")
-    writer.describe("/dev/ttyACM0", protocol="ublox-aoa", kind="xplr-aoa")
+    writer.describe("/dev/ttyACM0", kind="xplr-aoa")
     interfaces, packets, torn = pcapng.read_all((tmp_path / "c.pcapng").read_bytes())  # before close
     assert [i.name for i in interfaces] == ["/dev/ttyACM0"] and packets == [] and torn == 0
     writer.close()

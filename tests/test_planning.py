@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_homing import closed_loop_scenario
 
-from rfhoming.host.drivers.base import Scan
+from rfhoming.host.drivers.robot_base import Scan
 from rfhoming.host.homing.avoidance import AvoidParams, ObstacleAvoidance, sectors
 from rfhoming.host.homing.grid import FREE_COST, OCCUPIED_COST, UNKNOWN_COST, GridParams, OccupancyGrid, lookahead
 from rfhoming.host.homing.types import Decision, Pose
-from test_homing import closed_loop_scenario
 
 
 def wall_scan(distance: float, beams: int = 181, width: float = 20.0) -> Scan:

@@ -7,6 +7,7 @@ import json
 import math
 import os
 import pty
+import re
 import signal
 import subprocess
 import sys
@@ -73,7 +74,7 @@ def two_tags(tmp_path: Path):
 
 
 def run_on(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
-    return subprocess.run(rfhoming("run", "--aoa", f"ublox-aoa:{tmp_path / 'aoa'}", "--base", f"base:{tmp_path / 'base'}",
+    return subprocess.run(rfhoming("run", "--aoa", f"xplr-aoa:{tmp_path / 'aoa'}", "--base", f"base:{tmp_path / 'base'}",
                                    "--config", str(tmp_path / "robot.toml"), *extra),
                           capture_output=True, text=True, timeout=240)
 
@@ -99,9 +100,42 @@ def test_with_two_tags_in_view_and_none_chosen_run_refuses_and_lists_them(tmp_pa
 
 def test_an_unopenable_port_fails_fast_naming_it(tmp_path: Path) -> None:
     missing = tmp_path / "no-such-tty"
-    done = subprocess.run(rfhoming("run", "--aoa", f"ublox-aoa:{missing}", "--base", f"base:{tmp_path / 'no-base'}"),
+    done = subprocess.run(rfhoming("run", "--aoa", f"xplr-aoa:{missing}", "--base", f"base:{tmp_path / 'no-base'}"),
                           capture_output=True, text=True, timeout=10)  # the old code hung here for ever
     assert done.returncode == 2 and str(tmp_path) in done.stderr
+
+
+SITE = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-home.toml"
+
+
+@pytest.mark.parametrize("controller", ["aoa", "dock", "rss", "trilat", "anchors"])
+def test_every_controller_fails_fast_naming_an_unopenable_base(tmp_path: Path, controller: str) -> None:
+    """The sensors' ports open (a plain pty), the base's does not: one line naming it, exit 2,
+    for every controller (the anchors run once waited on the failed base for ever)."""
+    _, device = pty.openpty()
+    sensor = os.ttyname(device)
+    if controller == "anchors":
+        site = tmp_path / "site.toml"
+        site.write_text(re.sub(r'port = "[^"]*"', f'port = "xplr-aoa:{sensor}"', SITE.read_text()))
+        args = ["--site", str(site)]
+    else:
+        args = [f"--{ {'aoa': 'aoa', 'dock': 'aoa', 'rss': 'rss', 'trilat': 'ble'}[controller]}", sensor]
+    config = tmp_path / "robot.toml"
+    config.write_text('[trilat]\ngoal = [1.0, 1.0]\n[trilat.anchors]\nA = [0.0, 0.0]\nB = [4.0, 0.0]\nC = [0.0, 4.0]\n')
+    base = tmp_path / "no-base"
+    done = subprocess.run(rfhoming("run", "--controller", controller, *args, "--base", f"base:{base}",
+                                   "--config", str(config)), capture_output=True, text=True, timeout=60)
+    os.close(device)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().count("\n") == 0 and str(base) in done.stderr
+
+
+def test_a_controller_the_config_cannot_make_is_a_one_line_error(tmp_path: Path) -> None:
+    _, device = pty.openpty()
+    done = subprocess.run(rfhoming("run", "--controller", "trilat", "--ble", os.ttyname(device), "--base",
+                                   f"base:{tmp_path / 'b'}"), capture_output=True, text=True, timeout=60)
+    os.close(device)
+    assert done.returncode == 2 and "[trilat.anchors]" in done.stderr and "Traceback" not in done.stderr
 
 
 def test_a_board_that_never_answers_fails_by_its_timeout_with_a_hint() -> None:
@@ -110,7 +144,7 @@ def test_a_board_that_never_answers_fails_by_its_timeout_with_a_hint() -> None:
     ends = [pty.openpty() for _ in range(2)]
     aoa, base = (os.ttyname(device) for _, device in ends)
     try:
-        done = subprocess.run(rfhoming("run", "--aoa", f"ublox-aoa:{aoa},timeout=1.5", "--base", f"base:{base}"),
+        done = subprocess.run(rfhoming("run", "--aoa", f"xplr-aoa:{aoa},timeout=1.5", "--base", f"base:{base}"),
                               capture_output=True, text=True, timeout=20)
     finally:
         for fds in ends:
@@ -125,7 +159,7 @@ def test_listen_fails_fast_when_the_board_never_answers() -> None:
     controller, device = pty.openpty()
     aoa = os.ttyname(device)
     try:
-        done = subprocess.run(rfhoming("listen", f"ublox-aoa:{aoa}"), capture_output=True, text=True, timeout=30)
+        done = subprocess.run(rfhoming("listen", f"xplr-aoa:{aoa}"), capture_output=True, text=True, timeout=30)
     finally:
         os.close(controller)
         os.close(device)

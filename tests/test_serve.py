@@ -42,7 +42,7 @@ def serving_emulated_aoa(queue: int) -> Iterator[tuple[int, subprocess.Popen]]:
     server = None
     try:
         aoa = next(e for e in map(json.loads, iter(emulator.stdout.readline, "")) if e["type"] == "xplr-aoa")
-        server = start("serve", f"ublox-aoa:{aoa['url']}", "--port", "0", "--queue", str(queue), "--foxglove=0")
+        server = start("serve", f"xplr-aoa:{aoa['url']}", "--port", "0", "--queue", str(queue), "--foxglove=0")
         first, second = (json.loads(server.stdout.readline()) for _ in range(2))
         assert first["kind"] == "listening" and first["address"].startswith("tcp://127.0.0.1:")  # loopback by default
         assert second["kind"] == "listening" and second["address"].startswith("ws://127.0.0.1:")  # Foxglove too
@@ -137,7 +137,7 @@ def test_serve_driver_rebuilds_items_and_counts_bad_lines() -> None:
         driver.on_chunk(data[k:k + 97], 0.0)
     assert [item for _, _, item in seen] == items
     assert driver.counters["bad_lines"] == 1 and driver.counters["server_dropped"] == 7
-    assert len(driver.events) == sum(1 for i in items if i.kind == "angle")
+    assert len(driver.out) == sum(1 for i in items if i.kind == "angle")
 
 
 @given(records)
@@ -165,7 +165,7 @@ def test_the_homing_loop_and_a_viewer_share_one_xplr_aoa() -> None:
     server = run = None
     try:
         urls = {e["type"]: e["url"] for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}
-        server = start("serve", f"ublox-aoa:{urls['xplr-aoa']}", "--port", "0")
+        server = start("serve", f"xplr-aoa:{urls['xplr-aoa']}", "--port", "0")
         port = json.loads(server.stdout.readline())["address"].rsplit(":", 1)[1]
         with socket.create_connection(("127.0.0.1", int(port))) as viewer:
             run = start("run", "--aoa", f"serve://127.0.0.1:{port}", "--base", f"base:{urls['base']}")

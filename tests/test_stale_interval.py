@@ -9,13 +9,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from loops import loop_on
 
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
-from rfhoming.host.drivers.aoa import AoaDriver
-from rfhoming.host.drivers.base import BaseDriver
 from rfhoming.host.homing.config import Config, LoopSettings
-from rfhoming.host.homing.loop import RunLog, aoa_loop
+from rfhoming.host.homing.loop import RunLog
 from rfhoming.host.ports import HostPort
 
 
@@ -26,8 +25,8 @@ async def run_with_tag_interval(tmp_path: Path, interval_ms: float, loop: LoopSe
     await em.start()
     world = asyncio.create_task(em.run())
     out = io.StringIO()
-    homing = aoa_loop(BaseDriver(HostPort(str(tmp_path / "base"))), AoaDriver(HostPort(str(tmp_path / "aoa"))),
-                      replace(Config(), loop=loop).for_lockstep(), RunLog(out))
+    homing = loop_on("aoa", HostPort(str(tmp_path / "base")), HostPort(str(tmp_path / "aoa")),
+                     replace(Config(), loop=loop).for_lockstep(), RunLog(out))
     try:
         outcome = await asyncio.wait_for(homing.run(), 90)
     finally:

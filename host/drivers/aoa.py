@@ -24,12 +24,24 @@ import asyncio
 import logging
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
-from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver
-from rfhoming.host.ports import HostPort
-from rfhoming.protocol.uconnect import AngleEvent, CommandMatcher, Dialect, Response, UConnectDecoder
+from rfhoming.host.drivers.common import (
+    BoundedStream,
+    CommandFailed,
+    Driver,
+    serial_port,
+)
+from rfhoming.host.ports import HostPort, Tap
+from rfhoming.host.portspec import PortSpec
+from rfhoming.protocol.uconnect import (
+    AngleEvent,
+    CommandMatcher,
+    Dialect,
+    Response,
+    UConnectDecoder,
+)
 from rfhoming.protocol.uconnect import commands as c
 
 log = logging.getLogger(__name__)
@@ -112,13 +124,22 @@ def looks_binary(data: bytes, chain: int = 3) -> bool:
 class AoaDriver(Driver):
     kind = "xplr-aoa"
 
+    @classmethod
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> AoaDriver:
+        """``tags=`` filters on the host, ``timeout=`` bounds each set-up command."""
+        setup = options.pop("setup", AoaSetup())
+        if spec.tags:
+            setup = replace(setup, host_filter=frozenset(spec.tags))
+        if spec.timeout:
+            setup = replace(setup, command_timeout=spec.timeout)
+        return cls(serial_port(spec, taps), setup, **options)
+
     def __init__(self, port: HostPort, setup: AoaSetup = AoaSetup(), *, queue_size: int = 1000,
-                 reconnect: bool = True) -> None:
-        super().__init__(port, reconnect=reconnect)
+                 reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
+        super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
         self.decoder = UConnectDecoder()
         self.matcher = CommandMatcher()
-        self.events = BoundedStream[TimedAngle](queue_size)
         self.dialect: Dialect | None = None
         self.identity: dict[str, str] = {}
         self.counters.update(setups=0, reboots=0, retries=0, filtered=0, held=0, baud_mismatch=0, binary_output=0,
@@ -184,7 +205,7 @@ class AoaDriver(Driver):
         elif self.chosen and event.instance_id not in self.chosen:
             self.counters["filtered"] += 1
         else:
-            self.events.put(TimedAngle(t_host, event))
+            self.out.put(TimedAngle(t_host, event))
 
     def _choose(self, board_ms: int) -> bool:
         """Listening for the tags in view: True once the only one heard is chosen. Measured on
@@ -393,5 +414,5 @@ class AoaDriver(Driver):
 
     def health(self) -> dict[str, Any]:
         return {**super().health(), "dialect": self.dialect.value if self.dialect else None,
-                "problem": self.problem, "queued": len(self.events), "queue_dropped": self.events.dropped,
+                "problem": self.problem, "queued": len(self.out), "queue_dropped": self.out.dropped,
                 **{f"decoder.{k}": v for k, v in self.decoder.counters.items()}}

@@ -9,10 +9,28 @@ from collections import deque
 from collections.abc import AsyncIterator, Callable
 from typing import Any, Generic, TypeVar
 
-from rfhoming.host.ports import Disconnected, EndOfInput, HostPort, PortError, reopen
+from rfhoming.host.ports import (
+    Disconnected,
+    EndOfInput,
+    HostPort,
+    PortError,
+    Tap,
+    reopen,
+)
+from rfhoming.host.portspec import PortSpec
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
+DEFAULT_BAUD = 115200
+
+
+def serial_port(spec: PortSpec, taps: list[Tap]) -> HostPort:
+    """The port a spec names, at its baud rate (115,200 if it gives none) and flow control
+    (``auto``: the device table's default for its kind, on for the XPLR-AOA)."""
+    record = spec.device
+    auto = record is not None and record.rtscts
+    rtscts = auto if spec.flow in (None, "auto") else spec.flow == "rtscts"
+    return HostPort(spec.where, baud=spec.baud or DEFAULT_BAUD, rtscts=rtscts, name=spec.name or spec.where, taps=taps)
 
 
 class CommandFailed(Exception):
@@ -65,14 +83,18 @@ class Driver:
     """Base of the drivers: keeps the port open (re-opening with back-off) and feeds chunks.
 
     Subclasses implement :meth:`on_chunk` (decode and route) and may extend :meth:`session`
-    (work to do after each open, e.g. the AoA board's set-up).
+    (work to do after each open, e.g. the AoA board's set-up). Readings go to ``out``, the
+    stream the driver was given when built (a homing loop gives every driver its one input
+    stream), or the driver's own bounded stream of ``queue_size``.
     """
 
-    kind = "device"
+    kind = "device"  # the device table's name for what it drives (rfhoming.protocol.devices)
 
-    def __init__(self, port: HostPort, *, reconnect: bool = True) -> None:
+    def __init__(self, port: HostPort, *, reconnect: bool = True, out: BoundedStream[Any] | None = None,
+                 queue_size: int = 1000) -> None:
         self.port = port
         self.reconnect = reconnect
+        self.out: BoundedStream[Any] = out if out is not None else BoundedStream(queue_size)
         self.state = "closed"
         self.counters: dict[str, int] = {"reconnects": 0}
         self.latency: deque[float] = deque(maxlen=1000)  # seconds to handle one chunk
@@ -83,6 +105,12 @@ class Driver:
         self.error: Exception | None = None
         """Why :meth:`run` ended with an exception (e.g. a port that never opened), for a
         supervisor that does not await the task itself."""
+
+    @classmethod
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> Driver:
+        """The driver on the port a spec names, with the spec's settings; ``options`` go to
+        the constructor. Kinds with settings of their own (tags, scan timing) extend it."""
+        return cls(serial_port(spec, taps), **options)
 
     def emit(self, t: float, item: Any) -> Any:
         """Show one decoded item (record, line or drop) to the listeners; returns it."""

@@ -11,12 +11,18 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
-from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver
+from rfhoming.host.drivers.common import (
+    BoundedStream,
+    CommandFailed,
+    Driver,
+    serial_port,
+)
 from rfhoming.host.drivers.rss import BleRssi
-from rfhoming.host.ports import HostPort
+from rfhoming.host.ports import HostPort, Tap
+from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.protocol.espat import EspAtDecoder, Final
 
 log = logging.getLogger(__name__)
@@ -54,15 +60,31 @@ class EspAtSetup:
         return [f"AT+BLESCANPARAM={int(self.active)},0,0,{interval},{window}", scan]
 
 
+def setup_from_spec(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
+    """The spec's scan settings (active, interval, window, mac, adname) over ``setup``."""
+    s = spec.settings
+    interval = s.get("interval", setup.interval_ms)
+    try:
+        return replace(setup, active=s.get("active", setup.active), interval_ms=interval,
+                       window_ms=s.get("window", min(setup.window_ms, interval)),
+                       filter_mac=s.get("mac", setup.filter_mac), filter_name=s.get("adname", setup.filter_name),
+                       command_timeout=spec.timeout or setup.command_timeout)
+    except ValueError as exc:
+        raise PortSpecError(f"{spec}: {exc}") from None
+
+
 class EspAtDriver(Driver):
     kind = "esp-at"
 
+    @classmethod
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> EspAtDriver:
+        return cls(serial_port(spec, taps), setup_from_spec(spec, options.pop("setup", EspAtSetup())), **options)
+
     def __init__(self, port: HostPort, setup: EspAtSetup = EspAtSetup(), *, queue_size: int = 4000,
-                 reconnect: bool = True) -> None:
-        super().__init__(port, reconnect=reconnect)
+                 reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
+        super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
         self.decoder = EspAtDecoder()
-        self.readings = BoundedStream[Any](queue_size)
         self.counters.update(setups=0, reboots=0, retries=0, scans_done=0)
         self._answer: asyncio.Future[list[Any]] | None = None
         self._lines: list[Any] = []
@@ -71,7 +93,7 @@ class EspAtDriver(Driver):
         for item in self.decoder.feed(data):
             self.emit(t_host, item)
             if item.kind == "scan_report":
-                self.readings.put(BleRssi(t_host, self.setup.node_id, item.address, item.rssi_dbm))
+                self.out.put(BleRssi(t_host, self.setup.node_id, item.address, item.rssi_dbm))
             elif item.kind == "info":
                 self._lines.append(item)
             elif isinstance(item, Final):
@@ -122,5 +144,5 @@ class EspAtDriver(Driver):
         self.state = "streaming"
 
     def health(self) -> dict[str, Any]:
-        return {**super().health(), "queued": len(self.readings), "queue_dropped": self.readings.dropped,
+        return {**super().health(), "queued": len(self.out), "queue_dropped": self.out.dropped,
                 "problem": self.problem, **{f"decoder.{k}": v for k, v in self.decoder.counters.items()}}

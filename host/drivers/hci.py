@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 from bumble import hci
@@ -27,6 +27,7 @@ from bumble import hci
 from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver
 from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.ports import Disconnected, HostPort, PortError, Tap
+from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.protocol import ad as adv
 from rfhoming.protocol.h4 import H4Splitter
 
@@ -93,15 +94,39 @@ def address_text(address: hci.Address) -> str:
     return bytes(address.address_bytes)[::-1].hex().upper()
 
 
+def setup_from_spec(spec: PortSpec, setup: HciSetup | None = None) -> HciSetup:
+    """The spec's scan settings over ``setup`` (default settings if None)."""
+    setup = setup or HciSetup()
+    s = spec.settings
+    interval = s.get("interval", setup.interval_ms)
+    try:
+        return replace(setup, active=s.get("active", setup.active), interval_ms=interval,
+                       window_ms=s.get("window", min(setup.window_ms, interval)),
+                       extended=s.get("extended", setup.extended), filter_duplicates=s.get("dedup", setup.filter_duplicates),
+                       addresses=frozenset([s["mac"].replace(":", "")]) if "mac" in s else setup.addresses,
+                       name=s.get("adname", setup.name), content=s.get("content", setup.content),
+                       command_timeout=spec.timeout or setup.command_timeout)
+    except ValueError as exc:
+        raise PortSpecError(f"{spec}: {exc}") from None
+
+
 class HciDriver(Driver):
     kind = "hci"
 
+    @classmethod
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> HciDriver:
+        """WHERE is a bumble transport name (serial:PATH,SPEED, usb:0, tcp-client:H:P ...)."""
+        try:
+            port = open_port(spec.where, name=spec.name, taps=taps)
+        except ValueError as exc:
+            raise PortSpecError(str(exc)) from None
+        return cls(port, setup_from_spec(spec, options.pop("setup", None)), **options)
+
     def __init__(self, port: HostPort, setup: HciSetup = HciSetup(), *, queue_size: int = 4000,
-                 reconnect: bool = True) -> None:
-        super().__init__(port, reconnect=reconnect)
+                 reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
+        super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
         self.splitter = H4Splitter()
-        self.readings = BoundedStream[Any](queue_size)
         self.counters.update(setups=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0)
         self.extended: bool | None = None
         self._pending: tuple[int, asyncio.Future[Any]] | None = None
@@ -142,7 +167,7 @@ class HciDriver(Driver):
         elif not self.setup.keeps(address, bytes(report.data)):
             self.counters["filtered"] += 1
         else:
-            self.readings.put(BleRssi(t_host, self.setup.node_id, address, report.rssi))
+            self.out.put(BleRssi(t_host, self.setup.node_id, address, report.rssi))
 
     async def command(self, command: hci.HCI_Command) -> Any:
         """Send one command; its Command Complete return parameters (CommandFailed otherwise)."""
@@ -195,8 +220,8 @@ class HciDriver(Driver):
         self.state, self.problem = "streaming", None
 
     def health(self) -> dict[str, Any]:
-        return {**super().health(), "extended": self.extended, "queued": len(self.readings),
-                "queue_dropped": self.readings.dropped, "problem": self.problem,
+        return {**super().health(), "extended": self.extended, "queued": len(self.out),
+                "queue_dropped": self.out.dropped, "problem": self.problem,
                 **{f"h4.{k}": v for k, v in self.splitter.counters.items()}}
 
 

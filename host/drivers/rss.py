@@ -17,7 +17,13 @@ from typing import Any, NamedTuple
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.ports import HostPort
 from rfhoming.protocol.at86rf212 import DEFAULT_SCALE_DB, ed_to_dbm
-from rfhoming.protocol.frames import AdvReport, AntennaSet, FrameDecoder, RfFrame, Status
+from rfhoming.protocol.frames import (
+    AdvReport,
+    AntennaSet,
+    FrameDecoder,
+    RfFrame,
+    Status,
+)
 
 WRAP = 1 << 32
 
@@ -103,12 +109,11 @@ class RssDriver(Driver):
     kind = "rss-node"
 
     def __init__(self, port: HostPort, *, ed_scale_db: float = DEFAULT_SCALE_DB, use_antenna_sets: bool = True,
-                 queue_size: int = 4000, reconnect: bool = True) -> None:
-        super().__init__(port, reconnect=reconnect)
+                 queue_size: int = 4000, reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
+        super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.decoder = FrameDecoder()
         self.ed_scale_db = ed_scale_db
         self.use_antenna_sets = use_antenna_sets
-        self.readings = BoundedStream[Any](queue_size)
         self.clocks: dict[int, NodeClock] = {}
         self.loss = LossCounter()
         self.associator = Associator()
@@ -131,15 +136,15 @@ class RssDriver(Driver):
             t = self._host_time(record, t_host)
             if isinstance(record, AdvReport):
                 if record.rssi_dbm != 127:
-                    self.readings.put(BleRssi(t, record.node_id, record.addr[::-1].hex().upper(), record.rssi_dbm))
+                    self.out.put(BleRssi(t, record.node_id, record.addr[::-1].hex().upper(), record.rssi_dbm))
             elif isinstance(record, AntennaSet) and self.use_antenna_sets:
                 dbm = tuple(self._dbm(a.ed, record.rssi_base_dbm) if record.valid_mask >> i & 1 else None
                             for i, a in enumerate(record.antennas))
-                self.readings.put(AntennaPowers(t, record.node_id, record.emitter_seq, dbm))
+                self.out.put(AntennaPowers(t, record.node_id, record.emitter_seq, dbm))
             elif isinstance(record, RfFrame) and not self.use_antenna_sets:
                 for done in self.associator.add(record.node_id, record.emitter_seq, record.antenna,
                                                 self._dbm(record.ed, record.rssi_base_dbm), t):
-                    self.readings.put(done)
+                    self.out.put(done)
             elif isinstance(record, Status):
                 self.status[record.node_id] = record
             elif record.kind == "log_text":
@@ -147,5 +152,5 @@ class RssDriver(Driver):
 
     def health(self) -> dict[str, Any]:
         return {**super().health(), "records": self.loss.received, "lost_records": self.loss.lost,
-                "queued": len(self.readings), "queue_dropped": self.readings.dropped,
+                "queued": len(self.out), "queue_dropped": self.out.dropped,
                 **{f"decoder.{k}": v for k, v in self.decoder.counters.items()}}

@@ -20,7 +20,7 @@ import json
 import logging
 from collections import Counter, deque
 from pathlib import Path
-from typing import Any, IO
+from typing import IO, Any
 
 from mcap_ros2.writer import Writer
 
@@ -29,12 +29,17 @@ from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.export import rosmsgs
 from rfhoming.host.replay import ReplayPort, load_capture
-from rfhoming.host.session import DRIVERS, recorded_kind
+from rfhoming.host.session import driver_class, recorded_kind
 from rfhoming.host.sink import Sink
+from rfhoming.protocol.errors import Error
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.pcapng import OUTBOUND
 
 log = logging.getLogger(__name__)
+
+
+class RunLogError(Error, ValueError):
+    """A run log line that is not one (JSON with kind and t); the message names the line."""
 
 
 class McapRecorder(Sink):
@@ -171,7 +176,7 @@ def _capture_drivers(path: Path | str) -> tuple[dict[str, Driver], list[tuple[st
     drivers: dict[str, Driver] = {}
     rows = []
     for i, iface in enumerate(interfaces):
-        drivers[iface.name] = DRIVERS[recorded_kind(iface)](ReplayPort(iface.name, per_interface[i]))
+        drivers[iface.name] = driver_class(recorded_kind(iface))(ReplayPort(iface.name, per_interface[i]))
         rows += [(p.t, i, n, p) for n, p in enumerate(per_interface[i]) if p.comment not in (SNIFFED, DISCONNECTED)]
     rows.sort(key=lambda row: row[:3])
     return drivers, [(interfaces[i].name, p) for _, i, _, p in rows]
@@ -187,6 +192,6 @@ def _read_runlog(path: Path | str) -> list[dict[str, Any]]:
                 record = json.loads(line)
                 float(record["t"])
             except (ValueError, KeyError, TypeError):
-                raise ValueError(f"{path}:{n}: not a run log line (JSON with kind and t): {line[:60]!r}") from None
+                raise RunLogError(f"{path}:{n}: not a run log line (JSON with kind and t): {line[:60]!r}") from None
             records.append(record)
     return records

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host.drivers.aoa import TimedAngle
-from rfhoming.host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose, velocity_law
 from rfhoming.host.locate import Locator
 from rfhoming.host.site import Site
 
@@ -47,7 +47,7 @@ def align(odometry: np.ndarray, world: np.ndarray) -> tuple[float, np.ndarray]:
     return phi, mw - rot @ mo
 
 
-class AnchorsController:
+class AnchorsController(ControllerDefaults):
     source = "anchors"
 
     def __init__(self, site: Site, params: AnchorsParams = AnchorsParams()) -> None:

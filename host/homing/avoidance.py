@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rfhoming.host.drivers.base import Scan
+from rfhoming.host.drivers.robot_base import Scan
 from rfhoming.host.homing.types import Decision
 
 

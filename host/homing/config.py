@@ -267,7 +267,7 @@ k_stop = 0.8
 # [devices.ROLE]: the ports of `rfhoming run` (ROLE: aoa, base, rss, ble), each a port spec
 # plus any of its settings; --aoa/--base/--rss/--ble on the command line override them.
 # [devices.aoa]
-# port = "ublox-aoa:/dev/ttyUSB0"
+# port = "xplr-aoa:/dev/ttyUSB0"
 # baud = 1000000
 # flow = "rtscts"
 # tags = ["CCF9578E0D8A"]

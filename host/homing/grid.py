@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rfhoming.host.drivers.base import Scan
+from rfhoming.host.drivers.robot_base import Scan
 from rfhoming.host.homing.types import Pose
 
 UNKNOWN_COST, FREE_COST, OCCUPIED_COST = 2, 1, 100

@@ -28,27 +28,23 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections import deque
 import logging
 import statistics
 import time
-from dataclasses import dataclass, field
+from collections import deque
 from collections.abc import Callable
-from typing import IO, Any, Protocol
+from dataclasses import dataclass, field
+from typing import IO, Any
 
-from rfhoming.host.drivers.aoa import AoaDriver, TimedAngle
+from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.drivers.common import BoundedStream, Driver
-from rfhoming.host.drivers.base import BaseDriver, Pose2D, Scan
-from rfhoming.host.homing.anchors import AnchorsController
+from rfhoming.host.drivers.robot_base import BaseDriver, Pose2D, Scan
 from rfhoming.host.homing.avoidance import ObstacleAvoidance
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.grid import OccupancyGrid, lookahead
 from rfhoming.host.homing.s0_aoa import S0Homing
-from rfhoming.host.homing.s1_dock import DockController
-from rfhoming.host.homing.s2_rss import RssController
-from rfhoming.host.homing.s3_trilat import TrilatController
-from rfhoming.host.homing.types import Decision, Pose
-from rfhoming.host.site import Site
+from rfhoming.host.homing.types import Controller, ControllerDefaults, Decision, Pose
+from rfhoming.host.ports import EndOfInput
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +61,7 @@ class Outcome:
     commands: int
     stale_stops: int
     latency_ms: list[float] = field(default_factory=list)
+    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # each driver's health at the end, by kind
 
     def summary(self) -> dict[str, Any]:
         lat = sorted(self.latency_ms)
@@ -92,22 +89,7 @@ class RunLog:
             listener(record)
 
 
-class Controller(Protocol):
-    """What the loop needs of a homing controller."""
-
-    phase: str
-    reported: Any  # the goal estimate (x, y) or None
-
-    def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
-        """One sensor reading; returns the fields to log, or None if it was not a reading."""
-
-    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision: ...
-
-    def estimate(self) -> dict[str, Any]:
-        """What to log of the current estimate."""
-
-
-class AoaController:
+class AoaController(ControllerDefaults):
     """S0 behind the loop's interface: board azimuth -> θs (mounting), RSSI -> distance."""
 
     source = "aoa"
@@ -141,30 +123,26 @@ class AoaController:
 
 
 class HomingLoop:
-    """The base plus one sensor driver (or several: fixed anchors) and a controller."""
+    """The base plus its sensor drivers (one, or several fixed anchors) and a controller.
 
-    def __init__(self, base: BaseDriver, sensor: Driver | list[Driver], controller: Controller,
-                 config: Config = Config(), runlog: RunLog | None = None) -> None:
-        self.sensors = sensor if isinstance(sensor, list) else [sensor]
-        sensor = self.sensors[0]
-        self.base, self.sensor, self.config = base, sensor, config
+    Every driver was built to hand its items to ``inputs`` (host/homing/assembly.py builds
+    them so): the loop sees odometry, scans and readings in arrival order, so its decisions
+    depend on the bytes alone and a replay reproduces them exactly."""
+
+    def __init__(self, base: BaseDriver, sensors: list[Driver], controller: Controller, config: Config,
+                 runlog: RunLog, inputs: BoundedStream[Any]) -> None:
+        assert all(d.out is inputs for d in (base, *sensors)), "every driver hands its items to the loop's stream"
+        self.base, self.sensors, self.config = base, sensors, config
         self.controller = controller
-        self.source = getattr(controller, "source", sensor.kind)
-        self.log = runlog or RunLog(None)
+        self.source = controller.source
+        self.log = runlog
+        self.inputs = inputs
         self.stale_stops = 0
         self.commands = 0
         self.latency_ms: deque[float] = deque(maxlen=10_000)  # bounded: the latest commands
-        # one stream for both drivers: the loop sees odometry and readings in arrival order, so
-        # its decisions depend on the bytes alone (a replay reproduces them exactly)
-        self.inputs = BoundedStream[Any](4000)
-        base.odometry = base.scans = self.inputs
-        for each in self.sensors:
-            for name in ("events", "readings"):
-                if hasattr(each, name):
-                    setattr(each, name, self.inputs)
-        own = getattr(controller, "own_avoidance", False)  # S2's preliminary system has its own rules
-        self.avoidance = ObstacleAvoidance(config.avoid) if config.avoid_obstacles and not own else None
-        self._planning = config.plan.enabled and getattr(controller, "uses_planner", True)
+        self.avoidance = (ObstacleAvoidance(config.avoid) if config.avoid_obstacles and not controller.own_avoidance
+                          else None)
+        self._planning = config.plan.enabled and controller.uses_planner
         self.grid: OccupancyGrid | None = None  # built from the first scan, if the base sends any
         self._path: list[tuple[float, float]] | None = None
         self._next_plan = 0.0
@@ -172,13 +150,25 @@ class HomingLoop:
         self.plans = 0
         self.intervals: deque[float] = deque(maxlen=20)  # robot-time gaps between readings
         self._braking: bool | None = None  # base brake mode as last sent; None: unknown, send it
+        self._brake_logged = False  # brake mode as the run log last said
         self.clock_resets = 0
+        # the loop's state, on robot time
+        self.t = 0.0
+        self.t0: float | None = None
+        self.pose: Pose | None = None
+        self.last_reading: float | None = None
+        self.next_control: float | None = None
+        self.stale = False
+        self.clock_offset = 0.0  # robot time = base clock + offset, re-anchored on a base reset
+        self.last_odometry_wall = time.monotonic()
+        self.odometry_stale = False
+        self._read_while_odometry_stale = False
 
     async def run(self) -> Outcome:
         tasks = [asyncio.create_task(self.base.run())] + [asyncio.create_task(s.run()) for s in self.sensors]
         try:
             async with self.base:
-                await self.base.connected.wait()
+                await self._base_connected(tasks[0])
                 self.base.stop()  # a known state, and the emulator's lockstep gets its first answer
                 return await self._loop()
         finally:
@@ -186,103 +176,142 @@ class HomingLoop:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
 
+    async def _base_connected(self, base_task: asyncio.Task[None]) -> None:
+        """Wait for the base's port, or raise why its driver ended (a port that never opened)."""
+        connected = asyncio.create_task(self.base.connected.wait())
+        try:
+            await asyncio.wait({connected, base_task}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            connected.cancel()
+        if not self.base.connected.is_set():
+            base_task.result()  # raises the driver's error
+            raise EndOfInput(f"{self.base.port.name} ended before it connected")
+
     async def _loop(self) -> Outcome:
-        cfg = self.config.loop
-        last_reading: float | None = None
-        next_control: float | None = None
-        stale = False
-        t0: float | None = None
-        pose: Pose | None = None
-        t = 0.0
-        last_odometry_wall = time.monotonic()
-        odometry_stale = False
-        clock_offset = 0.0  # robot time = base clock + offset, re-anchored on a base reset
         while True:
-            item = self.inputs.get_nowait()  # most items are already here: no timer, no task
-            if item is None:
-                try:  # asyncio.timeout, not wait_for: no task per item, and a cancellation stays one
-                    async with asyncio.timeout(min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s)):
-                        item = await self.inputs.get()
-                except TimeoutError:
-                    item = None
-            if not isinstance(item, Pose2D) and time.monotonic() - last_odometry_wall > cfg.odometry_wall_timeout_s:
-                if not odometry_stale:  # the base's own clock is gone: wall time is all there is
-                    odometry_stale = True
-                    log.warning("odometry stale: stopping the robot (its watchdog stops it too)")
-                    self.log.write("event", t, what="odometry stale: stop")
-                    self.base.stop()
+            item = await self._next_item()
             if item is None:
                 continue
             if isinstance(item, Scan):
-                if self.avoidance is not None:
-                    self.avoidance.on_scan(item)
-                if hasattr(self.controller, "on_scan"):
-                    self.controller.on_scan(item)
-                if self._planning and pose is not None and t >= self._next_integrate:
-                    self._next_integrate = t + self.config.plan.integrate_s
-                    if self.grid is None:
-                        self.grid = OccupancyGrid((pose.x, pose.y), self.config.plan.grid)
-                    self.grid.integrate(pose, item)
-                continue
-            if not isinstance(item, Pose2D):  # a reading: robot time of the latest odometry
-                if pose is not None:
-                    fields = self.controller.on_input(t, pose, item)
-                    if fields is not None:
-                        if last_reading is not None:
-                            self.intervals.append(t - last_reading)
-                        last_reading = t
-                        self.log.write("measurement", t, source=self.source, **fields)
-                continue
-            odo = item
-            last_odometry_wall, odometry_stale = time.monotonic(), False
-            if t0 is not None and odo.t_robot + clock_offset < t:
-                # the base restarted (its clock runs from 0 again): continue robot time one
-                # odometry period on, so staleness, control cadence and limits keep running
-                new_offset = t + ODOMETRY_PERIOD_S - odo.t_robot
-                self.clock_resets += 1
-                log.warning("base clock went back from %.3f s to %.3f s (a base reset?): re-anchored",
-                            t - clock_offset, odo.t_robot)
-                self.log.write("event", t, what="base clock reset: re-anchored",
-                               base_clock_before=round(t - clock_offset, 6), base_clock_now=round(odo.t_robot, 6))
-                clock_offset = new_offset
-                self._braking = None  # a reset clears the base's brake mode: send it again
-            t = odo.t_robot + clock_offset
-            t0 = t if t0 is None else t0
-            pose = Pose(odo.x, odo.y, odo.theta)
-            if next_control is None:
-                next_control = t
-            if t + 1e-9 < next_control:
-                continue
-            next_control += cfg.control_period_s
-            if last_reading is None or t - last_reading > self.stale_timeout():
-                if not stale and last_reading is not None:
-                    self.stale_stops += 1
-                    log.warning("%s stream stale for %.2f s: stopping the robot", self.source, t - last_reading)
-                    self.log.write("event", t, what=f"{self.source} stale: stop")
-                stale = True
-                self._brake(True, t)
-                self._send(Decision(0.0, 0.0, None, False, "stale"), t, odo)
-                if t - t0 > cfg.max_time_s:
-                    return self._outcome(False, "time limit", t - t0, pose, None)
-                continue
-            if stale:
-                self.log.write("event", t, what=f"{self.source} fresh again: resume")
-            stale = False
-            waypoint = self._waypoint(t, pose)
-            decision = self.controller.decide(pose, steer_to=waypoint)
-            if self.avoidance is not None:
-                decision = self.avoidance.adjust(decision, t, emergency_only=waypoint is not None)
-            self.log.write("estimate", t, **self.controller.estimate(), phase=self.controller.phase,
-                           pose=[round(v, 4) for v in pose])
-            slow = self._age_factor(t - last_reading)
-            self._brake(slow < 1.0, t)
-            if slow < 1.0:
-                decision = decision._replace(v=decision.v * slow, w=decision.w * slow)
-            self._send(decision, t, odo, **({"slowed": round(slow, 3)} if slow < 1.0 else {}))
-            if decision.arrived:
-                return self._outcome(True, "arrived", t - t0, pose, decision.goal)
-            if t - t0 > cfg.max_time_s:
-                return self._outcome(False, "time limit", t - t0, pose, decision.goal)
+                self._on_scan(item)
+            elif isinstance(item, Pose2D):
+                outcome = self._on_odometry(item)
+                if outcome is not None:
+                    return outcome
+            else:
+                self._on_reading(item)
+
+    async def _next_item(self) -> Any:
+        """The next input, or None after a wait that found none; stops the robot when the base
+        has been silent too long on the wall clock (its own clock is gone with it)."""
+        cfg = self.config.loop
+        item = self.inputs.get_nowait()  # most items are already here: no timer, no task
+        if item is None:
+            try:  # asyncio.timeout, not wait_for: no task per item, and a cancellation stays one
+                async with asyncio.timeout(min(cfg.stale_timeout_s, cfg.odometry_wall_timeout_s)):
+                    item = await self.inputs.get()
+            except TimeoutError:
+                item = None
+        if (not isinstance(item, Pose2D) and not self.odometry_stale
+                and time.monotonic() - self.last_odometry_wall > cfg.odometry_wall_timeout_s):
+            self.odometry_stale = True
+            log.warning("odometry stale: stopping the robot (its watchdog stops it too)")
+            self.log.write("event", self.t, what="odometry stale: stop")
+            self.base.stop()
+        return item
+
+    def _on_scan(self, scan: Scan) -> None:
+        if self.avoidance is not None:
+            self.avoidance.on_scan(scan)
+        self.controller.on_scan(scan)
+        if self._planning and self.pose is not None and self.t >= self._next_integrate:
+            self._next_integrate = self.t + self.config.plan.integrate_s
+            if self.grid is None:
+                self.grid = OccupancyGrid((self.pose.x, self.pose.y), self.config.plan.grid)
+            self.grid.integrate(self.pose, scan)
+
+    def _on_reading(self, item: Any) -> None:
+        """A sensor reading, on the robot time of the latest odometry."""
+        if self.pose is None:
+            return
+        fields = self.controller.on_input(self.t, self.pose, item)
+        if fields is None:
+            return
+        if self.last_reading is not None:
+            self.intervals.append(self.t - self.last_reading)
+        self.last_reading = self.t
+        self._read_while_odometry_stale |= self.odometry_stale
+        self.log.write("measurement", self.t, source=self.source, **fields)
+
+    def _on_odometry(self, odo: Pose2D) -> Outcome | None:
+        """Robot time moves on; once per control period, decide and command."""
+        self.last_odometry_wall = time.monotonic()
+        if self.odometry_stale:
+            self.odometry_stale = False
+            self.log.write("event", self.t, what="odometry fresh again")
+        self._advance_clock(odo)
+        if self._read_while_odometry_stale:
+            # readings kept coming while the base was silent: their robot time is unknown, and the
+            # newest is as old as the gap at most -- the sensor was not stale, the base was
+            self._read_while_odometry_stale = False
+            self.last_reading = self.t
+        self.pose = Pose(odo.x, odo.y, odo.theta)
+        if self.next_control is None:
+            self.next_control = self.t
+        if self.t + 1e-9 < self.next_control:
+            return None
+        self.next_control += self.config.loop.control_period_s
+        return self._control(odo)
+
+    def _advance_clock(self, odo: Pose2D) -> None:
+        """Robot time from the base's clock, continued across a base reset (its clock runs from
+        0 again): one odometry period on, so staleness, cadence and limits keep running."""
+        if self.t0 is not None and odo.t_robot + self.clock_offset < self.t:
+            before = self.t - self.clock_offset
+            self.clock_resets += 1
+            log.warning("base clock went back from %.3f s to %.3f s (a base reset?): re-anchored", before, odo.t_robot)
+            self.log.write("event", self.t, what="base clock reset: re-anchored",
+                           base_clock_before=round(before, 6), base_clock_now=round(odo.t_robot, 6))
+            self.clock_offset = self.t + ODOMETRY_PERIOD_S - odo.t_robot
+            self._braking = None  # a reset clears the base's brake mode: send it again
+        self.t = odo.t_robot + self.clock_offset
+        self.t0 = self.t if self.t0 is None else self.t0
+
+    def _control(self, odo: Pose2D) -> Outcome | None:
+        """One control period: stop on stale data, else the controller's (planned, avoided,
+        slowed) command; the outcome when the run ends."""
+        t, pose, cfg = self.t, self.pose, self.config.loop
+        assert pose is not None and self.t0 is not None
+        if self.last_reading is None or t - self.last_reading > self.stale_timeout():
+            if not self.stale and self.last_reading is not None:
+                self.stale_stops += 1
+                log.warning("%s stream stale for %.2f s: stopping the robot", self.source, t - self.last_reading)
+                self.log.write("event", t, what=f"{self.source} stale: stop")
+            self.stale = True
+            self._brake(True, t)
+            self._send(Decision(0.0, 0.0, None, False, "stale"), t, odo)
+            if t - self.t0 > cfg.max_time_s:
+                return self._outcome(False, "time limit", t - self.t0, pose, None)
+            return None
+        if self.stale:
+            self.log.write("event", t, what=f"{self.source} fresh again: resume")
+        self.stale = False
+        waypoint = self._waypoint(t, pose)
+        decision = self.controller.decide(pose, steer_to=waypoint)
+        if self.avoidance is not None:
+            decision = self.avoidance.adjust(decision, t, emergency_only=waypoint is not None)
+        self.log.write("estimate", t, **self.controller.estimate(), phase=self.controller.phase,
+                       pose=[round(v, 4) for v in pose])
+        slow = self._age_factor(t - self.last_reading)
+        self._brake(slow < 1.0, t)
+        if slow < 1.0:
+            decision = decision._replace(v=decision.v * slow, w=decision.w * slow)
+        self._send(decision, t, odo, **({"slowed": round(slow, 3)} if slow < 1.0 else {}))
+        if decision.arrived:
+            return self._outcome(True, "arrived", t - self.t0, pose, decision.goal)
+        if t - self.t0 > cfg.max_time_s:
+            return self._outcome(False, "time limit", t - self.t0, pose, decision.goal)
+        return None
 
     def stale_timeout(self) -> float:
         """``stale_timeout_s``, or ``stale_intervals`` median reading intervals if longer."""
@@ -315,10 +344,13 @@ class HomingLoop:
         return max(0.0, (timeout - age) / (timeout - slow_after))
 
     def _brake(self, on: bool, t: float) -> None:
-        """Base brake mode (emergency deceleration) on or off; sent on change only."""
+        """Base brake mode (emergency deceleration) on or off; sent on change (and again after a
+        base reset), logged when the mode itself changes."""
         if on != self._braking and self.base.brake(on):  # not sent (base away): try again next time
             self._braking = on
-            self.log.write("event", t, what="brake mode " + ("on" if on else "off"))
+            if on != self._brake_logged:
+                self._brake_logged = on
+                self.log.write("event", t, what="brake mode " + ("on" if on else "off"))
 
     def _send(self, decision: Decision, t: float, odo: Pose2D, **fields: Any) -> None:
         self.base.send_velocity(decision.v, decision.w)
@@ -329,33 +361,11 @@ class HomingLoop:
     def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose, goal) -> Outcome:
         self.base.stop()
         self.log.write("event", duration, what=reason)
-        return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, list(self.latency_ms))
-
-
-def aoa_loop(base: BaseDriver, aoa: AoaDriver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
-    """S0 homing: one XPLR-AOA and the base."""
-    return HomingLoop(base, aoa, AoaController(config), config, runlog)
-
-
-def rss_loop(base: BaseDriver, rss: Driver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
-    """S2 homing: the four-dish AT86RF212 node and the base."""
-    return HomingLoop(base, rss, RssController(config.s2), config, runlog)
-
-
-def dock_loop(base: BaseDriver, station: AoaDriver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
-    """S1 docking: the station's AoA/RSSI readings of the robot's tag, and the base."""
-    return HomingLoop(base, station, DockController(config.s1), config, runlog)
-
-
-def trilat_loop(base: BaseDriver, ble: Driver, config: Config = Config(), runlog: RunLog | None = None) -> HomingLoop:
-    """S3: go to a goal, localised by trilateration on BLE beacons at known places."""
-    return HomingLoop(base, ble, TrilatController(config.trilat), config, runlog)
-
-
-def anchors_loop(base: BaseDriver, anchors: list[Driver], site: Site, config: Config = Config(),
-                 runlog: RunLog | None = None) -> HomingLoop:
-    """Homing on fixed anchors: the site's anchors locate the robot's tag and the target's."""
-    return HomingLoop(base, anchors, AnchorsController(site), config, runlog)
+        drivers = [*self.sensors, self.base]
+        kinds = [d.kind for d in drivers]
+        links = {(d.kind if kinds.count(d.kind) == 1 else f"{d.kind}:{d.port.name}"): d.health() for d in drivers}
+        return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, list(self.latency_ms),
+                       links)
 
 
 def _round(v: Any) -> list[float] | None:

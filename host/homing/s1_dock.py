@@ -37,7 +37,7 @@ import numpy as np
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.estimation.filters import MovingAverage
 from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
-from rfhoming.host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ class S1Params:
     mission_stop_m: float = 0.8  # the mission stage stops this far from mission_goal
 
 
-class DockController:
+class DockController(ControllerDefaults):
     source = "dock_aoa"
 
     def __init__(self, params: S1Params = S1Params()) -> None:

@@ -35,8 +35,13 @@ import numpy as np
 
 from rfhoming.host.drivers.rss import AntennaPowers
 from rfhoming.host.estimation.fixed import wrap_rad
-from rfhoming.host.estimation.particle import ParticleFilter, PfParams, differential_to_range, direction
-from rfhoming.host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.estimation.particle import (
+    ParticleFilter,
+    PfParams,
+    differential_to_range,
+    direction,
+)
+from rfhoming.host.homing.types import ControllerDefaults, Decision, ParamsError, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -62,22 +67,22 @@ class S2Params:
     def __post_init__(self) -> None:  # a TOML list becomes the tuple the default is
         object.__setattr__(self, "dish_offsets_db", tuple(float(v) for v in self.dish_offsets_db))
         if len(self.dish_offsets_db) != 4:
-            raise ValueError("[s2] dish_offsets_db needs four values: x1, x2, y1, y2")
+            raise ParamsError("[s2] dish_offsets_db needs four values: x1, x2, y1, y2")
 
 
-class RssController:
+class RssController(ControllerDefaults):
     source = "rss"
 
     def __init__(self, params: S2Params = S2Params()) -> None:
         if params.motion not in ("full", "preliminary"):
-            raise ValueError("[s2] motion must be 'full' or 'preliminary'")
+            raise ParamsError("[s2] motion must be 'full' or 'preliminary'")
         self.params = params
         # the preliminary system avoids obstacles by its own 20 cm rule: no planner, no S0 avoidance
         self.uses_planner = params.motion == "full"
         self.own_avoidance = params.motion == "preliminary"
         self.front_m = math.inf
         if params.likelihood not in ("s2", "bounded"):
-            raise ValueError("[s2] likelihood must be 's2' or 'bounded'")
+            raise ParamsError("[s2] likelihood must be 's2' or 'bounded'")
         self.pf = ParticleFilter(PfParams(likelihood=params.likelihood), np.random.default_rng(params.seed))
         self.fixes = 0
         self.incomplete = 0

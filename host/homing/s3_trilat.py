@@ -25,7 +25,7 @@ from rfhoming.host.estimation.filters import ScalarKalman
 from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
 from rfhoming.host.estimation.lateration import multilaterate
 from rfhoming.host.estimation.ranging import LogDistance
-from rfhoming.host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.homing.types import ControllerDefaults, Decision, ParamsError, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -47,12 +47,12 @@ class TrilatParams:
     k_stop: float = 0.8
 
 
-class TrilatController:
+class TrilatController(ControllerDefaults):
     source = "ble"
 
     def __init__(self, params: TrilatParams) -> None:
         if len(params.anchors) < 3:
-            raise ValueError("trilat needs at least three anchors: [trilat.anchors] ADDRESS = [x, y]")
+            raise ParamsError("trilat needs at least three anchors: [trilat.anchors] ADDRESS = [x, y]")
         self.params = params
         self.model = LogDistance(params.p0_dbm, params.n)
         self.anchors = {addr.upper(): np.array(xy, float) for addr, xy in params.anchors.items()}

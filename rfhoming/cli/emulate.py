@@ -14,6 +14,7 @@ from pathlib import Path
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import BLE_RECEIVERS, ScenarioError, load, presets
+from rfhoming.protocol.errors import Error
 
 HELP = """\
 Run an emulated world and serve each device where a host opens it like real hardware:
@@ -83,7 +84,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
             faults=faults, truth=truth, link_dir=args.link_dir,
         )
-    except ValueError as exc:
+    except Error as exc:
         print(f"rfhoming emulate: {exc}", file=sys.stderr)
         return 2
     try:

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from rfhoming.protocol.pcapng import CaptureFormatError
+from rfhoming.protocol.errors import Error
 
 PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
 
@@ -43,7 +43,7 @@ def cmd_export(args: argparse.Namespace) -> int:
                     return 2
                 runlog, capture = None, runlog
         summary = export(args.output, runlog=runlog, capture=capture)
-    except (OSError, ValueError, CaptureFormatError) as exc:
+    except (OSError, Error) as exc:
         print(f"rfhoming export: {exc}", file=sys.stderr)
         return 2
     print(json.dumps({"output": str(args.output), **summary}))

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
-from rfhoming.cli.supervise import DeviceNotReady, live, supervise
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.discovery import candidates
 from rfhoming.host.drivers.aoa import AoaDriver
@@ -22,13 +21,15 @@ from rfhoming.host.drivers.common import Driver
 from rfhoming.host.ports import PortError
 from rfhoming.host.portspec import PortSpec
 from rfhoming.host.session import health, open_drivers, replay_drivers
+from rfhoming.host.supervise import DeviceNotReady, live, supervise
+from rfhoming.protocol.errors import Error
 from rfhoming.protocol.jsonable import as_dict
 from rfhoming.protocol.pcapng import CaptureFormatError, Interface
 
 log = logging.getLogger(__name__)
 
 ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket://HOST:PORT or auto; KIND "
-                 "(ublox-aoa, rss, base) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
+                 "(xplr-aoa, rss-node, esp-at, hci, base) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
                  "capture:FILE replays a recording; serve://HOST:PORT is the devices of an `rfhoming serve` "
                  "(see docs/usage.md)")
 
@@ -117,7 +118,7 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     try:
         drivers = await open_drivers(args.ports, baud=args.baud, flow=args.flow, taps=[capture.tap] if capture else [],
                                      describe=capture.describe if capture else None, probe_baud=args.probe_baud)
-    except (PortError, ValueError, OSError, CaptureFormatError) as exc:
+    except (Error, OSError) as exc:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
     if show:
@@ -177,7 +178,9 @@ async def _replay(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     if args.pty:
-        from rfhoming.cli.main import serve_capture_on_ptys  # the CLI wires the emulator's pty server in
+        from rfhoming.cli.main import (
+            serve_capture_on_ptys,  # the CLI wires the emulator's pty server in
+        )
 
         return serve_capture_on_ptys(args)
     return asyncio.run(_replay(args))
@@ -192,8 +195,8 @@ longer than 20 s (XPLR-AOA) / 5 s (others).
 
 examples:
   rfhoming listen /dev/ttyACM0
-  rfhoming listen ublox-aoa:/dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A
-  rfhoming listen ublox-aoa:/tmp/rfhoming-x/aoa rss:socket://127.0.0.1:40123 --json
+  rfhoming listen xplr-aoa:/dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A
+  rfhoming listen xplr-aoa:/tmp/rfhoming-x/aoa rss-node:socket://127.0.0.1:40123 --json
   rfhoming listen auto --duration 10
   rfhoming listen capture:run.pcapng --json
   rfhoming listen serve://127.0.0.1:2948 --json     # beside other clients of `rfhoming serve`

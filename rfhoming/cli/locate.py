@@ -22,7 +22,7 @@ from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.locate import Locator, Position
 from rfhoming.host.ports import PortError
 from rfhoming.host.session import health, open_drivers
-from rfhoming.protocol.pcapng import CaptureFormatError
+from rfhoming.protocol.errors import Error
 
 LOCATE_HELP = """\
 Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
@@ -70,7 +70,7 @@ def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
     missing = [a.name for a in site.anchors if a.port is None]
     if missing:
         raise ValueError(f"anchor(s) {', '.join(missing)} have no port in the site file: add port = "
-                         "\"ublox-aoa:WHERE\" to each, or give --from SPEC (e.g. --from capture:run.pcapng)")
+                         "\"xplr-aoa:WHERE\" to each, or give --from SPEC (e.g. --from capture:run.pcapng)")
     return [a.port for a in site.anchors if a.port is not None]
 
 
@@ -85,7 +85,7 @@ async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable
     except OSError as exc:
         print(f"rfhoming {args.command}: cannot read {exc.filename}: {exc.strerror}", file=sys.stderr)
         return 2
-    except (PortError, ValueError, CaptureFormatError) as exc:
+    except Error as exc:
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
 
@@ -96,7 +96,7 @@ async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable
     for d in drivers:
         d.listeners.append(listener)
     # the listener took every event already: empty the drivers' queues so they count no drops
-    drains = [asyncio.create_task(_discard(d.events)) for d in drivers if isinstance(d, AoaDriver)]
+    drains = [asyncio.create_task(_discard(d.out)) for d in drivers if isinstance(d, AoaDriver)]
     try:
         await _run_until(drivers, args.duration, drains)
     except PortError as exc:

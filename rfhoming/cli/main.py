@@ -6,7 +6,7 @@ import argparse
 import asyncio
 import json
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
@@ -17,14 +17,9 @@ from rfhoming.cli.io import configure_logging
 from rfhoming.cli.locate import add_parser as add_locate_parsers
 from rfhoming.cli.run import add_parsers as add_run_parsers
 from rfhoming.cli.serve import add_parser as add_serve_parser
-from rfhoming.protocol.frames import FrameDecoder
+from rfhoming.protocol import devices
+from rfhoming.protocol.errors import Error
 from rfhoming.protocol.jsonable import as_dict
-from rfhoming.protocol.uconnect import UConnectDecoder
-
-DECODERS: dict[str, Callable[[], UConnectDecoder | FrameDecoder]] = {
-    "ublox-aoa": UConnectDecoder,
-    "rss": FrameDecoder,
-}
 
 READ_SIZE = 65536
 
@@ -35,7 +30,7 @@ def _chunks(stream: BinaryIO) -> Iterator[bytes]:
 
 
 def cmd_decode(args: argparse.Namespace) -> int:
-    decoder = DECODERS[args.protocol]()
+    decoder = devices.load(devices.protocol(args.protocol).decoder)()
     try:
         stream = sys.stdin.buffer if args.file == "-" else open(args.file, "rb")
     except OSError as exc:
@@ -58,9 +53,9 @@ object per decoded item: "kind" plus its fields, or kind "drop" with the reason.
 line (kind "counters") counts every item kind and every drop reason.
 
 examples:
-  rfhoming decode --protocol ublox-aoa board.log
-  cat /dev/ttyACM0 | rfhoming decode --protocol ublox-aoa -
-  rfhoming decode --protocol rss node.bin | grep '"kind": "drop"'
+  rfhoming decode --protocol uconnect board.log
+  cat /dev/ttyACM0 | rfhoming decode --protocol uconnect -
+  rfhoming decode --protocol frames node.bin | grep '"kind": "drop"'
 """
 
 
@@ -99,6 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Radio homing for mobile robots: device protocols, emulator and host stack.",
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an internal error (for a bug report)")
     parser.add_argument("--version", action="version", version=f"rfhoming {__version__}",
                         help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -111,8 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
     decode.add_argument(
         "--protocol",
         required=True,
-        choices=sorted(DECODERS),
-        help="ublox-aoa: XPLR-AOA u-connectLocate text; rss: rfhoming COBS binary records",
+        choices=["uconnect", "frames", "ublox-aoa", "rss"],
+        metavar="PROTOCOL",
+        help="uconnect: XPLR-AOA u-connectLocate text; frames: rfhoming's COBS binary records (nodes and the "
+        "robot base); the older names ublox-aoa and rss still work",
     )
     decode.add_argument("file", nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=cmd_decode)
@@ -149,6 +147,9 @@ def _add_campaign(sub: argparse._SubParsersAction) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command. An rfhoming.Error (a port, a spec, a config, a file the user gave) or an
+    OSError is one line and exit 2; anything else is a bug: one line saying so, exit 1, and
+    the traceback with --debug."""
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
     try:
@@ -156,6 +157,22 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. piped into head
         sys.stderr.close()
         return 0
+    except Error as exc:
+        print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"rfhoming {args.command}: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"rfhoming {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if args.debug:
+            raise
+        print(f"rfhoming {args.command}: internal error, a bug in rfhoming {__version__} ({type(exc).__name__}: "
+              f"{exc}); please report it with the output of the same command run with --debug", file=sys.stderr)
+        return 1
 
 
 def serve_capture_on_ptys(args: argparse.Namespace) -> int:
@@ -172,7 +189,7 @@ def serve_capture_on_ptys(args: argparse.Namespace) -> int:
     try:
         stats = asyncio.run(serve(args.capture, link_dir, speed=args.speed or 1.0, start_delay=args.start_delay,
                                   out=sys.stdout, partial=warn if args.partial else None))
-    except (OSError, ValueError) as exc:
+    except (OSError, Error) as exc:
         print(f"rfhoming replay: cannot serve {args.capture}: {exc}", file=sys.stderr)
         return 2
     print(json.dumps({"kind": "counters", **stats}))

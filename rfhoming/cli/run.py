@@ -6,119 +6,90 @@ import argparse
 import asyncio
 import json
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from rfhoming.cli.io import add_port_defaults
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
-from rfhoming.cli.supervise import DeviceNotReady, deadline, supervise
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaSetup
-from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, load
-from rfhoming.host.homing.loop import (
-    RunLog,
-    anchors_loop,
-    aoa_loop,
-    dock_loop,
-    rss_loop,
-    trilat_loop,
-)
-from rfhoming.host.ports import PortError
-from rfhoming.host.portspec import KINDS, PortSpec, PortSpecError
+from rfhoming.host.homing import assembly
+from rfhoming.host.homing.assembly import CHOOSE_TAG_S, METHODS, Device, Homing
+from rfhoming.host.homing.config import DEFAULT_TOML, Config, load
+from rfhoming.host.homing.loop import RunLog
+from rfhoming.host.portspec import SETTINGS, PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
-from rfhoming.host.session import make_driver, resolve, serve_driver
+from rfhoming.host.sink import Sink
+from rfhoming.host.site import Site
+from rfhoming.protocol.errors import Error
 
-CONTROLLERS = ("aoa", "dock", "rss", "trilat", "anchors")
+CONTROLLERS = tuple(METHODS)
+
+
+class ExtraMissing(Error):
+    """An option needs a pip extra that is not installed; the message names it."""
 
 
 def cmd_config(args: argparse.Namespace) -> int:
     if args.print_default:
         print(DEFAULT_TOML, end="")
         return 0
-    try:
-        load(args.check)
-    except ConfigError as exc:
-        print(f"rfhoming config: {exc}", file=sys.stderr)
-        return 2
+    load(args.check)
     print(f"{args.check}: OK")
     return 0
 
 
-SENSOR_ROLE = {"aoa": "aoa", "dock": "aoa", "rss": "rss", "trilat": "ble", "anchors": "site"}
-ROLE_KIND = {"aoa": "ublox-aoa", "base": "base", "rss": "rss", "ble": "rss"}
-BLE_KINDS = ("rss", "esp-at", "hci")  # any BLE RSSI receiver feeds the trilateration
-CHOOSE_TAG_S = 2.0
-"""With no tag chosen, listen this long before homing on the only tag in view."""
-
-
 def _tags(values: list[str]) -> tuple[str, ...]:
-    """--tag values (each one id or ids joined by +) -> upper-case ids; ValueError explains."""
+    """--tag values (each one id or ids joined by +) -> upper-case ids; PortSpecError explains."""
     try:
-        return tuple(dict.fromkeys(t for v in values for t in KINDS["ublox-aoa"]["tags"](v)))
+        return tuple(dict.fromkeys(t for v in values for t in SETTINGS["tags"](v)))
     except ValueError as exc:
-        raise ValueError(f"--tag takes {exc}") from None
+        raise PortSpecError(f"--tag takes {exc}") from None
 
 
-def role_kind(role: str, spec: str | PortSpec) -> str:
-    kind = parse_spec(spec).kind
-    return kind if role == "ble" and kind in BLE_KINDS else ROLE_KIND[role]
+def _devices(args: argparse.Namespace, config: Config, role: str) -> tuple[list[Device], Site | None]:
+    """The run's devices by role: the command line's specs over the config's [devices.ROLE];
+    fixed anchors come from the site file."""
+    def spec(r: str) -> PortSpec:
+        given = getattr(args, r, None)
+        found = parse_spec(given).over(config.devices.get(r)) if given else config.devices.get(r)
+        if found is None:
+            raise PortSpecError(f"--controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)")
+        return found
+
+    site = None
+    if role == "anchor":
+        if args.site is None:
+            raise PortSpecError("--controller anchors needs --site SITE.toml (anchors, and tags with role = "
+                                "\"robot\" / \"target\")")
+        site = sites.load(args.site)
+        site.tag_with_role("robot"), site.tag_with_role("target")
+        if any(a.port is None for a in site.anchors):
+            raise sites.SiteError(f"{args.site}: every anchor needs port = \"xplr-aoa:WHERE\" for run")
+        sensors = [Device("anchor", spec=a.port) for a in site.anchors]
+    else:
+        sensors = [Device(role, spec=spec(role))]
+    return [*sensors, Device("base", spec=spec("base"))], site
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    try:
-        config = load(args.config)
-    except ConfigError as exc:
-        print(f"rfhoming run: {exc}", file=sys.stderr)
-        return 2
-    role = SENSOR_ROLE[args.controller]
-    if role == "site":  # fixed anchors: their ports come from the site file
-        if args.site is None:
-            print("rfhoming run: --controller anchors needs --site SITE.toml (anchors, and tags with "
-                  "role = \"robot\" / \"target\")", file=sys.stderr)
-            return 2
-        try:
-            site = sites.load(args.site)
-            site.tag_with_role("robot"), site.tag_with_role("target")
-            if any(a.port is None for a in site.anchors):
-                raise sites.SiteError(f"{args.site}: every anchor needs port = \"ublox-aoa:WHERE\" for run")
-        except sites.SiteError as exc:
-            print(f"rfhoming run: {exc}", file=sys.stderr)
-            return 2
-        args.site_loaded = site
-    try:
-        specs = {r: parse_spec(getattr(args, r)).over(config.devices.get(r)) if getattr(args, r, None)
-                 else config.devices.get(r) for r in (role, "base") if r != "site"}
-    except PortSpecError as exc:
-        print(f"rfhoming run: {exc}", file=sys.stderr)
-        return 2
-    for r, spec in specs.items():
-        if spec is None:
-            print(f"rfhoming run: --controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)",
-                  file=sys.stderr)
-            return 2
-    if args.tag and role != "aoa":
-        print(f"rfhoming run: --tag chooses an XPLR-AOA tag; --controller {args.controller} has none", file=sys.stderr)
-        return 2
-    sinks = []
+    config = load(args.config)
+    role = METHODS[args.controller].role
+    devices, site = _devices(args, config, role)
+    tags = _tags(args.tag)
+    if tags and role != "aoa":
+        raise PortSpecError(f"--tag chooses an XPLR-AOA tag; --controller {args.controller} has none")
+    sinks: list[Sink] = []
     if args.mcap:
-        try:
-            from rfhoming.host.export.recorder import McapRecorder
-        except ImportError as exc:
-            print(f"rfhoming run: --mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
-                  file=sys.stderr)
-            return 2
-        sinks.append(McapRecorder(args.mcap))
+        sinks.append(mcap_recorder(args.mcap))
     view = start_foxglove(args, "run")
     if view is not None:
         sinks.append(view)
     capture = CaptureWriter(args.capture) if args.capture else None
     runlog = open(args.log, "w") if args.log else None
+    plan = Homing(args.controller, devices, config, site=site, runlog=RunLog(runlog), sinks=sinks, capture=capture,
+                  tags=tags, choose_tag_s=CHOOSE_TAG_S, probe_baud=args.probe_baud, baud=args.baud, flow=args.flow)
     try:
-        return asyncio.run(_run(args, config, role, specs, capture, runlog, sinks))
-    except (PortError, ValueError, DeviceNotReady) as exc:
-        print(f"rfhoming run: {exc}", file=sys.stderr)
-        return 2
+        outcome = asyncio.run(assembly.run(plan))
     except KeyboardInterrupt:
         print("rfhoming run: interrupted; the base was told to stop", file=sys.stderr)
         return 130
@@ -129,95 +100,42 @@ def cmd_run(args: argparse.Namespace) -> int:
             capture.close()
         for sink in sinks:
             sink.close()
-
-
-async def _run(args: argparse.Namespace, config: Config, role: str, specs: dict, capture: CaptureWriter | None,
-               runlog, sinks: list) -> int:
-    """``sinks`` see every decoded item and run log record (an MCAP recorder, a live view)."""
-    taps = [capture.tap] if capture else []
-    describe = capture.describe if capture else None
-    served = parse_spec(specs[role]) if role != "site" else None
-    serving = served is not None and served.kind == "serve"
-    if serving and role != "aoa":
-        raise PortSpecError(f"--{role} {served}: only the XPLR-AOA (--aoa) can come from `rfhoming serve` yet")
-    resolved = {r: await resolve(spec, baud=args.baud, flow=args.flow, taps=taps, kind=role_kind(r, spec),
-                                 describe=describe) for r, spec in specs.items() if not (r == role and serving)}
-    base = make_driver(resolved["base"], taps, command_timeout_ms=config.loop.command_timeout_ms)
-    if role == "site":
-        site = args.site_loaded
-        anchors = [make_driver(await resolve(a.port, baud=args.baud, flow=args.flow, taps=taps, kind="ublox-aoa",
-                                             describe=describe), taps) for a in site.anchors]
-        for driver in (base, *anchors):
-            driver.listeners += [sink.on_item for sink in sinks]
-        outcome = await anchors_loop(base, anchors, site, config, RunLog(runlog, [sink.on_runlog for sink in sinks])).run()
-        print(json.dumps(outcome.summary()))
-        return 0 if outcome.arrived else 1
-    if serving:  # the angle events of an XPLR-AOA that `rfhoming serve` owns
-        sensor = serve_driver(served)
-        make = aoa_loop if args.controller == "aoa" else dock_loop
-    elif role == "aoa":
-        spec = resolved["aoa"]
-        if args.tag:
-            spec = replace(spec, settings={**spec.settings, "tags": _tags(args.tag)})
-        sensor = make_driver(spec, taps, setup=AoaSetup(choose_tag_s=CHOOSE_TAG_S, probe_baud=args.probe_baud))
-        make = aoa_loop if args.controller == "aoa" else dock_loop
-    else:
-        options = {"ed_scale_db": config.calibration.ed_scale_db} if resolved[role].kind == "rss" else {}
-        sensor = make_driver(resolved[role], taps, **options)
-        make = rss_loop if args.controller == "rss" else trilat_loop
-    for driver in (base, sensor):
-        driver.listeners += [sink.on_item for sink in sinks]
-    loop = make(base, sensor, config, RunLog(runlog, [sink.on_runlog for sink in sinks]))
-    for sink in sinks:
-        if hasattr(sink, "watch"):  # the live view draws the loop's state and the anchors
-            sink.watch(loop)
-            sink.show_anchors(config.trilat.anchors if args.controller == "trilat" else {})
-    sensor_spec = resolved.get(role)
-    deadlines = {base: deadline(base, resolved["base"].timeout),
-                 sensor: deadline(sensor, sensor_spec.timeout if sensor_spec else None)}
-    homing = asyncio.create_task(loop.run())
-    watch = asyncio.create_task(supervise(deadlines))
-    try:
-        done, _ = await asyncio.wait({homing, watch}, return_when=asyncio.FIRST_COMPLETED)
-        if watch in done:
-            watch.result()  # raises: the run cannot go on
-        outcome = homing.result()
-    finally:
-        for task in (homing, watch):
-            task.cancel()
-        await asyncio.gather(homing, watch, return_exceptions=True)
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
+
+
+def mcap_recorder(path: Path) -> Sink:
+    """The MCAP recorder sink; an Error naming the extra when its packages are missing."""
+    try:
+        from rfhoming.host.export.recorder import McapRecorder
+    except ImportError as exc:
+        raise ExtraMissing(f"--mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'") from None
+    return McapRecorder(path)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from rfhoming.demo import SUPPORTED, run_demo
 
     if args.scenario not in SUPPORTED:
-        print(f"rfhoming demo: scenario {args.scenario!r} is not wired to a controller yet; "
-              f"choose one of {sorted(SUPPORTED)}", file=sys.stderr)
-        return 2
-    try:
-        config = load(args.config)
-    except ConfigError as exc:
-        print(f"rfhoming demo: {exc}", file=sys.stderr)
-        return 2
+        raise PortSpecError(f"scenario {args.scenario!r} is not wired to a controller yet; "
+                            f"choose one of {sorted(SUPPORTED)}")
+    config = load(args.config)
+    if args.receiver and args.scenario != "s3-arena":
+        raise PortSpecError("--receiver swaps the BLE RSSI receiver of --scenario s3-arena")
     if not args.json:
         print(f"demo: emulating {args.scenario} (seed {args.seed}) on ptys in lockstep; homing ...", file=sys.stderr)
-    if args.receiver and args.scenario != "s3-arena":
-        print("rfhoming demo: --receiver swaps the BLE RSSI receiver of --scenario s3-arena", file=sys.stderr)
-        return 2
+    sinks = [mcap_recorder(args.mcap)] if args.mcap else []
     view = start_foxglove(args, "demo")
     try:
-        summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver, mcap=args.mcap,
-                           sinks=[view] if view else [])
-    except ImportError as exc:
-        print(f"rfhoming demo: --mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
-              file=sys.stderr)
-        return 2
+        summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver,
+                           sinks=[*sinks, *([view] if view else [])])
     finally:
+        for sink in sinks:
+            sink.close()
         if view is not None:
             view.close()
+    if args.mcap is not None:
+        summary["files"]["mcap"] = str(args.mcap)
     if args.json:
         print(json.dumps(summary))
     else:
@@ -296,7 +214,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    "from the config's [devices.aoa]")
     p.add_argument("--rss", metavar="SPEC", help="the four-dish AT86RF212 node, for --controller rss")
     p.add_argument("--ble", metavar="SPEC", help="the BLE RSSI receiver, for --controller trilat: an ESP32 "
-                   "scanner (rss:PATH), an ESP32 with ESP-AT (esp-at:PATH) or an HCI controller (hci:usb:0)")
+                   "scanner (rss-node:PATH), an ESP32 with ESP-AT (esp-at:PATH) or an HCI controller (hci:usb:0)")
     p.add_argument("--base", metavar="SPEC", help="the robot base (e.g. /dev/ttyACM0,baud=115200)")
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "

@@ -8,13 +8,18 @@ import json
 import sys
 from pathlib import Path
 
-from rfhoming.cli.io import ENDPOINT_HELP, _describe_dialects, _run_until, add_port_defaults
+from rfhoming.cli.io import (
+    ENDPOINT_HELP,
+    _describe_dialects,
+    _run_until,
+    add_port_defaults,
+)
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.ports import PortError
 from rfhoming.host.serve import QUEUE_LINES, ItemServer
 from rfhoming.host.session import health, open_drivers
-from rfhoming.protocol.pcapng import CaptureFormatError
+from rfhoming.protocol.errors import Error
 
 DEFAULT_PORT = 2948  # beside gpsd's 2947
 
@@ -30,7 +35,7 @@ Clients: `rfhoming listen serve://127.0.0.1:{DEFAULT_PORT}`, the Python API with
 spec, or anything that reads lines from a socket (`nc 127.0.0.1 {DEFAULT_PORT}`).
 
 examples:
-  rfhoming serve ublox-aoa:/dev/ttyUSB0
+  rfhoming serve xplr-aoa:/dev/ttyUSB0
   rfhoming serve /dev/ttyUSB0 base:/dev/ttyACM0 -o session.pcapng
   rfhoming serve auto --bind 0.0.0.0 --port 3000      # reachable from the network
   rfhoming serve /dev/ttyUSB0 --foxglove              # and the Foxglove WebSocket on :8765
@@ -43,7 +48,7 @@ async def _serve(args: argparse.Namespace) -> int:
     try:
         drivers = await open_drivers(args.ports, baud=args.baud, flow=args.flow, taps=[capture.tap] if capture else [],
                                      describe=capture.describe if capture else None)
-    except (PortError, ValueError, OSError, CaptureFormatError) as exc:
+    except (Error, OSError) as exc:
         print(f"rfhoming serve: {exc}", file=sys.stderr)
         return 2
     server = ItemServer(queue_lines=args.queue, hello={"devices": [d.port.name for d in drivers]})

@@ -1,6 +1,7 @@
-"""Fail fast: watch the drivers a command runs and end the command, with a message naming the
-device, when one cannot go on -- its port never opened, its first set-up failed, it was not
-ready within its deadline, or (``run``) several tags are in view and none was chosen."""
+"""Fail fast: watch the drivers a command or a homing run uses and end it, with a message
+naming the device, when one cannot go on -- its port never opened, its first set-up failed, it
+was not ready within its deadline (the device table's ``setup_timeout_s`` for its kind, or the
+spec's ``timeout=``), or several tags are in view and none was chosen."""
 
 from __future__ import annotations
 
@@ -10,19 +11,24 @@ import time
 from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.ports import HostPort, PortError
+from rfhoming.protocol import devices
+from rfhoming.protocol.errors import Error
 
-SETUP_TIMEOUT_S = {"xplr-aoa": 20.0}
-"""How long a device may take to open and be set up; 5 s for the others. A port spec's
-``timeout=`` overrides it where the command knows the spec (``run``)."""
 DEFAULT_SETUP_TIMEOUT_S = 5.0
+"""For what is not a device kind of the table (a client of ``rfhoming serve``)."""
 
 
-class DeviceNotReady(Exception):
+class DeviceNotReady(Error):
     """A device the command needs cannot be used; the message names it and says why."""
 
 
 def deadline(driver: Driver, timeout: float | None = None) -> float:
-    return timeout if timeout is not None else SETUP_TIMEOUT_S.get(driver.kind, DEFAULT_SETUP_TIMEOUT_S)
+    """How long ``driver`` may take to open and be set up: ``timeout`` (a spec's ``timeout=``)
+    or its kind's ``setup_timeout_s``."""
+    if timeout is not None:
+        return timeout
+    record = devices.KINDS.get(driver.kind)
+    return record.setup_timeout_s if record else DEFAULT_SETUP_TIMEOUT_S
 
 
 def live(drivers: list[Driver]) -> dict[Driver, float]:

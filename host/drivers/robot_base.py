@@ -14,7 +14,14 @@ from typing import Any, NamedTuple
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.ports import Disconnected, HostPort
-from rfhoming.protocol.frames import FrameDecoder, NodeCommand, Odometry, RangeScan, VelocityCommand, encode_frame
+from rfhoming.protocol.frames import (
+    FrameDecoder,
+    NodeCommand,
+    Odometry,
+    RangeScan,
+    VelocityCommand,
+    encode_frame,
+)
 
 log = logging.getLogger(__name__)
 
@@ -42,12 +49,11 @@ class Scan(NamedTuple):
 class BaseDriver(Driver):
     kind = "base"
 
-    def __init__(self, port: HostPort, *, command_timeout_ms: int = 300, reconnect: bool = True) -> None:
-        super().__init__(port, reconnect=reconnect)
+    def __init__(self, port: HostPort, *, command_timeout_ms: int = 300, reconnect: bool = True,
+                 out: BoundedStream[Any] | None = None) -> None:
+        super().__init__(port, reconnect=reconnect, out=out, queue_size=500)
         self.decoder = FrameDecoder()
         self.command_timeout_ms = command_timeout_ms
-        self.odometry = BoundedStream[Pose2D](500)
-        self.scans = BoundedStream[Scan](20)
         self.latest: Pose2D | None = None
         self.latest_scan: Scan | None = None
         self.counters.update(commands=0, stops=0, unsent=0, brakes=0, brakes_off=0)
@@ -61,12 +67,12 @@ class BaseDriver(Driver):
                 pose = Pose2D(t_host, self.clock.unwrap(record.t_us) / 1e6, record.x_mm / 1000, record.y_mm / 1000, record.theta_urad / 1e6,
                               record.v_mm_s / 1000, record.w_mrad_s / 1000, record.flags)
                 self.latest = pose
-                self.odometry.put(pose)
+                self.out.put(pose)
             elif isinstance(record, RangeScan):
                 scan = Scan(t_host, record.angle_min_mrad / 1000, record.angle_inc_mrad / 1000,
                             tuple(r / 1000 if r else None for r in record.ranges_mm))
                 self.latest_scan = scan
-                self.scans.put(scan)
+                self.out.put(scan)
 
     def send_velocity(self, v: float, w: float) -> bool:
         """Command (v m/s, ω rad/s); False (counted) when the base is not connected."""

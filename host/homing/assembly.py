@@ -1,0 +1,250 @@
+"""One run assembly: roles and port specs (or ports already made) -> drivers, a controller,
+sinks, supervision and the loop. ``rfhoming run``, ``rfhoming demo``, the campaigns' closed
+loop, the benches and the tests all build their homing runs here, so a run is wired one way.
+
+A :class:`Homing` says what to run: the controller, each device by its role (``aoa``, ``rss``,
+``ble``, ``anchor``, ``base``; rfhoming.protocol.devices.ROLES) and either a port spec to open
+or a port already made (the campaigns' in-process pipe, a replay). :func:`build` makes the
+drivers -- each handing its readings to the loop's one input stream from the start -- and the
+loop; :func:`run` resolves the specs first (``auto``, a sniffed protocol), then runs the loop
+while :func:`~rfhoming.host.supervise.supervise` watches every driver on a real port: one that
+fails, or is not ready by its kind's deadline, ends the run with an Error naming its port.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaSetup
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.robot_base import BaseDriver
+from rfhoming.host.homing.anchors import AnchorsController
+from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.loop import (
+    AoaController,
+    Controller,
+    HomingLoop,
+    Outcome,
+    RunLog,
+)
+from rfhoming.host.homing.s1_dock import DockController
+from rfhoming.host.homing.s2_rss import RssController
+from rfhoming.host.homing.s3_trilat import TrilatController
+from rfhoming.host.ports import HostPort
+from rfhoming.host.portspec import PortSpec, PortSpecError
+from rfhoming.host.portspec import parse as parse_spec
+from rfhoming.host.session import driver_class, resolve, serve_driver
+from rfhoming.host.sink import Sink
+from rfhoming.host.site import Site
+from rfhoming.host.supervise import deadline, supervise
+from rfhoming.protocol import devices
+
+CHOOSE_TAG_S = 2.0
+"""Live runs with no tag chosen listen this long, then home on the only tag in view."""
+INPUT_QUEUE = 4000
+"""Items the loop's one input stream holds (odometry, scans and readings, in arrival order)."""
+
+
+@dataclass(frozen=True)
+class Method:
+    """A homing method: the role its sensor fills and how to make its controller."""
+
+    title: str
+    role: str
+    make: Callable[[Config, Site | None], Controller]
+
+
+def _anchors(config: Config, site: Site | None) -> Controller:
+    if site is None:
+        raise PortSpecError("--controller anchors needs --site SITE.toml (anchors, and tags with role = "
+                            "\"robot\" / \"target\")")
+    return AnchorsController(site)
+
+
+METHODS: dict[str, Method] = {
+    "aoa": Method("S0: XPLR-AOA bearings and RSSI ranges", "aoa", lambda c, s: AoaController(c)),
+    "dock": Method("S1: docking on the station's AoA/RSSI of the robot's tag", "aoa", lambda c, s: DockController(c.s1)),
+    "rss": Method("S2: four dishes and a particle filter", "rss", lambda c, s: RssController(c.s2)),
+    "trilat": Method("S3: trilateration on BLE beacons at known places", "ble", lambda c, s: TrilatController(c.trilat)),
+    "anchors": Method("fixed anchors locate the robot's tag and the target's", "anchor", _anchors),
+}
+
+
+SENSORS = {"dock_aoa": ("dock", "aoa"), "aoa": ("aoa", "aoa"), "rss": ("rss", "rss"), "ble": ("trilat", "ble")}
+"""The emulator's scenarios name each sensor device for what it is for: such a name -> the
+homing method it calls for and the role its device fills (the demo and the campaigns)."""
+
+
+@dataclass(frozen=True)
+class Device:
+    """One device of a run: its role, and a port spec to open or a port already made (with
+    ``kind``, its device kind; by default the role's)."""
+
+    role: str
+    spec: PortSpec | str | None = None
+    port: Any = None  # HostPort-shaped: open, read, write, close, name, taps, counters
+    kind: str | None = None
+
+
+@dataclass
+class Homing:
+    """Everything a homing run is made of. ``controller`` is a METHODS name or a controller
+    object (a campaign's calibration recorder)."""
+
+    controller: str | Controller
+    devices: list[Device]
+    config: Config = field(default_factory=Config)
+    site: Site | None = None
+    runlog: RunLog | None = None
+    sinks: Sequence[Sink] = ()
+    capture: CaptureWriter | None = None
+    tags: tuple[str, ...] = ()  # the XPLR-AOA tags to home on (besides a spec's tags=)
+    choose_tag_s: float | None = None  # no tag chosen: listen this long, then home on the only one heard
+    probe_baud: bool = False  # an XPLR-AOA sending garbage is probed at every documented rate
+    baud: int | None = None  # defaults for specs that give none
+    flow: str | None = None
+
+
+def sensor_role(plan: Homing) -> str | None:
+    return METHODS[plan.controller].role if isinstance(plan.controller, str) else None
+
+
+def check(plan: Homing) -> None:
+    """The plan's shape: a known method, one base, its sensor role(s) filled; PortSpecError says
+    what is missing."""
+    if isinstance(plan.controller, str) and plan.controller not in METHODS:
+        raise PortSpecError(f"unknown controller {plan.controller!r}; the controllers are {', '.join(METHODS)}")
+    roles = [d.role for d in plan.devices]
+    if roles.count("base") != 1:
+        raise PortSpecError("a homing run needs one robot base (--base PORT, or [devices.base] in the config)")
+    role = sensor_role(plan)
+    if role is not None and role not in roles:
+        raise PortSpecError(f"--controller {plan.controller} needs --{role} PORT (or [devices.{role}] in the config)")
+    if plan.tags and role != "aoa":
+        raise PortSpecError(f"--tag chooses an XPLR-AOA tag; --controller {plan.controller} has none")
+
+
+def _kind_for(device: Device, spec: PortSpec) -> PortSpec:
+    """The spec with its kind fixed by its role: a spec without KIND: is the role's default
+    kind, one with a kind must be able to fill the role."""
+    role = devices.ROLES[device.role]
+    if spec.kind is None:
+        return spec.with_kind(role.default_kind)
+    if spec.kind in ("capture", "serve"):
+        return spec
+    if device.role not in devices.kind(spec.kind).roles:
+        takes = ", ".join(k.name for k in devices.with_role(device.role))
+        raise PortSpecError(f"{spec} is a {spec.kind} port where {role.title} is wanted ({takes})")
+    return spec
+
+
+async def resolve_devices(plan: Homing) -> Homing:
+    """The plan with every spec made concrete (``auto`` found, the kind fixed by the role);
+    the capture, if any, is told what each port is."""
+    taps = [plan.capture.tap] if plan.capture else []
+    describe = plan.capture.describe if plan.capture else None
+    out = []
+    for device in plan.devices:
+        if device.spec is None:
+            out.append(device)
+            continue
+        spec = _kind_for(device, parse_spec(device.spec))
+        if spec.kind == "capture":
+            raise PortSpecError(f"{spec}: a capture cannot take part in a live run yet; replay it with "
+                                "rfhoming replay")
+        if spec.kind == "serve":
+            if device.role != "aoa":
+                raise PortSpecError(f"--{device.role} {spec}: only the XPLR-AOA (--aoa) can come from "
+                                    "`rfhoming serve` yet")
+            out.append(replace(device, spec=spec))
+            continue
+        spec = await resolve(spec, baud=plan.baud, flow=plan.flow, taps=taps, kind=spec.kind, describe=describe)
+        out.append(replace(device, spec=spec))
+    return replace(plan, devices=out)
+
+
+def _options(plan: Homing, device: Device, kind: str) -> dict[str, Any]:
+    """What a kind's driver is given in a homing run, by role."""
+    if kind == "base":
+        return {"command_timeout_ms": plan.config.loop.command_timeout_ms}
+    if kind == "rss-node":
+        return {"ed_scale_db": plan.config.calibration.ed_scale_db}
+    if kind == "xplr-aoa" and device.role == "aoa":
+        return {"setup": AoaSetup(choose_tag_s=plan.choose_tag_s, probe_baud=plan.probe_baud)}
+    return {}
+
+
+def _driver(plan: Homing, device: Device, inputs: BoundedStream[Any]) -> tuple[Driver, float | None]:
+    """The device's driver, handing its items to ``inputs``; and its set-up deadline (None: a
+    port that needs none, e.g. the in-process pipe)."""
+    taps = [plan.capture.tap] if plan.capture else []
+    if device.port is not None:
+        record = devices.kind(device.kind or devices.ROLES[device.role].default_kind)
+        options = _options(plan, device, record.name)
+        if plan.tags and "setup" in options:
+            options["setup"] = replace(options["setup"], host_filter=frozenset(plan.tags))
+        driver = driver_class(record)(device.port, out=inputs, **options)
+        return driver, (record.setup_timeout_s if isinstance(device.port, HostPort) else None)
+    spec = parse_spec(device.spec or "")
+    if spec.kind == "serve":
+        served = serve_driver(spec, out=inputs)
+        return served, deadline(served, spec.timeout)
+    if plan.tags and device.role == "aoa":
+        spec = replace(spec, settings={**spec.settings, "tags": tuple(dict.fromkeys((*spec.tags, *plan.tags)))})
+    record = spec.device
+    assert record is not None, spec
+    driver = driver_class(record).from_spec(spec, taps, out=inputs, **_options(plan, device, record.name))
+    return driver, deadline(driver, spec.timeout)
+
+
+@dataclass
+class Assembled:
+    """A built run: the loop, and the deadline of every driver on a real port."""
+
+    loop: HomingLoop
+    deadlines: dict[Driver, float]
+
+
+def build(plan: Homing) -> Assembled:
+    """The drivers, the controller, the sinks and the loop (specs must be resolved)."""
+    check(plan)
+    inputs = BoundedStream[Any](INPUT_QUEUE)
+    built = [(device, *_driver(plan, device, inputs)) for device in plan.devices]
+    base = next(driver for device, driver, _ in built if device.role == "base")
+    assert isinstance(base, BaseDriver)
+    sensors = [driver for device, driver, _ in built if device.role != "base"]
+    controller = (METHODS[plan.controller].make(plan.config, plan.site) if isinstance(plan.controller, str)
+                  else plan.controller)
+    runlog = plan.runlog or RunLog(None)
+    runlog.listeners += [sink.on_runlog for sink in plan.sinks]
+    for _, driver, _ in built:
+        driver.listeners += [sink.on_item for sink in plan.sinks]
+    loop = HomingLoop(base, sensors, controller, plan.config, runlog, inputs)
+    for sink in plan.sinks:
+        sink.watch(loop)
+        sink.show_anchors(plan.config.trilat.anchors if plan.controller == "trilat" else {})
+    return Assembled(loop, {driver: limit for _, driver, limit in built if limit is not None})
+
+
+async def run(plan: Homing) -> Outcome:
+    """Resolve, build and run to the end; an Error (PortError, DeviceNotReady, PortSpecError)
+    when a device cannot be used, naming its port."""
+    check(plan)
+    assembled = build(await resolve_devices(plan))
+    if not assembled.deadlines:  # in-process ports and replays: nothing to set up or wait for
+        return await assembled.loop.run()
+    homing = asyncio.create_task(assembled.loop.run())
+    watch = asyncio.create_task(supervise(assembled.deadlines))
+    try:
+        done, _ = await asyncio.wait({homing, watch}, return_when=asyncio.FIRST_COMPLETED)
+        if watch in done:
+            watch.result()  # raises: the run cannot go on
+        return homing.result()
+    finally:
+        for task in (homing, watch):
+            task.cancel()
+        await asyncio.gather(homing, watch, return_exceptions=True)

@@ -1,0 +1,196 @@
+"""The device table: every device kind's facts in one record, as gpsd keeps its drivers.
+
+Each layer reads what it needs from here -- the port spec's kinds and settings
+(host/portspec.py), the driver to build (host/session.py), the set-up deadline
+(host/supervise.py), the roles a kind may fill in a homing run (host/assembly.py), the
+capture's link type and the recorded kind (host/capture.py, host/session.py), the emulator's
+boards and their firmware models (emulator/devices.py). It lives in the protocol layer, which
+every other layer may import; what belongs to a higher layer (a driver, a firmware model) is
+named by its ``module:attribute`` path and loaded by that layer with :func:`load`.
+``tests/test_devices.py`` walks the table and checks every record is complete.
+
+Old spellings (``ublox-aoa``, ``rss``, ...) are accepted as aliases with a one-line notice;
+docs/architecture.md, "Adding a device", is the checklist for a new kind.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+from rfhoming.protocol import pcapng
+from rfhoming.protocol.errors import Error
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class WireProtocol:
+    """How a device kind's bytes look on the wire, and the sans-IO decoder that reads them."""
+
+    name: str
+    title: str
+    decoder: str  # module:class of its decoder (feed(bytes) -> items)
+    linktype: int  # the pcapng interface's link type (docs/protocol.md §5)
+    aliases: tuple[str, ...] = ()
+
+
+PROTOCOLS: dict[str, WireProtocol] = {p.name: p for p in (
+    WireProtocol("uconnect", "u-connectLocate AT commands and +UUDF events (text)",
+                 "rfhoming.protocol.uconnect:UConnectDecoder", pcapng.LINKTYPE_UCONNECT, ("ublox-aoa",)),
+    WireProtocol("frames", "rfhoming's COBS-framed binary records (nodes and the robot base)",
+                 "rfhoming.protocol.frames:FrameDecoder", pcapng.LINKTYPE_FRAMES, ("rss",)),
+    WireProtocol("esp-at", "Espressif ESP-AT commands and +BLESCAN reports (text)",
+                 "rfhoming.protocol.espat:EspAtDecoder", pcapng.LINKTYPE_ESP_AT),
+    WireProtocol("h4", "Bluetooth HCI over UART (H4) packets",
+                 "rfhoming.protocol.h4:H4Splitter", pcapng.LINKTYPE_H4_STREAM, ("hci",)),
+)}
+
+
+@dataclass(frozen=True)
+class Board:
+    """One emulated board of a kind: the name scenarios give as ``type``, and its firmware model."""
+
+    name: str
+    firmware: str  # module:class in rfhoming.firmware
+
+
+@dataclass(frozen=True)
+class Role:
+    """A place a device takes in a homing run: its command-line option and the kind it defaults to."""
+
+    name: str
+    title: str
+    default_kind: str
+
+
+ROLES: dict[str, Role] = {r.name: r for r in (
+    Role("aoa", "the XPLR-AOA on the robot (S0) or at the dock (S1)", "xplr-aoa"),
+    Role("rss", "the four-dish AT86RF212 node (S2)", "rss-node"),
+    Role("ble", "the BLE RSSI receiver (S3)", "rss-node"),
+    Role("anchor", "a fixed XPLR-AOA anchor of a site", "xplr-aoa"),
+    Role("base", "the robot base: velocity commands out, odometry and scans in", "base"),
+)}
+
+
+@dataclass(frozen=True)
+class DeviceKind:
+    """One record of the device table."""
+
+    name: str  # the canonical name: port spec kind, capture kind, driver kind
+    title: str
+    protocol: str  # a key of PROTOCOLS
+    settings: tuple[str, ...]  # port spec keys it takes (parsed by host/portspec.py SETTINGS)
+    driver: str  # module:class of its host driver
+    boards: tuple[Board, ...]  # the emulator's boards of this kind
+    roles: tuple[str, ...]  # keys of ROLES
+    setup_timeout_s: float  # how long it may take to open and be set up
+    usb: str | None  # what host/discovery.py calls its USB bridge, for ``auto``
+    topics: tuple[str, ...]  # the ROS 2 topics its items are exported to (host/export/rosmsgs.py)
+    sniffable: bool = False  # can be told from what the port says (a spec without KIND:)
+    rtscts: bool = False  # RTS/CTS flow control by default (flow=auto)
+    extra: str | None = None  # the pip extra its driver needs
+    aliases: tuple[str, ...] = ()
+
+    @property
+    def wire(self) -> WireProtocol:
+        return PROTOCOLS[self.protocol]
+
+
+SERIAL = ("baud", "flow", "name", "timeout")
+SCAN = ("active", "interval", "window", "mac", "adname")
+
+KINDS: dict[str, DeviceKind] = {k.name: k for k in (
+    DeviceKind("xplr-aoa", "u-blox XPLR-AOA direction-finding kit (u-connectLocate)", "uconnect",
+               (*SERIAL, "tags"), "rfhoming.host.drivers.aoa:AoaDriver",
+               (Board("xplr-aoa", "rfhoming.firmware.xplr_aoa:XplrAoaFirmware"),), ("aoa", "anchor"), 20.0,
+               "xplr-aoa", ("/rfhoming/aoa/angle",), sniffable=True, rtscts=True, aliases=("ublox-aoa",)),
+    DeviceKind("rss-node", "rfhoming node firmware: ESP32 BLE scanner or STM32 + AT86RF212 four-dish node",
+               "frames", SERIAL, "rfhoming.host.drivers.rss:RssDriver",
+               (Board("esp32", "rfhoming.firmware.esp32_scanner:Esp32ScannerFirmware"),
+                Board("at86rf212", "rfhoming.firmware.at86rf212_node:At86rf212NodeFirmware")),
+               ("rss", "ble"), 5.0, "esp32", ("/rfhoming/ble/rssi", "/rfhoming/rss/antenna_set"), sniffable=True,
+               aliases=("rss",)),
+    DeviceKind("esp-at", "ESP32 with Espressif's ESP-AT firmware (BLE scan)", "esp-at", (*SERIAL, *SCAN),
+               "rfhoming.host.drivers.espat:EspAtDriver", (Board("esp-at", "rfhoming.firmware.esp_at:EspAtFirmware"),),
+               ("ble",), 5.0, "esp32", ("/rfhoming/ble/rssi",)),
+    DeviceKind("hci", "Bluetooth controller through a bumble transport (HCI advertising reports)", "h4",
+               ("name", "timeout", *SCAN, "extended", "content", "dedup"), "rfhoming.host.drivers.hci:HciDriver",
+               (Board("hci", "rfhoming.firmware.hci_controller:HciControllerFirmware"),), ("ble",), 5.0, None,
+               ("/rfhoming/ble/rssi",), extra="hci"),
+    DeviceKind("base", "rfhoming robot base (velocity commands, odometry, range scans)", "frames", SERIAL,
+               "rfhoming.host.drivers.robot_base:BaseDriver",
+               (Board("base", "rfhoming.firmware.robot_base:RobotBaseFirmware"),), ("base",), 5.0, "stm32",
+               ("/odom", "/scan", "/cmd_vel"), aliases=("robot-base",)),
+)}
+
+BOARDS: dict[str, tuple[DeviceKind, Board]] = {b.name: (k, b) for k in KINDS.values() for b in k.boards}
+"""Emulated board name (a scenario's ``type``) -> its kind and board record."""
+
+_ALIASES = {a: k.name for k in KINDS.values() for a in k.aliases}
+_PROTOCOL_ALIASES = {a: p.name for p in PROTOCOLS.values() for a in p.aliases}
+_told: set[str] = set()
+
+
+class UnknownKind(Error, ValueError):
+    """A device kind or protocol name that is in no record; the message lists the names."""
+
+
+def _canonical(name: str, names: dict[str, Any], aliases: dict[str, str], what: str, notice: bool) -> str:
+    if name in names:
+        return name
+    if name in aliases:
+        if notice and name not in _told:
+            _told.add(name)
+            log.warning("%s %r is now called %r; the old name still works", what, name, aliases[name])
+        return aliases[name]
+    raise UnknownKind(f"unknown {what} {name!r}; the {what}s are {', '.join(names)}")
+
+
+def kind(name: str, *, notice: bool = True) -> DeviceKind:
+    """The record for a kind's canonical name or alias (an alias logs a one-line notice once)."""
+    return KINDS[_canonical(name, KINDS, _ALIASES, "device kind", notice)]
+
+
+def protocol(name: str, *, notice: bool = True) -> WireProtocol:
+    return PROTOCOLS[_canonical(name, PROTOCOLS, _PROTOCOL_ALIASES, "protocol", notice)]
+
+
+def is_kind(name: str) -> bool:
+    return name in KINDS or name in _ALIASES
+
+
+def recorded_kind(fields: dict[str, str], linktype: int | None) -> DeviceKind:
+    """The kind of a capture's interface: its ``kind=`` (canonical since captures record it,
+    or an older capture's driver or board name), else the one kind of its link type."""
+    named = fields.get("kind")
+    if named is not None:
+        if is_kind(named):
+            return kind(named, notice=False)
+        if named in BOARDS:
+            return BOARDS[named][0]
+        if named == "stm32":
+            return KINDS["rss-node"]
+    by_link = [k for k in KINDS.values() if k.wire.linktype == linktype]
+    if not by_link:
+        raise UnknownKind(f"link type {linktype} is none of rfhoming's devices (kind={named!r})")
+    return by_link[0]  # frames: an older capture with no kind= is a node's; the base always said kind=base
+
+
+def by_linktype(linktype: int) -> WireProtocol | None:
+    """The protocol of a pcapng interface's link type (None: not one of ours)."""
+    return next((p for p in PROTOCOLS.values() if p.linktype == linktype), None)
+
+
+def load(path: str) -> Any:
+    """``module:attribute`` -> the object (a driver or firmware class of a higher layer)."""
+    module, _, attribute = path.partition(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+def with_role(role: str) -> list[DeviceKind]:
+    return [k for k in KINDS.values() if role in k.roles]
+
+

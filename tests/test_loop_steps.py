@@ -1,0 +1,85 @@
+"""The homing loop's named steps, fed by hand: what the run log says across a base outage and
+a base reset (robot time from the items alone, no emulator, no clock)."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+from loops import loop_on
+
+from rfhoming.host.drivers.robot_base import Pose2D
+from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.loop import HomingLoop, RunLog
+from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose
+from rfhoming.host.ports import HostPort
+
+
+class Steady(ControllerDefaults):
+    """Takes every non-odometry item as a reading and drives straight on."""
+
+    source = "aoa"
+    phase = "homing"
+    reported = None
+
+    def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
+        return {}
+
+    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
+        return Decision(0.2, 0.0, None, False, "on")
+
+    def estimate(self) -> dict[str, Any]:
+        return {}
+
+
+def loop_and_log(tmp_path: Path) -> tuple[HomingLoop, io.StringIO]:
+    out = io.StringIO()
+    loop = loop_on(Steady(), HostPort(str(tmp_path / "base")), HostPort(str(tmp_path / "aoa")), Config(), RunLog(out),
+                   role="aoa")
+    loop.base.send_velocity = lambda v, w: True  # type: ignore[method-assign]  # nothing is open
+    loop.base.brake = lambda on: True  # type: ignore[method-assign]
+    loop.base.stop = lambda: True  # type: ignore[method-assign]
+    return loop, out
+
+
+def odometry(t: float) -> Pose2D:
+    return Pose2D(t, t, 0.0, 0.0, 0.0, 0.0, 0.0, 0)
+
+
+def drive(loop: HomingLoop, start: float, end: float, *, readings: bool = True, clock: float = 0.0) -> None:
+    """Odometry every 20 ms of base clock (``clock`` added), a reading just before each."""
+    for k in range(round(start / 0.02), round(end / 0.02)):
+        if readings:
+            loop._on_reading(object())
+        loop._on_odometry(odometry(k * 0.02 + clock))
+
+
+def events(out: io.StringIO) -> list[str]:
+    return [r["what"] for r in map(json.loads, out.getvalue().splitlines()) if r["kind"] == "event"]
+
+
+def test_readings_during_a_base_outage_do_not_call_the_sensor_stale(tmp_path: Path) -> None:
+    loop, out = loop_and_log(tmp_path)
+    drive(loop, 0.0, 1.0)
+    loop.odometry_stale = True  # what _next_item finds after odometry_wall_timeout_s without odometry
+    for _ in range(30):  # the XPLR-AOA goes on for 3 s; robot time cannot move without odometry
+        loop._on_reading(object())
+    drive(loop, 4.0, 5.0)  # the base is back; its clock ran on
+    said = events(out)
+    assert "odometry fresh again" in said
+    assert not any("stale: stop" in e for e in said), said
+
+
+def test_brake_mode_events_say_each_change_once_across_a_base_reset(tmp_path: Path) -> None:
+    loop, out = loop_and_log(tmp_path)
+    drive(loop, 0.0, 1.0)
+    drive(loop, 1.0, 2.0, readings=False)  # the readings stop: slowed, then stale, braking
+    drive(loop, 2.0, 3.0)  # fresh again
+    drive(loop, 0.0, 1.0, clock=0.0)  # the base restarted: its clock runs from 0 again
+    said = events(out)
+    after_reset = said[said.index("base clock reset: re-anchored"):]
+    assert not any(e.startswith("brake mode") for e in after_reset), said  # re-sent, but the mode did not change
+    # stale until the first reading, fresh, stale, fresh: each change said once
+    assert [e for e in said if e.startswith("brake mode")] == ["brake mode on", "brake mode off"] * 2, said
