@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import math
 import sys
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -23,6 +23,7 @@ from rfhoming.host.locate import Locator, Position
 from rfhoming.host.ports import PortError
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.pcapng import CaptureFormatError
+from rfhoming.protocol.textfile import read_toml
 
 LOCATE_HELP = """\
 Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
@@ -150,20 +151,16 @@ def cmd_locate(args: argparse.Namespace) -> int:
 
 
 def _load_points(path: Path) -> dict[str, tuple[float, float, float]]:
-    try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ValueError(f"cannot read points file {path}: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"points file {path} is not valid TOML: {exc}") from None
+    """The [points] table of known tag positions; CalibrationError names the line to fix."""
+    raw = read_toml(path, "points file", CalibrationError)
     points = raw.get("points")
     if not isinstance(points, dict) or not points:
-        raise ValueError(f"{path} needs a [points] table: TAGID = [x, y, z], one line per known point")
+        raise CalibrationError(f"{path} needs a [points] table: TAGID = [x, y, z], one line per known point")
     out = {}
     for tag, value in points.items():
         if (not isinstance(value, list) or len(value) != 3
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
-            raise ValueError(f"{path}: point {tag} must be [x, y, z] in metres")
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+            raise CalibrationError(f"{path}: point {tag} = {value!r} must be [x, y, z], finite numbers in metres")
         out[tag.upper()] = (float(value[0]), float(value[1]), float(value[2]))
     return out
 
@@ -174,7 +171,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return 2
     try:
         points = _load_points(args.points)
-    except ValueError as exc:
+    except CalibrationError as exc:
         print(f"rfhoming calibrate: {exc}", file=sys.stderr)
         return 2
     events: list[tuple[float, Any]] = []
