@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from rfhoming.cli.args import output_file, positive_float
 from rfhoming.cli.io import _run_until, add_port_defaults
 from rfhoming.host import site as sites
 from rfhoming.host.calibration import CalibrationError, calibrate
@@ -200,16 +201,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = 0.0
-    if not 0 < value <= 1000:
-        raise argparse.ArgumentTypeError(f"{text!r}: positions per second, more than 0, e.g. --rate 10")
-    return value
-
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
     raw = argparse.RawDescriptionHelpFormatter
     for name, helptext, description in (
@@ -219,17 +210,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         p.add_argument("site", type=Path, help="site file (TOML): anchors, their poses and ports, tags")
         p.add_argument("--from", dest="sources", action="append", metavar="SPEC",
                        help="read these ports instead of the site's (repeatable), e.g. capture:run.pcapng")
-        p.add_argument("--duration", type=float, help="stop after this many seconds (a capture ends by itself)")
+        p.add_argument("--duration", type=positive_float, help="stop after this many seconds (a capture ends by itself)")
         add_port_defaults(p)
         if name == "locate":
-            p.add_argument("--capture", type=Path, help="also record every anchor's bytes to this pcapng file")
-            p.add_argument("-o", "--output", type=Path, help="write the JSON lines here instead of stdout")
-            p.add_argument("--rate", type=_positive, help="positions per second per tag (default: the site's rate_hz)")
+            p.add_argument("--capture", type=output_file, help="also record every anchor's bytes to this pcapng file")
+            p.add_argument("-o", "--output", type=output_file, help="write the JSON lines here instead of stdout")
+            p.add_argument("--rate", type=positive_float, help="positions per second per tag (default: the site's rate_hz)")
             p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
             p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
                            help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
                                 "pair updates the track as it arrives (more accurate, ~10x the cost)")
-            p.add_argument("--accel-psd", type=float, default=1.0,
+            p.add_argument("--accel-psd", type=positive_float, default=1.0,
                            help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
             p.set_defaults(func=cmd_locate)
         else:
