@@ -76,9 +76,11 @@ def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
     return [a.port for a in site.anchors if a.port is not None]
 
 
-async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable[[float, Any], None]) -> int:
+async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable[[float, Any], None],
+                  on_lost: Callable[[float, set[str]], None] = lambda t, ids: None) -> int:
     """Open the site's anchors (or --from), feed every angle event to ``on_angle`` in arrival
-    order until --duration or the end of a capture; 2 on a port/capture error."""
+    order until --duration or the end of a capture, and tell ``on_lost`` the anchor ids of a
+    device that went away; 2 on a port/capture error."""
     capture = CaptureWriter(args.capture) if getattr(args, "capture", None) else None
     try:
         drivers: list[Driver] = await open_drivers(_specs(site, args.sources), baud=args.baud, flow=args.flow,
@@ -91,12 +93,20 @@ async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
 
-    def listener(_device: str, t: float, item: Any) -> None:
+    heard: dict[str, set[str]] = {}  # device -> the anchor ids in its events
+
+    def listener(device: str, t: float, item: Any) -> None:
         if item.kind == "angle":
+            heard.setdefault(device, set()).add(item.anchor_id)
             on_angle(t, item)
+
+    def tap(device: str, direction: str, t: float, _data: bytes) -> None:
+        if direction == "lost":
+            on_lost(t, heard.get(device, set()))
 
     for d in drivers:
         d.listeners.append(listener)
+        d.port.taps.append(tap)
     # the listener took every event already: empty the drivers' queues so they count no drops
     drains = [asyncio.create_task(_discard(d.events)) for d in drivers if isinstance(d, AoaDriver)]
     try:
@@ -136,7 +146,7 @@ def cmd_locate(args: argparse.Namespace) -> int:
         if positions:
             out.flush()
 
-    code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event))))
+    code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event)), locator.disconnected))
     if code:
         return code
     show(locator.flush())
