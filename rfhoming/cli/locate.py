@@ -38,7 +38,10 @@ examples:
   rfhoming locate site.toml                                # the anchors' ports from the site
   rfhoming locate site.toml --duration 30 --capture run.pcapng
   rfhoming locate site.toml --from capture:run.pcapng      # the same positions, from the capture
-  rfhoming emulate kit-room --link-dir /tmp/rfhoming-kit & rfhoming locate docs/sites/kit-room.toml
+
+the kit room of docs/sites, emulated (its first line printed, every link exists):
+  mkdir -p /tmp/rfhoming-kit
+  rfhoming emulate kit-room --link-dir /tmp/rfhoming-kit --duration 15 | { read -r _; rfhoming locate docs/sites/kit-room.toml --duration 10; }
 """
 
 CALIBRATE_HELP = """\
