@@ -135,7 +135,7 @@ def test_rss_node_and_base_over_their_framing(tmp_path: Path) -> None:
 def test_bad_arguments_exit_2_with_a_message() -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--target", "x"],
                           capture_output=True, text=True, env={**os.environ})
-    assert done.returncode == 2 and "--target takes X,Y" in done.stderr
+    assert done.returncode == 2 and "argument --target: 'x': expected X,Y in metres" in done.stderr
 
 
 def test_missing_link_dir_is_a_clear_error(tmp_path: Path) -> None:
