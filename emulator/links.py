@@ -159,8 +159,8 @@ class TcpLink(Link):
             while data := await reader.read(65536):
                 self.counters["rx_bytes"] += len(data)
                 self.on_receive(data)
-        except ConnectionError:
-            pass
+        except (ConnectionError, asyncio.CancelledError):  # cancelled: the emulator is stopping. Ending
+            pass  # normally, since 3.11's server callback logs a traceback for a cancelled handler
         finally:
             if self._writer is writer:
                 self._writer = None

@@ -66,6 +66,8 @@ def _read(name_or_path: str) -> dict[str, Any]:
         raise ScenarioError(f"cannot read scenario {name_or_path}: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"scenario {name_or_path} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"scenario {name_or_path} is not UTF-8 text (byte {exc.start}): save it as UTF-8") from None
 
 
 def _model(cls: type, table: dict[str, Any], where: str) -> Any:

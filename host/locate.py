@@ -85,8 +85,9 @@ class Locator:
         self._windows: dict[tuple[str, str], deque[tuple[float, float, float]]] = {}
         self._trackers: dict[str, ConstantVelocity] = {}
         self._ekfs: dict[str, BearingEkf] = {}
+        self._lost: dict[str, float] = {}  # anchor id -> host time its driver last reported it gone
         self.counters = {"events": 0, "unknown_anchor": 0, "other_tag": 0, "late": 0, "overflow": 0,
-                         "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0}
+                         "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0, "disconnects": 0}
 
     # -- input -------------------------------------------------------------------------
     def feed(self, t: float, event: AngleEvent) -> list[Position]:
@@ -106,6 +107,14 @@ class Locator:
                 self.counters["overflow"] += 1
             out += self._take(heapq.heappop(self._pending))
         return out
+
+    def disconnected(self, t: float, anchor_ids: list[str] | set[str]) -> None:
+        """These anchors' device went away at host time ``t``: fixes from ``t`` on leave out
+        their angles from before it, instead of reusing them for up to ``stale_s`` (a moving tag
+        would be pulled toward where it was)."""
+        for anchor_id in anchor_ids:
+            self._lost[anchor_id] = t
+        self.counters["disconnects"] += len(anchor_ids)
 
     def flush(self) -> list[Position]:
         """End of input: the events still held for reordering, and the ticks they pass."""
@@ -150,10 +159,12 @@ class Locator:
                 continue
             while window and window[0][0] < t - self.site.stale_s - self.site.window_s:
                 window.popleft()
-            last = next((w[0] for w in reversed(window) if w[0] <= t), None)
+            lost = self._lost.get(anchor_id, -math.inf)
+            since = lost if t >= lost else -math.inf  # a tick before the loss still had the anchor
+            last = next((w[0] for w in reversed(window) if since < w[0] <= t), None)
             if last is None:
                 continue
-            recent = [w for w in window if last - self.site.window_s < w[0] <= last]
+            recent = [w for w in window if max(since, last - self.site.window_s) < w[0] <= last]
             az = statistics.median(w[1] for w in recent)
             el = statistics.median(w[2] for w in recent)
             sigma = math.hypot(sigma0 * 1.25 / math.sqrt(len(recent)), sigma0 * SYSTEMATIC)

@@ -21,6 +21,7 @@ from typing import NamedTuple
 import serial
 import serial_asyncio_fast
 
+from rfhoming.host import hotplug
 from rfhoming.protocol.errors import Error
 
 log = logging.getLogger(__name__)
@@ -189,7 +190,9 @@ class HostPort:
 
 async def reopen(port: HostPort, *, first: float = 0.2, longest: float = 5.0,
                  attempts: int | None = None) -> None:
-    """Open ``port``, retrying with doubling back-off until it works (or ``attempts`` run out)."""
+    """Open ``port``, retrying with doubling back-off until it works (or ``attempts`` run out).
+    A device path that has vanished (unplugged) is watched instead and reopened as soon as it
+    is back (:mod:`rfhoming.host.hotplug`), with the back-off started over."""
     delay, tries = first, 0
     while True:
         try:
@@ -199,6 +202,8 @@ async def reopen(port: HostPort, *, first: float = 0.2, longest: float = 5.0,
             tries += 1
             if attempts is not None and tries >= attempts:
                 raise
-            log.info("%s: %s; retrying in %.1f s", port.name, exc, delay)
-            await asyncio.sleep(delay)
-            delay = min(delay * 2, longest)
+            log.info("%s: %s; retrying in %.1f s, or when it is plugged in again", port.name, exc, delay)
+            if await hotplug.wait_for_return(port.spec, delay):
+                delay = first
+            else:
+                delay = min(delay * 2, longest)

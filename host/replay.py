@@ -101,6 +101,8 @@ class ReplayPort:
                     self.sequencer.taken()
                 self._open = False
                 self.counters["disconnects"] += 1
+                for tap in self.taps:  # as a live port's taps hear it go
+                    tap(self.name, "lost", p.t, b"")
                 raise Disconnected(f"{self.name}: disconnected here in the recording")
             self._holding = self.sequencer is not None
             await self._pace(p.t)

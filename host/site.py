@@ -34,7 +34,6 @@ calibrated, and which tags to locate.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -46,6 +45,7 @@ from rfhoming.host.estimation.anchors3d import rotation
 from rfhoming.host.portspec import TAG_ID, PortSpecError
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.textfile import read_toml
 
 
 class SiteError(Error, ValueError):
@@ -83,6 +83,12 @@ class Anchor:
         """Board -> world, the calibrated yaw offset included."""
         return rotation(self.yaw_deg + self.calibration.yaw_offset_deg, self.pitch_deg, self.roll_deg)
 
+
+MAX_COORD_M = 10_000.0
+"""Anchor coordinates beyond this (metres) are a typo, not a site: the solver would lose its precision."""
+
+MIN_SEPARATION_M = 0.1
+"""Anchors nearer each other than this see a tag along the same ray: no fix from them."""
 
 ROLES = ("", "robot", "target")
 """A tag's role for `rfhoming run --controller anchors`: the robot's own tag, the one to reach."""
@@ -122,13 +128,18 @@ class Site:
         return found[0]
 
 
+UNITS = {"_hz": " Hz", "_s": " s", "_deg": " degrees", "height": " m", "scale": " (a factor)"}
+"""The unit a key's name ends in, for the messages."""
+
+
 def _number(table: dict[str, Any], key: str, where: str, default: float | None = None,
             low: float = -math.inf, high: float = math.inf) -> float:
     value = table.get(key, default)
     if value is None:
         raise SiteError(f"[{where}] needs {key} = <number>")
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-        raise SiteError(f"[{where}] {key} = {value!r}: expected a number from {low:g} to {high:g}")
+        unit = next((u for suffix, u in UNITS.items() if key.endswith(suffix)), "")
+        raise SiteError(f"[{where}] {key} = {value!r}: expected a number from {low:g} to {high:g}{unit}")
     return float(value)
 
 
@@ -156,8 +167,9 @@ def _anchor(name: str, table: Any) -> Anchor:
             raise SiteError(f"[{where}] port {port!r} is a {spec.kind} port; an anchor is xplr-aoa:WHERE")
     pos = table.get("position")
     if (not isinstance(pos, list) or len(pos) != 3
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in pos)):
-        raise SiteError(f"[{where}] needs position = [x, y, z] in metres")
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= MAX_COORD_M for v in pos)):
+        raise SiteError(f"[{where}] needs position = [x, y, z] in metres, each a finite number within "
+                        f"+-{MAX_COORD_M:g} m; got {pos!r}")
     cal = table.get("calibration", {})
     if not isinstance(cal, dict):
         raise SiteError(f"[{where}.calibration] must be a table")
@@ -193,6 +205,9 @@ def parse(raw: dict[str, Any], where: str = "site") -> Site:
     """A site from its TOML table; SiteError names what is wrong."""
     _check_keys(raw, {"site", "anchors", "tags"}, where)
     head = raw.get("site", {})
+    tags = raw.get("tags", {})
+    if not isinstance(head, dict) or not isinstance(tags, dict):
+        raise SiteError(f"{where}: [site] and [tags.ID] must be tables (see the site file example in docs/usage.md)")
     _check_keys(head, {"name", "rate_hz", "window_s", "stale_s", "sigma_deg"}, "site")
     anchors = raw.get("anchors")
     if not isinstance(anchors, dict) or len(anchors) < 2:
@@ -201,8 +216,13 @@ def parse(raw: dict[str, Any], where: str = "site") -> Site:
     ids = [a.id for a in parsed]
     if len(set(ids)) != len(ids):
         raise SiteError(f"{where}: two anchors share an id; each board needs its own (AT+UDFCFG=4,\"NAME\")")
-    tags = tuple(_tag(k, v) for k, v in raw.get("tags", {}).items())
-    return Site(str(head.get("name", where)), parsed, tags,
+    for i, a in enumerate(parsed):
+        for b in parsed[i + 1:]:
+            if math.dist(a.position, b.position) < MIN_SEPARATION_M:
+                raise SiteError(f"{where}: anchors {a.name} and {b.name} are {math.dist(a.position, b.position):.3f} m "
+                                f"apart; rays from one point cannot cross: give each anchor its own position "
+                                f"(at least {MIN_SEPARATION_M:g} m apart, in metres)")
+    return Site(str(head.get("name", where)), parsed, tuple(_tag(k, v) for k, v in tags.items()),
                 _number(head, "rate_hz", "site", 10.0, 0.1, 1000), _number(head, "window_s", "site", 0.3, 0.01, 60),
                 _number(head, "stale_s", "site", 1.0, 0.01, 600), _number(head, "sigma_deg", "site", 3.0, 0.1, 45))
 
@@ -210,13 +230,7 @@ def parse(raw: dict[str, Any], where: str = "site") -> Site:
 def load(path: str | Path) -> Site:
     """Read and validate a site file."""
     path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise SiteError(f"cannot read site file {path}: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SiteError(f"site file {path} is not valid TOML: {exc}") from None
-    site = parse(raw, str(path))
+    site = parse(read_toml(path, "site file", SiteError), str(path))
     return Site(site.name, site.anchors, site.tags, site.rate_hz, site.window_s, site.stale_s, site.sigma_deg, path)
 
 

@@ -24,6 +24,12 @@ from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import CHOOSE_TAG_S, SENSORS, Device, Homing
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import Outcome, RunLog
+from rfhoming.protocol.errors import Error
+
+
+class DemoError(Error):
+    """The emulator child did not start; the message is its own last line of explanation."""
+
 
 SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e", "s3-arena"}  # S0–S3
 
@@ -41,7 +47,8 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
     while len(endpoints) < 2:
         line = proc.stdout.readline()
         if not line:
-            raise RuntimeError(f"the emulator did not start: {proc.stderr.read().strip()}")
+            why = proc.stderr.read().strip().splitlines() or [f"it exited with status {proc.wait()}"]
+            raise DemoError(f"the emulator did not start: {why[-1]}")
         endpoint = json.loads(line)
         endpoints[endpoint["type"]] = endpoint
     return proc, endpoints

@@ -177,3 +177,66 @@ def test_every_doc_example_is_run_or_says_what_it_needs() -> None:
         for lang in re.findall(r"^```(\w+)", doc.read_text(), re.M):
             assert lang in ("python", "sh", "text", "toml", "json", "lua", "c"), \
                 f"{doc.name}: ```{lang} examples are not run; use ```sh or ```python (or ```text for output)"
+
+
+# -- the examples in each command's --help ---------------------------------------------------
+HELP_EXAMPLE = re.compile(r"^ {2,}(?P<line>(?:mkdir|cat|rfhoming) .*)$", re.M)
+RUN_HELP_EXAMPLES = {"locate"}
+"""Commands whose --help examples run here as written (against the emulator): the one whose
+example failed on a fresh machine. The others open hardware, run campaigns or serve forever;
+they are parsed, which catches a renamed option, a bad value or a missing argument."""
+
+
+def help_examples() -> list[tuple[str, str]]:
+    """(command, example line) of every subcommand's --help."""
+    import argparse
+
+    from rfhoming.cli.main import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return [(name, m["line"]) for name, p in sub.choices.items()
+            for m in HELP_EXAMPLE.finditer(f"{p.description or ''}\n{p.epilog or ''}")]
+
+
+def rfhoming_calls(line: str) -> list[list[str]]:
+    """The argument lists of each ``rfhoming ...`` in an example line (pipes, &&, & and a
+    trailing comment or parenthesised remark taken off)."""
+    line = re.sub(r"\s{2,}\(.*\)$", "", strip_comment(line))
+    calls = []
+    for part in re.split(r"\s*(?:&&|\||&|;|\{|\})\s*", line):
+        words = shlex.split(part) if part.strip() else []
+        if words and words[0] == "rfhoming":
+            calls.append(words[1:])
+    return calls
+
+
+def test_every_help_example_parses(tmp_path: Path, monkeypatch) -> None:
+    from rfhoming.cli.main import build_parser
+
+    monkeypatch.chdir(tmp_path)  # output files are tried (and removed) here
+    examples = help_examples()
+    assert len(examples) > 40 and {c for c, _ in examples} >= {"run", "demo", "locate", "listen", "emulate"}
+    for command, line in examples:
+        for argv in rfhoming_calls(line):
+            try:
+                build_parser().parse_args(argv)
+            except SystemExit as exc:
+                pytest.fail(f"rfhoming {command} --help example does not parse: {line} (exit {exc.code})")
+
+
+def test_help_examples_that_need_no_hardware_run(tmp_path: Path) -> None:
+    link_dir = tmp_path / "kit"
+    site = tmp_path / "docs" / "sites" / "kit-room.toml"
+    site.parent.mkdir(parents=True)
+    site.write_text((ROOT / "docs" / "sites" / "kit-room.toml").read_text().replace("/tmp/rfhoming-kit", str(link_dir)))
+    ran = 0
+    for command, line in help_examples():
+        if command not in RUN_HELP_EXAMPLES or "/tmp/rfhoming-kit" not in line:
+            continue
+        ran += line.startswith("rfhoming emulate")
+        done = subprocess.run(["bash", "-c", line.replace("/tmp/rfhoming-kit", str(link_dir))], cwd=tmp_path,
+                              env=env(), capture_output=True, text=True, timeout=TIMEOUT_S)
+        assert done.returncode == 0, f"{line}\n{done.stderr[-2000:]}"
+        if line.startswith("rfhoming emulate"):
+            assert '"kind": "position"' in done.stdout and '"kind": "summary"' in done.stdout, done.stdout[-500:]
+    assert ran == 1

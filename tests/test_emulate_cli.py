@@ -135,7 +135,7 @@ def test_rss_node_and_base_over_their_framing(tmp_path: Path) -> None:
 def test_bad_arguments_exit_2_with_a_message() -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--target", "x"],
                           capture_output=True, text=True, env={**os.environ})
-    assert done.returncode == 2 and "--target takes X,Y" in done.stderr
+    assert done.returncode == 2 and "argument --target: 'x': expected X,Y in metres" in done.stderr
 
 
 def test_missing_link_dir_is_a_clear_error(tmp_path: Path) -> None:
@@ -160,3 +160,17 @@ def test_every_option_a_message_names_exists() -> None:
             for m in re.findall(r"use (--[a-z][a-z-]+)", f.read_text())}
     assert "--probe-baud" in told
     assert told <= options, told - options
+
+
+def test_stopping_with_a_tcp_client_connected_prints_no_traceback() -> None:
+    """The client's handler is cancelled at shutdown; Python 3.11's server callback logged that
+    as an error with a traceback unless the handler ends normally."""
+    import socket
+
+    proc, endpoints = emulate("s0-open", "--tcp", devices=2)
+    host, port = endpoints["base"]["url"].removeprefix("socket://").split(":")
+    with socket.create_connection((host, int(port)), timeout=10) as client:
+        assert client.recv(1)  # the base streams odometry: its handler is running
+        code = stop(proc)
+    stderr = proc.stderr.read()
+    assert code == 0 and "Traceback" not in stderr and "CancelledError" not in stderr, stderr

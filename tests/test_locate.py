@@ -117,6 +117,29 @@ def test_stale_anchor_is_left_out():
     assert any("west" in p.anchors for p in early)
 
 
+def test_a_disconnected_anchor_is_left_out_at_once_and_back_with_new_angles():
+    """The west anchor's device goes away at 2 s (its driver says so) and returns at 3 s: no fix
+    from 2 s to 3 s rests on its old angles (stale_s would have kept them for a second), and
+    the fixes after its return use it again."""
+    site = sites.load(SITE)
+    rec = _short_kit()
+    loc = Locator(site, reorder_s=0.0)
+    west = "CCF9578E0A01"
+    out, told = [], False
+    for t, e in rec.events:
+        if t > 2.0 and not told:
+            loc.disconnected(2.0, {west})
+            told = True
+        if e.anchor_id == west and 2.0 < t < 3.0:
+            continue
+        out += loc.feed(t, e)
+    gone = [p for p in out if 2.0 <= p.t < 3.0]
+    back = [p for p in out if p.t > 3.0 + site.window_s]
+    assert gone and all("west" not in p.anchors for p in gone)
+    assert any("west" in p.anchors for p in back)
+    assert any("west" in p.anchors for p in out if p.t < 2.0) and loc.counters["disconnects"] == 1
+
+
 @settings(max_examples=30)
 @given(st.floats(0.1, 5.0), st.integers(1, 50))
 def test_process_noise_is_per_second_not_per_update(q, steps):

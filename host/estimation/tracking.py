@@ -13,7 +13,6 @@ import math
 
 import numpy as np
 
-
 _I3 = np.eye(3)
 
 

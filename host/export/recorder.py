@@ -5,6 +5,13 @@ driver listener, ``(device, t_host, item)``) and the run log's records (a RunLog
 writer is the mcap library's ROS 2 support (CDR, schema ``ros2msg``); ``rosbags`` or Foxglove
 read the file without rfhoming.
 
+Crash safety: messages go into chunks of at most :data:`CHUNK_BYTES`, and every
+:data:`FLUSH_S` -- of message time (robot or host clock) or of host time, whichever comes first --
+the open chunk is finished and the file flushed to the operating system, so a killed process
+(``kill -9``, a crash) loses at most the last second; the file then has no summary at its end,
+which the mcap library's readers and rosbags read past (docs/usage.md). ``close`` writes the
+summary. (A flush is not an fsync: a power cut may lose what the OS had not written yet.)
+
 Time: with a robot base every message is stamped on the base's own clock, the run log's time
 axis (an item gets the robot time of the latest odometry, as the homing loop does; items before
 the first odometry have no robot time and are counted, not written). Without a base (a bare
@@ -18,6 +25,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from collections import Counter, deque
 from pathlib import Path
 from typing import IO, Any
@@ -37,6 +45,12 @@ from rfhoming.protocol.pcapng import OUTBOUND
 
 log = logging.getLogger(__name__)
 
+FLUSH_S = 1.0
+"""At most this much of a run (message or host time) sits in memory, unwritten."""
+
+CHUNK_BYTES = 256 * 1024
+"""A chunk is also finished at this size (a fast stream within one second)."""
+
 
 class RunLogError(Error, ValueError):
     """A run log line that is not one (JSON with kind and t); the message names the line."""
@@ -52,7 +66,8 @@ class McapRecorder(Sink):
         if clock not in ("robot", "host"):
             raise ValueError(f"clock must be robot or host, not {clock!r}")
         self._file = open(output, "wb") if isinstance(output, (str, Path)) else None
-        self.writer = Writer(self._file or output)
+        self.writer = Writer(self._file or output, chunk_size=CHUNK_BYTES)
+        self._flushed_at: tuple[float, float] | None = None  # (message time, host monotonic) of the last flush
         self.clock = clock
         self.commands_from = commands_from
         self._schemas: dict[str, Any] = {}
@@ -120,6 +135,17 @@ class McapRecorder(Sink):
         ns = max(0, round(t * 1e9))
         self.writer.write_message(topic, schema, message, log_time=ns, publish_time=ns, sequence=self.counts[topic])
         self.counts[topic] += 1
+        now = time.monotonic()
+        if self._flushed_at is None:
+            self._flushed_at = (t, now)
+        elif t - self._flushed_at[0] >= FLUSH_S or now - self._flushed_at[1] >= FLUSH_S:
+            self.flush()
+            self._flushed_at = (t, now)
+
+    def flush(self) -> None:
+        """Finish the open chunk and hand the file everything so far: a crash after this loses
+        nothing before it."""
+        self.writer._writer.flush()  # mcap_ros2's Writer wraps mcap's, whose flush() ends the chunk (mcap >= 1.6)
 
     def close(self) -> None:
         if self._closed:
@@ -184,14 +210,17 @@ def _capture_drivers(path: Path | str) -> tuple[dict[str, Driver], list[tuple[st
 
 def _read_runlog(path: Path | str) -> list[dict[str, Any]]:
     records = []
-    with open(path) as f:
-        for n, line in enumerate(f, 1):
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-                float(record["t"])
-            except (ValueError, KeyError, TypeError):
-                raise RunLogError(f"{path}:{n}: not a run log line (JSON with kind and t): {line[:60]!r}") from None
-            records.append(record)
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RunLogError(f"{path} is not a run log: byte {exc.start} is not UTF-8 text") from None
+    for n, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+            float(record["t"])
+        except (ValueError, KeyError, TypeError):
+            raise RunLogError(f"{path}:{n}: not a run log line (JSON with kind and t): {line[:60]!r}") from None
+        records.append(record)
     return records

@@ -26,17 +26,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from rfhoming.host.drivers.robot_base import Scan
+from rfhoming.host.homing.schema import RAD_S, M, S, setting
 from rfhoming.host.homing.types import Decision
 
 
 @dataclass(frozen=True)
 class AvoidParams:
-    enabled: bool = True
-    obs_threshold1: float = 1.5
-    obs_threshold2: float = 0.35
-    side_threshold: float = 0.4
-    w_turn: float = 1.0
-    release_s: float = 1.5
+    enabled: bool = setting(True)
+    obs_threshold1: float = setting(1.5, low=0, above=True, high=20, unit=M)
+    obs_threshold2: float = setting(0.35, low=0, above=True, high=20, unit=M)
+    side_threshold: float = setting(0.4, low=0, high=20, unit=M)
+    w_turn: float = setting(1.0, low=0, above=True, high=10, unit=RAD_S)
+    release_s: float = setting(1.5, low=0, high=60, unit=S)
 
 
 @dataclass

@@ -7,8 +7,7 @@ left out, and unknown keys are refused with the list of known ones.
 from __future__ import annotations
 
 import math
-import tomllib
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -20,14 +19,17 @@ from rfhoming.host.homing.s0_aoa import S0Params
 from rfhoming.host.homing.s1_dock import S1Params
 from rfhoming.host.homing.s2_rss import S2Params
 from rfhoming.host.homing.s3_trilat import TrilatParams
-from rfhoming.protocol.errors import Error
+from rfhoming.host.homing.schema import DBM, ConfigError, M, S, build, setting
+from rfhoming.protocol.textfile import read_toml
+
+__all__ = ["DEFAULT_TOML", "SECTIONS", "Config", "ConfigError", "load"]
 
 
 @dataclass(frozen=True)
 class Mounting:
-    yaw_offset_deg: float = 0.0  # board boresight relative to the robot heading, CCW
-    azimuth_sign: int = -1  # the XPLR-AOA reports left as negative; -1 turns that into CCW
-    upside_down: bool = False  # mirrors the azimuth once more
+    yaw_offset_deg: float = setting(0.0, low=-360, high=360, unit="degrees")  # board boresight vs robot heading, CCW
+    azimuth_sign: int = setting(-1, choices=(-1, 1))  # the XPLR-AOA reports left as negative; -1 turns that into CCW
+    upside_down: bool = setting(False)  # mirrors the azimuth once more
 
     def to_robot(self, azimuth_deg: float) -> float:
         """Board azimuth (degrees, board convention) -> θs in the robot frame (rad, CCW)."""
@@ -37,10 +39,10 @@ class Mounting:
 
 @dataclass(frozen=True)
 class Calibration:
-    p0_dbm: float = -59.0  # RSSI at d0 (log-distance)
-    n: float = 2.2
-    d0_m: float = 1.0
-    ed_scale_db: float = 1.0  # AT86RF212 dB per ED step
+    p0_dbm: float = setting(-59.0, low=-150, high=30, unit=DBM)  # RSSI at d0 (log-distance)
+    n: float = setting(2.2, low=1, high=6, unit="(path-loss exponent)")
+    d0_m: float = setting(1.0, low=0, above=True, high=100, unit=M)
+    ed_scale_db: float = setting(1.0, low=0, above=True, high=10, unit="dB per ED step")  # AT86RF212
 
     @property
     def model(self) -> LogDistance:
@@ -49,21 +51,25 @@ class Calibration:
 
 @dataclass(frozen=True)
 class LoopSettings:
-    stale_timeout_s: float = 0.3  # emergency-stop when a required stream is older than this (robot time)
-    stale_intervals: float = 3.0  # ... or than this many of its event intervals, if longer; 0: fixed timeout
-    slow_after_s: float = 0.1  # from this age on, speed falls linearly to 0 at the stale timeout, braking hard
-    odometry_wall_timeout_s: float = 0.5  # stop when the base is silent this long (wall time; inf in lockstep simulation)
-    control_period_s: float = 0.1
-    max_time_s: float = 180.0  # give up after this much robot time
-    command_timeout_ms: int = 300  # the base stops by itself if no command follows
+    # emergency-stop when a required stream is older than this (robot time)
+    stale_timeout_s: float = setting(0.3, low=0, above=True, high=60, unit=S)
+    # ... or than this many of its event intervals, if longer; 0: fixed timeout
+    stale_intervals: float = setting(3.0, low=0, high=100, unit="event intervals")
+    # from this age on, speed falls linearly to 0 at the stale timeout, braking hard
+    slow_after_s: float = setting(0.1, low=0, high=60, unit=S)
+    # stop when the base is silent this long (wall time; inf in lockstep simulation)
+    odometry_wall_timeout_s: float = setting(0.5, low=0, above=True, high=math.inf, inf=True, unit=S)
+    control_period_s: float = setting(0.1, low=0, above=True, high=10, unit=S)
+    max_time_s: float = setting(180.0, low=0, above=True, high=math.inf, inf=True, unit=S)  # robot time
+    command_timeout_ms: int = setting(300, low=10, high=60000, unit="ms")  # the base stops if no command follows
 
 
 @dataclass(frozen=True)
 class PlanSettings:
-    enabled: bool = True  # plan on an occupancy grid whenever the base sends range scans
-    replan_s: float = 1.0
-    lookahead_m: float = 0.8
-    integrate_s: float = 0.3  # add a scan to the map at most this often (robot time)
+    enabled: bool = setting(True)  # plan on an occupancy grid whenever the base sends range scans
+    replan_s: float = setting(1.0, low=0, above=True, high=60, unit=S)
+    lookahead_m: float = setting(0.8, low=0, above=True, high=10, unit=M)
+    integrate_s: float = setting(0.3, low=0, high=60, unit=S)  # add a scan to the map at most this often
     grid: GridParams = field(default_factory=GridParams)
 
 
@@ -96,35 +102,46 @@ SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettin
             "trilat": TrilatParams}
 
 
-class ConfigError(Error, ValueError):
-    pass
-
-
 def load(path: Path | str | None) -> Config:
+    """The config in ``path`` (None: the defaults); ConfigError names the key to fix."""
     if path is None:
         return Config()
-    try:
-        raw = tomllib.loads(Path(path).read_text())
-    except OSError as exc:
-        raise ConfigError(f"cannot read config {path}: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config {path} is not valid TOML: {exc}") from None
+    raw = read_toml(path, "config", ConfigError)
     devices = raw.pop("devices", {})
     unknown = set(raw) - set(SECTIONS)
     if unknown:
-        raise ConfigError(f"unknown sections {sorted(unknown)} in {path}; known: {sorted(SECTIONS)}")
-    config = Config()
-    for name, cls in SECTIONS.items():
-        table: dict[str, Any] = raw.get(name, {})
-        known = {f.name for f in fields(cls)}
-        bad = set(table) - known
-        if bad:
-            raise ConfigError(f"[{name}] has unknown keys {sorted(bad)}; known: {sorted(known)}")
-        config = replace(config, **{name: replace(getattr(config, name), **table)})
-    if not 0 <= config.loop.slow_after_s < config.loop.stale_timeout_s:
-        raise ConfigError(f"[loop] slow_after_s = {config.loop.slow_after_s} must be at least 0 and below "
-                          f"stale_timeout_s = {config.loop.stale_timeout_s} in {path}")
+        raise ConfigError(f"{path}: unknown sections {sorted(unknown)}; known: {sorted(SECTIONS)}")
+    if not isinstance(devices, dict):
+        raise ConfigError(f"{path}: devices must be tables [devices.ROLE] (ROLE: {', '.join(DEVICE_ROLES)})")
+    config = Config(**{name: build(cls, raw.get(name, {}), name, path) for name, cls in SECTIONS.items()})
+    for problem in _relations(config):
+        raise ConfigError(f"{path}: {problem}")
     return replace(config, devices=_devices(devices, path))
+
+
+def _relations(config: Config) -> list[str]:
+    """Settings that are each in range but do not fit together."""
+    loop, s1, grid, avoid = config.loop, config.s1, config.plan.grid, config.avoid
+    problems = []
+    if not loop.slow_after_s < loop.stale_timeout_s:
+        problems.append(f"[loop] slow_after_s = {loop.slow_after_s} must be below stale_timeout_s = "
+                        f"{loop.stale_timeout_s} (seconds)")
+    if not s1.leave_dbm < s1.enter_dbm:
+        problems.append(f"[s1] leave_dbm = {s1.leave_dbm} must be below enter_dbm = {s1.enter_dbm} (dBm: the "
+                        "docking stage's hysteresis)")
+    if not s1.v_min <= s1.v_max:
+        problems.append(f"[s1] v_min = {s1.v_min} must be at most v_max = {s1.v_max} (m/s)")
+    if not avoid.obs_threshold2 < avoid.obs_threshold1:
+        problems.append(f"[avoid] obs_threshold2 = {avoid.obs_threshold2} (stop) must be below obs_threshold1 = "
+                        f"{avoid.obs_threshold1} (slow down), in metres")
+    if grid.size_m / grid.resolution > MAX_GRID_CELLS:
+        problems.append(f"[plan.grid] size_m / resolution = {grid.size_m / grid.resolution:.0f} cells a side; at "
+                        f"most {MAX_GRID_CELLS} (a larger resolution in metres, or a smaller size_m)")
+    return problems
+
+
+MAX_GRID_CELLS = 4000
+"""Cells on a side of the planning grid at most: 16 M cells, the memory a robot computer can spare."""
 
 
 DEVICE_ROLES = ("aoa", "base", "rss", "ble")

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rfhoming.host.drivers.robot_base import Scan
+from rfhoming.host.homing.schema import M, setting
 from rfhoming.host.homing.types import Pose
 
 UNKNOWN_COST, FREE_COST, OCCUPIED_COST = 2, 1, 100
@@ -27,11 +28,11 @@ MOVES = ((1, 0), (0, 1), (-1, 0), (0, -1))
 
 @dataclass(frozen=True)
 class GridParams:
-    resolution: float = 0.15
-    size_m: float = 40.0
-    robot_radius: float = 0.3
-    turn_cost: float = 4.0
-    max_range: float = 7.5  # beams beyond this mark free space only
+    resolution: float = setting(0.15, low=0.01, high=1, unit=M)
+    size_m: float = setting(40.0, low=0, above=True, high=10000, unit=M)
+    robot_radius: float = setting(0.3, low=0, high=5, unit=M)
+    turn_cost: float = setting(4.0, low=0, high=1000, unit="(cost of a turn, in cells)")
+    max_range: float = setting(7.5, low=0, above=True, high=100, unit=M)  # beams beyond this mark free space only
 
 
 class OccupancyGrid:

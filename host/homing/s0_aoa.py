@@ -52,33 +52,34 @@ from dataclasses import dataclass, field
 from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update
 from rfhoming.host.estimation.fixed import wrap_rad
 from rfhoming.host.estimation.ray_fusion import RayRangeFusion
+from rfhoming.host.homing.schema import DEG, M_S, RAD_S, M, S, setting
 from rfhoming.host.homing.types import Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
 class S0Params:
-    k: float = 0.3  # per reading at 50 Hz: 1 − 0.7⁵ ≈ the paper's 0.8 per 0.1 s
-    buffer: int = 20
-    tau: float = 10.0
-    z_threshold: float = 1.645
-    err_threshold: float = 0.3
-    arrival_radius: float = 0.3
-    arrival_agreement: float = 0.6  # |g_p − g_v| must be below this at arrival (m)
-    min_baseline: float = 0.3
-    min_crossing_deg: float = 3.0
-    v_max: float = 0.7
-    w_max: float = 1.2
-    k_w: float = 1.5
-    k_stop: float = 0.8
-    max_abs_azimuth_deg: float = 70.0
-    unambiguous_deg: float = 60.0  # only readings this near the boresight move the bearing estimate
-    disambiguation_s: float = 1.2
-    disambiguation_w: float = 0.8
-    folded: bool = True  # the sensor folds bearings into ±90° (the XPLR-AOA); False: a 360° sensor
-    close_fusion_m: float = 2.0  # nearer than this, inlier vector goals pull g_p (0: the paper's rule)
-    close_fusion_gain: float = 0.1
-    ray_fusion: bool = False  # report the fusion of readings near the goal (needs calibrated ranges)
-    fusion_min_readings: int = 10  # readings near the goal before the fusion is reported
+    k: float = setting(0.3, low=0, above=True, high=1, unit="(gain per reading)")  # per reading at 50 Hz: 1 − 0.7⁵ ≈ the paper's 0.8 per 0.1 s
+    buffer: int = setting(20, low=2, high=10000, unit="readings")
+    tau: float = setting(10.0, low=0, above=True, high=10000, unit="readings")
+    z_threshold: float = setting(1.645, low=0, above=True, high=10, unit="standard deviations")
+    err_threshold: float = setting(0.3, low=0, above=True, high=10, unit=M)
+    arrival_radius: float = setting(0.3, low=0, above=True, high=10, unit=M)
+    arrival_agreement: float = setting(0.6, low=0, above=True, high=10, unit=M)  # |g_p − g_v| must be below this at arrival (m)
+    min_baseline: float = setting(0.3, low=0, high=10, unit=M)
+    min_crossing_deg: float = setting(3.0, low=0, high=90, unit=DEG)
+    v_max: float = setting(0.7, low=0, above=True, high=5, unit=M_S)
+    w_max: float = setting(1.2, low=0, above=True, high=10, unit=RAD_S)
+    k_w: float = setting(1.5, low=0, above=True, high=20, unit="1/s")
+    k_stop: float = setting(0.8, low=0, above=True, high=10, unit="1/s")
+    max_abs_azimuth_deg: float = setting(70.0, low=0, above=True, high=180, unit=DEG)
+    unambiguous_deg: float = setting(60.0, low=0, above=True, high=180, unit=DEG)  # only readings this near the boresight move the bearing estimate
+    disambiguation_s: float = setting(1.2, low=0, high=60, unit=S)
+    disambiguation_w: float = setting(0.8, low=0, high=10, unit=RAD_S)
+    folded: bool = setting(True)  # the sensor folds bearings into ±90° (the XPLR-AOA); False: a 360° sensor
+    close_fusion_m: float = setting(2.0, low=0, high=100, unit=M)  # nearer than this, inlier vector goals pull g_p (0: the paper's rule)
+    close_fusion_gain: float = setting(0.1, low=0, high=1, unit="(fraction per reading)")
+    ray_fusion: bool = setting(False)  # report the fusion of readings near the goal (needs calibrated ranges)
+    fusion_min_readings: int = setting(10, low=1, high=10000, unit="readings")  # readings near the goal before the fusion is reported
 
 
 @dataclass

@@ -37,33 +37,34 @@ import numpy as np
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.estimation.filters import MovingAverage
 from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
+from rfhoming.host.homing.schema import DB, DBM, DEG, M_S, RAD_S, M, setting
 from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
 class S1Params:
-    g_a: float = 0.25
-    g_d: float = 0.08
-    alpha_db: float = 1.0
-    beta_db: float = 8.0
-    gamma_deg: float = 20.0
-    delta_deg: float = 30.0
-    n: int = 10
-    rssi_arrival_dbm: float = -51.0
-    enter_dbm: float = -73.0
-    leave_dbm: float = -76.0
-    v_min: float = 0.1
-    v_max: float = 0.25
-    w_max: float = 0.52
-    max_step_m: float = 0.4
-    heading_tolerance_deg: float = 3.0
-    position_tolerance_m: float = 0.03
-    align: bool = True  # turn onto the station's fitted axis at the end (False: the paper's stop)
-    standoff_m: float = 0.3  # where rssi_arrival_dbm is received (the docked position)
-    path_n: float = 2.0  # path-loss exponent for the fit's RSSI ranges
-    align_min_spread_m: float = 0.5  # the fit needs the robot to have moved this far along the approach
-    mission_goal: tuple[float, float] | None = None  # the station on the robot's map (mission stage)
-    mission_stop_m: float = 0.8  # the mission stage stops this far from mission_goal
+    g_a: float = setting(0.25, low=0, high=10, unit="degrees per dB per degree")
+    g_d: float = setting(0.08, low=0, high=10, unit="m per dB")
+    alpha_db: float = setting(1.0, low=0, high=60, unit=DB)
+    beta_db: float = setting(8.0, low=0, high=60, unit=DB)
+    gamma_deg: float = setting(20.0, low=0, high=180, unit=DEG)
+    delta_deg: float = setting(30.0, low=0, high=180, unit=DEG)
+    n: int = setting(10, low=1, high=1000, unit="readings")
+    rssi_arrival_dbm: float = setting(-51.0, low=-150, high=30, unit=DBM)
+    enter_dbm: float = setting(-73.0, low=-150, high=30, unit=DBM)
+    leave_dbm: float = setting(-76.0, low=-150, high=30, unit=DBM)
+    v_min: float = setting(0.1, low=0, high=5, unit=M_S)
+    v_max: float = setting(0.25, low=0, above=True, high=5, unit=M_S)
+    w_max: float = setting(0.52, low=0, above=True, high=10, unit=RAD_S)
+    max_step_m: float = setting(0.4, low=0, above=True, high=10, unit=M)
+    heading_tolerance_deg: float = setting(3.0, low=0, above=True, high=90, unit=DEG)
+    position_tolerance_m: float = setting(0.03, low=0, above=True, high=1, unit=M)
+    align: bool = setting(True)  # turn onto the station's fitted axis at the end (False: the paper's stop)
+    standoff_m: float = setting(0.3, low=0, high=10, unit=M)  # where rssi_arrival_dbm is received (the docked position)
+    path_n: float = setting(2.0, low=1, high=6, unit="(path-loss exponent)")  # path-loss exponent for the fit's RSSI ranges
+    align_min_spread_m: float = setting(0.5, low=0, high=100, unit=M)  # the fit needs the robot to have moved this far along the approach
+    mission_goal: tuple[float, float] | None = setting(None, low=-10000, high=10000, unit=M)  # the station on the robot's map (mission stage)
+    mission_stop_m: float = setting(0.8, low=0, high=100, unit=M)  # the mission stage stops this far from mission_goal
 
 
 class DockController(ControllerDefaults):

@@ -41,28 +41,29 @@ from rfhoming.host.estimation.particle import (
     differential_to_range,
     direction,
 )
+from rfhoming.host.homing.schema import DB, DBM, M_S, RAD_S, M, setting
 from rfhoming.host.homing.types import ControllerDefaults, Decision, ParamsError, Pose, velocity_law
 
 
 @dataclass(frozen=True)
 class S2Params:
-    p0_dbm: float = -40.0
-    n: float = 2.0
-    peak_gain_db: float = 6.6
-    arrival_range_m: float = 0.5
-    min_fixes: int = 10
-    v_max: float = 0.4
-    w_max: float = 1.0
-    k_w: float = 1.5
-    k_stop: float = 0.8
-    search_w: float = 0.5
-    seed: int = 0
-    motion: str = "full"  # "full": the loop's grid + A*; "preliminary": S2's rule-based motion
-    obstacle_m: float = 0.2  # preliminary: an obstacle this close ahead means turn until clear
-    body_radius_m: float = 0.25  # preliminary: obstacle_m is measured from the robot's round body, not the scanner
-    touch_m: float = 0.05  # preliminary: an obstacle this near the body anywhere in the scan counts as ahead
-    likelihood: str = "s2"  # the particle filter's weights: "s2" or "bounded" (host.estimation.particle)
-    dish_offsets_db: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # x1, x2, y1, y2
+    p0_dbm: float = setting(-40.0, low=-150, high=30, unit=DBM)
+    n: float = setting(2.0, low=1, high=6, unit="(path-loss exponent)")
+    peak_gain_db: float = setting(6.6, low=-20, high=40, unit="dBi")
+    arrival_range_m: float = setting(0.5, low=0, above=True, high=100, unit=M)
+    min_fixes: int = setting(10, low=1, high=10000, unit="fixes")
+    v_max: float = setting(0.4, low=0, above=True, high=5, unit=M_S)
+    w_max: float = setting(1.0, low=0, above=True, high=10, unit=RAD_S)
+    k_w: float = setting(1.5, low=0, above=True, high=20, unit="1/s")
+    k_stop: float = setting(0.8, low=0, above=True, high=10, unit="1/s")
+    search_w: float = setting(0.5, low=0, high=10, unit=RAD_S)
+    seed: int = setting(0, low=0, high=2**32 - 1)
+    motion: str = setting("full", choices=("full", "preliminary"))  # "full": the loop's grid + A*; "preliminary": S2's rule-based motion
+    obstacle_m: float = setting(0.2, low=0, high=10, unit=M)  # preliminary: an obstacle this close ahead means turn until clear
+    body_radius_m: float = setting(0.25, low=0, high=5, unit=M)  # preliminary: obstacle_m is measured from the robot's round body, not the scanner
+    touch_m: float = setting(0.05, low=0, high=5, unit=M)  # preliminary: an obstacle this near the body anywhere in the scan counts as ahead
+    likelihood: str = setting("s2", choices=("s2", "bounded"))  # the particle filter's weights: "s2" or "bounded" (host.estimation.particle)
+    dish_offsets_db: tuple[float, float, float, float] = setting((0.0, 0.0, 0.0, 0.0), low=-40, high=40, unit=DB)  # x1, x2, y1, y2
 
     def __post_init__(self) -> None:  # a TOML list becomes the tuple the default is
         object.__setattr__(self, "dish_offsets_db", tuple(float(v) for v in self.dish_offsets_db))

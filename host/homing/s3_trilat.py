@@ -14,7 +14,7 @@ estimated.) The robot drives to ``goal`` with S0's velocity law and stops within
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -25,26 +25,27 @@ from rfhoming.host.estimation.filters import ScalarKalman
 from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
 from rfhoming.host.estimation.lateration import multilaterate
 from rfhoming.host.estimation.ranging import LogDistance
+from rfhoming.host.homing.schema import DBM, M_S, RAD_S, M, S, setting
 from rfhoming.host.homing.types import ControllerDefaults, Decision, ParamsError, Pose, velocity_law
 
 
 @dataclass(frozen=True)
 class TrilatParams:
-    anchors: dict[str, list[float]] = field(default_factory=dict)  # address (12 hex) -> [x, y]
-    goal: list[float] = field(default_factory=lambda: [0.0, 0.0])
-    p0_dbm: float = -64.3
-    n: float = 2.7
-    kalman_q: float = 0.05
-    kalman_r: float = 16.0
-    fresh_s: float = 2.0
-    max_range_m: float = 10.0
-    offset_gain: float = 0.05
-    min_fixes: int = 10
-    arrival_radius: float = 0.3
-    v_max: float = 0.4
-    w_max: float = 1.0
-    k_w: float = 1.5
-    k_stop: float = 0.8
+    anchors: dict[str, list[float]] = setting(factory=dict, low=-10000, high=10000, unit=M, length=2)  # address (12 hex) -> [x, y]
+    goal: list[float] = setting(factory=lambda: [0.0, 0.0], low=-10000, high=10000, unit=M, length=2)
+    p0_dbm: float = setting(-64.3, low=-150, high=30, unit=DBM)
+    n: float = setting(2.7, low=1, high=6, unit="(path-loss exponent)")
+    kalman_q: float = setting(0.05, low=0, above=True, high=1000, unit="m^2 per step")
+    kalman_r: float = setting(16.0, low=0, above=True, high=10000, unit="dB^2")
+    fresh_s: float = setting(2.0, low=0, above=True, high=600, unit=S)
+    max_range_m: float = setting(10.0, low=0, above=True, high=1000, unit=M)
+    offset_gain: float = setting(0.05, low=0, high=1, unit="(fraction per fix)")
+    min_fixes: int = setting(10, low=1, high=10000, unit="fixes")
+    arrival_radius: float = setting(0.3, low=0, above=True, high=10, unit=M)
+    v_max: float = setting(0.4, low=0, above=True, high=5, unit=M_S)
+    w_max: float = setting(1.0, low=0, above=True, high=10, unit=RAD_S)
+    k_w: float = setting(1.5, low=0, above=True, high=20, unit="1/s")
+    k_stop: float = setting(0.8, low=0, above=True, high=10, unit="1/s")
 
 
 class TrilatController(ControllerDefaults):

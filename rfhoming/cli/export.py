@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from rfhoming.cli.args import output_file
 from rfhoming.protocol.errors import Error
 
 PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
@@ -55,5 +56,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        description=EXPORT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run", type=Path, metavar="RUN", help="the run log (run.jsonl), or a pcapng capture alone")
     p.add_argument("--capture", type=Path, help="the run's pcapng capture (odometry, scans, raw readings)")
-    p.add_argument("-o", "--output", type=Path, required=True, help="MCAP file to write")
+    p.add_argument("-o", "--output", type=output_file, required=True, help="MCAP file to write")
     p.set_defaults(func=cmd_export)

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from rfhoming.cli.args import nonnegative_float, output_file, positive_float, positive_int
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.discovery import candidates
@@ -237,10 +238,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                            formatter_class=raw)
         p.add_argument("ports", nargs="+", metavar="PORT", help=ENDPOINT_HELP)
         add_port_defaults(p)
-        p.add_argument("--duration", type=float, help="stop after this many seconds")
+        p.add_argument("--duration", type=positive_float, help="stop after this many seconds")
         p.add_argument("--json", action="store_true", help="one JSON object per item")
         if name == "capture":
-            p.add_argument("-o", "--output", type=Path, required=True, help="pcapng file to write")
+            p.add_argument("-o", "--output", type=output_file, required=True, help="pcapng file to write")
             p.add_argument("--show", action="store_true", help="also print the decoded items")
             p.set_defaults(func=cmd_capture)
         else:
@@ -250,20 +251,20 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="replay a pcapng capture through the drivers, or on ptys",
                        description=REPLAY_HELP, formatter_class=raw)
     p.add_argument("capture", type=Path, help="the pcapng file (from rfhoming capture or run --capture)")
-    p.add_argument("--speed", type=float, default=0.0, help="1 = recorded pace, 0 = as fast as possible (default)")
+    p.add_argument("--speed", type=nonnegative_float, default=0.0, help="1 = recorded pace, 0 = as fast as possible (default)")
     p.add_argument("--json", action="store_true", help="one JSON object per item")
     p.add_argument("--pty", action="store_true", help="serve the capture on pseudo-terminals")
     p.add_argument("--partial", action="store_true",
                    help="on a malformed block, replay what was readable before it instead of refusing")
     p.add_argument("--link-dir", type=Path, help="with --pty: directory for the pty symlinks")
-    p.add_argument("--start-delay", type=float, default=1.0,
+    p.add_argument("--start-delay", type=nonnegative_float, default=1.0,
                    help="with --pty: seconds to wait before playing, so consumers can open the ptys (default 1)")
     p.set_defaults(func=cmd_replay)
 
 
 def add_port_defaults(p: argparse.ArgumentParser) -> None:
     """--baud, --flow and --probe-baud: defaults for every port whose spec does not set its own."""
-    p.add_argument("--baud", type=int, metavar="RATE",
+    p.add_argument("--baud", type=positive_int, metavar="RATE",
                    help="serial rate for ports whose spec gives no baud= (default 115200)")
     p.add_argument("--flow", choices=("auto", "rtscts", "none"),
                    help="RTS/CTS for ports whose spec gives no flow=: auto (default) = on for the XPLR-AOA "

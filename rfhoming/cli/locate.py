@@ -5,14 +5,15 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import math
 import sys
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rfhoming.cli.args import output_file, positive_float
 from rfhoming.cli.io import _run_until, add_port_defaults
 from rfhoming.host import site as sites
 from rfhoming.host.calibration import CalibrationError, calibrate
@@ -23,6 +24,7 @@ from rfhoming.host.locate import Locator, Position
 from rfhoming.host.ports import PortError
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.textfile import read_toml
 
 LOCATE_HELP = """\
 Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
@@ -36,7 +38,10 @@ examples:
   rfhoming locate site.toml                                # the anchors' ports from the site
   rfhoming locate site.toml --duration 30 --capture run.pcapng
   rfhoming locate site.toml --from capture:run.pcapng      # the same positions, from the capture
-  rfhoming emulate kit-room --link-dir /tmp/rfhoming-kit & rfhoming locate docs/sites/kit-room.toml
+
+the kit room of docs/sites, emulated (its first line printed, every link exists):
+  mkdir -p /tmp/rfhoming-kit
+  rfhoming emulate kit-room --link-dir /tmp/rfhoming-kit --duration 15 | { read -r _; rfhoming locate docs/sites/kit-room.toml --duration 10; }
 """
 
 CALIBRATE_HELP = """\
@@ -74,9 +79,11 @@ def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
     return [a.port for a in site.anchors if a.port is not None]
 
 
-async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable[[float, Any], None]) -> int:
+async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable[[float, Any], None],
+                  on_lost: Callable[[float, set[str]], None] = lambda t, ids: None) -> int:
     """Open the site's anchors (or --from), feed every angle event to ``on_angle`` in arrival
-    order until --duration or the end of a capture; 2 on a port/capture error."""
+    order until --duration or the end of a capture, and tell ``on_lost`` the anchor ids of a
+    device that went away; 2 on a port/capture error."""
     capture = CaptureWriter(args.capture) if getattr(args, "capture", None) else None
     try:
         drivers: list[Driver] = await open_drivers(_specs(site, args.sources), baud=args.baud, flow=args.flow,
@@ -89,12 +96,20 @@ async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
 
-    def listener(_device: str, t: float, item: Any) -> None:
+    heard: dict[str, set[str]] = {}  # device -> the anchor ids in its events
+
+    def listener(device: str, t: float, item: Any) -> None:
         if item.kind == "angle":
+            heard.setdefault(device, set()).add(item.anchor_id)
             on_angle(t, item)
+
+    def tap(device: str, direction: str, t: float, _data: bytes) -> None:
+        if direction == "lost":
+            on_lost(t, heard.get(device, set()))
 
     for d in drivers:
         d.listeners.append(listener)
+        d.port.taps.append(tap)
     # the listener took every event already: empty the drivers' queues so they count no drops
     drains = [asyncio.create_task(_discard(d.out)) for d in drivers if isinstance(d, AoaDriver)]
     try:
@@ -134,7 +149,7 @@ def cmd_locate(args: argparse.Namespace) -> int:
         if positions:
             out.flush()
 
-    code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event))))
+    code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event)), locator.disconnected))
     if code:
         return code
     show(locator.flush())
@@ -150,20 +165,16 @@ def cmd_locate(args: argparse.Namespace) -> int:
 
 
 def _load_points(path: Path) -> dict[str, tuple[float, float, float]]:
-    try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ValueError(f"cannot read points file {path}: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"points file {path} is not valid TOML: {exc}") from None
+    """The [points] table of known tag positions; CalibrationError names the line to fix."""
+    raw = read_toml(path, "points file", CalibrationError)
     points = raw.get("points")
     if not isinstance(points, dict) or not points:
-        raise ValueError(f"{path} needs a [points] table: TAGID = [x, y, z], one line per known point")
+        raise CalibrationError(f"{path} needs a [points] table: TAGID = [x, y, z], one line per known point")
     out = {}
     for tag, value in points.items():
         if (not isinstance(value, list) or len(value) != 3
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
-            raise ValueError(f"{path}: point {tag} must be [x, y, z] in metres")
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+            raise CalibrationError(f"{path}: point {tag} = {value!r} must be [x, y, z], finite numbers in metres")
         out[tag.upper()] = (float(value[0]), float(value[1]), float(value[2]))
     return out
 
@@ -174,7 +185,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return 2
     try:
         points = _load_points(args.points)
-    except ValueError as exc:
+    except CalibrationError as exc:
         print(f"rfhoming calibrate: {exc}", file=sys.stderr)
         return 2
     events: list[tuple[float, Any]] = []
@@ -203,16 +214,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = 0.0
-    if not 0 < value <= 1000:
-        raise argparse.ArgumentTypeError(f"{text!r}: positions per second, more than 0, e.g. --rate 10")
-    return value
-
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
     raw = argparse.RawDescriptionHelpFormatter
     for name, helptext, description in (
@@ -222,17 +223,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         p.add_argument("site", type=Path, help="site file (TOML): anchors, their poses and ports, tags")
         p.add_argument("--from", dest="sources", action="append", metavar="SPEC",
                        help="read these ports instead of the site's (repeatable), e.g. capture:run.pcapng")
-        p.add_argument("--duration", type=float, help="stop after this many seconds (a capture ends by itself)")
+        p.add_argument("--duration", type=positive_float, help="stop after this many seconds (a capture ends by itself)")
         add_port_defaults(p)
         if name == "locate":
-            p.add_argument("--capture", type=Path, help="also record every anchor's bytes to this pcapng file")
-            p.add_argument("-o", "--output", type=Path, help="write the JSON lines here instead of stdout")
-            p.add_argument("--rate", type=_positive, help="positions per second per tag (default: the site's rate_hz)")
+            p.add_argument("--capture", type=output_file, help="also record every anchor's bytes to this pcapng file")
+            p.add_argument("-o", "--output", type=output_file, help="write the JSON lines here instead of stdout")
+            p.add_argument("--rate", type=positive_float, help="positions per second per tag (default: the site's rate_hz)")
             p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
             p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
                            help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
                                 "pair updates the track as it arrives (more accurate, ~10x the cost)")
-            p.add_argument("--accel-psd", type=float, default=1.0,
+            p.add_argument("--accel-psd", type=positive_float, default=1.0,
                            help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
             p.set_defaults(func=cmd_locate)
         else:

@@ -8,6 +8,7 @@ import json
 import sys
 from pathlib import Path
 
+from rfhoming.cli.args import output_file, xy
 from rfhoming.cli.io import add_port_defaults
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host import site as sites
@@ -196,14 +197,14 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                        description=DEMO_HELP, formatter_class=raw)
     p.add_argument("--scenario", default="s0-open", help="scenario preset (default s0-open)")
     p.add_argument("--seed", type=int, default=1, help="seed of the world (default 1)")
-    p.add_argument("--target", help="tag position X,Y, e.g. --target=-6,4 (default: random per seed)")
+    p.add_argument("--target", type=xy, help="tag position X,Y, e.g. --target=-6,4 (default: random per seed)")
     p.add_argument("--out", type=Path, default=Path("rfhoming-demo"), help="output folder (default ./rfhoming-demo)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--receiver", choices=("esp32", "esp-at", "hci"),
                    help="s3-arena: the robot's BLE RSSI receiver -- esp32 (rfhoming frames, default), esp-at "
                    "(ESP32 with Espressif's AT firmware) or hci (a Bluetooth controller, needs rfhoming[hci])")
-    p.add_argument("--mcap", type=Path, metavar="FILE", help=MCAP_HELP)
+    p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
     add_foxglove_option(p)
     p.set_defaults(func=cmd_demo)
 
@@ -228,9 +229,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--site", type=Path, help="site file for --controller anchors (see rfhoming locate --help)")
     p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
     add_port_defaults(p)
-    p.add_argument("--log", type=Path, help="JSON-lines run log of every measurement, estimate and command")
-    p.add_argument("--capture", type=Path, help="pcapng capture of every byte")
-    p.add_argument("--mcap", type=Path, metavar="FILE", help=MCAP_HELP)
+    p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command")
+    p.add_argument("--capture", type=output_file, help="pcapng capture of every byte")
+    p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
     add_foxglove_option(p)
     p.set_defaults(func=cmd_run)
 

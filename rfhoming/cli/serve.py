@@ -6,8 +6,8 @@ import argparse
 import asyncio
 import json
 import sys
-from pathlib import Path
 
+from rfhoming.cli.args import output_file, positive_float, positive_int
 from rfhoming.cli.io import (
     ENDPOINT_HELP,
     _describe_dialects,
@@ -93,9 +93,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bind", action="append", metavar="ADDR",
                    help="address to listen on (default 127.0.0.1; repeat for several, 0.0.0.0 for all)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"TCP port (default {DEFAULT_PORT}; 0 = any free)")
-    p.add_argument("--queue", type=int, default=QUEUE_LINES, metavar="LINES",
+    p.add_argument("--queue", type=positive_int, default=QUEUE_LINES, metavar="LINES",
                    help=f"items held for a slow client before its newest are dropped (default {QUEUE_LINES})")
-    p.add_argument("-o", "--output", type=Path, help="also capture every byte of the devices to this pcapng file")
-    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("-o", "--output", type=output_file, help="also capture every byte of the devices to this pcapng file")
+    p.add_argument("--duration", type=positive_float, help="stop after this many seconds")
     add_foxglove_option(p)
     p.set_defaults(func=cmd_serve)
