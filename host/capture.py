@@ -22,10 +22,12 @@ SNIFFED = "sniffed"  # bytes seen while the protocol was sniffed: in the file, n
 
 
 class CaptureWriter:
-    def __init__(self, path: Path | str, descriptions: dict[str, dict[str, str]] | None = None) -> None:
+    def __init__(self, path: Path | str, descriptions: dict[str, dict[str, str]] | None = None,
+                 comment: str = "") -> None:
+        """``comment`` goes in the section header: what the capture is (a homing run's record)."""
         self.path = Path(path)
         self._file: BinaryIO = open(self.path, "wb")
-        self._file.write(pcapng.section_header())
+        self._file.write(pcapng.section_header(comment=comment))
         self._file.flush()
         self._ids: dict[str, int] = {}
         self.descriptions = dict(descriptions or {})

@@ -54,8 +54,12 @@ class Sequencer:
 
 
 class ReplayPort:
+    """``match_writes``: the recorded writes are made again by whoever replays (a driver's
+    set-up, the homing loop's commands) and are matched; False for writes nobody will make
+    (the loop's, in a replay of the drivers alone), which are then passed over at once."""
+
     def __init__(self, name: str, packets: list[pcapng.Packet], *, speed: float | None = None,
-                 sequencer: Sequencer | None = None) -> None:
+                 sequencer: Sequencer | None = None, match_writes: bool = True) -> None:
         self.name = self.spec = name
         self.packets = packets
         self.speed = speed
@@ -70,6 +74,8 @@ class ReplayPort:
         self._t0: tuple[float, float] | None = None
         self.sequencer = sequencer
         self._holding = False
+        self.match_writes = match_writes
+        self.first_divergence: dict[str, Any] | None = None  # where the replayed host first wrote otherwise
 
     @property
     def is_open(self) -> bool:
@@ -92,7 +98,8 @@ class ReplayPort:
             p = self.packets[self._i]
             self._i += 1
             if p.direction == pcapng.OUTBOUND:
-                await self._await_write(p)
+                if self.match_writes:
+                    await self._await_write(p)
                 continue
             if self.sequencer is not None:
                 await self.sequencer.turn(self.name, self._i - 1)
@@ -125,9 +132,20 @@ class ReplayPort:
                     await self._written.wait()                # cancellation that meets the awaited write
             except TimeoutError:
                 self.counters["unanswered"] += 1
+                self._diverged(expected, None)
                 return
-        if self._writes.popleft() != expected.data:
+        wrote = self._writes.popleft()
+        if wrote != expected.data:
             self.counters["diverged"] += 1
+            self._diverged(expected, wrote)
+
+    def _diverged(self, expected: pcapng.Packet, wrote: bytes | None) -> None:
+        """The replayed host no longer does what the live one did: say where, and from here on
+        release the recorded inputs without waiting for writes that will not come."""
+        if self.first_divergence is None:
+            self.first_divergence = {"device": self.name, "t": expected.t, "recorded": expected.data.hex(),
+                                     "wrote": None if wrote is None else wrote.hex()}
+        self.match_writes = False
 
     def write(self, data: bytes) -> None:
         self.counters["bytes_out"] += len(data)
@@ -161,9 +179,17 @@ def load_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatErr
     is returned, the bytes from there on counted as the tail; it still raises if nothing before
     the bad block was an interface.
     """
+    interfaces, per, torn, _ = read_capture(path, partial=partial)
+    return interfaces, per, torn
+
+
+def read_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatError], None] | None = None
+                 ) -> tuple[list[pcapng.Interface], dict[int, list[pcapng.Packet]], int, list[str]]:
+    """:func:`load_capture`, and the section headers' comments (a homing run's record)."""
     data = Path(path).read_bytes()
+    reader = pcapng.Reader()
     try:
-        interfaces, packets, torn = pcapng.read_all(data)
+        interfaces, packets, torn = pcapng.read_sections(data, reader)
     except pcapng.CaptureFormatError as exc:
         interfaces = [i for i in exc.items if isinstance(i, pcapng.Interface)]
         if not partial or not interfaces:
@@ -174,7 +200,7 @@ def load_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatErr
     for p in packets:
         if p.comment != SNIFFED:
             per[p.interface_id].append(p)
-    return interfaces, per, torn
+    return interfaces, per, torn, reader.comments
 
 
 def describe(iface: pcapng.Interface) -> dict[str, Any]:

@@ -170,9 +170,10 @@ def replay_drivers(spec: PortSpec, partial: Callable[[Exception], None] | None =
     sequencer = Sequencer({interfaces[i].name: packets[i] for i in chosen})
     drivers = []
     for i in chosen:
+        record = recorded_kind(interfaces[i])
         port = ReplayPort(interfaces[i].name, packets[i], speed=spec.settings.get("speed") or None,
-                          sequencer=sequencer)
-        drivers.append(driver_class(recorded_kind(interfaces[i]))(port))
+                          sequencer=sequencer, match_writes=not record.commanded)
+        drivers.append(driver_class(record)(port))
     return drivers
 
 

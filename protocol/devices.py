@@ -91,6 +91,8 @@ class DeviceKind:
     topics: tuple[str, ...]  # the ROS 2 topics its items are exported to (host/export/rosmsgs.py)
     sniffable: bool = False  # can be told from what the port says (a spec without KIND:)
     rtscts: bool = False  # RTS/CTS flow control by default (flow=auto)
+    commanded: bool = False  # its writes come from the homing loop, not its driver (a replay without
+    # the loop does not wait for them)
     extra: str | None = None  # the pip extra its driver needs
     aliases: tuple[str, ...] = ()
 
@@ -123,7 +125,7 @@ KINDS: dict[str, DeviceKind] = {k.name: k for k in (
     DeviceKind("base", "rfhoming robot base (velocity commands, odometry, range scans)", "frames", SERIAL,
                "rfhoming.host.drivers.robot_base:BaseDriver",
                (Board("base", "rfhoming.firmware.robot_base:RobotBaseFirmware"),), ("base",), 5.0, "stm32",
-               ("/odom", "/scan", "/cmd_vel"), aliases=("robot-base",)),
+               ("/odom", "/scan", "/cmd_vel"), commanded=True, aliases=("robot-base",)),
 )}
 
 BOARDS: dict[str, tuple[DeviceKind, Board]] = {b.name: (k, b) for k in KINDS.values() for b in k.boards}

@@ -45,8 +45,11 @@ def _block(kind: int, body: bytes) -> bytes:
     return struct.pack("<II", kind, length) + body + struct.pack("<I", length)
 
 
-def section_header(application: str = "rfhoming") -> bytes:
-    body = struct.pack("<IHHq", BYTE_ORDER_MAGIC, 1, 0, -1) + _options([(OPT_SHB_USERAPPL, application.encode())])
+def section_header(application: str = "rfhoming", comment: str = "") -> bytes:
+    """The section header; ``comment`` (opt_comment, which tshark and capinfos show) carries
+    what a whole capture is, e.g. the homing run it recorded."""
+    opts = [(OPT_SHB_USERAPPL, application.encode())] + ([(OPT_COMMENT, comment.encode())] if comment else [])
+    body = struct.pack("<IHHq", BYTE_ORDER_MAGIC, 1, 0, -1) + _options(opts)
     return _block(SHB, body)
 
 
@@ -126,6 +129,7 @@ class Reader:
         self._section: list[int] = []  # this section's interface ids -> index in ``interfaces``
         self.offset = 0  # file offset of the first byte in the buffer
         self.sections = 0
+        self.comments: list[str] = []  # each section header's opt_comment ("" for none)
         self._error: CaptureFormatError | None = None
 
     @property
@@ -179,6 +183,7 @@ class Reader:
                 raise ValueError(f"section header body is {len(body)} bytes, needs 16")
             self._endian, self._section = endian, []
             self.sections += 1
+            self.comments.append(_parse_options(body[16:], endian).get(OPT_COMMENT, b"").decode(errors="replace"))
             item = None
         elif kind == IDB:
             item = self._interface(body, endian)
@@ -233,7 +238,11 @@ def read_all(data: bytes) -> tuple[list[Interface], list[Packet], int]:
     empty one or one shorter than a section header; its ``items`` then hold everything read
     before that offset.
     """
-    reader = Reader()
+    return read_sections(data, Reader())
+
+
+def read_sections(data: bytes, reader: Reader) -> tuple[list[Interface], list[Packet], int]:
+    """:func:`read_all` with the caller's reader, which keeps the section headers' comments."""
     items = reader.feed(data)
     if reader.sections == 0:
         what = "empty file" if not data else f"only {len(data)} bytes, no complete section header"

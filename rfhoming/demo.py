@@ -21,7 +21,7 @@ from typing import Any
 
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing import assembly
-from rfhoming.host.homing.assembly import CHOOSE_TAG_S, SENSORS, Device, Homing
+from rfhoming.host.homing.assembly import CHOOSE_TAG_S, SENSORS, Device, Homing, run_record
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import Outcome, RunLog
 from rfhoming.protocol.errors import Error
@@ -61,8 +61,10 @@ def plan(endpoints: dict[str, dict], out: Path, config: Config, sinks: tuple = (
     sensor = next(name for name in SENSORS if name in named)
     controller, role = SENSORS[sensor]
     specs = {r: f"{named[n]['kind']}:{named[n]['path']}" for r, n in ((role, sensor), ("base", "base"))}
-    return Homing(controller, [Device(role, spec=specs[role]), Device("base", spec=specs["base"])], config,
-                  sinks=sinks, capture=CaptureWriter(out / "capture.pcapng"), choose_tag_s=CHOOSE_TAG_S)
+    plan = Homing(controller, [Device(role, spec=specs[role]), Device("base", spec=specs["base"])], config,
+                  sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
+    plan.capture = CaptureWriter(out / "capture.pcapng", comment=run_record(plan))
+    return plan
 
 
 async def home(plan: Homing, out: Path) -> Outcome:
@@ -160,6 +162,7 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     device; ``sinks`` (an MCAP recorder, a live view) see every item and run log record too,
     and stay open."""
     out.mkdir(parents=True, exist_ok=True)
+    config = config.for_lockstep()  # the emulator waits for the host: wall time means nothing
     truth = out / "truth.jsonl"
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,

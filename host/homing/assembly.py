@@ -14,16 +14,20 @@ fails, or is not ready by its kind's deadline, ends the run with an Error naming
 from __future__ import annotations
 
 import asyncio
+import json
+import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
+from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.aoa import AoaSetup
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.drivers.robot_base import BaseDriver
 from rfhoming.host.homing.anchors import AnchorsController
-from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.config import Config, from_tables, to_tables
 from rfhoming.host.homing.loop import (
     AoaController,
     Controller,
@@ -37,11 +41,14 @@ from rfhoming.host.homing.s3_trilat import TrilatController
 from rfhoming.host.ports import HostPort
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
-from rfhoming.host.session import driver_class, resolve, serve_driver
+from rfhoming.host.replay import ReplayPort, Sequencer, read_capture
+from rfhoming.host.replay import describe as describe_interface
+from rfhoming.host.session import driver_class, recorded_kind, resolve, serve_driver
 from rfhoming.host.sink import Sink
 from rfhoming.host.site import Site
 from rfhoming.host.supervise import deadline, supervise
 from rfhoming.protocol import devices
+from rfhoming.protocol.pcapng import CaptureFormatError
 
 CHOOSE_TAG_S = 2.0
 """Live runs with no tag chosen listen this long, then home on the only tag in view."""
@@ -144,11 +151,17 @@ def _kind_for(device: Device, spec: PortSpec) -> PortSpec:
 
 async def resolve_devices(plan: Homing) -> Homing:
     """The plan with every spec made concrete (``auto`` found, the kind fixed by the role);
-    the capture, if any, is told what each port is."""
+    the capture, if any, is told what each port is and the role it fills."""
     taps = [plan.capture.tap] if plan.capture else []
-    describe = plan.capture.describe if plan.capture else None
     out = []
     for device in plan.devices:
+        describe = None
+        if plan.capture is not None:
+            capture = plan.capture
+
+            def describe(name: str, role: str = device.role, **fields: str) -> None:
+                capture.describe(name, role=role, **fields)
+
         if device.spec is None:
             out.append(device)
             continue
@@ -199,6 +212,45 @@ def _driver(plan: Homing, device: Device, inputs: BoundedStream[Any]) -> tuple[D
     assert record is not None, spec
     driver = driver_class(record).from_spec(spec, taps, out=inputs, **_options(plan, device, record.name))
     return driver, deadline(driver, spec.timeout)
+
+
+RUN_RECORD = "rfhoming-run"
+"""The key of a homing run's record in its capture's section comment."""
+
+
+def run_record(plan: Homing, site_text: str | None = None) -> str:
+    """What a run's capture keeps of its plan, so that :func:`replay_plan` runs the same loop on
+    its bytes: the controller, the whole config as used, the tags, and the site file's text."""
+    if not isinstance(plan.controller, str):
+        raise PortSpecError("only a run of one of the METHODS can be recorded for replay")
+    return json.dumps({RUN_RECORD: 1, "controller": plan.controller, "config": to_tables(plan.config),
+                       "tags": list(plan.tags), "choose_tag_s": plan.choose_tag_s, "probe_baud": plan.probe_baud,
+                       "site": site_text})
+
+
+def replay_plan(path: Path | str, *, controller: str | None = None, config: Config | None = None) -> Homing:
+    """The homing run a capture recorded, on its bytes: every device's inbound chunks in their
+    recorded global order, the loop's writes matched against the recorded ones. ``controller``
+    and ``config`` replace the recorded ones (the replay then reports where it diverged)."""
+    interfaces, packets, _torn, comments = read_capture(path)
+    record = next((json.loads(c) for c in comments if c.startswith(f'{{"{RUN_RECORD}"')), None)
+    if record is None:
+        raise CaptureFormatError(0, f"{path} holds no homing run's record (a capture of `rfhoming listen` or "
+                                    "`capture`, or of a run before rfhoming recorded them): replay its devices with "
+                                    "rfhoming replay CAPTURE, without --run")
+    sequencer = Sequencer({iface.name: packets[i] for i, iface in enumerate(interfaces)})
+    roles = []
+    for i, iface in enumerate(interfaces):
+        role = describe_interface(iface).get("role")
+        if role is None:  # bytes sniffed or recorded for no device of the run
+            continue
+        port = ReplayPort(iface.name, packets[i], sequencer=sequencer)
+        roles.append(Device(role, port=port, kind=recorded_kind(iface).name))
+    site = sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record.get("site") else None
+    return Homing(controller or record["controller"], roles,
+                  config if config is not None else from_tables(record["config"], f"{path}: the recorded config"),
+                  site=site, tags=tuple(record["tags"]), choose_tag_s=record["choose_tag_s"],
+                  probe_baud=record["probe_baud"])
 
 
 @dataclass

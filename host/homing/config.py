@@ -7,7 +7,7 @@ left out, and unknown keys are refused with the list of known ones.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -113,10 +113,24 @@ def load(path: Path | str | None) -> Config:
         raise ConfigError(f"{path}: unknown sections {sorted(unknown)}; known: {sorted(SECTIONS)}")
     if not isinstance(devices, dict):
         raise ConfigError(f"{path}: devices must be tables [devices.ROLE] (ROLE: {', '.join(DEVICE_ROLES)})")
-    config = Config(**{name: build(cls, raw.get(name, {}), name, path) for name, cls in SECTIONS.items()})
+    return replace(from_tables(raw, path), devices=_devices(devices, path))
+
+
+def from_tables(raw: dict[str, Any], source: Any) -> Config:
+    """A config from its sections' tables (a TOML file's, or :func:`to_tables`' own)."""
+    config = Config(**{name: build(cls, raw.get(name, {}), name, source) for name, cls in SECTIONS.items()})
     for problem in _relations(config):
-        raise ConfigError(f"{path}: {problem}")
-    return replace(config, devices=_devices(devices, path))
+        raise ConfigError(f"{source}: {problem}")
+    return config
+
+
+def to_tables(config: Config) -> dict[str, Any]:
+    """The config's sections as plain tables (no ports): what a run's capture records, so a
+    replay runs the loop exactly as configured, whatever file or code made the config."""
+    def plain(table: dict[str, Any]) -> dict[str, Any]:  # TOML has no None: a key left out keeps its default
+        return {k: plain(v) if isinstance(v, dict) else v for k, v in table.items() if v is not None}
+
+    return {name: plain(asdict(getattr(config, name))) for name in SECTIONS}
 
 
 def _relations(config: Config) -> list[str]:

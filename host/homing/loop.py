@@ -191,6 +191,9 @@ class HomingLoop:
         while True:
             item = await self._next_item()
             if item is None:
+                if self.base.state == "ended":  # a replay's recording is over, and nothing is left to read
+                    elapsed = self.t - self.t0 if self.t0 is not None else 0.0
+                    return self._outcome(False, "end of recording", elapsed, self.pose, self.controller.reported)
                 continue
             if isinstance(item, Scan):
                 self._on_scan(item)
@@ -358,7 +361,7 @@ class HomingLoop:
         self.latency_ms.append((time.time() - odo.t_host) * 1000)
         self.log.write("command", t, v=round(decision.v, 4), w=round(decision.w, 4), note=decision.note, **fields)
 
-    def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose, goal) -> Outcome:
+    def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose | None, goal: Any) -> Outcome:
         self.base.stop()
         self.log.write("event", duration, what=reason)
         drivers = [*self.sensors, self.base]

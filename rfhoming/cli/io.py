@@ -21,13 +21,16 @@ from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.ports import PortError
 from rfhoming.host.portspec import PortSpec
+from rfhoming.host.homing.assembly import METHODS
 from rfhoming.host.session import health, open_drivers, replay_drivers
+
 from rfhoming.host.supervise import DeviceNotReady, live, supervise
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.jsonable import as_dict
 from rfhoming.protocol.pcapng import CaptureFormatError, Interface
 
 log = logging.getLogger(__name__)
+CONTROLLERS = tuple(METHODS)
 
 ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket://HOST:PORT or auto; KIND "
                  "(xplr-aoa, rss-node, esp-at, hci, base) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
@@ -178,6 +181,10 @@ async def _replay(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    if args.run:
+        from rfhoming.cli.run import replay_run
+
+        return replay_run(args)
     if args.pty:
         from rfhoming.cli.main import (
             serve_capture_on_ptys,  # the CLI wires the emulator's pty server in
@@ -215,6 +222,15 @@ examples:
   rfhoming replay run.pcapng --speed 1
   rfhoming replay run.pcapng --pty
   rfhoming replay damaged.pcapng --partial
+  rfhoming replay rfhoming-demo/capture.pcapng --run --log replayed.jsonl   # the homing run again
+  rfhoming replay run.pcapng --run --config other.toml     # another config on the same bytes
+
+With --run, a capture of `rfhoming run` or `demo` runs its homing loop again: every device's
+recorded inbound bytes in their recorded global order, the loop's writes matched against the
+recording, with the controller and config the capture recorded (or --controller/--config).
+The run log is the live run's, line for line; where the replayed loop first writes otherwise
+than the recording, one line says where and what, and the replay goes on from the recorded
+inputs. The summary is `run`'s, with a "replay" object (diverged, unanswered, first_divergence).
 
 A malformed capture gives one line naming the byte offset and the problem, and exit code 2;
 with --partial, the blocks before it are replayed (exit 0) and the problem is reported.
@@ -259,6 +275,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--link-dir", type=Path, help="with --pty: directory for the pty symlinks")
     p.add_argument("--start-delay", type=nonnegative_float, default=1.0,
                    help="with --pty: seconds to wait before playing, so consumers can open the ptys (default 1)")
+    p.add_argument("--run", action="store_true", help="run the recorded homing loop again on the capture's bytes")
+    p.add_argument("--config", type=Path, help="with --run: this config instead of the recorded one")
+    p.add_argument("--controller", choices=CONTROLLERS, help="with --run: this controller instead of the recorded one")
+    p.add_argument("--log", type=output_file, help="with --run: write the replayed run log here")
     p.set_defaults(func=cmd_replay)
 
 

@@ -14,7 +14,7 @@ from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing import assembly
-from rfhoming.host.homing.assembly import CHOOSE_TAG_S, METHODS, Device, Homing
+from rfhoming.host.homing.assembly import CHOOSE_TAG_S, METHODS, Device, Homing, replay_plan, run_record
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, load
 from rfhoming.host.homing.loop import RunLog
 from rfhoming.host.portspec import SETTINGS, PortSpec, PortSpecError
@@ -85,10 +85,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     view = start_foxglove(args, "run")
     if view is not None:
         sinks.append(view)
-    capture = CaptureWriter(args.capture) if args.capture else None
     runlog = open(args.log, "w") if args.log else None
-    plan = Homing(args.controller, devices, config, site=site, runlog=RunLog(runlog), sinks=sinks, capture=capture,
+    plan = Homing(args.controller, devices, config, site=site, runlog=RunLog(runlog), sinks=sinks,
                   tags=tags, choose_tag_s=CHOOSE_TAG_S, probe_baud=args.probe_baud, baud=args.baud, flow=args.flow)
+    site_text = args.site.read_text() if site is not None else None
+    capture = plan.capture = CaptureWriter(args.capture, comment=run_record(plan, site_text)) if args.capture else None
     try:
         outcome = asyncio.run(assembly.run(plan))
     except KeyboardInterrupt:
@@ -102,6 +103,30 @@ def cmd_run(args: argparse.Namespace) -> int:
         for sink in sinks:
             sink.close()
     print(json.dumps(outcome.summary()))
+    return 0 if outcome.arrived else 1
+
+
+def replay_run(args: argparse.Namespace) -> int:
+    """``rfhoming replay CAPTURE --run``: the recorded homing loop again, on the capture's bytes."""
+    plan = replay_plan(args.capture, controller=args.controller, config=load(args.config) if args.config else None)
+    runlog = open(args.log, "w") if args.log else None
+    plan.runlog = RunLog(runlog)
+    try:
+        outcome = asyncio.run(assembly.run(plan))
+    finally:
+        if runlog:
+            runlog.close()
+    ports = [device.port for device in plan.devices]
+    firsts = [p.first_divergence for p in ports if p.first_divergence is not None]
+    first = min(firsts, key=lambda d: d["t"]) if firsts else None
+    replay = {"diverged": sum(p.counters["diverged"] for p in ports),
+              "unanswered": sum(p.counters["unanswered"] for p in ports), "first_divergence": first}
+    if first is not None:
+        print(f"rfhoming replay: the replayed loop first wrote otherwise than the recording at t = {first['t']:.6f} "
+              f"on {first['device']} (wrote {first['wrote']}, the recording has {first['recorded']}); it went on "
+              "from the recorded inputs", file=sys.stderr)
+    summary = {k: v for k, v in outcome.summary().items() if not k.startswith("latency_ms")}  # no wall time here
+    print(json.dumps({**summary, "replay": replay}))
     return 0 if outcome.arrived else 1
 
 

@@ -1,0 +1,94 @@
+"""A homing run replays from its capture (issue 26): `rfhoming replay CAPTURE --run` runs the
+recorded loop again on the recorded bytes and writes the live run log line for line -- for
+every controller and every receiver, on runs made through ptys by the commands a user runs."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def rfhoming(*args: str, timeout: float = 240) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "rfhoming", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def replayed(capture: Path, *extra: str) -> tuple[subprocess.CompletedProcess, list[str]]:
+    log = capture.parent / "replayed.jsonl"
+    done = rfhoming("replay", str(capture), "--run", "--log", str(log), *extra)
+    return done, log.read_text().splitlines() if log.exists() else []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("scenario", "receiver"), [
+    ("s0-open", None),  # S0, XPLR-AOA
+    ("s1-dock", None),  # S1, the station's XPLR-AOA
+    ("s2-a", None),  # S2, the AT86RF212 node
+    ("s3-arena", "esp32"),  # S3, rfhoming's ESP32 scanner
+    ("s3-arena", "esp-at"),  # S3, ESP-AT
+    ("s3-arena", "hci"),  # S3, a Bluetooth controller
+])
+def test_a_demo_run_replays_to_the_same_run_log(tmp_path: Path, scenario: str, receiver: str | None) -> None:
+    demo = rfhoming("demo", "--scenario", scenario, *(["--receiver", receiver] if receiver else []), "--json",
+                    "--out", str(tmp_path))
+    assert demo.returncode in (0, 1), demo.stderr
+    done, log = replayed(tmp_path / "capture.pcapng")
+    assert done.returncode == demo.returncode, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["replay"] == {"diverged": 0, "unanswered": 0, "first_divergence": None}
+    assert log == (tmp_path / "run.jsonl").read_text().splitlines()
+    assert done.stderr == ""  # no warnings
+
+
+@pytest.mark.slow
+def test_a_fixed_anchor_run_replays_to_the_same_run_log(tmp_path: Path) -> None:
+    links = tmp_path / "links"
+    links.mkdir()
+    site = tmp_path / "site.toml"
+    site.write_text(re.sub(r"/tmp/rfhoming-kit/", f"{links}/", (ROOT / "docs" / "sites" / "kit-home.toml").read_text()))
+    (tmp_path / "robot.toml").write_text("[loop]\nodometry_wall_timeout_s = inf  # lockstep: wall time means nothing\n")
+    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "kit-home", "--pty", "--lockstep",
+                                 "--seed", "2", "--link-dir", str(links)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert emulator.stdout.readline()  # the links exist once it printed the first
+        run = rfhoming("run", "--controller", "anchors", "--site", str(site), "--base", f"base:{links}/base",
+                       "--config", str(tmp_path / "robot.toml"), "--capture", str(tmp_path / "run.pcapng"),
+                       "--log", str(tmp_path / "run.jsonl"))
+    finally:
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(timeout=10)
+    assert run.returncode == 0, run.stderr
+    done, log = replayed(tmp_path / "run.pcapng")
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["replay"]["diverged"] == 0
+    assert log == (tmp_path / "run.jsonl").read_text().splitlines()
+
+
+def test_another_config_on_the_same_capture_says_where_it_diverged(tmp_path: Path) -> None:
+    demo = rfhoming("demo", "--json", "--out", str(tmp_path))
+    assert demo.returncode == 0, demo.stderr
+    other = tmp_path / "other.toml"
+    other.write_text("[s0]\nv_max = 0.3\n")  # a slower robot: other commands from the first decision on
+    done, log = replayed(tmp_path / "capture.pcapng", "--config", str(other))
+    summary = json.loads(done.stdout)
+    first = summary["replay"]["first_divergence"]
+    assert first is not None and first["device"].endswith("base") and first["wrote"] != first["recorded"]
+    assert "first wrote otherwise than the recording at t =" in done.stderr and done.stderr.count("\n") == 1
+    assert log and log != (tmp_path / "run.jsonl").read_text().splitlines()  # it went on, from the recorded inputs
+
+
+def test_a_capture_without_a_run_record_is_a_one_line_error(tmp_path: Path) -> None:
+    from rfhoming.host.capture import CaptureWriter
+
+    writer = CaptureWriter(tmp_path / "listen.pcapng")
+    writer.describe("/dev/ttyUSB0", kind="xplr-aoa")
+    writer.close()
+    done = rfhoming("replay", str(tmp_path / "listen.pcapng"), "--run")
+    assert done.returncode == 2 and "holds no homing run's record" in done.stderr and done.stderr.count("\n") == 1
