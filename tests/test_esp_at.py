@@ -16,7 +16,7 @@ from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.host import portspec
 from rfhoming.host.drivers.espat import EspAtDriver, EspAtSetup
 from rfhoming.host.session import esp_at_setup
-from rfhoming.protocol.espat import EspAtDecoder, Final, Info, ScanReport, encode_scan, parse_scan
+from rfhoming.protocol.espat import MAX_LINE, EspAtDecoder, Final, Info, ScanReport, encode_scan, parse_scan
 from receivers import s3_live, s3_replay
 from strategies import chunked
 
@@ -57,8 +57,6 @@ def test_an_overlong_line_is_dropped_and_the_next_survives() -> None:
     out = decoder.feed(b"x" * 2000) + decoder.feed(b"yyy\r\nOK\r\n")
     assert [i.kind for i in out] == ["drop", "final"] and decoder.counters["drop.oversize"] == 1
 
-
-from rfhoming.protocol.espat import MAX_LINE  # noqa: E402
 
 near_limit_lines = st.lists(st.tuples(
     st.integers(MAX_LINE - 2, MAX_LINE + 2), st.sampled_from([b"x", b"+BLEINIT:", b"\r"]),

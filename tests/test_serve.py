@@ -225,7 +225,7 @@ async def test_a_never_reading_client_is_held_to_its_queue_and_cut_off() -> None
     from rfhoming.host.serve import QUEUE_BYTES, ItemServer
 
     server = ItemServer(queue_lines=100_000, max_drops=5000)
-    reader, writer = await _connect(server)
+    _, writer = await _connect(server)
     (client,) = server.clients
     big = {"kind": "log_text", "node_id": 1, "seq": 0, "t_us": 0, "text": "y" * 2000}
     for _ in range(20_000):  # 40 MB of lines, none of them read
