@@ -277,11 +277,50 @@ size_t rfh_encode_range_scan(uint8_t *out, size_t cap, const rfh_header_t *h, co
     return w_end(&w);
 }
 
+/* Whether b[0..len) is well-formed UTF-8 (Unicode 15, table 3-7): no overlong forms, no
+ * surrogates, nothing past U+10FFFF -- exactly what the host's decoder accepts. */
+int rfh_utf8_valid(const uint8_t *b, size_t len)
+{
+    size_t i = 0;
+    while (i < len) {
+        uint8_t c = b[i];
+        size_t n, k;
+        uint8_t lo = 0x80u, hi = 0xBFu; /* the range of the second byte */
+        if (c < 0x80u) {
+            ++i;
+            continue;
+        }
+        if (c >= 0xC2u && c <= 0xDFu) {
+            n = 1;
+        } else if (c >= 0xE0u && c <= 0xEFu) {
+            n = 2;
+            lo = c == 0xE0u ? 0xA0u : 0x80u;
+            hi = c == 0xEDu ? 0x9Fu : 0xBFu;
+        } else if (c >= 0xF0u && c <= 0xF4u) {
+            n = 3;
+            lo = c == 0xF0u ? 0x90u : 0x80u;
+            hi = c == 0xF4u ? 0x8Fu : 0xBFu;
+        } else {
+            return 0;
+        }
+        if (len - i <= n || b[i + 1] < lo || b[i + 1] > hi) {
+            return 0;
+        }
+        for (k = 2; k <= n; ++k) {
+            if ((b[i + k] & 0xC0u) != 0x80u) {
+                return 0;
+            }
+        }
+        i += n + 1;
+    }
+    return 1;
+}
+
 size_t rfh_encode_log_text(uint8_t *out, size_t cap, const rfh_header_t *h, const rfh_log_text_t *r)
 {
     writer_t w;
     w_begin(&w, out, cap, RFH_LOG_TEXT, h);
-    if (r == NULL) {
+    if (r == NULL || !rfh_utf8_valid((const uint8_t *)r->text, r->len)) {
         return 0;
     }
     w_bytes(&w, (const uint8_t *)r->text, r->len);
@@ -324,26 +363,40 @@ static rfh_dec_result_t drop(rfh_decoder_t *dec, rfh_drop_t why)
     return RFH_DEC_DROP;
 }
 
-/* COBS-decode dec->buf into dec->inner, then check length, CRC and version. */
+/* The length dec->buf decodes to, or (size_t)-1 when it is no valid COBS encoding. */
+static size_t cobs_length(const rfh_decoder_t *dec)
+{
+    size_t i = 0, n = 0;
+    while (i < dec->len) {
+        uint8_t code = dec->buf[i++];
+        if (code == 0 || i + code - 1u > dec->len) {
+            return (size_t)-1;
+        }
+        i += code - 1u;
+        n += code - 1u + (code != 0xFFu && i < dec->len);
+    }
+    return n;
+}
+
+/* Check COBS, then the decoded length (the encoder's limit, RFH_MAX_INNER: checked after COBS,
+ * as the host does), decode dec->buf into dec->inner, then check length, CRC and version. */
 static rfh_dec_result_t finish_frame(rfh_decoder_t *dec)
 {
-    size_t i = 0, n = 0, end;
+    size_t i = 0, n = cobs_length(dec), end;
+    if (n == (size_t)-1) {
+        return drop(dec, RFH_DROP_COBS);
+    }
+    if (n > RFH_MAX_INNER) {
+        return drop(dec, RFH_DROP_OVERSIZE);
+    }
+    n = 0;
     while (i < dec->len) {
         uint8_t code = dec->buf[i++];
         size_t k;
-        if (code == 0 || i + code - 1u > dec->len) {
-            return drop(dec, RFH_DROP_COBS);
-        }
-        if (n + code - 1u > RFH_MAX_INNER) {
-            return drop(dec, RFH_DROP_OVERSIZE);
-        }
         for (k = 1; k < code; ++k) {
             dec->inner[n++] = dec->buf[i++];
         }
         if (code != 0xFFu && i < dec->len) {
-            if (n >= RFH_MAX_INNER) {
-                return drop(dec, RFH_DROP_OVERSIZE);
-            }
             dec->inner[n++] = 0;
         }
     }
@@ -513,6 +566,9 @@ int rfh_parse_range_scan(const uint8_t *b, size_t len, rfh_range_scan_t *r, cons
 
 int rfh_parse_log_text(const uint8_t *b, size_t len, rfh_log_text_t *r)
 {
+    if (!rfh_utf8_valid(b, len)) {
+        return 0;
+    }
     r->text = (const char *)b;
     r->len = len;
     return 1;

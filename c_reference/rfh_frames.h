@@ -14,8 +14,8 @@
  * longer than 255). Size the buffer with RFH_FRAME_CAP(body bytes) or use RFH_MAX_FRAME.
  *
  * Decoding: rfh_decoder_t holds one frame (RFH_MAX_ENCODED bytes). Feed it bytes; when
- * rfh_decoder_feed() returns RFH_DEC_FRAME, dec->inner holds a frame whose COBS, CRC and
- * version have been checked, and rfh_parse_<type>() reads its body. Tail pointers a parser
+ * rfh_decoder_feed() returns RFH_DEC_FRAME, dec->inner holds a frame whose COBS, length
+ * (at most RFH_MAX_INNER decoded bytes, the encoder's limit), CRC and version have been checked, and rfh_parse_<type>() reads its body. Tail pointers a parser
  * returns point into dec->inner and stay valid until the next feed.
  */
 #ifndef RFH_FRAMES_H
@@ -128,7 +128,7 @@ typedef struct { /* 0x22 base -> host */
     const uint16_t *ranges_mm; /* encoding reads host order; a parser gives raw LE bytes, see below */
 } rfh_range_scan_t;
 
-typedef struct { /* 0x7F firmware log line, UTF-8 */
+typedef struct { /* 0x7F firmware log line, UTF-8 (the encoder refuses, the parser rejects other bytes) */
     const char *text;
     size_t len;
 } rfh_log_text_t;
@@ -182,7 +182,11 @@ rfh_dec_result_t rfh_decoder_feed(rfh_decoder_t *dec, uint8_t byte);
 /* The body of the last good frame and its length (inner minus header and CRC). */
 const uint8_t *rfh_decoder_body(const rfh_decoder_t *dec, size_t *len);
 
-/* Parsers return 1 when `len` fits the type, 0 otherwise (the host drops those as "length").
+/* Whether b[0..len) is well-formed UTF-8, as the host's decoder requires of a log_text. */
+int rfh_utf8_valid(const uint8_t *b, size_t len);
+
+/* Parsers return 1 when `len` fits the type, 0 otherwise (the host drops those as "length";
+ * a log_text that is not UTF-8 as "text").
  * rfh_parse_range_scan() sets ranges_mm to NULL and gives the little-endian bytes in
  * *ranges_le (2 * count bytes), since the body need not be aligned for uint16_t. */
 int rfh_parse_adv_report(const uint8_t *body, size_t len, rfh_adv_report_t *r);

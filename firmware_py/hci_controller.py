@@ -30,7 +30,7 @@ from typing import Any
 from bumble import hci
 from bumble.controller import Controller
 from rfhoming.firmware.ble_scan_radio import ScanRadio, listening_channel
-from rfhoming.protocol.h4 import H4Splitter
+from rfhoming.protocol.h4 import TO_CONTROLLER, H4Splitter
 
 TX_BUFFER = 65536
 SENSITIVITY_DBM = -97.0
@@ -124,7 +124,7 @@ class HciControllerFirmware:
         self.counters = {"tx_dropped": 0, "rx_errors": 0, "reported": 0, "duty_cycle": 0, "wrong_channel": 0,
                          "collision": 0, "below_sensitivity": 0, "masked": 0, "duplicate": 0}
         self._out = bytearray()
-        self._splitter = H4Splitter()
+        self._splitter = H4Splitter(TO_CONTROLLER)
         self._controller: _ScanningController | None = None
         self.radio = ScanRadio()
 

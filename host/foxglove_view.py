@@ -43,6 +43,11 @@ RAYS = 12  # bearings drawn at once
 PATH_EVERY = 25  # odometry records per path update (0.5 s at the base's 50 Hz)
 CLOUD_EVERY = 5  # estimates per particle cloud / obstacle map update
 DEFAULT_PORT = 8765  # Foxglove's own default
+BACKLOG = 128
+"""Outgoing messages the SDK buffers per client, oldest dropped first (its default, 1024, of
+paths and point clouds could hold tens of MB for one client that never reads). What a client
+sends is bounded by the SDK itself: a message over 16 MiB ends that client's connection
+(foxglove-sdk 0.30; ``tests/test_foxglove_view.py`` holds it to that)."""
 LAYOUT = files("rfhoming.host").joinpath("foxglove_layout.json")
 
 
@@ -51,7 +56,8 @@ class FoxgloveView(Sink):
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1", name: str = "rfhoming") -> None:
         self.context = foxglove.Context()
-        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
+                                            message_backlog_size=BACKLOG)
         self.address = f"ws://{host}:{self.server.port}"
         ctx = {"context": self.context}
         self.tf = channels.FrameTransformsChannel("/tf", **ctx)

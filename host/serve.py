@@ -7,10 +7,17 @@ plus ``n``, the server's item number, so clients can line their streams up); the
 client gets is ``{"kind": "hello", ...}``.
 
 A slow or dead client never blocks the devices or the other clients: publishing only appends
-to each client's bounded queue, and each client has its own writer task. When a client's queue
-is full its newest items are dropped and counted; the next line it gets is
-``{"kind": "dropped", "count": K, "total": T}``. A client that takes nothing while ``max_drops``
-items are dropped is disconnected, with a last ``dropped`` line saying so.
+to each client's bounded queue (``queue_lines`` lines and ``QUEUE_BYTES`` bytes), and each
+client has its own writer task. When a client's queue is full its newest items are dropped and
+counted; the next line it gets is ``{"kind": "dropped", "count": K, "total": T}``. A client
+that takes nothing while ``max_drops`` items are dropped is disconnected, with a last
+``dropped`` line saying so.
+
+What a client sends is read in bounded chunks and discarded (the server takes no input); a
+client that sends more than ``max_input`` bytes in all gets one line ``{"kind": "error", ...}``
+and is disconnected (counted as ``disconnected_input``). Past ``max_clients`` connections a new
+one gets the same kind of line and is closed (``refused``). So no client can make the server
+hold more than its queue, its transport's 16 KiB and a 4 KiB read.
 
 :class:`ServeDriver` is the other end: a driver whose port is a server's address, so
 ``serve://HOST:PORT`` works wherever a port spec does.
@@ -37,6 +44,11 @@ QUEUE_LINES = 1000
 WRITE_BUFFER = 16 * 1024  # bytes the transport may hold for a client before its writer waits
 CLOSE_GRACE_S = 10.0  # a disconnected client has this long to take its last lines
 MAX_LINE = 64 * 1024
+QUEUE_BYTES = 256 * 1024  # encoded lines a client's queue holds at most
+MAX_INPUT = 64 * 1024  # bytes a client may send in all (read and discarded)
+READ_CHUNK = 4096
+MAX_CLIENTS = 256
+LINGER_S = 1.0  # a client cut off for its input has this long to read the error line
 
 
 class _Client:
@@ -47,6 +59,8 @@ class _Client:
         self.peer = "%s:%s" % writer.get_extra_info("peername")[:2]
         self.queue: deque[bytes] = deque()
         self.queue_lines = queue_lines
+        self.queued_bytes = 0
+        self.received = 0  # bytes it sent, all discarded
         self.ready = asyncio.Event()
         self.dropped = 0  # since the last notice
         self.dropped_total = 0
@@ -60,12 +74,16 @@ class ItemServer:
     listener and never waits."""
 
     def __init__(self, *, queue_lines: int = QUEUE_LINES, max_drops: int | None = None,
-                 hello: dict[str, Any] | None = None) -> None:
+                 hello: dict[str, Any] | None = None, max_input: int = MAX_INPUT,
+                 max_clients: int = MAX_CLIENTS) -> None:
         self.queue_lines = queue_lines
         self.max_drops = queue_lines if max_drops is None else max_drops
+        self.max_input = max_input
+        self.max_clients = max_clients
         self.hello = {"kind": "hello", "server": "rfhoming", **(hello or {})}
         self.clients: set[_Client] = set()
-        self.counters = {"items": 0, "clients": 0, "disconnected_slow": 0, "dropped": 0}
+        self.counters = {"items": 0, "clients": 0, "disconnected_slow": 0, "dropped": 0, "disconnected_input": 0,
+                         "refused": 0}
         self._servers: list[asyncio.Server] = []
         self._tasks: set[asyncio.Task] = set()
 
@@ -90,8 +108,9 @@ class ItemServer:
         record = {"n": self.counters["items"], "device": device, "t": t, **as_dict(item)}
         line = (json.dumps(record) + "\n").encode()
         for client in list(self.clients):
-            if len(client.queue) < client.queue_lines:
+            if len(client.queue) < client.queue_lines and client.queued_bytes + len(line) <= QUEUE_BYTES:
                 client.queue.append(line)
+                client.queued_bytes += len(line)
                 client.ready.set()
                 continue
             client.dropped += 1
@@ -117,6 +136,12 @@ class ItemServer:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, WRITE_BUFFER)
         writer.transport.set_write_buffer_limits(high=WRITE_BUFFER)
+        if len(self.clients) >= self.max_clients:
+            self.counters["refused"] += 1
+            log.warning("refusing a client: %d are connected already", len(self.clients))
+            writer.write(_error_line(f"too many clients ({self.max_clients}); try again later"))
+            writer.transport.close()
+            return
         client = _Client(writer, self.queue_lines)
         self.clients.add(client)
         self.counters["clients"] += 1
@@ -127,8 +152,8 @@ class ItemServer:
         task.add_done_callback(self._tasks.discard)
 
     async def _serve(self, client: _Client, reader: asyncio.StreamReader) -> None:
-        """Send the client its queue; anything it says is read and ignored (EOF ends it)."""
-        eof = asyncio.create_task(reader.read())
+        """Send the client its queue until it leaves (EOF), is cut off, or sends too much."""
+        eof = asyncio.create_task(self._discard_input(client, reader))
         try:
             while not client.closed:
                 while not client.queue:
@@ -142,7 +167,9 @@ class ItemServer:
                     notice = {"kind": "dropped", "count": client.dropped, "total": client.dropped_total}
                     client.dropped = 0
                     client.writer.write((json.dumps(notice) + "\n").encode())
-                client.writer.write(client.queue.popleft())
+                line = client.queue.popleft()
+                client.queued_bytes -= len(line)
+                client.writer.write(line)
                 client.sent += 1
                 client.dropped_in_a_row = 0
                 await client.writer.drain()
@@ -152,17 +179,52 @@ class ItemServer:
             eof.cancel()
             self._drop_client(client)
 
-    def _drop_client(self, client: _Client, last: dict[str, Any] | None = None) -> None:
+    async def _discard_input(self, client: _Client, reader: asyncio.StreamReader) -> None:
+        """Read what the client sends, READ_CHUNK bytes at a time, and forget it; returns at
+        EOF, or after cutting off a client that sent more than ``max_input`` bytes."""
+        while data := await _read(reader):
+            client.received += len(data)
+            if client.received > self.max_input:
+                self.counters["disconnected_input"] += 1
+                log.warning("client %s sent more than %d bytes: disconnecting it", client.peer, self.max_input)
+                self._drop_client(client, {"kind": "error",
+                                           "error": f"sent more than {self.max_input} bytes; this server takes no input"},
+                                  linger=True)
+                return
+
+    def _drop_client(self, client: _Client, last: dict[str, Any] | None = None, linger: bool = False) -> None:
+        """Forget the client and close its connection after what it was sent. ``linger``: it
+        may still be sending, so end our side first and close LINGER_S later; closing with its
+        bytes unread would reset the connection and could lose the last line."""
         if client.closed:
             return
         client.closed = True
         client.ready.set()
+        client.queue.clear()  # what it will never take is not held for the close grace
+        client.queued_bytes = 0
         self.clients.discard(client)
         transport = client.writer.transport
         if last is not None:
             transport.write((json.dumps(last) + "\n").encode())  # behind what it has not taken yet
-        transport.close()  # flushes what the client will still take, then closes
-        asyncio.get_running_loop().call_later(CLOSE_GRACE_S, transport.abort)
+        loop = asyncio.get_running_loop()
+        if linger and transport.can_write_eof():
+            transport.write_eof()  # after the buffered lines; its input, meanwhile, fills a bounded buffer
+            loop.call_later(LINGER_S, transport.close)
+        else:
+            transport.close()  # flushes what the client will still take, then closes
+        loop.call_later(CLOSE_GRACE_S, transport.abort)
+
+
+async def _read(reader: asyncio.StreamReader) -> bytes:
+    """At most READ_CHUNK bytes; b"" at EOF or when the connection broke."""
+    try:
+        return await reader.read(READ_CHUNK)
+    except (ConnectionError, OSError):
+        return b""
+
+
+def _error_line(text: str) -> bytes:
+    return (json.dumps({"kind": "error", "error": text}) + "\n").encode()
 
 
 def _host(address: str) -> str:

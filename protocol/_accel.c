@@ -298,7 +298,8 @@ done:
 
 /* ---- COBS frames -------------------------------------------------------------------------- */
 
-#define MIN_INNER 11 /* 9-byte header + CRC */
+#define MIN_INNER 11   /* 9-byte header + CRC */
+#define MAX_INNER 1024 /* records.MAX_INNER; a longer frame goes back to Python, which drops it */
 
 /* COBS-decode `n` bytes (no zero among them) into `out`; the decoded length, or -1 when the
  * encoding is invalid. `out` holds at least n bytes. Same rules as the cobs package. */
@@ -325,7 +326,7 @@ static int take_frame(PyObject *items, const uint8_t *frame, Py_ssize_t n, Py_ss
 {
     PyObject *item;
     Py_ssize_t inner_n = n <= max_encoded ? cobs_decode(frame, n, scratch) : -1;
-    int good = inner_n >= MIN_INNER
+    int good = inner_n >= MIN_INNER && inner_n <= MAX_INNER
                && crc16(scratch, inner_n - 2, 0xFFFF)
                       == (scratch[inner_n - 2] | (scratch[inner_n - 1] << 8));
     if (good)
@@ -342,7 +343,7 @@ static int take_frame(PyObject *items, const uint8_t *frame, Py_ssize_t n, Py_ss
 /* scan_frames(rest: bytes, data: buffer, max_encoded: int) -> (items, rest) | None
  *
  * Splits rest + data on zero bytes. Each complete non-empty frame becomes its inner bytes
- * (header | body | crc) when COBS decoding, the length and the CRC pass, else the 1-tuple
+ * (header | body | crc) when COBS decoding, the length (11..MAX_INNER) and the CRC pass, else the 1-tuple
  * (raw frame,) for Python to drop with the exact reason. None: the unfinished frame would
  * pass max_encoded (Python's oversize handling takes the chunk). */
 static PyObject *scan_frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)

@@ -105,19 +105,23 @@ class EspAtDecoder:
 
     def feed(self, data: bytes) -> list[Any]:
         out: list[Any] = []
-        buf = self._rest + data
-        lines = buf.split(b"\n")
-        self._rest = lines.pop()
+        if self._discarding:  # the tail of an oversize line, skipped to its end and never held
+            end = data.find(b"\n")
+            if end < 0:
+                return out
+            data, self._discarding = data[end + 1 :], False
+        lines = (self._rest + data).split(b"\n")
+        rest = lines.pop().lstrip(b"\r")  # a line is judged without its CRs (_line strips them)
         for raw in lines:
-            if self._discarding:  # the tail of an oversize line
-                self._discarding = False
-                continue
             item = self._line(raw.strip(b"\r"))
             if item is not None:
                 out.append(item)
-        if len(self._rest) > MAX_LINE:
-            out.append(Drop("oversize", f"line longer than {MAX_LINE} bytes", self._rest[:64]))
-            self._rest, self._discarding = b"", True
+        if len(rest.rstrip(b"\r")) > MAX_LINE:  # the same test _line makes, whatever the chunking
+            out.append(Drop("oversize", f"line longer than {MAX_LINE} bytes", rest[:64]))
+            rest, self._discarding = b"", True
+        # Past MAX_LINE + 1 only CRs are held: one is enough to make any further byte but LF an
+        # oversize, and LF gives the same line whatever their number.
+        self._rest = rest[: MAX_LINE + 1]
         for item in out:
             self.counters["drop." + item.reason if item.kind == "drop" else item.kind] += 1
         return out

@@ -157,3 +157,19 @@ def test_frame_c_path_bounds_the_unfinished_frame() -> None:
         d.feed(b"\x01" * 64)
         assert len(d._rest) <= MAX_ENCODED
     assert d.counters["drop.oversize"] == 1
+
+
+@needs_accel
+def test_a_frame_that_decodes_past_the_limit_is_oversize_on_both_paths() -> None:
+    """1025..1028 inner bytes fit in MAX_ENCODED; the encoder writes none, so both paths drop them."""
+    import struct
+
+    from cobs import cobs
+
+    from rfhoming.protocol.frames.records import crc16
+
+    for size in (1024, 1025, 1028):
+        data = struct.pack("<BBBHI", 1, 0x7F, 1, 2, 3) + b"x\0" * ((size - 11) // 2) + b"x" * ((size - 11) % 2)
+        wire = b"\0" + cobs.encode(data + struct.pack("<H", crc16(data))) + b"\0"
+        out, _ = both(FrameDecoder, wire, [len(wire)])
+        assert [getattr(i, "reason", i.kind) for i in out] == ["log_text" if size == 1024 else "oversize"]

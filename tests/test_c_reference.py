@@ -9,38 +9,35 @@ and parsers and come back out of the C encoder unchanged.
 from __future__ import annotations
 
 import ctypes as C
-import shutil
+import random
+import struct as pystruct
 import subprocess
-import sysconfig
 from pathlib import Path
 from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from cobs import cobs
 
 from rfhoming.protocol.frames import RECORD_TYPES, AntennaReading, FrameDecoder, encode_frame
 from rfhoming.protocol.frames.codec import MAX_ENCODED
-from rfhoming.protocol.frames.records import MAX_INNER
+from rfhoming.protocol.frames.records import MAX_INNER, crc16
+from cref import SOURCE, build_harness, compiler, python_words, run_harness
 from strategies import records
 
-SOURCE = Path(__file__).resolve().parent.parent / "c_reference"
 U8, I8, U16, I16, U32, I32 = C.c_uint8, C.c_int8, C.c_uint16, C.c_int16, C.c_uint32, C.c_int32
 P8 = C.POINTER(C.c_uint8)
 
 
-def _compiler() -> str | None:
-    for cc in ((sysconfig.get_config_var("CC") or "").split()[:1] + ["cc", "gcc", "clang"]):
-        if cc and shutil.which(cc):
-            return cc
-    return None
+NO_CC = "no C compiler on PATH (cc, gcc or clang): the C reference cannot be checked"
 
 
 @pytest.fixture(scope="module")
 def lib(tmp_path_factory: pytest.TempPathFactory) -> C.CDLL:
-    cc = _compiler()
+    cc = compiler()
     if cc is None:
-        pytest.skip("no C compiler on PATH (cc, gcc or clang): the C reference cannot be checked")
+        pytest.skip(NO_CC)
     out = tmp_path_factory.mktemp("cref") / "librfh_frames.so"
     cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O2", "-shared", "-fPIC",
            "-o", str(out), str(SOURCE / "rfh_frames.c")]
@@ -257,3 +254,99 @@ def test_a_buffer_of_exactly_the_frame_size_is_enough_and_one_byte_less_is_refus
         out = (U8 * cap)()
         n = fn(out, C.c_size_t(cap), C.byref(header), C.byref(struct))
         assert bytes(out[:n]) == want
+
+
+# -- differential: the C reference and the Python decoder on invalid and near-limit input ------
+@pytest.fixture(scope="module")
+def sanitized(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """tests/rfh_harness.c with the C reference, built with ASan and UBSan (any report fails)."""
+    cc = compiler()
+    if cc is None:
+        pytest.skip(NO_CC)
+    return build_harness(cc, tmp_path_factory.mktemp("asan") / "rfh_harness", sanitize=True)
+
+
+def inner(code: int, body: bytes) -> bytes:
+    data = pystruct.pack("<BBBHI", 1, code, 7, 1, 99) + body
+    return data + pystruct.pack("<H", crc16(data))
+
+
+def wire(inner_frame: bytes) -> bytes:
+    return b"\0" + cobs.encode(inner_frame) + b"\0"
+
+
+def _near_limit(code: int, size: int, zero_every: int, fill: bytes) -> bytes:
+    """A CRC-correct frame of ``size`` inner bytes; zeros every ``zero_every`` bytes let it
+    decode past 1024 bytes while its encoding stays within 1029."""
+    body = bytearray((fill * (size // len(fill) + 1))[: size - 11])
+    body[zero_every - 1 :: zero_every] = bytes(len(body[zero_every - 1 :: zero_every]))
+    return wire(inner(code, bytes(body)))
+
+
+def _edit(frame: bytes, edits: list[tuple[int, int, int]]) -> bytes:
+    buf = bytearray(frame)
+    for where, op, value in edits:
+        if not buf:
+            break
+        i = where % len(buf)
+        if op == 0:
+            buf[i] ^= 1 << (value % 8)
+        elif op == 1:
+            del buf[i]
+        elif op == 2:
+            buf.insert(i, value)
+        else:
+            del buf[i:]
+    return bytes(buf)
+
+
+inputs = st.one_of(
+    st.builds(_near_limit, st.sampled_from([0x7F, 0x01, 0x80, 0x55]), st.integers(1015, 1035), st.integers(2, 300),
+              st.binary(min_size=1, max_size=16)),
+    st.binary(max_size=40).map(lambda b: wire(inner(0x7F, b))),  # log_text bodies, mostly not UTF-8
+    st.text(max_size=40).map(lambda t: wire(inner(0x7F, t.encode("utf-8", "surrogatepass")))),
+    st.tuples(records, st.lists(st.tuples(st.integers(0, 2000), st.integers(0, 3), st.integers(0, 255)), max_size=4))
+    .map(lambda r: _edit(encode_frame(r[0]) if py_frame(r[0]) else b"\0\0", r[1])),
+    st.binary(max_size=300),
+)
+
+
+@settings(deadline=None)
+@given(st.lists(inputs, min_size=1, max_size=4).map(b"".join))
+def test_c_reference_and_python_agree_on_invalid_and_near_limit_input(sanitized: Path, data: bytes) -> None:
+    """Before: Python accepted inner frames of 1025-1028 bytes (C: oversize) and C accepted a
+    log_text that is not UTF-8 (Python: a "length" drop that was not about the length)."""
+    assert run_harness(sanitized, [data])[0] == python_words(data)
+
+
+UTF8_CASES = [b"", b"plain", "ünïcödé ✓ 𝄞".encode(), b"\xff", b"\xc0\x80", b"\xed\xa0\x80", b"\xf4\x90\x80\x80",
+              b"\xe2\x82", b"ok\xe2\x82\xac\xf0\x9f\x98", b"\xf0\x9f\x98\x80"]
+
+
+def test_the_encoders_limits_decide_in_both_decoders(sanitized: Path) -> None:
+    """Near the limit and on UTF-8's edges, case by case (built with sanitizers)."""
+    cases = [_near_limit(0x7F, n, 100, b"x") for n in (1023, 1024, 1025, 1028)]
+    cases += [b"\0" + b"\x01" * n + b"\0" for n in (1029, 1030)] + [wire(inner(0x7F, b)) for b in UTF8_CASES]
+    got = run_harness(sanitized, cases)
+    assert got == [python_words(c) for c in cases]
+    kinds = [[w[0] + (w[1:] if w[0] == "D" else "") for w in words] for words in got]
+    assert kinds[:6] == [["F"], ["F"], ["D1"], ["D1"], ["D1"], ["D1"]]  # 1029 x 01: 1028 zeros
+    assert kinds[6:] == [["F"], ["F"], ["F"], ["L"], ["L"], ["L"], ["L"], ["L"], ["L"], ["F"]]
+
+
+def test_a_random_corpus_runs_clean_under_the_sanitizers(sanitized: Path) -> None:
+    rng = random.Random(0)
+    corpus = [rng.randbytes(rng.randint(0, 3000)) for _ in range(300)]
+    corpus += [bytes(rng.choice((0, 1, 2, 0xFF, rng.randrange(256))) for _ in range(rng.randint(0, 3000)))
+               for _ in range(300)]
+    assert run_harness(sanitized, corpus) == [python_words(c) for c in corpus]
+
+
+@pytest.mark.parametrize("text", UTF8_CASES)
+def test_the_c_encoder_refuses_a_log_text_that_is_not_utf8(lib: C.CDLL, text: bytes) -> None:
+    try:
+        expected = encode_frame(RECORD_TYPES[0x7F].cls(7, 1, 99, text.decode("utf-8")))
+    except UnicodeDecodeError:
+        expected = b""
+    keep = _bytes_ptr(text)
+    assert c_encode_struct(lib, 0x7F, Header(7, 1, 99), LogText(keep, len(text))) == expected

@@ -18,7 +18,7 @@ from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.host import portspec
 from rfhoming.host.drivers.espat import EspAtSetup
 from rfhoming.host.drivers.espat import setup_from_spec as esp_at_setup
-from rfhoming.protocol.espat import EspAtDecoder, Final, Info, ScanReport, encode_scan, parse_scan
+from rfhoming.protocol.espat import MAX_LINE, EspAtDecoder, Final, Info, ScanReport, encode_scan, parse_scan
 
 reports = st.builds(ScanReport, st.text("0123456789ABCDEF", min_size=12, max_size=12), st.integers(-128, 20),
                     st.binary(max_size=31), st.binary(max_size=31), st.integers(0, 3))
@@ -56,6 +56,36 @@ def test_an_overlong_line_is_dropped_and_the_next_survives() -> None:
     decoder = EspAtDecoder()
     out = decoder.feed(b"x" * 2000) + decoder.feed(b"yyy\r\nOK\r\n")
     assert [i.kind for i in out] == ["drop", "final"] and decoder.counters["drop.oversize"] == 1
+
+
+near_limit_lines = st.lists(st.tuples(
+    st.integers(MAX_LINE - 2, MAX_LINE + 2), st.sampled_from([b"x", b"+BLEINIT:", b"\r"]),
+    st.sampled_from([b"", b"\r", b"\r\r"]), st.sampled_from([b"\r\n", b"\n", b"\r\r\n", b"\r" * 5 + b"\n", b"\r"])),
+    min_size=1, max_size=4).map(lambda ls: b"".join(lead + (head + b"y" * n)[:n] + end for n, head, lead, end in ls))
+
+
+@given(near_limit_lines, st.lists(st.integers(1, 900), min_size=1, max_size=5))
+def test_lines_at_and_around_the_limit_decode_the_same_in_any_chunking(data: bytes, sizes: list[int]) -> None:
+    """Before: a 700-byte line + CR LF decoded whole but was dropped as oversize in small chunks
+    (the held tail counted its CR)."""
+    whole, cut = EspAtDecoder(), EspAtDecoder()
+    out = whole.feed(data)
+    assert [i for piece in chunked(data, sizes) for i in cut.feed(piece)] == out
+    assert cut.counters == whole.counters and len(cut._rest) <= MAX_LINE + 1
+
+
+def test_a_line_of_exactly_the_limit_survives_small_chunks() -> None:
+    line = b"+BLEINIT:" + b"1" * (MAX_LINE - 9)
+    decoder = EspAtDecoder()
+    out = [i for k in range(len(line) + 2) for i in decoder.feed((line + b"\r\n")[k : k + 1])]
+    assert [i.kind for i in out] == ["info"]
+
+
+def test_a_flood_of_crs_is_held_bounded() -> None:
+    decoder = EspAtDecoder()
+    for _ in range(100):
+        decoder.feed(b"OK" + b"\r" * 10_000)
+    assert len(decoder._rest) <= MAX_LINE + 1
 
 
 def run(fw: EspAtFirmware, *commands: str) -> list:

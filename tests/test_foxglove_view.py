@@ -179,3 +179,23 @@ def test_the_shipped_layout_names_the_published_topics() -> None:
         return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
 
     assert sorted(leaves(layout["layout"])) == sorted(panels)
+
+
+def test_a_hostile_client_is_cut_off_and_a_good_one_still_served() -> None:
+    """The SDK's input bound, which rfhoming cannot set: a message over 16 MiB ends that
+    client's connection (garbage and smaller messages are logged and ignored); the view keeps
+    serving other clients. Outgoing, each client's backlog is BACKLOG messages."""
+    view = FoxgloveView(port=0)
+    try:
+        with connect(view.address, subprotocols=[SUBPROTOCOL], open_timeout=SAFETY_S, max_size=None) as ws:
+            ws.send(b"\x01garbage")
+            try:
+                ws.send(b"\x01" * (17 << 20))
+                while True:  # a TimeoutError here: the server kept the client
+                    ws.recv(timeout=SAFETY_S)
+            except ConnectionClosed:
+                pass
+        with connect(view.address, subprotocols=[SUBPROTOCOL], open_timeout=SAFETY_S) as ws:
+            assert json.loads(ws.recv(timeout=SAFETY_S))["op"] == "serverInfo"
+    finally:
+        view.close()

@@ -134,7 +134,8 @@ def with_crc(data: bytes) -> bytes:
         (encode_frame(ODO._replace(theta_urad=3_141_594)), "field"),
         (encode_frame(RfFrame(1, 1, 1, 4, 1, 0, 0, -99, 10, 0, 0, 1, b"")), "field"),
         (encode_frame(RfFrame(1, 1, 1, 0, 1, 0, 0, -99, 85, 0, 0, 1, b"")), "field"),
-        (frame(with_crc(encode_inner(LogText(1, 1, 1, ""))[:-2] + b"\xff")), "length"),
+        (frame(with_crc(encode_inner(LogText(1, 1, 1, ""))[:-2] + b"\xff")), "text"),
+        (frame(with_crc(encode_inner(LogText(1, 1, 1, ""))[:-2] + b"x\0" * 507)), "oversize"),  # 1025 bytes
     ],
 )
 def test_each_drop_reason(wire: bytes, reason: str) -> None:

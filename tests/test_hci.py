@@ -28,13 +28,14 @@ from rfhoming.host import portspec  # noqa: E402
 from rfhoming.host.drivers.hci import BumbleTransportPort, HciDriver, HciSetup, open_port  # noqa: E402
 from rfhoming.host.drivers.hci import setup_from_spec as hci_setup  # noqa: E402
 from rfhoming.host.drivers.rss import BleRssi  # noqa: E402
-from rfhoming.protocol import ad  # noqa: E402
+from rfhoming.protocol import ad, h4  # noqa: E402
 from rfhoming.protocol.h4 import H4Splitter  # noqa: E402
 
+EDDYSTONE_AD = bytes.fromhex("0201060303aafe")
 h4_packets = st.one_of(
-    st.binary(max_size=255).flatmap(lambda p: st.binary(min_size=2, max_size=2).map(
-        lambda op: b"\x01" + op + bytes([len(p)]) + p)),
-    st.binary(max_size=255).map(lambda p: b"\x04\x3e" + bytes([len(p)]) + p),
+    st.binary(max_size=255).flatmap(lambda p: st.sampled_from([0x0C03, 0x2041, 0xFC00]).map(
+        lambda op: b"\x01" + op.to_bytes(2, "little") + bytes([len(p)]) + p)),
+    st.binary(min_size=1, max_size=255).map(lambda p: b"\x04\x3e" + bytes([len(p)]) + p),
     st.binary(max_size=600).map(lambda p: b"\x02\x01\x00" + len(p).to_bytes(2, "little") + p),
 )
 
@@ -54,8 +55,98 @@ def test_h4_junk_is_a_counted_drop_and_the_next_packet_survives() -> None:
     assert splitter.counters["drop.indicator"] == 1
 
 
+# Packets of a host's stream in which no byte but the first is an H4 indicator (1..5), so the
+# only plausible packet starts are the real ones and junk decides alone what is lost.
+MAX_DATA = 64  # a small bound, so that examples are short
+_body = st.binary(min_size=6, max_size=255).map(lambda b: bytes(max(6, x) for x in b))
+clean_to_host = st.one_of(
+    _body.map(lambda p: b"\x04\x3e" + bytes([len(p)]) + p),
+    _body.map(lambda p: b"\x04\x0e" + bytes([len(p)]) + p),
+    _body.map(lambda p: b"\x02\x40\x20" + len(p[:MAX_DATA]).to_bytes(2, "little") + p[:MAX_DATA]),
+)
+HOLD = max(1 + 2 + 255, 1 + 4 + MAX_DATA)  # the most one plausible header can claim
+junk_bytes = st.lists(st.one_of(  # random bytes, indicators with random headers, torn packets
+    st.binary(min_size=1, max_size=8),
+    st.tuples(st.sampled_from([1, 2, 3, 4, 5]), st.binary(min_size=4, max_size=4)).map(lambda t: bytes([t[0]]) + t[1]),
+    st.tuples(clean_to_host, st.integers(1, 300)).map(lambda t: t[0][t[1] % len(t[0]):])), min_size=1, max_size=6).map(b"".join)
+
+
+@given(st.lists(clean_to_host, max_size=4), junk_bytes, st.lists(clean_to_host, max_size=30),
+       st.lists(st.integers(1, 300), max_size=4))
+def test_h4_valid_packets_around_junk_are_recovered(before: list[bytes], junk: bytes, after: list[bytes],
+                                                    sizes: list[int]) -> None:
+    """Junk (a stray byte, a stream joined mid-packet) costs at most HOLD bytes after it: a
+    header with a bogus length is bounded, never a wait for 65,539 bytes."""
+    data = b"".join(before) + junk + b"".join(after)
+    splitter, out = H4Splitter(h4.TO_HOST, max_data=MAX_DATA), []
+    for piece in chunked(data, sizes):
+        out += splitter.feed(piece)
+    packets = [i for i in out if isinstance(i, bytes)]
+    assert packets[: len(before)] == before
+    start, safe = 0, []
+    for p in after:
+        if start >= HOLD:
+            safe.append(p)
+        start += len(p)
+    assert packets[len(packets) - len(safe):] == safe
+    assert splitter.pending <= HOLD + h4.MAX_JUNK
+
+
+def test_h4_a_bogus_data_length_holds_no_more_than_the_bound() -> None:
+    """The fuzzed case: 0x02 then a header claiming 65,535 bytes; the event after it survives."""
+    complete = b"\x04\x0e\x04\x01\x03\x0c\x00"
+    out = H4Splitter(h4.TO_HOST).feed(b"\x02\x01\x00\xff\xff" + complete)
+    assert out[-1] == complete and out[0].kind == "drop"
+
+
+@given(st.binary(max_size=3000), st.lists(st.integers(1, 400), min_size=1, max_size=5))
+def test_h4_any_bytes_split_the_same_in_any_chunking(data: bytes, sizes: list[int]) -> None:
+    whole, cut = H4Splitter(h4.TO_HOST), H4Splitter(h4.TO_HOST)
+    out = whole.feed(data)
+    out_cut = [i for piece in chunked(data, sizes) for i in cut.feed(piece)]
+    assert out == out_cut and whole.counters == cut.counters and whole.pending == cut.pending
+
+
+def _driver() -> HciDriver:
+    from rfhoming.host.ports import HostPort
+
+    return HciDriver(HostPort("/dev/null", name="hci"))
+
+
+ADV_REPORT = bytes(hci.HCI_LE_Advertising_Report_Event([hci.HCI_LE_Advertising_Report_Event.Report(
+    event_type=hci.HCI_LE_Advertising_Report_Event.EventType.ADV_NONCONN_IND, address_type=0,
+    address=hci.Address("AC:00:00:00:00:01"), data=EDDYSTONE_AD, rssi=-60)]))
+
+
+@pytest.mark.parametrize("packet", [b"\x02\x01\x00\x02\x00ab", b"\x03\x01\x00\x02ab",
+                                    b"\x05\x01\x00\x02\x00ab", b"\x05\x01\x00\x08\x00abcdefgh",
+                                    b"\x04\x3e\x03\x02\x05\x00"])
+def test_a_data_or_malformed_packet_is_a_counted_drop_and_the_receiver_goes_on(packet: bytes) -> None:
+    """Before: bumble's ACL/SCO/ISO packets have no ``name``; the AttributeError ended the
+    driver's task for good."""
+    driver, seen = _driver(), []
+    driver.listeners.append(lambda device, t, item: seen.append(item))
+    driver.on_chunk(packet + ADV_REPORT, 1.0)
+    assert driver.counters["bad_packets"] == 1 and [i.kind for i in seen] == ["drop", "advertisement"]
+    assert driver.out.get_nowait() == BleRssi(1.0, 0, "AC0000000001", -60)
+
+
+def test_an_exception_handling_one_packet_is_counted_and_the_next_is_handled() -> None:
+    driver, calls = _driver(), []
+
+    def listener(device: str, t: float, item: object) -> None:
+        calls.append(item)
+        if len(calls) == 1:
+            raise RuntimeError("a listener's bug")
+
+    driver.listeners.append(listener)
+    driver.on_chunk(ADV_REPORT + ADV_REPORT, 2.0)
+    assert driver.counters["drop.error"] == 1 and driver.counters["reports"] == 2
+    assert driver.out.get_nowait() == BleRssi(2.0, 0, "AC0000000001", -60)
+
+
 IBEACON = bytes.fromhex("0201061aff4c000215") + bytes(16) + bytes.fromhex("00010002c5")
-EDDYSTONE = bytes.fromhex("0201060303aafe")
+EDDYSTONE = EDDYSTONE_AD
 NAMED = bytes.fromhex("020106") + b"\x07\x09Dock-1"
 
 

@@ -182,3 +182,73 @@ def test_the_homing_loop_and_a_viewer_share_one_xplr_aoa() -> None:
     assert run.returncode == 0, err
     assert json.loads(out)["arrived"] is True
     assert sum(1 for r in seen if r["kind"] == "angle") > 100
+
+
+# -- hostile clients: what a client sends or refuses to read is bounded ------------------------
+async def _connect(server):
+    import asyncio
+
+    (address,) = await server.start("127.0.0.1", 0)
+    reader, writer = await asyncio.open_connection("127.0.0.1", int(address.rsplit(":", 1)[1]))
+    assert json.loads(await reader.readline())["kind"] == "hello"
+    return reader, writer
+
+
+async def test_a_client_that_sends_too_much_gets_one_error_line_and_is_cut_off() -> None:
+    """Before: the server read every byte a client sent, to EOF, and kept them all."""
+    import asyncio
+
+    from rfhoming.host.serve import ItemServer
+
+    server = ItemServer(max_input=64 * 1024)
+    reader, writer = await _connect(server)
+    try:
+        for _ in range(256):  # 16 MiB in 64 KiB writes, until the server closes its side
+            writer.write(b"x" * 65536)
+            await writer.drain()
+            await asyncio.sleep(0)
+            if reader.at_eof() or server.counters["disconnected_input"]:
+                break
+        rest = await asyncio.wait_for(reader.read(), 10)
+    except ConnectionError:
+        rest = b""
+    finally:
+        writer.close()
+    assert server.counters["disconnected_input"] == 1 and not server.clients
+    assert [json.loads(line)["kind"] for line in rest.splitlines()] == ["error"]
+    await server.close()
+
+
+async def test_a_never_reading_client_is_held_to_its_queue_and_cut_off() -> None:
+    import asyncio
+
+    from rfhoming.host.serve import QUEUE_BYTES, ItemServer
+
+    server = ItemServer(queue_lines=100_000, max_drops=5000)
+    _, writer = await _connect(server)
+    (client,) = server.clients
+    big = {"kind": "log_text", "node_id": 1, "seq": 0, "t_us": 0, "text": "y" * 2000}
+    for _ in range(20_000):  # 40 MB of lines, none of them read
+        server.publish("dev", 0.0, from_dict(big))
+        assert client.queued_bytes <= QUEUE_BYTES
+        await asyncio.sleep(0)
+    assert server.counters["disconnected_slow"] == 1 and not server.clients and not client.queue
+    writer.close()
+    await server.close()
+
+
+async def test_connections_past_max_clients_are_refused_with_a_line() -> None:
+    import asyncio
+
+    from rfhoming.host.serve import ItemServer
+
+    server = ItemServer(max_clients=1)
+    _, first = await _connect(server)
+    port = int(first.get_extra_info("peername")[1])
+    reader, second = await asyncio.open_connection("127.0.0.1", port)
+    line = json.loads(await asyncio.wait_for(reader.readline(), 10))
+    assert line["kind"] == "error" and "too many clients" in line["error"]
+    assert server.counters["refused"] == 1 and len(server.clients) == 1
+    first.close()
+    second.close()
+    await server.close()

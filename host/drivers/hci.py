@@ -29,6 +29,8 @@ from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.ports import Disconnected, HostPort, PortError, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.protocol import ad as adv
+from rfhoming.protocol import h4
+from rfhoming.protocol.drop import Drop
 from rfhoming.protocol.h4 import H4Splitter
 
 log = logging.getLogger(__name__)
@@ -126,24 +128,34 @@ class HciDriver(Driver):
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
-        self.splitter = H4Splitter()
-        self.counters.update(setups=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0)
+        self.splitter = H4Splitter(h4.TO_HOST)
+        self.counters.update(setups=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0,
+                             **{"drop.not_event": 0, "drop.malformed": 0, "drop.error": 0})
         self.extended: bool | None = None
         self._pending: tuple[int, asyncio.Future[Any]] | None = None
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
+        """Split, parse and route; whatever goes wrong with one packet is that packet's drop,
+        never the end of the driver's task (which would stop the receiver for good)."""
         for item in self.splitter.feed(data):
             if not isinstance(item, bytes):
                 self.emit(t_host, item)
                 continue
             try:
-                packet = hci.HCI_Packet.from_bytes(item)
-            except Exception:  # bumble raises several types on a malformed packet  # noqa: BLE001
-                self.counters["bad_packets"] += 1
-                continue
-            self._on_packet(packet, item, t_host)
+                self._on_packet(item, t_host)
+            except Exception as exc:  # noqa: BLE001 -- one bad packet must not end the driver
+                self._drop("error", f"{type(exc).__name__} handling a packet: {exc}", item, t_host)
 
-    def _on_packet(self, packet: hci.HCI_Packet, raw: bytes, t_host: float) -> None:
+    def _on_packet(self, raw: bytes, t_host: float) -> None:
+        if raw[0] != h4.EVENT:  # a scanning host opens no connection, so it expects no data
+            self._drop("not_event", f"an H4 packet of type 0x{raw[0]:02x}; a receiver expects only events",
+                       raw, t_host)
+            return
+        try:
+            packet = hci.HCI_Packet.from_bytes(raw)
+        except Exception as exc:  # bumble raises several types on a malformed packet  # noqa: BLE001
+            self._drop("malformed", f"bumble cannot parse it: {exc}", raw, t_host)
+            return
         extended = isinstance(packet, hci.HCI_LE_Extended_Advertising_Report_Event)
         if extended or isinstance(packet, hci.HCI_LE_Advertising_Report_Event):
             for report in packet.reports:
@@ -153,10 +165,20 @@ class HciDriver(Driver):
         if isinstance(packet, (hci.HCI_Command_Complete_Event, hci.HCI_Command_Status_Event)):
             if self._pending is not None and packet.command_opcode == self._pending[0] and not self._pending[1].done():
                 self._pending[1].set_result(packet)
-        elif getattr(packet, "event_code", None) == HARDWARE_ERROR_EVENT:
+        elif packet.event_code == HARDWARE_ERROR_EVENT:
             self.counters["hardware_errors"] += 1
             log.warning("%s: controller hardware error; setting it up again", self.port.name)
             self._needs_setup.set()
+
+    def _drop(self, reason: str, detail: str, raw: bytes, t_host: float) -> None:
+        """A packet the driver cannot use: counted (``bad_packets`` and ``drop.<reason>``),
+        logged the first time for each reason, shown to the listeners."""
+        key = "drop." + reason
+        if not self.counters[key]:
+            log.warning("%s: dropping an HCI packet (%s); counting such drops as %s", self.port.name, detail, key)
+        self.counters[key] += 1
+        self.counters["bad_packets"] += 1
+        self.emit(t_host, Drop(reason, detail, raw[:64]))
 
     def _report(self, report: Any, extended: bool, t_host: float) -> None:
         self.counters["reports"] += 1

@@ -20,7 +20,7 @@ from cobs import cobs
 
 from rfhoming.protocol.accel import ACCEL
 from rfhoming.protocol.drop import Drop
-from rfhoming.protocol.frames.fast import CRC_STRUCT, DECODERS, ENCODERS, HEADER_SIZE, HEADER_STRUCT
+from rfhoming.protocol.frames.fast import CRC_STRUCT, DECODERS, ENCODERS, HEADER_SIZE, HEADER_STRUCT, BadText
 from rfhoming.protocol.frames.records import MAX_INNER, RECORD_TYPES, VERSION, crc16
 
 MAX_ENCODED = MAX_INNER + math.ceil(MAX_INNER / 254)
@@ -85,6 +85,8 @@ def _decode_frame(frame: bytes) -> Any:
         inner = cobs.decode(frame)
     except cobs.DecodeError as exc:
         return Drop("cobs", str(exc), frame)
+    if len(inner) > MAX_INNER:  # up to 1028 bytes fit in MAX_ENCODED; the encoder writes none of them
+        return Drop("oversize", f"frame decodes to {len(inner)} bytes, more than {MAX_INNER}", frame[:64])
     end = len(inner) - 2
     if end < HEADER_SIZE:
         return Drop("short", f"{len(inner)} bytes, a frame has at least {MIN_INNER}", frame)
@@ -103,7 +105,10 @@ def _decode_inner(inner: bytes) -> Any:
     decode = DECODERS.get(code)
     if decode is None:
         return Drop("type", f"unknown record type 0x{code:02X}", inner)
-    record = decode(inner, end, node, seq, t_us)
+    try:
+        record = decode(inner, end, node, seq, t_us)
+    except BadText as exc:
+        return Drop("text", str(exc), inner)
     if record is None:
         kind = RECORD_TYPES[code].kind
         return Drop("length", f"{kind} body length {end - HEADER_SIZE} does not fit", inner)
@@ -119,7 +124,7 @@ class FrameDecoder:
     """Incremental decoder: ``feed(bytes) -> list[record | Drop]``, bounded memory.
 
     ``counters`` counts records by kind and drops as ``drop.<reason>``; reasons: ``cobs``,
-    ``short``, ``crc``, ``version``, ``type``, ``length``, ``field``, ``oversize``.
+    ``short``, ``crc``, ``version``, ``type``, ``length``, ``text``, ``field``, ``oversize``.
     """
 
     def __init__(self, *, pure: bool = False) -> None:

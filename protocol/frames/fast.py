@@ -81,7 +81,12 @@ def derive_layout(body: cs.Struct) -> Layout:
 
 
 BodyDecoder = Callable[[bytes, int, int, int, int], Any]
-"""(inner, end, node_id, seq, t_us) -> record, or None when the length does not fit."""
+"""(inner, end, node_id, seq, t_us) -> record, or None when the length does not fit; raises
+:class:`BadText` for a text tail that is not UTF-8."""
+
+
+class BadText(ValueError):
+    """A text tail (``log_text``) whose bytes are not UTF-8; the message says where."""
 
 
 def _make_decoder(rt: RecordType) -> BodyDecoder:
@@ -155,8 +160,8 @@ def _make_decoder(rt: RecordType) -> BodyDecoder:
         if text:
             try:
                 rest = rest.decode("utf-8")
-            except UnicodeDecodeError:
-                return None
+            except UnicodeDecodeError as exc:
+                raise BadText(f"{rt.kind} is not UTF-8: {exc.reason} at byte {exc.start}") from None
         return new(cls, (node, seq, t) + unpack(inner, HEADER_SIZE) + (rest,))
 
     return decode_rest

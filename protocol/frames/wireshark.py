@@ -199,6 +199,7 @@ local function record(enc, index, tree)
   local inner = cobs_decode(enc)
   if inner == nil then return dropped(sub, "cobs", "invalid COBS encoding") end
   local n = inner:len()
+  if n > MAX_INNER then return dropped(sub, "oversize", "frame decodes to " .. n .. " bytes, more than " .. MAX_INNER) end
   if n < 11 then return dropped(sub, "short", n .. " bytes, a frame has at least 11") end
   local tvb = inner:tvb("Record " .. index)
   local crc = tvb(n - 2, 2):le_uint()
