@@ -40,10 +40,15 @@ class PipePort:
     async def read(self) -> Chunk:
         data = await self.end.read()
         self.counters["bytes_in"] += len(data)
-        return Chunk(time.time(), data)
+        chunk = Chunk(time.time(), data)
+        for tap in self.taps:  # a capture hears it, as on a HostPort
+            tap(self.name, "in", chunk.t, data)
+        return chunk
 
     def write(self, data: bytes) -> None:
         self.counters["bytes_out"] += len(data)
+        for tap in self.taps:
+            tap(self.name, "out", time.time(), data)
         self.end.write(data)
 
     async def close(self) -> None:

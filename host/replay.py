@@ -75,6 +75,7 @@ class ReplayPort:
         self.sequencer = sequencer
         self._holding = False
         self.match_writes = match_writes
+        self._wait = match_writes  # for a recorded write not made yet; not once the host went its own way
         self.first_divergence: dict[str, Any] | None = None  # where the replayed host first wrote otherwise
 
     @property
@@ -123,8 +124,11 @@ class ReplayPort:
 
     async def _await_write(self, expected: pcapng.Packet) -> None:
         """The live host wrote here: match the replayed host's next write, waiting for it if
-        it has not come yet. Only the oldest unmatched write will do: keeping just the latest
-        would pair two writes in a row with one recorded write and leave the next unanswered."""
+        it has not come yet (until it diverged). Only the oldest unmatched write will do: keeping
+        just the latest would pair two writes in a row with one recorded write and leave the next
+        unanswered."""
+        if not self._writes and not self._wait:
+            return
         if not self._writes:
             self._written.clear()
             try:
@@ -145,7 +149,7 @@ class ReplayPort:
         if self.first_divergence is None:
             self.first_divergence = {"device": self.name, "t": expected.t, "recorded": expected.data.hex(),
                                      "wrote": None if wrote is None else wrote.hex()}
-        self.match_writes = False
+        self._wait = False
 
     def write(self, data: bytes) -> None:
         self.counters["bytes_out"] += len(data)
@@ -155,8 +159,7 @@ class ReplayPort:
         self._written.set()
 
     async def _pace(self, t: float) -> None:
-        if not self.speed:
-            await asyncio.sleep(0)
+        if not self.speed:  # as fast as possible: a chunk that is due is there, as in a port's buffer
             return
         if self._t0 is None:
             self._t0 = (t, time.monotonic())

@@ -24,6 +24,7 @@ from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import CHOOSE_TAG_S, SENSORS, Device, Homing, run_record
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import Outcome, RunLog
+from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
 
 
@@ -156,14 +157,61 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
     plt.close(fig)
 
 
+async def _in_process(scenario: str, seed: int, out: Path, config: Config, target: str | None,
+                     receiver: str | None, sinks: tuple = ()) -> tuple[Outcome, Config]:
+    """The same run with the emulator in this process on its byte pipe, in lockstep: the host
+    settles after every step, so the result depends on the seed alone (as in the campaigns)."""
+    from rfhoming.campaigns.closed_loop import PipePort
+    from rfhoming.emulator.runtime import Emulator
+    from rfhoming.emulator.scenario import load
+
+    xy = tuple(float(v) for v in target.split(",")) if target and scenario != "s3-arena" else None
+    sc = load(scenario, seed=seed, target=xy, receiver=receiver)  # type: ignore[arg-type]
+    if scenario == "s3-arena":
+        goal = [float(v) for v in target.split(",")] if target else [4.0, 4.0]
+        beacons = {t.id: list(t.position) for t in sc.world.targets}
+        config = replace(config, trilat=replace(config.trilat, anchors=beacons, goal=goal))
+    names = {d.name: d.type for d in sc.devices}
+    sensor = next(name for name in SENSORS if name in names)
+    controller, role = SENSORS[sensor]
+    with open(out / "truth.jsonl", "w") as truth:
+        em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=truth)
+        await em.start()
+        world = asyncio.create_task(em.run())
+        ports = {name: PipePort(name, em.device(name).link.host) for name in (sensor, "base")}
+        kind = devices.BOARDS[names[sensor]][0].name
+        plan = Homing(controller, [Device(role, port=ports[sensor], kind=kind), Device("base", port=ports["base"])],
+                      config, sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
+        capture = plan.capture = CaptureWriter(out / "capture.pcapng", comment=run_record(plan))
+        for device in plan.devices:
+            device.port.taps.append(capture.tap)
+            capture.describe(device.port.name, kind=device.kind or "base", role=device.role)
+        try:
+            outcome = await home(plan, out)
+        finally:
+            world.cancel()
+            await asyncio.gather(world, return_exceptions=True)
+            await em.close()
+        em.write_truth()  # the final pose
+    return outcome, config
+
+
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-             receiver: str | None = None, sinks: list | tuple = ()) -> dict[str, Any]:
+             receiver: str | None = None, sinks: list | tuple = (), in_process: bool = False) -> dict[str, Any]:
     """One demo run. ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that
     device; ``sinks`` (an MCAP recorder, a live view) see every item and run log record too,
-    and stay open."""
+    and stay open; ``in_process``: the emulator in this process (the same summary for the
+    same seed) instead of in its own on ptys."""
     out.mkdir(parents=True, exist_ok=True)
     config = config.for_lockstep()  # the emulator waits for the host: wall time means nothing
     truth = out / "truth.jsonl"
+    if in_process:
+        outcome, config = asyncio.run(asyncio.wait_for(
+            _in_process(scenario, seed, out, config, target, receiver, tuple(sinks)), config.loop.max_time_s + 60))
+        summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
+        for key in ("latency_ms_p50", "latency_ms_p99"):  # wall-clock figures: the one thing that varies
+            summary.pop(key)
+        return _finish(summary, out)
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
                                      receiver)
@@ -179,6 +227,10 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
         except subprocess.TimeoutExpired:
             proc.kill()
     summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
-    plot(truth, out / "run.jsonl", out / "trajectory.png")
+    return _finish(summary, out)
+
+
+def _finish(summary: dict[str, Any], out: Path) -> dict[str, Any]:
+    plot(out / "truth.jsonl", out / "run.jsonl", out / "trajectory.png")
     summary["files"] = {name: str(out / name) for name in ("trajectory.png", "capture.pcapng", "run.jsonl", "truth.jsonl")}
     return summary

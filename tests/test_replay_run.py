@@ -92,3 +92,14 @@ def test_a_capture_without_a_run_record_is_a_one_line_error(tmp_path: Path) -> N
     writer.close()
     done = rfhoming("replay", str(tmp_path / "listen.pcapng"), "--run")
     assert done.returncode == 2 and "holds no homing run's record" in done.stderr and done.stderr.count("\n") == 1
+
+
+def test_the_in_process_demo_gives_the_same_summary_for_the_same_seed(tmp_path: Path) -> None:
+    runs = [rfhoming("demo", "--in-process", "--seed", "3", "--json", "--out", str(tmp_path / str(k))) for k in range(2)]
+    summaries = [json.loads(r.stdout) for r in runs]
+    for s in summaries:
+        del s["files"]
+    assert runs[0].returncode == 0 and summaries[0] == summaries[1]
+    done, log = replayed(tmp_path / "0" / "capture.pcapng")
+    assert json.loads(done.stdout)["replay"]["diverged"] == 0
+    assert log == (tmp_path / "0" / "run.jsonl").read_text().splitlines()

@@ -149,12 +149,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if args.receiver and args.scenario != "s3-arena":
         raise PortSpecError("--receiver swaps the BLE RSSI receiver of --scenario s3-arena")
     if not args.json:
-        print(f"demo: emulating {args.scenario} (seed {args.seed}) on ptys in lockstep; homing ...", file=sys.stderr)
+        where = "in this process" if args.in_process else "on ptys"
+        print(f"demo: emulating {args.scenario} (seed {args.seed}) {where} in lockstep; homing ...", file=sys.stderr)
     sinks = [mcap_recorder(args.mcap)] if args.mcap else []
     view = start_foxglove(args, "demo")
     try:
         summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver,
-                           sinks=[*sinks, *([view] if view else [])])
+                           sinks=[*sinks, *([view] if view else [])], in_process=args.in_process)
     finally:
         for sink in sinks:
             sink.close()
@@ -169,7 +170,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"{ok}: {summary['reason']} after {summary['simulated_time_s']} s simulated")
         for key in ("target", "goal_position_error_m", "final_position_error_m", "path_efficiency",
                     "net_velocity_m_s", "stale_stops", "latency_ms_p50", "latency_ms_p99"):
-            print(f"  {key:<24} {summary[key]}")
+            if key in summary:
+                print(f"  {key:<24} {summary[key]}")
         for name, counters in summary["links"].items():
             print(f"  link {name:<19} {counters}")
         for name, path in summary["files"].items():
@@ -181,14 +183,22 @@ MCAP_HELP = ("also record the run as ROS 2 messages (odometry, scans, commands, 
              "this MCAP file, for Foxglove, rosbags or ros2 bag (needs the ros extra)")
 
 DEMO_HELP = """\
-Start the emulator in its own process on pseudo-terminals (lockstep: fast and
-deterministic), run the host's homing loop against it until arrival or failure, and
-print a summary. It writes the trajectory plot, the capture, the run log and the
-truth file to --out.
+Start the emulator in its own process on pseudo-terminals (in lockstep: its world waits
+for the host), run the host's homing loop against it until arrival or failure, and print
+a summary. It writes the trajectory plot, the capture, the run log and the truth file to
+--out; `rfhoming replay OUT/capture.pcapng --run` runs the same loop again on its bytes.
+
+What varies from run to run with the same seed: on ptys the XPLR-AOA's and the base's bytes
+reach the host in whatever order the operating system delivers two ports, so a reading
+can meet a different odometry record and the simulated time and errors move by a few
+hundredths; the latencies are wall-clock figures. --in-process joins the emulator and the
+host by the emulator's in-process byte pipe (as the campaigns run) and gives the same
+summary, line for line, for the same seed, without the latency lines.
 
 examples:
   rfhoming demo
   rfhoming demo --seed 7 --json
+  rfhoming demo --in-process               # the same summary for the same seed, every time
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
   rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
   rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
@@ -230,6 +240,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="s3-arena: the robot's BLE RSSI receiver -- esp32 (rfhoming frames, default), esp-at "
                    "(ESP32 with Espressif's AT firmware) or hci (a Bluetooth controller, needs rfhoming[hci])")
     p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
+    p.add_argument("--in-process", action="store_true",
+                   help="the emulator in this process on its byte pipe: the same summary for the same seed")
     add_foxglove_option(p)
     p.set_defaults(func=cmd_demo)
 
