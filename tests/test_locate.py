@@ -126,7 +126,7 @@ def test_process_noise_is_per_second_not_per_update(q, steps):
     for f in (one, many):
         f.update(0.0, np.zeros(3), np.eye(3) * 0.01)
     _, p_one = one.predicted(1.0)
-    for k in range(1, steps + 1):  # many = a chain of predictions through updates-free steps
+    for _k in range(1, steps + 1):  # many = a chain of predictions through updates-free steps
         f_, q_ = many._transition(1.0 / steps)
         many.p = f_ @ many.p @ f_.T + q_
         many.x = f_ @ many.x

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import binascii
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal, NamedTuple, Union
+from typing import Any, ClassVar, Literal, NamedTuple
 
 from construct import (
     Array,
@@ -347,7 +347,7 @@ class NodeCommand(_NodeCommand):
     to_dict = as_dict
 
 
-Record = Union[AdvReport, RfFrame, AntennaSet, Status, Odometry, VelocityCommand, RangeScan, LogText, NodeCommand]
+Record = AdvReport | RfFrame | AntennaSet | Status | Odometry | VelocityCommand | RangeScan | LogText | NodeCommand
 """Any record the frame decoder yields."""
 
 
