@@ -15,6 +15,8 @@ Rules, so that a reader can trust an example (docs/api.md says the same for user
 - ``<!-- not-run: needs ... -->`` right before a block: not run, for what the machine cannot
   have (hardware, a cluster); the reason must say what is needed. ``<!-- needs-hardware -->``
   is short for ``not-run: needs hardware``.
+- ``<!-- slow -->`` right before a block: run as usual, but only in the full suite (the quick
+  loop ``-m "not slow"`` leaves it out); ``long-running`` blocks are slow too.
 - ``<!-- needs: TOOL[, TOOL...] -->`` right before a block: run where every TOOL is on PATH,
   skipped with the reason where one is missing (tshark: .ci/run installs it; a laptop with
   only Python skips).
@@ -155,14 +157,16 @@ def skip_reason(mark: str) -> str | None:
         assert all(tools), f"name the tools: <!-- {mark} -->"
         missing = [t for t in tools if shutil.which(t) is None]
         return f"needs {', '.join(missing)}, which is not installed" if missing else None
-    assert mark in ("", "long-running"), f"unknown marker <!-- {mark} -->"
+    assert mark in ("", "long-running", "slow"), f"unknown marker <!-- {mark} -->"
     return None
 
 
-CASES = [(doc, k) for doc in DOCS for k, b in enumerate(blocks(doc)) if b[0] == "sh"]
+CASES = [pytest.param(doc, k, id=f"{doc.relative_to(ROOT)}:{b[3]}",
+                      marks=[pytest.mark.slow] if b[1] in ("long-running", "slow") else [])
+         for doc in DOCS for k, b in enumerate(blocks(doc)) if b[0] == "sh"]
 
 
-@pytest.mark.parametrize("doc,index", CASES, ids=[f"{d.relative_to(ROOT)}:{blocks(d)[k][3]}" for d, k in CASES])
+@pytest.mark.parametrize("doc,index", CASES)
 def test_sh_example_runs(doc: Path, index: int, tmp_path: Path) -> None:
     _, mark, body, _ = blocks(doc)[index]
     reason = skip_reason(mark)

@@ -176,6 +176,7 @@ def _emulate(scenario: str, link_dir: Path) -> subprocess.Popen:
     return emulator
 
 
+@pytest.mark.slow
 def test_locate_live_and_on_its_capture_print_the_same_positions(tmp_path):
     link_dir = tmp_path / "links"
     link_dir.mkdir()
@@ -202,6 +203,7 @@ def test_locate_live_and_on_its_capture_print_the_same_positions(tmp_path):
     assert summary["kind"] == "summary" and summary["events"] > 500
 
 
+@pytest.mark.slow
 def test_calibrate_writes_the_site_file_and_keeps_its_comments(tmp_path):
     link_dir = tmp_path / "links"
     link_dir.mkdir()
