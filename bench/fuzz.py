@@ -71,12 +71,11 @@ from rfhoming.protocol.espat import EspAtDecoder, ScanReport, encode_scan
 from rfhoming.protocol.frames import FrameDecoder, encode_frame
 from rfhoming.protocol.frames.records import RECORD_TYPES, AntennaReading, crc16
 from rfhoming.protocol.h4 import H4Splitter
+from rfhoming.protocol.uconnect import AngleEvent, Dialect, UConnectDecoder, encode_angle_event
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-import cref  # the C reference's build and its words, shared with the tests
-
-from rfhoming.protocol.uconnect import AngleEvent, Dialect, UConnectDecoder, encode_angle_event
+import cref  # noqa: E402  (tests/cref.py: the C reference's build and its words, shared with the tests)
 
 KINDS = ("random", "mutated", "structure")
 HYPOTHESIS_FILES = ["tests/test_frames.py", "tests/test_uconnect_decoder.py", "tests/test_accel.py",

@@ -8,7 +8,24 @@ imported on first use, so ``import rfhoming.protocol`` stays as light as the dec
 
 from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # what _API loads on first use, for type checkers (tests/test_typing.py holds them equal)
+    from rfhoming.api import Devices as Devices
+    from rfhoming.api import Item as Item
+    from rfhoming.api import Received as Received
+    from rfhoming.api import open as open  # noqa: A004 - the API's verb
+    from rfhoming.api import read as read
+    from rfhoming.host.portspec import PortSpec as PortSpec
+    from rfhoming.host.portspec import PortSpecError as PortSpecError
+    from rfhoming.host.portspec import parse as _parse
+    from rfhoming.host.ports import PortError as PortError
+    from rfhoming.protocol.errors import Error as Error
+    from rfhoming.protocol.frames import FrameDecoder as FrameDecoder
+    from rfhoming.protocol.uconnect import AngleEvent as AngleEvent
+    from rfhoming.protocol.uconnect import UConnectDecoder as UConnectDecoder
+
+    parse_spec = _parse
 
 try:
     __version__ = version("rfhoming")
@@ -17,6 +34,7 @@ except PackageNotFoundError:  # run from a source tree that was never installed
 
 _API = {  # public name -> the module that holds it
     "open": "rfhoming.api", "read": "rfhoming.api", "Devices": "rfhoming.api", "Received": "rfhoming.api",
+    "Item": "rfhoming.api",
     "parse_spec": "rfhoming.host.portspec:parse", "PortSpec": "rfhoming.host.portspec",
     "PortSpecError": "rfhoming.host.portspec", "PortError": "rfhoming.host.ports",
     "UConnectDecoder": "rfhoming.protocol.uconnect", "FrameDecoder": "rfhoming.protocol.frames",
@@ -26,9 +44,11 @@ _API = {  # public name -> the module that holds it
 __all__ = ["__version__", *_API]
 
 
-def __getattr__(name: str) -> Any:
-    where = _API.get(name)
-    if where is None:
-        raise AttributeError(f"module 'rfhoming' has no attribute {name!r}")
-    module, _, attribute = where.partition(":")
-    return getattr(import_module(module), attribute or name)
+if not TYPE_CHECKING:  # hidden from type checkers, so that they flag a misspelt name
+
+    def __getattr__(name: str) -> Any:
+        where = _API.get(name)
+        if where is None:
+            raise AttributeError(f"module 'rfhoming' has no attribute {name!r}")
+        module, _, attribute = where.partition(":")
+        return getattr(import_module(module), attribute or name)

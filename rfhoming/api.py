@@ -12,12 +12,31 @@ import asyncio
 import contextlib
 import queue
 import threading
-from collections.abc import AsyncIterator, Iterable, Iterator
-from typing import Any, NamedTuple
+from collections.abc import AsyncIterator, Collection, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Generic, Literal, NamedTuple, Protocol, TypeAlias, TypedDict, TypeVar, Union, Unpack
+from typing import overload as _overload
 
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.portspec import PortSpec
 from rfhoming.host.session import health, open_drivers
+from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.espat import Event, Final, Info, ScanReport
+from rfhoming.protocol.frames.records import (
+    AdvReport,
+    AntennaSet,
+    LogText,
+    NodeCommand,
+    Odometry,
+    RangeScan,
+    RfFrame,
+    Status,
+    VelocityCommand,
+)
+from rfhoming.protocol.jsonable import as_dict
+from rfhoming.protocol.uconnect.items import AngleEvent, Echo, FinalCode, InfoLine, Startup, TagData, UnknownLine
+
+if TYPE_CHECKING:  # bumble's, imported only with an hci: port
+    from rfhoming.host.drivers.hci import Advertisement, HciPacket
 
 QUEUE_SIZE = 10_000
 """Items held for a slow reader; beyond this the oldest wait and new ones are counted as dropped."""
@@ -26,23 +45,35 @@ CHATTER = frozenset({"echo", "info", "final"})
 """The AT conversation the driver holds with the board: not yielded unless asked for."""
 
 
-class Received(NamedTuple):
+Item: TypeAlias = Union[
+    AngleEvent, TagData, Startup, Echo, InfoLine, FinalCode, UnknownLine,  # XPLR-AOA (u-connectLocate)
+    AdvReport, RfFrame, AntennaSet, Status, Odometry, VelocityCommand, RangeScan, LogText, NodeCommand,  # framed
+    ScanReport, Info, Final, Event,  # ESP-AT
+    "Advertisement", "HciPacket",  # HCI
+    Drop,
+]
+"""Every item a device can yield; narrow it with ``isinstance`` (or ask ``open`` for one kind)."""
+
+ItemT = TypeVar("ItemT", bound=Item, covariant=True)
+
+
+class Received(NamedTuple, Generic[ItemT]):
     """One decoded item, with the host time its bytes arrived and the device it came from."""
 
     t: float
     device: str
-    item: Any
+    item: ItemT
 
     @property
     def kind(self) -> str:
-        return self.item.kind
+        return str(self.item.kind)
 
     def to_dict(self) -> dict[str, Any]:
         """``{"device", "t", "kind", <fields>}``: the form ``rfhoming listen --json`` prints."""
-        return {"device": self.device, "t": self.t, **self.item.to_dict()}
+        return {"device": self.device, "t": self.t, **as_dict(self.item)}
 
 
-class Devices:
+class Devices(Generic[ItemT]):
     """Open devices: iterate to get :class:`Received` items; ``health()`` for counters.
 
     ``specs`` are port specs (``xplr-aoa:/dev/ttyUSB0,baud=1000000,tags=...``,
@@ -73,11 +104,11 @@ class Devices:
         return health(self.drivers)
 
     # -- asynchronous -------------------------------------------------------------------
-    async def stream(self) -> AsyncIterator[Received]:
+    async def stream(self) -> AsyncIterator[Received[ItemT]]:
         """Open the devices, yield their items until ``duration``, the end of a capture, or
         until the consumer stops; the devices are closed however it ends. PortError / ValueError
         say why a device could not be opened."""
-        items: asyncio.Queue[Received | None] = asyncio.Queue(QUEUE_SIZE)
+        items: asyncio.Queue[Received[ItemT] | None] = asyncio.Queue(QUEUE_SIZE)
 
         def listener(device: str, t: float, item: Any) -> None:
             if self.wanted(item.kind):
@@ -90,11 +121,11 @@ class Devices:
         for driver in self.drivers:
             driver.listeners.append(listener)
         tasks = [asyncio.create_task(d.run()) for d in self.drivers]
-        self._stop = asyncio.Event()
+        self._stop = stopped = asyncio.Event()
 
         async def watch() -> None:
             """End the stream on stop, at ``duration``, when a driver fails or all have ended."""
-            stop = asyncio.create_task(self._stop.wait())
+            stop = asyncio.create_task(stopped.wait())
             clock = asyncio.get_running_loop()
             end = None if self.duration is None else clock.time() + self.duration
             try:
@@ -114,8 +145,8 @@ class Devices:
             while (got := await items.get()) is not None:
                 yield got
             for task in tasks:
-                if task.done() and not task.cancelled() and task.exception() is not None:
-                    raise task.exception()
+                if task.done() and not task.cancelled() and (error := task.exception()) is not None:
+                    raise error
         finally:
             watcher.cancel()
             for task in tasks:
@@ -126,10 +157,10 @@ class Devices:
             for driver in self.drivers:
                 await driver.port.close()
 
-    def __aiter__(self) -> AsyncIterator[Received]:
+    def __aiter__(self) -> AsyncIterator[Received[ItemT]]:
         return self.stream()
 
-    async def __aenter__(self) -> Devices:
+    async def __aenter__(self) -> Devices[ItemT]:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
@@ -137,7 +168,7 @@ class Devices:
             self._stop.set()
 
     # -- synchronous --------------------------------------------------------------------
-    def __iter__(self) -> Iterator[Received]:
+    def __iter__(self) -> Iterator[Received[ItemT]]:
         """The same stream from a background event loop, for programs without asyncio."""
         out: queue.Queue[tuple[str, Any]] = queue.Queue(QUEUE_SIZE)
 
@@ -182,18 +213,88 @@ class Devices:
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
 
-    def __enter__(self) -> Devices:
+    def __enter__(self) -> Devices[ItemT]:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-def open(*specs: str | PortSpec, **options: Any) -> Devices:  # noqa: A001 - the API's verb
+class Options(TypedDict, total=False):
+    """The keyword options of :func:`open` and :func:`read` besides ``kinds``."""
+
+    duration: float | None
+    baud: int | None
+    flow: str | None
+
+
+Spec: TypeAlias = "str | PortSpec"
+
+
+class Opener(Protocol):
+    """The signature of :func:`open` and :func:`read` for type checkers: asked for one kind,
+    ``kinds={"angle"}``, the items are that kind's type (``Received[AngleEvent]``); otherwise
+    any :data:`Item`."""
+
+    # fmt: off
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["angle"]], **options: Unpack[Options]) -> Devices[AngleEvent]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["tag_data"]], **options: Unpack[Options]) -> Devices[TagData]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["startup"]], **options: Unpack[Options]) -> Devices[Startup]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["echo"]], **options: Unpack[Options]) -> Devices[Echo]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["info"]], **options: Unpack[Options]) -> Devices[InfoLine | Info]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["final"]], **options: Unpack[Options]) -> Devices[FinalCode | Final]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["unknown"]], **options: Unpack[Options]) -> Devices[UnknownLine]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["adv_report"]], **options: Unpack[Options]) -> Devices[AdvReport]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["rf_frame"]], **options: Unpack[Options]) -> Devices[RfFrame]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["antenna_set"]], **options: Unpack[Options]) -> Devices[AntennaSet]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["status"]], **options: Unpack[Options]) -> Devices[Status]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["odometry"]], **options: Unpack[Options]) -> Devices[Odometry]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["velocity_command"]], **options: Unpack[Options]) -> Devices[VelocityCommand]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["range_scan"]], **options: Unpack[Options]) -> Devices[RangeScan]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["log_text"]], **options: Unpack[Options]) -> Devices[LogText]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["node_command"]], **options: Unpack[Options]) -> Devices[NodeCommand]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["scan_report"]], **options: Unpack[Options]) -> Devices[ScanReport]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["event"]], **options: Unpack[Options]) -> Devices[Event]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["advertisement"]], **options: Unpack[Options]) -> Devices[Advertisement]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["hci"]], **options: Unpack[Options]) -> Devices[HciPacket]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Collection[Literal["drop"]], **options: Unpack[Options]) -> Devices[Drop]: ...
+    @_overload
+    def __call__(self, *specs: Spec, kinds: Iterable[str] | None = None, **options: Unpack[Options]) -> Devices[Item]: ...
+    # fmt: on
+
+
+def _open(*specs: Spec, **options: Any) -> Devices[Any]:
     """Devices by port spec; see :class:`Devices` for the options."""
     return Devices(*specs, **options)
 
 
-def read(*specs: str | PortSpec, **options: Any) -> Devices:
+def _read(*specs: Spec, **options: Any) -> Devices[Any]:
     """``for item in rfhoming.read(spec)`` / ``async for``: the devices' items as they arrive."""
     return Devices(*specs, **options)
+
+
+_open.__name__ = _open.__qualname__ = "open"  # what help() and tracebacks call them
+_read.__name__ = _read.__qualname__ = "read"
+open: Opener = _open  # noqa: A001 - the API's verb
+read: Opener = _read

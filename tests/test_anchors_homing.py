@@ -68,6 +68,7 @@ def test_robot_homes_on_the_target_located_by_the_anchors(seed):
 RFHOMING = [sys.executable, "-m", "rfhoming"]
 
 
+@pytest.mark.slow
 def test_run_controller_anchors_homes_through_the_emulators_ptys(tmp_path):
     links = tmp_path / "links"
     links.mkdir()

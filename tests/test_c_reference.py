@@ -157,6 +157,7 @@ def py_frame(record: Any) -> bytes | None:
         return None
 
 
+@pytest.mark.slow
 @settings(max_examples=10_000, deadline=None)
 @given(records)
 def test_c_frames_decode_bit_exactly_with_python(lib: C.CDLL, record: Any) -> None:

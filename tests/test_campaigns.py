@@ -13,13 +13,15 @@ from hypothesis import strategies as st
 
 from rfhoming.campaigns import kinematic, s0, s1, s3, s4
 from rfhoming.cli.campaign import REGISTRY, load
-from rfhoming.campaigns.runner import Job, execute, run_jobs
+from rfhoming.campaigns.runner import Job, run_jobs
 from rfhoming.cli.main import main
 from rfhoming.emulator.scenario import load as scenario
 from rfhoming.host.homing.s0_aoa import S0Params
 from rfhoming.host.homing.types import Pose
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(900)  # a hang guard: pure CPU work (the jobs thrice), no waits; slow only on a loaded machine
 def test_inline_process_and_dask_give_identical_results() -> None:
     """Every campaign's jobs (a few of each: every S0 mode, both S0 house methods, S1, S2 B
     behind its wall with the hall's walls reflecting, S3, S4) give the same results inline, on
@@ -78,6 +80,7 @@ def test_a_job_failure_is_raised_not_swallowed() -> None:
                  workers=1)
 
 
+@pytest.mark.slow
 def test_unreachable_dask_scheduler_is_a_clear_error(tmp_path, capsys) -> None:
     pytest.importorskip("distributed")
     code = main(["campaign", "s3-arena", "--runs", "1", "--dask", "tcp://127.0.0.1:9", "--out", str(tmp_path), "--quiet"])

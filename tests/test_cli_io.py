@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import serial
 
 from rfhoming.protocol.uconnect import UConnectDecoder
@@ -21,6 +22,7 @@ def lines(text: str) -> list[dict]:
     return [json.loads(line) for line in text.splitlines() if line.strip()]
 
 
+@pytest.mark.slow
 def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None:
     emulator = subprocess.Popen(
         [*RFHOMING, "emulate", "s0-open", "--seed", "4", "--link-dir", str(tmp_path),

@@ -15,6 +15,11 @@ Rules, so that a reader can trust an example (docs/api.md says the same for user
 - ``<!-- not-run: needs ... -->`` right before a block: not run, for what the machine cannot
   have (hardware, a cluster); the reason must say what is needed. ``<!-- needs-hardware -->``
   is short for ``not-run: needs hardware``.
+- ``<!-- slow -->`` right before a block: run as usual, but only in the full suite (the quick
+  loop ``-m "not slow"`` leaves it out); ``long-running`` blocks are slow too.
+- ``<!-- needs: TOOL[, TOOL...] -->`` right before a block: run where every TOOL is on PATH,
+  skipped with the reason where one is missing (tshark: .ci/run installs it; a laptop with
+  only Python skips).
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import fnmatch
 import os
 import re
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -139,18 +145,33 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
                 proc.communicate()
 
 
-CASES = [(doc, k) for doc in DOCS for k, b in enumerate(blocks(doc)) if b[0] == "sh"]
-
-
-@pytest.mark.parametrize("doc,index", CASES, ids=[f"{d.relative_to(ROOT)}:{blocks(d)[k][3]}" for d, k in CASES])
-def test_sh_example_runs(doc: Path, index: int, tmp_path: Path) -> None:
-    _, mark, body, _ = blocks(doc)[index]
+def skip_reason(mark: str) -> str | None:
+    """Why a block marked ``mark`` does not run here, or None if it runs."""
     if mark == "needs-hardware":
-        pytest.skip("needs hardware")
+        return "needs hardware"
     if mark.startswith("not-run:"):
         assert re.match(r"not-run: needs \w+", mark), f"say what the example needs: {mark}"
-        pytest.skip(mark)
-    assert mark in ("", "long-running"), f"unknown marker <!-- {mark} -->"
+        return mark
+    if mark.startswith("needs:"):
+        tools = [t.strip() for t in mark.removeprefix("needs:").split(",")]
+        assert all(tools), f"name the tools: <!-- {mark} -->"
+        missing = [t for t in tools if shutil.which(t) is None]
+        return f"needs {', '.join(missing)}, which is not installed" if missing else None
+    assert mark in ("", "long-running", "slow"), f"unknown marker <!-- {mark} -->"
+    return None
+
+
+CASES = [pytest.param(doc, k, id=f"{doc.relative_to(ROOT)}:{b[3]}",
+                      marks=[pytest.mark.slow] if b[1] in ("long-running", "slow") else [])
+         for doc in DOCS for k, b in enumerate(blocks(doc)) if b[0] == "sh"]
+
+
+@pytest.mark.parametrize("doc,index", CASES)
+def test_sh_example_runs(doc: Path, index: int, tmp_path: Path) -> None:
+    _, mark, body, _ = blocks(doc)[index]
+    reason = skip_reason(mark)
+    if reason is not None:
+        pytest.skip(reason)
     run_sh(body, scratch(tmp_path), long=mark == "long-running")
 
 
@@ -159,11 +180,10 @@ PY_DOCS = [doc for doc in DOCS if any(b[0] == "python" for b in blocks(doc))]
 
 @pytest.mark.parametrize("doc", PY_DOCS, ids=[str(d.relative_to(ROOT)) for d in PY_DOCS])
 def test_python_examples_run(doc: Path, tmp_path: Path) -> None:
-    runnable = [b for b in blocks(doc) if b[0] == "python" and not b[1].startswith("not-run:")
-                and b[1] != "needs-hardware"]
-    for lang, mark, body, line in blocks(doc):
-        if lang == "python" and mark and mark != "needs-hardware":
-            assert re.match(r"not-run: needs \w+", mark), f"{doc.name}:{line}: unknown marker <!-- {mark} -->"
+    python = [b for b in blocks(doc) if b[0] == "python"]
+    for _, mark, _, line in python:
+        assert mark != "long-running", f"{doc.name}:{line}: <!-- long-running --> is for ```sh blocks"
+    runnable = [b for b in python if skip_reason(b[1]) is None]
     script = "\n".join(body for _, _, body, _ in runnable)
     started = time.monotonic()
     done = subprocess.run([sys.executable, "-c", script], cwd=scratch(tmp_path), env=env(), text=True,
@@ -177,6 +197,14 @@ def test_every_doc_example_is_run_or_says_what_it_needs() -> None:
         for lang in re.findall(r"^```(\w+)", doc.read_text(), re.M):
             assert lang in ("python", "sh", "text", "toml", "json", "lua", "c"), \
                 f"{doc.name}: ```{lang} examples are not run; use ```sh or ```python (or ```text for output)"
+
+
+def test_needs_marker_skips_only_where_a_tool_is_missing() -> None:
+    """``<!-- needs: tshark -->`` runs on CI (tshark installed) and skips on a bare machine."""
+    assert skip_reason("needs: sh") is None
+    assert skip_reason("needs: sh, rfhoming-no-such-tool") == "needs rfhoming-no-such-tool, which is not installed"
+    with pytest.raises(AssertionError, match="unknown marker"):
+        skip_reason("need: tshark")
 
 
 # -- the examples in each command's --help ---------------------------------------------------

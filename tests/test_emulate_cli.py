@@ -88,6 +88,7 @@ PROBES = [b'AT+UDFCFG=2,"a"b"', b'AT+UDFCFG=2,"\xff"', b"AT+UDFCFG=2", b"AT+UDFC
           b'AT+UDFFILT=2,2,"GGGGGGGGGGGG"', b"AT+UDFCFG=1,", b"AT&W"]
 
 
+@pytest.mark.slow
 def test_hostile_at_commands_never_kill_the_emulator(tmp_path: Path) -> None:
     """Issue 18's probes: each gets a final result code; after AT&W and AT+CPWROFF the board
     boots and keeps sending angle events."""
@@ -109,6 +110,7 @@ def test_hostile_at_commands_never_kill_the_emulator(tmp_path: Path) -> None:
         assert stop(proc) == 0
 
 
+@pytest.mark.slow
 def test_rss_node_and_base_over_their_framing(tmp_path: Path) -> None:
     truth_file = tmp_path / "truth.jsonl"
     proc, endpoints = emulate("s2-a", "--pty", "--seed", "2", "--truth", str(truth_file),

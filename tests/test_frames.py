@@ -215,3 +215,12 @@ def test_range_checks_at_their_edges(record, accepted: bool, pure: bool) -> None
         assert items == [record]
     else:
         assert len(items) == 1 and isinstance(items[0], Drop) and items[0].reason == "field"
+
+
+def test_a_record_class_that_drifts_from_its_declaration_fails_at_import() -> None:
+    """The classes are written out for type checkers; _declare holds them to the wire declarations."""
+    from rfhoming.protocol.frames.records import ODOMETRY, STATUS, Odometry, _declare
+
+    assert _declare(Odometry, ODOMETRY).kind == "odometry"
+    with pytest.raises(TypeError, match="Odometry has fields"):
+        _declare(Odometry, STATUS)

@@ -133,6 +133,7 @@ async def test_unplug_replug_reconnects_and_sets_up_again(tmp_path: Path) -> Non
     await stop(em, task)
 
 
+@pytest.mark.slow
 async def test_baud_mismatch_detected_reported_and_probed(tmp_path: Path) -> None:
     em = await start(tmp_path, faults=["baud@aoa:at=1.5,rate=460800"])
     driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(garbage_timeout=1.0, probe_baud=True))

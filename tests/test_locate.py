@@ -149,7 +149,7 @@ def test_process_noise_is_per_second_not_per_update(q, steps):
     for f in (one, many):
         f.update(0.0, np.zeros(3), np.eye(3) * 0.01)
     _, p_one = one.predicted(1.0)
-    for k in range(1, steps + 1):  # many = a chain of predictions through updates-free steps
+    for _k in range(1, steps + 1):  # many = a chain of predictions through updates-free steps
         f_, q_ = many._transition(1.0 / steps)
         many.p = f_ @ many.p @ f_.T + q_
         many.x = f_ @ many.x
@@ -199,6 +199,7 @@ def _emulate(scenario: str, link_dir: Path) -> subprocess.Popen:
     return emulator
 
 
+@pytest.mark.slow
 def test_locate_live_and_on_its_capture_print_the_same_positions(tmp_path):
     link_dir = tmp_path / "links"
     link_dir.mkdir()
@@ -225,6 +226,7 @@ def test_locate_live_and_on_its_capture_print_the_same_positions(tmp_path):
     assert summary["kind"] == "summary" and summary["events"] > 500
 
 
+@pytest.mark.slow
 def test_calibrate_writes_the_site_file_and_keeps_its_comments(tmp_path):
     link_dir = tmp_path / "links"
     link_dir.mkdir()

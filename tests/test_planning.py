@@ -115,6 +115,7 @@ def test_sectors_and_avoidance_rules() -> None:
     assert emergency.adjust(Decision(0.6, 0.0, (5, 0), False, "homing"), 0.0, emergency_only=True).v == 0.6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [4, 7])
 async def test_s0_homes_through_the_house(seed: int) -> None:
     outcome, error, log = await closed_loop_scenario("s0-house", seed)

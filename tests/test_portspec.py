@@ -122,6 +122,7 @@ def emulate(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, dict]:
     return proc, endpoints
 
 
+@pytest.mark.slow
 def test_listen_with_tags_prints_only_the_chosen_tag(tmp_path: Path) -> None:
     proc, ports = emulate(tmp_path)
     try:
@@ -139,6 +140,7 @@ def test_listen_with_tags_prints_only_the_chosen_tag(tmp_path: Path) -> None:
     assert counters["filtered"] > 50  # the other tag was heard, and dropped by choice
 
 
+@pytest.mark.slow
 def test_listen_at_the_wrong_rate_sees_no_angles(tmp_path: Path) -> None:
     """The per-port rate is real: at the --baud default the same board is garbage."""
     proc, ports = emulate(tmp_path)

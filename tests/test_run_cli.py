@@ -154,6 +154,7 @@ def test_a_board_that_never_answers_fails_by_its_timeout_with_a_hint() -> None:
     assert aoa in done.stderr and "1.5 s" in done.stderr and "RTS/CTS" in done.stderr
 
 
+@pytest.mark.slow
 def test_listen_fails_fast_when_the_board_never_answers() -> None:
     """Every command, not only run: the board's first set-up fails (no answer to AT) -> exit 2."""
     controller, device = pty.openpty()

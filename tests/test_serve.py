@@ -70,6 +70,7 @@ def read_lines(sock: socket.socket, want: int | None) -> list[dict]:
     return got
 
 
+@pytest.mark.slow
 def test_two_readers_get_identical_streams_while_a_stalled_client_is_dropped() -> None:
     with serving_emulated_aoa(queue=300) as (port, server):
         stalled = socket.socket()
@@ -160,6 +161,7 @@ class _NoPort:
     counters: dict = {}
 
 
+@pytest.mark.slow
 def test_the_homing_loop_and_a_viewer_share_one_xplr_aoa() -> None:
     emulator = start("emulate", "s0-open", "--tcp", "--speed", "4", "--seed", "1")
     server = run = None

@@ -8,6 +8,7 @@ exponential:  d = a · exp(b · RSSI)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
@@ -21,6 +22,10 @@ class LogDistance:
     def rssi(self, d: np.ndarray | float) -> np.ndarray | float:
         return self.p0_dbm - 10 * self.n * np.log10(np.maximum(d, 1e-6) / self.d0_m)
 
+    @overload
+    def distance(self, rssi: float) -> float: ...
+    @overload
+    def distance(self, rssi: np.ndarray) -> np.ndarray: ...
     def distance(self, rssi: np.ndarray | float) -> np.ndarray | float:
         return self.d0_m * 10 ** ((self.p0_dbm - np.asarray(rssi)) / (10 * self.n))
 
@@ -30,6 +35,10 @@ class Exponential:
     a: float
     b: float
 
+    @overload
+    def distance(self, rssi: float) -> float: ...
+    @overload
+    def distance(self, rssi: np.ndarray) -> np.ndarray: ...
     def distance(self, rssi: np.ndarray | float) -> np.ndarray | float:
         return self.a * np.exp(self.b * np.asarray(rssi))
 

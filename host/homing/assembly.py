@@ -155,12 +155,7 @@ async def resolve_devices(plan: Homing) -> Homing:
     taps = [plan.capture.tap] if plan.capture else []
     out = []
     for device in plan.devices:
-        describe = None
-        if plan.capture is not None:
-            capture = plan.capture
-
-            def describe(name: str, role: str = device.role, **fields: str) -> None:
-                capture.describe(name, role=role, **fields)
+        describe = None if plan.capture is None else _describing(plan.capture, device.role)
 
         if device.spec is None:
             out.append(device)
@@ -178,6 +173,13 @@ async def resolve_devices(plan: Homing) -> Homing:
         spec = await resolve(spec, baud=plan.baud, flow=plan.flow, taps=taps, kind=spec.kind, describe=describe)
         out.append(replace(device, spec=spec))
     return replace(plan, devices=out)
+
+
+def _describing(capture: CaptureWriter, role: str) -> Callable[..., None]:
+    """The capture's describe, adding the role the device fills in the run."""
+    def describe(name: str, **fields: str) -> None:
+        capture.describe(name, role=role, **fields)
+    return describe
 
 
 def _options(plan: Homing, device: Device, kind: str) -> dict[str, Any]:

@@ -1,9 +1,10 @@
 """rfhoming's binary records, declared once with construct (protocols.md §3).
 
-These declarations are the single source of truth. From them this module derives:
+These declarations are the single source of truth. From them this module derives or checks:
 
 - the record classes (NamedTuples: header fields ``node_id, seq, t_us``, then the body fields,
-  without the length fields that only describe a tail),
+  without the length fields that only describe a tail), written out for type checkers and
+  checked against the declarations at import,
 - the ``struct`` layouts of the hot path (:mod:`rfhoming.protocol.frames.fast`), so the decoder never
   interprets a declaration per field,
 - the reference parser and builder used by tests and benchmarks (:func:`parse_inner`,
@@ -16,9 +17,8 @@ header+body; on the wire ``00 | COBS(inner) | 00``.
 from __future__ import annotations
 
 import binascii
-from collections import namedtuple
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar, Literal, NamedTuple
 
 from construct import (
     Array,
@@ -147,12 +147,208 @@ class RecordType:
     code: int
     kind: str
     body: Struct
-    cls: type
+    cls: type[Any]
 
 
 HEADER_FIELDS = ("node_id", "seq", "t_us")
 
-AntennaReading = namedtuple("AntennaReading", [sc.name for sc in ANTENNA.subcons])
+
+class AntennaReading(NamedTuple):
+    """One antenna of an :class:`AntennaSet` (``ANTENNA``)."""
+
+    ed: int
+    lqi: int
+    dt_us: int
+
+
+# The record classes are written out so that type checkers see their fields; _declare checks each
+# against its construct declaration at import, so the two cannot drift apart. A record is a
+# NamedTuple of the header and body fields, with ``kind``, ``type_code`` and ``to_dict()`` on a
+# subclass (NamedTuple bodies cannot hold typed class attributes).
+
+
+class _AdvReport(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    addr: bytes
+    addr_type: int
+    adv_props: int
+    rssi_dbm: int
+    tx_power_dbm: int
+    channel: int
+    ad: bytes
+
+
+class AdvReport(_AdvReport):
+    """0x01: an ESP32 BLE scan result."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["adv_report"]] = "adv_report"
+    type_code: ClassVar[int] = 0x01
+    to_dict = as_dict
+
+
+class _RfFrame(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    antenna: int
+    channel: int
+    page: int
+    trx_ctrl_2: int
+    rssi_base_dbm: int
+    ed: int
+    lqi: int
+    rx_status: int
+    emitter_seq: int
+    psdu: bytes
+
+
+class RfFrame(_RfFrame):
+    """0x02: an AT86RF212 frame received on one antenna."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["rf_frame"]] = "rf_frame"
+    type_code: ClassVar[int] = 0x02
+    to_dict = as_dict
+
+
+class _AntennaSet(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    emitter_seq: int
+    channel: int
+    page: int
+    rssi_base_dbm: int
+    valid_mask: int
+    antennas: tuple[AntennaReading, ...]
+
+
+class AntennaSet(_AntennaSet):
+    """0x03: one emitter frame as heard on all four antennas."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["antenna_set"]] = "antenna_set"
+    type_code: ClassVar[int] = 0x03
+    to_dict = as_dict
+
+
+class _Status(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    device_kind: int
+    fw_major: int
+    fw_minor: int
+    fw_patch: int
+    uptime_ms: int
+    tx_dropped: int
+    rx_errors: int
+
+
+class Status(_Status):
+    """0x10: node status, 1 Hz."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["status"]] = "status"
+    type_code: ClassVar[int] = 0x10
+    to_dict = as_dict
+
+
+class _Odometry(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    x_mm: int
+    y_mm: int
+    theta_urad: int
+    v_mm_s: int
+    w_mrad_s: int
+    flags: int
+
+
+class Odometry(_Odometry):
+    """0x20: the base's pose and speeds, base -> host, 50 Hz."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["odometry"]] = "odometry"
+    type_code: ClassVar[int] = 0x20
+    to_dict = as_dict
+
+
+class _VelocityCommand(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    v_mm_s: int
+    w_mrad_s: int
+    timeout_ms: int
+
+
+class VelocityCommand(_VelocityCommand):
+    """0x21: host -> base."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["velocity_command"]] = "velocity_command"
+    type_code: ClassVar[int] = 0x21
+    to_dict = as_dict
+
+
+class _RangeScan(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    angle_min_mrad: int
+    angle_inc_mrad: int
+    ranges_mm: tuple[int, ...]
+
+
+class RangeScan(_RangeScan):
+    """0x22: base -> host."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["range_scan"]] = "range_scan"
+    type_code: ClassVar[int] = 0x22
+    to_dict = as_dict
+
+
+class _LogText(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    text: str
+
+
+class LogText(_LogText):
+    """0x7F: a firmware log line."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["log_text"]] = "log_text"
+    type_code: ClassVar[int] = 0x7F
+    to_dict = as_dict
+
+
+class _NodeCommand(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    command: int
+    args: bytes
+
+
+class NodeCommand(_NodeCommand):
+    """0x80: host -> node."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["node_command"]] = "node_command"
+    type_code: ClassVar[int] = 0x80
+    to_dict = as_dict
+
+
+Record = AdvReport | RfFrame | AntennaSet | Status | Odometry | VelocityCommand | RangeScan | LogText | NodeCommand
+"""Any record the frame decoder yields."""
 
 
 def _body_fields(body: Struct) -> list[str]:
@@ -160,36 +356,31 @@ def _body_fields(body: Struct) -> list[str]:
     return [sc.name for sc in body.subcons if not isinstance(sc.subcon, Rebuild)]
 
 
-def _declare(code: int, kind: str, class_name: str, body: Struct) -> RecordType:
-    base = namedtuple(class_name, [*HEADER_FIELDS, *_body_fields(body)])
-    cls = type(class_name, (base,), {"__slots__": (), "kind": kind, "type_code": code, "to_dict": as_dict})
-    return RecordType(code, kind, body, cls)
+def _declare(cls: type[Any], body: Struct) -> RecordType:
+    """The record type of ``cls``, checked against its declaration ``body``."""
+    fields = (*HEADER_FIELDS, *_body_fields(body))
+    if cls._fields != fields:
+        raise TypeError(f"{cls.__name__} has fields {cls._fields}, its declaration {fields}")
+    return RecordType(cls.type_code, cls.kind, body, cls)
 
+
+if AntennaReading._fields != tuple(sc.name for sc in ANTENNA.subcons):
+    raise TypeError(f"AntennaReading has fields {AntennaReading._fields}, ANTENNA declares others")
 
 RECORD_TYPES: dict[int, RecordType] = {
     rt.code: rt
     for rt in (
-        _declare(0x01, "adv_report", "AdvReport", ADV_REPORT),
-        _declare(0x02, "rf_frame", "RfFrame", RF_FRAME),
-        _declare(0x03, "antenna_set", "AntennaSet", ANTENNA_SET),
-        _declare(0x10, "status", "Status", STATUS),
-        _declare(0x20, "odometry", "Odometry", ODOMETRY),
-        _declare(0x21, "velocity_command", "VelocityCommand", VELOCITY_COMMAND),
-        _declare(0x22, "range_scan", "RangeScan", RANGE_SCAN),
-        _declare(0x7F, "log_text", "LogText", LOG_TEXT),
-        _declare(0x80, "node_command", "NodeCommand", NODE_COMMAND),
+        _declare(AdvReport, ADV_REPORT),
+        _declare(RfFrame, RF_FRAME),
+        _declare(AntennaSet, ANTENNA_SET),
+        _declare(Status, STATUS),
+        _declare(Odometry, ODOMETRY),
+        _declare(VelocityCommand, VELOCITY_COMMAND),
+        _declare(RangeScan, RANGE_SCAN),
+        _declare(LogText, LOG_TEXT),
+        _declare(NodeCommand, NODE_COMMAND),
     )
 }
-
-AdvReport = RECORD_TYPES[0x01].cls
-RfFrame = RECORD_TYPES[0x02].cls
-AntennaSet = RECORD_TYPES[0x03].cls
-Status = RECORD_TYPES[0x10].cls
-Odometry = RECORD_TYPES[0x20].cls
-VelocityCommand = RECORD_TYPES[0x21].cls
-RangeScan = RECORD_TYPES[0x22].cls
-LogText = RECORD_TYPES[0x7F].cls
-NodeCommand = RECORD_TYPES[0x80].cls
 
 INNER = Struct(
     "fields"

@@ -6,7 +6,7 @@ Items are NamedTuples: cheap to build on the hot path, immutable, comparable, an
 
 from __future__ import annotations
 
-from typing import NamedTuple, Optional, Union
+from typing import NamedTuple
 
 from rfhoming.protocol.drop import Drop
 from rfhoming.protocol.jsonable import as_dict
@@ -29,9 +29,9 @@ class AngleEvent(NamedTuple):
     anchor_id: str
     user_str: str
     timestamp_ms: int
-    seq: Optional[int] = None
-    azimuth_raw: Optional[int] = None
-    elevation_raw: Optional[int] = None
+    seq: int | None = None
+    azimuth_raw: int | None = None
+    elevation_raw: int | None = None
 
     kind = "angle"
     to_dict = as_dict
@@ -91,4 +91,4 @@ class UnknownLine(NamedTuple):
     to_dict = as_dict
 
 
-Item = Union[AngleEvent, TagData, Startup, Echo, InfoLine, FinalCode, UnknownLine, Drop]
+Item = AngleEvent | TagData | Startup | Echo | InfoLine | FinalCode | UnknownLine | Drop

@@ -1,0 +1,99 @@
+"""Type checkers see the public API's real types, and the tree passes ruff.
+
+mypy runs as a user's would: on a program in a folder outside the checkout, resolving
+``rfhoming`` through ``sys.path`` (the installation these tests import), so the package's own
+modules count as installed and only the program and the modules named with ``-m`` are checked.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import rfhoming
+from test_docs import blocks
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE_PARENT = Path(rfhoming.__file__).resolve().parent.parent
+TYPED_DOCS = [ROOT / "docs" / "api.md"]
+
+
+def mypy(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """``mypy --strict ARGS`` in ``cwd``, seeing the rfhoming these tests import."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(PACKAGE_PARENT), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    return subprocess.run([sys.executable, "-m", "mypy", "--strict", "--no-color-output", *args],
+                          cwd=cwd, env=env, text=True, capture_output=True, timeout=600)
+
+
+def test_the_names_type_checkers_see_are_the_ones_loaded_lazily() -> None:
+    """The ``if TYPE_CHECKING:`` imports of rfhoming/__init__.py and its ``_API`` table agree."""
+    tree = ast.parse((ROOT / "rfhoming" / "__init__.py").read_text())
+    block = next(node for node in tree.body if isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING")
+    seen: dict[str, str] = {}
+    for node in block.body:
+        if isinstance(node, ast.ImportFrom):
+            for alias in node.names:
+                seen[alias.asname or alias.name] = f"{node.module}:{alias.name}"
+        elif isinstance(node, ast.Assign):  # parse_spec = _parse
+            seen[node.targets[0].id] = seen.pop(node.value.id)
+    lazy = {name: where if ":" in where else f"{where}:{name}" for name, where in rfhoming._API.items()}
+    assert seen == lazy
+
+
+def test_importing_rfhoming_stays_light() -> None:
+    """The TYPE_CHECKING imports must not run: ``import rfhoming.protocol`` loads no host code."""
+    code = "import sys, rfhoming.protocol; print(sorted(m for m in sys.modules if m.startswith('rfhoming.host') or m == 'rfhoming.api'))"
+    done = subprocess.run([sys.executable, "-c", code], text=True, capture_output=True, timeout=60, check=True)
+    assert done.stdout.strip() == "[]"
+
+
+def test_the_api_modules_pass_mypy_strict(tmp_path: Path) -> None:
+    done = mypy(tmp_path, "-m", "rfhoming", "-m", "rfhoming.api")
+    assert done.returncode == 0, f"mypy --strict -m rfhoming -m rfhoming.api:\n{done.stdout}{done.stderr}"
+
+
+@pytest.mark.parametrize("doc", TYPED_DOCS, ids=[str(d.relative_to(ROOT)) for d in TYPED_DOCS])
+def test_the_docs_examples_pass_mypy_strict(doc: Path, tmp_path: Path) -> None:
+    """Every ```python block of the page (those not run too), as one program like the docs test runs."""
+    (tmp_path / "examples.py").write_text("\n".join(body for lang, _, body, _ in blocks(doc) if lang == "python"))
+    done = mypy(tmp_path, "examples.py")
+    assert done.returncode == 0, f"mypy --strict on {doc.name}'s examples:\n{done.stdout}{done.stderr}"
+
+
+def test_mypy_strict_catches_typos_in_a_users_program(tmp_path: Path) -> None:
+    """The check can fail: a misspelt field, a misspelt API name, an unnarrowed item."""
+    (tmp_path / "typos.py").write_text(
+        "import rfhoming\n"
+        "for got in rfhoming.read('capture:run.pcapng', kinds={'angle'}):\n"
+        "    print(got.item.azimuht)\n"
+        "devices = rfhoming.opne('capture:run.pcapng')\n"
+        "for other in rfhoming.read('capture:run.pcapng'):\n"
+        "    print(other.item.x_mm)\n"
+    )
+    done = mypy(tmp_path, "typos.py")
+    assert done.returncode == 1, done.stdout + done.stderr
+    for line, what in ((3, '"AngleEvent" has no attribute "azimuht"'), (4, 'has no attribute "opne"'),
+                       (6, 'has no attribute "x_mm"')):
+        assert f"typos.py:{line}: error:" in done.stdout and what in done.stdout, done.stdout
+
+
+def test_ruff_passes() -> None:
+    """The rules chosen in pyproject.toml ([tool.ruff]), over the whole tree."""
+    done = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "."], cwd=ROOT, text=True,
+                          capture_output=True, timeout=300)
+    assert done.returncode == 0, f"ruff check:\n{done.stdout[-4000:]}{done.stderr[-2000:]}"
+
+
+def test_received_to_dict_takes_items_without_a_to_dict_method() -> None:
+    """ESP-AT's and HCI's items have no ``to_dict()``; ``Received.to_dict`` used to call it."""
+    from rfhoming.api import Received
+    from rfhoming.protocol.espat import ScanReport
+
+    got = Received(1.5, "esp", ScanReport("C0FFEE000001", -61, b"\x02\x01\x06", b"", 0))
+    assert got.to_dict() == {"device": "esp", "t": 1.5, "kind": "scan_report", "address": "C0FFEE000001",
+                             "rssi_dbm": -61, "adv_data": "020106", "scan_rsp": "", "addr_type": 0}
