@@ -105,6 +105,12 @@ def _mac(text: str) -> str:
     return text.upper()
 
 
+def _device(text: str) -> str:
+    if not 1 <= len(text) <= 200:
+        raise ValueError("a device as `rfhoming replay` lists it: its path, its label or its role, e.g. device=aoa")
+    return text
+
+
 def _ad_name(text: str) -> str:
     if not 1 <= len(text) <= 29 or '"' in text:
         raise ValueError("an advertised local name, 1 to 29 characters, no quotes")
@@ -133,7 +139,7 @@ SETTINGS: dict[str, Callable[[str], Any]] = {
 device kind takes is its record's ``settings`` in the device table."""
 
 SOURCES: dict[str, dict[str, Callable[[str], Any]]] = {
-    "capture": {"device": _name, "speed": _speed},  # a pcapng capture replayed as live ports
+    "capture": {"device": _device, "speed": _speed},  # a pcapng capture replayed as live ports
     "serve": {"device": _name},  # the devices of an `rfhoming serve` at serve://HOST:PORT
 }
 """Port spec kinds that are not devices: where recorded or shared devices come from."""

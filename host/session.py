@@ -116,7 +116,7 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
         spec = spec.with_kind(await sniff(spec, lambda *event: sniffed.append(event)))
     if describe is not None:
         record = devices.kind(spec.kind)
-        describe(spec.name or spec.where, protocol=record.protocol, kind=record.name)
+        describe(spec.name or spec.where, protocol=record.protocol, kind=record.name, label=label(spec.where, spec.name))
     for name, direction, t, data in sniffed:
         for tap in taps:
             tap(name, f"sniffed-{direction}", t, data)
@@ -163,10 +163,11 @@ def replay_drivers(spec: PortSpec, partial: Callable[[Exception], None] | None =
     if torn and partial is None:
         log.warning("%s ends in a torn block (%d bytes, a killed writer); replaying up to the last "
                     "complete block", spec.where, torn)
-    chosen = [i for i, iface in enumerate(interfaces) if spec.settings.get("device") in (None, iface.name)]
+    wanted = spec.settings.get("device")
+    chosen = [i for i, iface in enumerate(interfaces) if wanted is None or wanted in names_of(iface)]
     if not chosen:
-        names = ", ".join(iface.name for iface in interfaces) or "none"
-        raise PortSpecError(f"{spec.where} has no device {spec.settings['device']!r}; it holds: {names}")
+        held = "; ".join(" = ".join(names_of(iface)) for iface in interfaces) or "none"
+        raise PortSpecError(f"{spec.where} has no device {wanted!r}; it holds: {held}")
     sequencer = Sequencer({interfaces[i].name: packets[i] for i in chosen})
     drivers = []
     for i in chosen:
@@ -175,6 +176,18 @@ def replay_drivers(spec: PortSpec, partial: Callable[[Exception], None] | None =
                           sequencer=sequencer, match_writes=not record.commanded)
         drivers.append(driver_class(record)(port))
     return drivers
+
+
+def names_of(interface: Any) -> list[str]:
+    """What ``device=`` may call a recorded device: its path, its short label and its role in a run."""
+    fields = describe_interface(interface)
+    return list(dict.fromkeys(n for n in (interface.name, fields.get("label"), fields.get("role")) if n))
+
+
+def label(where: str, name: str | None = None) -> str:
+    """A device's short, stable name for a capture: its spec's ``name=``, else the last part of
+    its path (``aoa`` for /tmp/rfhoming-demo-x1y2/aoa, ``ttyUSB0`` for /dev/ttyUSB0)."""
+    return name or where.rstrip("/").rpartition("/")[2].rpartition(":")[2] or where
 
 
 def recorded_kind(interface: Any) -> DeviceKind:

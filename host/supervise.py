@@ -1,6 +1,6 @@
 """Fail fast: watch the drivers a command or a homing run uses and end it, with a message
-naming the device, when one cannot go on -- its port never opened, its first set-up failed, it
-was not ready within its deadline (the device table's ``setup_timeout_s`` for its kind, or the
+naming the device, when one cannot go on -- its port never opened, its set-up failed on a port
+that said nothing, it was not ready within its deadline (the device table's ``setup_timeout_s`` for its kind, or the
 spec's ``timeout=``), or several tags are in view and none was chosen."""
 
 from __future__ import annotations
@@ -40,6 +40,13 @@ def ready(driver: Driver) -> bool:
     return driver.state == "streaming" if isinstance(driver, AoaDriver) else driver.connected.is_set()
 
 
+def hopeless(driver: Driver) -> bool:
+    """A failed set-up on a port that has said nothing at all: waiting cannot help (wiring, baud).
+    A device that talks but failed once -- a busy machine, a board that booted under the host --
+    gets the set-up's retries until its deadline."""
+    return driver.state == "setup_failed" and driver.port.counters.get("bytes_in", 0) == 0
+
+
 async def supervise(deadlines: dict[Driver, float]) -> None:
     """Raise PortError or DeviceNotReady as soon as a driver cannot go on; runs until cancelled
     (returns at once when there is nothing to watch, e.g. a replay)."""
@@ -59,7 +66,7 @@ async def supervise(deadlines: dict[Driver, float]) -> None:
         for driver, limit in list(waiting.items()):
             if ready(driver):
                 del waiting[driver]
-            elif driver.state == "setup_failed" or time.monotonic() - start > limit:
+            elif hopeless(driver) or time.monotonic() - start > limit:
                 why = getattr(driver, "problem", None) or f"still {driver.state}"
                 if driver.state == "setup_failed":
                     raise DeviceNotReady(f"{driver.port.name} ({driver.kind}): set-up failed: {why}")

@@ -103,3 +103,24 @@ def test_the_in_process_demo_gives_the_same_summary_for_the_same_seed(tmp_path: 
     done, log = replayed(tmp_path / "0" / "capture.pcapng")
     assert json.loads(done.stdout)["replay"]["diverged"] == 0
     assert log == (tmp_path / "0" / "run.jsonl").read_text().splitlines()
+    # the drivers alone: here the replayed driver's first AT can go out before it reads the +STARTUP
+    # the live one read first (the in-process pipe had it waiting at open); once that failed the set-up
+    # ("no answer to AT") -- now the driver tries AT again, as it must when a board boots under it
+    drivers = rfhoming("replay", str(tmp_path / "0" / "capture.pcapng"), "--json")
+    counters = [json.loads(line) for line in drivers.stdout.splitlines() if '"kind": "counters"' in line]
+    assert drivers.returncode == 0 and drivers.stderr == "", drivers.stderr
+    assert [c["state"] for c in counters] == ["ended", "ended"] and all(c["unanswered"] == 0 for c in counters)
+
+
+def test_a_run_takes_its_devices_from_a_capture_by_role(tmp_path: Path) -> None:
+    """`run --aoa capture:F --base capture:F`: one device per role, no device= needed; the run
+    log is the live one."""
+    demo = rfhoming("demo", "--in-process", "--json", "--out", str(tmp_path))
+    assert demo.returncode == 0, demo.stderr
+    capture = tmp_path / "capture.pcapng"
+    done = rfhoming("run", "--aoa", f"capture:{capture}", "--base", f"capture:{capture},device=base",
+                    "--log", str(tmp_path / "again.jsonl"))
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "again.jsonl").read_text() == (tmp_path / "run.jsonl").read_text()
+    wrong = rfhoming("run", "--aoa", f"capture:{capture},device=nope", "--base", f"capture:{capture}")
+    assert wrong.returncode == 2 and "no device 'nope'" in wrong.stderr and "aoa" in wrong.stderr

@@ -226,8 +226,11 @@ class AoaDriver(Driver):
         return True
 
     # -- commands ---------------------------------------------------------------------
-    async def command(self, command: c.Command, *, timeout: float | None = None, tries: int | None = None) -> Response:
-        """Send one command and wait for its answer, retrying on timeout; CommandFailed on ERROR."""
+    async def command(self, command: c.Command, *, timeout: float | None = None, tries: int | None = None,
+                      through_restart: bool = False) -> Response:
+        """Send one command and wait for its answer, retrying on timeout; CommandFailed on ERROR
+        or on a +STARTUP before the answer (``through_restart``: try again then, as waking a board
+        that was just powered must: it may print +STARTUP after the host's first AT)."""
         timeout = self.setup.command_timeout if timeout is None else timeout
         tries = self.setup.retries + 1 if tries is None else tries
         for _ in range(tries):
@@ -241,6 +244,11 @@ class AoaDriver(Driver):
                 self.matcher.cancel()
                 self.counters["retries"] += 1
                 continue
+            if response.restarted and through_restart:
+                self.counters["retries"] += 1
+                continue
+            if response.restarted:
+                raise CommandFailed(f"{command.text}: the board restarted (+STARTUP) before it answered")
             if not response.ok:
                 raise CommandFailed(f"{command.text} answered ERROR")
             return response
@@ -251,7 +259,7 @@ class AoaDriver(Driver):
         tries = max(1, round(self.setup.wake_timeout / 0.25))
         self.problem = f"waiting for an answer to AT; if none comes, {FLOW_HINT}"
         try:
-            await self.command(c.at(), timeout=0.25, tries=tries)
+            await self.command(c.at(), timeout=0.25, tries=tries, through_restart=True)
         except CommandFailed:
             hint = FLOW_HINT if self.port.counters["bytes_in"] == 0 else (
                 "bytes arrive but no answer: is this an XPLR-AOA, at this baud rate?")

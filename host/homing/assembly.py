@@ -43,7 +43,7 @@ from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.replay import ReplayPort, Sequencer, read_capture
 from rfhoming.host.replay import describe as describe_interface
-from rfhoming.host.session import driver_class, recorded_kind, resolve, serve_driver
+from rfhoming.host.session import driver_class, names_of, recorded_kind, resolve, serve_driver
 from rfhoming.host.sink import Sink
 from rfhoming.host.site import Site
 from rfhoming.host.supervise import deadline, supervise
@@ -161,9 +161,9 @@ async def resolve_devices(plan: Homing) -> Homing:
             out.append(device)
             continue
         spec = _kind_for(device, parse_spec(device.spec))
-        if spec.kind == "capture":
-            raise PortSpecError(f"{spec}: a capture cannot take part in a live run yet; replay it with "
-                                "rfhoming replay")
+        if spec.kind == "capture":  # its recorded device, wired below with the others of its file
+            out.append(replace(device, spec=spec))
+            continue
         if spec.kind == "serve":
             if device.role != "aoa":
                 raise PortSpecError(f"--{device.role} {spec}: only the XPLR-AOA (--aoa) can come from "
@@ -172,7 +172,43 @@ async def resolve_devices(plan: Homing) -> Homing:
             continue
         spec = await resolve(spec, baud=plan.baud, flow=plan.flow, taps=taps, kind=spec.kind, describe=describe)
         out.append(replace(device, spec=spec))
-    return replace(plan, devices=out)
+    return replace(plan, devices=_recorded(out))
+
+
+def _recorded(devices_: list[Device]) -> list[Device]:
+    """Devices given as ``capture:FILE[,device=NAME]`` -> their recorded ports, released in the
+    file's recorded global order: ``device=`` names one (a path, label or role `rfhoming replay`
+    lists); without it, the one recorded in the device's role, or the one whose kind fills it."""
+    files: dict[str, list[int]] = {}
+    for i, device in enumerate(devices_):
+        spec = parse_spec(device.spec) if device.spec is not None else None
+        if spec is not None and spec.kind == "capture":
+            files.setdefault(spec.where, []).append(i)
+    out = list(devices_)
+    for path, indexes in files.items():
+        interfaces, packets, _torn, _ = read_capture(path)
+        picked = [_pick(path, interfaces, devices_[i]) for i in indexes]
+        sequencer = Sequencer({interfaces[k].name: packets[k] for k in picked})
+        for i, k in zip(indexes, picked):
+            port = ReplayPort(interfaces[k].name, packets[k], sequencer=sequencer)
+            out[i] = replace(devices_[i], spec=None, port=port, kind=recorded_kind(interfaces[k]).name)
+    return out
+
+
+def _pick(path: str, interfaces: list[Any], device: Device) -> int:
+    wanted = parse_spec(device.spec or "").settings.get("device")
+    for test in ((lambda i: wanted in names_of(i)) if wanted else None,
+                 lambda i: describe_interface(i).get("role") == device.role,
+                 lambda i: device.role in recorded_kind(i).roles):
+        found = [k for k, iface in enumerate(interfaces) if test is not None and test(iface)]
+        if len(found) == 1 or (wanted and found):
+            return found[0]
+        if wanted or len(found) > 1:
+            held = "; ".join(" = ".join(names_of(i)) for i in interfaces)
+            what = f"no device {wanted!r}" if wanted else f"{len(found)} devices that can be the {device.role}"
+            raise PortSpecError(f"{path} has {what}; name one with capture:{path},device=NAME (it holds: {held})")
+    raise PortSpecError(f"{path} holds no device for the {device.role} role (it holds: "
+                        f"{'; '.join(' = '.join(names_of(i)) for i in interfaces)})")
 
 
 def _describing(capture: CaptureWriter, role: str) -> Callable[..., None]:
