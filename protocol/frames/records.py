@@ -125,9 +125,17 @@ VELOCITY_COMMAND = Struct(  # 0x21 host -> base
     "timeout_ms" / Int16ul,  # the base stops when it expires
 )
 
-RANGE_SCAN = Struct(  # 0x22 base -> host
+RANGE_SCAN = Struct(  # 0x22 base -> host, version 1: still decoded, no longer sent
     "angle_min_mrad" / Int16sl,
-    "angle_inc_mrad" / Int16sl,
+    "angle_inc_mrad" / Int16sl,  # whole mrad: 181 beams over ±90° end at 85.3°, not 90°
+    "count" / Rebuild(Int8ul, len_(this.ranges_mm)),
+    "ranges_mm" / Array(this.count, Int16ul),  # 0 = no return
+)
+
+RANGE_SCAN_V2 = Struct(  # 0x23 base -> host: a range scan with its exact geometry
+    "angle_min_urad" / Int32sl,  # the first beam, counter-clockwise from ahead
+    "angle_max_urad" / Int32sl,  # the last beam; beams are evenly spaced between the two
+    "range_max_mm" / Int16ul,  # the sensor's own maximum range
     "count" / Rebuild(Int8ul, len_(this.ranges_mm)),
     "ranges_mm" / Array(this.count, Int16ul),  # 0 = no return
 )
@@ -176,6 +184,7 @@ RECORD_TYPES: dict[int, RecordType] = {
         _declare(0x20, "odometry", "Odometry", ODOMETRY),
         _declare(0x21, "velocity_command", "VelocityCommand", VELOCITY_COMMAND),
         _declare(0x22, "range_scan", "RangeScan", RANGE_SCAN),
+        _declare(0x23, "range_scan_v2", "RangeScanV2", RANGE_SCAN_V2),
         _declare(0x7F, "log_text", "LogText", LOG_TEXT),
         _declare(0x80, "node_command", "NodeCommand", NODE_COMMAND),
     )
@@ -188,6 +197,7 @@ Status = RECORD_TYPES[0x10].cls
 Odometry = RECORD_TYPES[0x20].cls
 VelocityCommand = RECORD_TYPES[0x21].cls
 RangeScan = RECORD_TYPES[0x22].cls
+RangeScanV2 = RECORD_TYPES[0x23].cls
 LogText = RECORD_TYPES[0x7F].cls
 NodeCommand = RECORD_TYPES[0x80].cls
 
