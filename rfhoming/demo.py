@@ -35,8 +35,11 @@ SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None,
-                   receiver: str | None = None) -> tuple[subprocess.Popen, dict]:
-    cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", "--lockstep", "--seed", str(seed),
+                   receiver: str | None = None, speed: float = 0.0) -> tuple[subprocess.Popen, dict]:
+    """``speed`` 0: lockstep (as fast as the host answers, deterministic); else the emulator's
+    ``--speed`` (1 = robot time, for a person watching)."""
+    pace = ["--lockstep"] if speed == 0 else ["--speed", str(speed)]
+    cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", *pace, "--seed", str(seed),
            "--truth", str(truth), "--link-dir", str(link_dir)]
     if receiver:
         cmd += ["--receiver", receiver]
@@ -155,15 +158,15 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
 
 
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-             receiver: str | None = None, sinks: list | tuple = ()) -> dict[str, Any]:
+             receiver: str | None = None, sinks: list | tuple = (), speed: float = 0.0) -> dict[str, Any]:
     """One demo run. ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that
     device; ``sinks`` (an MCAP recorder, a live view) see every item and run log record too,
-    and stay open."""
+    and stay open. ``speed``: 0 lockstep, else simulated seconds per wall second."""
     out.mkdir(parents=True, exist_ok=True)
     truth = out / "truth.jsonl"
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
-                                     receiver)
+                                     receiver, speed)
     if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
         config = trilat_config(config, truth, target)
     try:
