@@ -17,7 +17,7 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from rfhoming.host.foxglove_view import FoxgloveView
-from tests.test_foxglove_view import SAFETY_S, watch
+from test_foxglove_view import SAFETY_S, watch
 
 
 def start_demo(out: Path, *args: str) -> tuple[subprocess.Popen, str]:
