@@ -316,6 +316,24 @@ int rfh_utf8_valid(const uint8_t *b, size_t len)
     return 1;
 }
 
+size_t rfh_encode_range_scan_v2(uint8_t *out, size_t cap, const rfh_header_t *h, const rfh_range_scan_v2_t *r)
+{
+    writer_t w;
+    size_t i;
+    w_begin(&w, out, cap, RFH_RANGE_SCAN_V2, h);
+    if (r == NULL || (r->count != 0 && r->ranges_mm == NULL)) {
+        return 0;
+    }
+    w_u32(&w, (uint32_t)r->angle_min_urad);
+    w_u32(&w, (uint32_t)r->angle_max_urad);
+    w_u16(&w, r->range_max_mm);
+    w_u8(&w, r->count);
+    for (i = 0; i < r->count; ++i) {
+        w_u16(&w, r->ranges_mm[i]);
+    }
+    return w_end(&w);
+}
+
 size_t rfh_encode_log_text(uint8_t *out, size_t cap, const rfh_header_t *h, const rfh_log_text_t *r)
 {
     writer_t w;
@@ -561,6 +579,20 @@ int rfh_parse_range_scan(const uint8_t *b, size_t len, rfh_range_scan_t *r, cons
     r->count = b[4];
     r->ranges_mm = NULL;
     *ranges_le = b + 5;
+    return 1;
+}
+
+int rfh_parse_range_scan_v2(const uint8_t *b, size_t len, rfh_range_scan_v2_t *r, const uint8_t **ranges_le)
+{
+    if (len < 11u || len != 11u + 2u * b[10]) {
+        return 0;
+    }
+    r->angle_min_urad = (int32_t)get_u32(b);
+    r->angle_max_urad = (int32_t)get_u32(b + 4);
+    r->range_max_mm = get_u16(b + 8);
+    r->count = b[10];
+    r->ranges_mm = NULL;
+    *ranges_le = b + 11;
     return 1;
 }
 

@@ -45,7 +45,8 @@ enum rfh_type {
     RFH_STATUS = 0x10,
     RFH_ODOMETRY = 0x20,
     RFH_VELOCITY_COMMAND = 0x21,
-    RFH_RANGE_SCAN = 0x22,
+    RFH_RANGE_SCAN = 0x22,        /* version 1: still decoded, no longer sent */
+    RFH_RANGE_SCAN_V2 = 0x23,
     RFH_LOG_TEXT = 0x7F,
     RFH_NODE_COMMAND = 0x80
 };
@@ -128,6 +129,14 @@ typedef struct { /* 0x22 base -> host */
     const uint16_t *ranges_mm; /* encoding reads host order; a parser gives raw LE bytes, see below */
 } rfh_range_scan_t;
 
+typedef struct { /* 0x23 base -> host: the exact geometry */
+    int32_t angle_min_urad;    /* the first beam, counter-clockwise from ahead */
+    int32_t angle_max_urad;    /* the last beam; beams evenly spaced between */
+    uint16_t range_max_mm;     /* the sensor's maximum range */
+    uint8_t count;
+    const uint16_t *ranges_mm; /* as in rfh_range_scan_t */
+} rfh_range_scan_v2_t;
+
 typedef struct { /* 0x7F firmware log line, UTF-8 (the encoder refuses, the parser rejects other bytes) */
     const char *text;
     size_t len;
@@ -149,6 +158,7 @@ size_t rfh_encode_odometry(uint8_t *out, size_t cap, const rfh_header_t *h, cons
 size_t rfh_encode_velocity_command(uint8_t *out, size_t cap, const rfh_header_t *h,
                                    const rfh_velocity_command_t *r);
 size_t rfh_encode_range_scan(uint8_t *out, size_t cap, const rfh_header_t *h, const rfh_range_scan_t *r);
+size_t rfh_encode_range_scan_v2(uint8_t *out, size_t cap, const rfh_header_t *h, const rfh_range_scan_v2_t *r);
 size_t rfh_encode_log_text(uint8_t *out, size_t cap, const rfh_header_t *h, const rfh_log_text_t *r);
 size_t rfh_encode_node_command(uint8_t *out, size_t cap, const rfh_header_t *h, const rfh_node_command_t *r);
 
@@ -187,7 +197,7 @@ int rfh_utf8_valid(const uint8_t *b, size_t len);
 
 /* Parsers return 1 when `len` fits the type, 0 otherwise (the host drops those as "length";
  * a log_text that is not UTF-8 as "text").
- * rfh_parse_range_scan() sets ranges_mm to NULL and gives the little-endian bytes in
+ * rfh_parse_range_scan() and rfh_parse_range_scan_v2() set ranges_mm to NULL and gives the little-endian bytes in
  * *ranges_le (2 * count bytes), since the body need not be aligned for uint16_t. */
 int rfh_parse_adv_report(const uint8_t *body, size_t len, rfh_adv_report_t *r);
 int rfh_parse_rf_frame(const uint8_t *body, size_t len, rfh_rf_frame_t *r);
@@ -196,6 +206,7 @@ int rfh_parse_status(const uint8_t *body, size_t len, rfh_status_t *r);
 int rfh_parse_odometry(const uint8_t *body, size_t len, rfh_odometry_t *r);
 int rfh_parse_velocity_command(const uint8_t *body, size_t len, rfh_velocity_command_t *r);
 int rfh_parse_range_scan(const uint8_t *body, size_t len, rfh_range_scan_t *r, const uint8_t **ranges_le);
+int rfh_parse_range_scan_v2(const uint8_t *body, size_t len, rfh_range_scan_v2_t *r, const uint8_t **ranges_le);
 int rfh_parse_log_text(const uint8_t *body, size_t len, rfh_log_text_t *r);
 int rfh_parse_node_command(const uint8_t *body, size_t len, rfh_node_command_t *r);
 

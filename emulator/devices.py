@@ -375,7 +375,7 @@ class BaseRunner(DeviceRunner):
             ranges = world.cast((r.x, r.y), angles + r.theta, self.SCAN_RANGE_M)
             if self.scan_noise_m > 0:
                 ranges = np.maximum(ranges + self.rng.normal(0, self.scan_noise_m, len(ranges)), 0.0)
-            fw.send_scan(-math.pi / 2, math.pi / (self.SCAN_BEAMS - 1),
+            fw.send_scan(-math.pi / 2, math.pi / 2, self.SCAN_RANGE_M,
                          [None if not math.isfinite(d) else float(d) for d in ranges])
 
 

@@ -140,7 +140,10 @@ class TcpLink(Link):
         self.assumed_host_baud = 115200
 
     def describe(self) -> dict[str, Any]:
-        return {"url": f"socket://127.0.0.1:{self.port}"}
+        """``path`` as the pty mode prints it (a port spec takes socket:// URLs), so a client
+        reads the same key in both modes; ``url`` kept for clients that read it."""
+        url = f"socket://127.0.0.1:{self.port}"
+        return {"path": url, "url": url}
 
     def host_baud(self) -> int | None:
         return self.assumed_host_baud

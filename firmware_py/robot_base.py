@@ -13,7 +13,8 @@ from their normal ramp (docs/protocol.md cites it); the host uses it on stale da
 The emulator asks :meth:`tick` for the applied (v, ω) each step and integrates the true pose;
 the base integrates its own odometry from the same wheel speeds with a configurable wheel-slip
 error (scale on v and ω, plus a yaw drift), so odometry drifts from truth as on a real robot.
-Odometry (0x20) at 50 Hz; a range scan (0x22) whenever the emulator provides one.
+Odometry (0x20) at 50 Hz; a range scan (0x23, its first and last beam in µrad) whenever the
+emulator provides one.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from rfhoming.firmware.framed_node import FramedNode
-from rfhoming.protocol.frames import NodeCommand, Odometry, RangeScan, VelocityCommand
+from rfhoming.protocol.frames import NodeCommand, Odometry, RangeScanV2, VelocityCommand
 
 ODOMETRY_PERIOD_US = 20_000
 FLAG_WATCHDOG, FLAG_CONTACT, FLAG_MOTORS = 1, 2, 4
@@ -145,11 +146,14 @@ class RobotBaseFirmware(FramedNode):
             _sat(round(self.v * 1000), 15), _sat(round(self.w * 1000), 15), flags,
         ))
 
-    def send_scan(self, angle_min: float, angle_increment: float, ranges_m: Sequence[float | None]) -> None:
-        """Package a scan the world measured: mm, 0 = no return, at most 255 beams."""
+    def send_scan(self, angle_min: float, angle_max: float, range_max: float,
+                  ranges_m: Sequence[float | None]) -> None:
+        """Package a scan the world measured (radians of the first and last beam, metres):
+        mm, 0 = no return, at most 255 beams."""
         ranges = tuple(0 if r is None else max(1, min(65535, round(r * 1000))) for r in ranges_m[:255])
-        self.send(RangeScan(self.node_id, self.next_seq(), self._now_us & 0xFFFFFFFF,
-                            round(angle_min * 1000), round(angle_increment * 1000), ranges))
+        self.send(RangeScanV2(self.node_id, self.next_seq(), self._now_us & 0xFFFFFFFF,
+                              round(angle_min * 1e6), round(angle_max * 1e6), min(65535, round(range_max * 1000)),
+                              ranges))
 
 
 def _sat(value: int, bits: int) -> int:

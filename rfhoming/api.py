@@ -28,6 +28,7 @@ from rfhoming.protocol.frames.records import (
     NodeCommand,
     Odometry,
     RangeScan,
+    RangeScanV2,
     RfFrame,
     Status,
     VelocityCommand,
@@ -47,7 +48,7 @@ CHATTER = frozenset({"echo", "info", "final"})
 
 Item: TypeAlias = Union[
     AngleEvent, TagData, Startup, Echo, InfoLine, FinalCode, UnknownLine,  # XPLR-AOA (u-connectLocate)
-    AdvReport, RfFrame, AntennaSet, Status, Odometry, VelocityCommand, RangeScan, LogText, NodeCommand,  # framed
+    AdvReport, RfFrame, AntennaSet, Status, Odometry, VelocityCommand, RangeScan, RangeScanV2, LogText, NodeCommand,  # framed
     ScanReport, Info, Final, Event,  # ESP-AT
     "Advertisement", "HciPacket",  # HCI
     Drop,

@@ -36,8 +36,11 @@ SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None,
-                   receiver: str | None = None) -> tuple[subprocess.Popen, dict]:
-    cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", "--lockstep", "--seed", str(seed),
+                   receiver: str | None = None, speed: float = 0.0) -> tuple[subprocess.Popen, dict]:
+    """``speed`` 0: lockstep (as fast as the host answers, deterministic); else the emulator's
+    ``--speed`` (1 = robot time, for a person watching)."""
+    pace = ["--lockstep"] if speed == 0 else ["--speed", str(speed)]
+    cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", *pace, "--seed", str(seed),
            "--truth", str(truth), "--link-dir", str(link_dir)]
     if receiver:
         cmd += ["--receiver", receiver]
@@ -197,13 +200,16 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
 
 
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-             receiver: str | None = None, sinks: list | tuple = (), in_process: bool = False) -> dict[str, Any]:
+             receiver: str | None = None, sinks: list | tuple = (), speed: float = 0.0,
+             in_process: bool = False) -> dict[str, Any]:
     """One demo run. ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that
     device; ``sinks`` (an MCAP recorder, a live view) see every item and run log record too,
-    and stay open; ``in_process``: the emulator in this process (the same summary for the
-    same seed) instead of in its own on ptys."""
+    and stay open. ``speed``: 0 lockstep, else simulated seconds per wall second (on ptys);
+    ``in_process``: the emulator in this process, in lockstep (the same summary for the same
+    seed), instead of in its own on ptys."""
     out.mkdir(parents=True, exist_ok=True)
-    config = config.for_lockstep()  # the emulator waits for the host: wall time means nothing
+    if speed == 0 or in_process:
+        config = config.for_lockstep()  # the emulator waits for the host: wall time means nothing
     truth = out / "truth.jsonl"
     if in_process:
         outcome, config = asyncio.run(asyncio.wait_for(
@@ -214,7 +220,7 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
         return _finish(summary, out)
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
-                                     receiver)
+                                     receiver, speed)
     if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
         config = trilat_config(config, truth, target)
     try:

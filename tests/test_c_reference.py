@@ -88,6 +88,11 @@ class RangeScan(C.Structure):
                 ("ranges_mm", C.POINTER(U16))]
 
 
+class RangeScanV2(C.Structure):
+    _fields_ = [("angle_min_urad", I32), ("angle_max_urad", I32), ("range_max_mm", U16), ("count", U8),
+                ("ranges_mm", C.POINTER(U16))]
+
+
 class LogText(C.Structure):
     _fields_ = [("text", P8), ("len", C.c_size_t)]
 
@@ -103,7 +108,7 @@ class Decoder(C.Structure):
 
 
 STRUCTS = {0x01: AdvReport, 0x02: RfFrame, 0x03: AntennaSet, 0x10: Status, 0x20: Odometry,
-           0x21: VelocityCommand, 0x22: RangeScan, 0x7F: LogText, 0x80: NodeCommand}
+           0x21: VelocityCommand, 0x22: RangeScan, 0x23: RangeScanV2, 0x7F: LogText, 0x80: NodeCommand}
 TAILS = {0x01: ("ad", "ad_len"), 0x02: ("psdu", "psdu_len"), 0x80: ("args", "args_len")}
 
 
@@ -127,7 +132,7 @@ def to_c(record: Any) -> tuple[C.Structure, list]:
             fields["addr"] = (U8 * 6)(*fields["addr"])
     elif code == 0x03:
         fields["antennas"] = (Antenna * 4)(*[Antenna(*a) for a in fields["antennas"]])
-    elif code == 0x22:
+    elif code in (0x22, 0x23):
         ranges = fields.pop("ranges_mm")
         keep.append((U16 * max(len(ranges), 1))(*ranges))
         fields["ranges_mm"], fields["count"] = C.cast(keep[-1], C.POINTER(U16)), len(ranges)
@@ -198,7 +203,7 @@ def reencode(lib: C.CDLL, dec: Decoder) -> bytes | None:
     body = C.cast(C.byref(dec.inner, 9), P8)
     struct = STRUCTS[code]()
     parse = getattr(lib, "rfh_parse_" + RECORD_TYPES[code].kind)
-    if code == 0x22:
+    if code in (0x22, 0x23):
         raw = P8()
         if not parse(body, C.c_size_t(body_len), C.byref(struct), C.byref(raw)):
             return None

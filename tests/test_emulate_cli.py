@@ -176,3 +176,15 @@ def test_stopping_with_a_tcp_client_connected_prints_no_traceback() -> None:
         code = stop(proc)
     stderr = proc.stderr.read()
     assert code == 0 and "Traceback" not in stderr and "CancelledError" not in stderr, stderr
+
+
+def test_tcp_mode_prints_path_like_the_pty_mode() -> None:
+    """docs/api.md reads ``["path"]``: it must work when a user switches to --tcp."""
+    proc = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--tcp", "--duration", "0.5"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        endpoint = json.loads(proc.stdout.readline())
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert endpoint["path"].startswith("socket://127.0.0.1:") and endpoint["url"] == endpoint["path"]

@@ -31,6 +31,7 @@ def decoders(channels: list[dict]) -> dict[int, tuple[str, object]]:
     out = {}
     for ch in channels:
         if ch["encoding"] == "json":
+            assert ch["schemaEncoding"] == "jsonschema" and json.loads(ch["schema"])["properties"], ch["topic"]
             out[ch["id"]] = (ch["topic"], json.loads)
             continue
         assert ch["encoding"] == "protobuf" and ch["schemaEncoding"] == "protobuf"
@@ -42,10 +43,12 @@ def decoders(channels: list[dict]) -> dict[int, tuple[str, object]]:
     return out
 
 
-def watch(address: str, got: dict[str, list] | None = None) -> dict[str, list]:
+def watch(address: str, got: dict[str, list] | None = None, info: dict | None = None) -> dict[str, list]:
     """Subscribe to every channel as it is advertised; topic -> decoded messages (into ``got``
-    as they come, if given), until the server goes away."""
+    as they come, if given), until the server goes away. ``info`` collects the server info,
+    the advertised channels and the time messages (spec: binary opcode 2, u64 ns)."""
     got = defaultdict(list) if got is None else got
+    info = {} if info is None else info
     channels: dict[int, tuple[str, object]] = {}
     with connect(address, subprotocols=[SUBPROTOCOL], open_timeout=SAFETY_S) as ws:
         try:
@@ -53,11 +56,17 @@ def watch(address: str, got: dict[str, list] | None = None) -> dict[str, list]:
                 frame = ws.recv(timeout=SAFETY_S)
                 if isinstance(frame, str):
                     op = json.loads(frame)
+                    if op["op"] == "serverInfo":
+                        info["serverInfo"] = op
                     if op["op"] == "advertise":
+                        info.setdefault("channels", []).extend(op["channels"])
                         fresh = decoders(op["channels"])
                         subs = [{"id": cid, "channelId": cid} for cid in fresh]
                         ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
                         channels.update(fresh)
+                    continue
+                if frame[0] == 0x02:  # time: op, timestamp u64 ns
+                    info.setdefault("time", []).append(int.from_bytes(frame[1:9], "little"))
                     continue
                 assert frame[0] == 0x01  # message data: op, subscription id u32, log time u64, payload
                 sub = int.from_bytes(frame[1:5], "little")
@@ -71,7 +80,7 @@ def watch(address: str, got: dict[str, list] | None = None) -> dict[str, list]:
 def watched_demo(out: Path, *args: str) -> tuple[dict[str, list], list[dict]]:
     """``demo --foxglove=0`` watched from start to end: what the client got, and the run log."""
     demo = subprocess.Popen([sys.executable, "-m", "rfhoming", "demo", "--out", str(out), "--foxglove=0",
-                             "--json", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--json", "--linger", "0", *(args or ("--speed", "0"))], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         first = json.loads(demo.stderr.readline())
         assert first["kind"] == "listening" and first["address"].startswith("ws://127.0.0.1:")
@@ -112,7 +121,7 @@ def test_a_websocket_client_receives_the_scene_during_demo(tmp_path: Path) -> No
 
 
 def test_the_particle_cloud_and_mapped_obstacles_of_s2_are_published(tmp_path: Path) -> None:
-    got, runlog = watched_demo(tmp_path, "--scenario", "s2-a")
+    got, runlog = watched_demo(tmp_path, "--scenario", "s2-a", "--speed", "0")
     clouds = got["/rfhoming/particles"]
     assert len(clouds) > 3
     last = clouds[-1]
@@ -156,7 +165,7 @@ def distance_to_segment(p, a, b) -> float:
 
 
 def test_the_anchors_of_s3_are_drawn(tmp_path: Path) -> None:
-    got, _ = watched_demo(tmp_path, "--scenario", "s3-arena")
+    got, _ = watched_demo(tmp_path, "--scenario", "s3-arena", "--speed", "0")
     header = json.loads((tmp_path / "truth.jsonl").read_text().splitlines()[0])
     entities = {e.id: e for update in got["/rfhoming/scene"] for e in update.entities}
     anchors = {k: (e.cubes[0].pose.position.x, e.cubes[0].pose.position.y) for k, e in entities.items()

@@ -38,13 +38,15 @@ def killed_recording(path: Path) -> None:
 
 
 def linear_read(path: Path) -> list[tuple[int, bytes]]:
-    """(log time ns, data) of every message before the file's end, in file order. A file cut
-    short ends without its summary and footer: the reader raises EndOfFile there."""
+    """(log time ns, data) of every event message before the file's end, in file order (the
+    /tf_static written first is left out). A file cut short ends without its summary and
+    footer: the reader raises EndOfFile there."""
     out = []
     with path.open("rb") as f:
         try:
-            for _, _, message in NonSeekingReader(f).iter_messages(log_time_order=False):
-                out.append((message.log_time, message.data))
+            for _, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
+                if channel.topic == "/rfhoming/events":
+                    out.append((message.log_time, message.data))
         except EndOfFile:
             pass
     return out

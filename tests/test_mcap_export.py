@@ -173,4 +173,4 @@ def test_an_item_that_cannot_be_written_is_counted_not_raised(tmp_path) -> None:
     recorder.on_runlog({"kind": "command", "t": 1.0, "v": "fast", "w": 0.0})
     recorder.close()
     assert recorder.skipped == {"unwritable angle": 1, "unwritable command": 1}
-    assert recorder.counts == {"/odom": 1}
+    assert recorder.counts == {"/tf_static": 1, "/odom": 1, "/tf": 1}

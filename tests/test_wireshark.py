@@ -50,6 +50,7 @@ def sample(rng: random.Random) -> list:
         "odometry": lambda s: (*ints(2, -9999, 9999), rng.randint(-3141592, 3141592), 300, -100, 4),
         "velocity_command": lambda s: (250, -500, 300),
         "range_scan": lambda s: (-1571, 17, tuple(ints(rng.randint(0, 181), 0, 8000))),
+        "range_scan_v2": lambda s: (-1570796, 1570796, 8000, tuple(ints(rng.randint(0, 181), 0, 8000))),
         "log_text": lambda s: (f"step {s} ok",),
         "node_command": lambda s: (1, bytes([5, 0])),
     }

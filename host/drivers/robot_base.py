@@ -19,6 +19,7 @@ from rfhoming.protocol.frames import (
     NodeCommand,
     Odometry,
     RangeScan,
+    RangeScanV2,
     VelocityCommand,
     encode_frame,
 )
@@ -39,11 +40,30 @@ class Pose2D(NamedTuple):
     flags: int
 
 
+SCAN_V1_RANGE_MAX = 65.535  # a version-1 scan does not say its sensor's range: the record's largest
+
+
 class Scan(NamedTuple):
     t_host: float
-    angle_min: float
+    angle_min: float  # radians, the first beam, counter-clockwise from ahead
     angle_increment: float
     ranges: tuple[float | None, ...]  # metres, None = no return
+    range_max: float = SCAN_V1_RANGE_MAX  # metres, the sensor's
+
+    @property
+    def angle_max(self) -> float:
+        return self.angle_min + self.angle_increment * max(0, len(self.ranges) - 1)
+
+
+def scan_of(record: RangeScan | RangeScanV2, t_host: float = 0.0) -> Scan:
+    """A range scan record of either version in SI units. Version 2 carries its first and last
+    beam in µrad, so the step is exact; version 1 carried a step rounded to whole mrad."""
+    ranges = tuple(r / 1000 if r else None for r in record.ranges_mm)
+    if isinstance(record, RangeScanV2):
+        first, last = record.angle_min_urad / 1e6, record.angle_max_urad / 1e6
+        step = (last - first) / (len(ranges) - 1) if len(ranges) > 1 else 0.0
+        return Scan(t_host, first, step, ranges, record.range_max_mm / 1000)
+    return Scan(t_host, record.angle_min_mrad / 1000, record.angle_inc_mrad / 1000, ranges)
 
 
 class BaseDriver(Driver):
@@ -68,9 +88,8 @@ class BaseDriver(Driver):
                               record.v_mm_s / 1000, record.w_mrad_s / 1000, record.flags)
                 self.latest = pose
                 self.out.put(pose)
-            elif isinstance(record, RangeScan):
-                scan = Scan(t_host, record.angle_min_mrad / 1000, record.angle_inc_mrad / 1000,
-                            tuple(r / 1000 if r else None for r in record.ranges_mm))
+            elif isinstance(record, (RangeScan, RangeScanV2)):
+                scan = scan_of(record, t_host)
                 self.latest_scan = scan
                 self.out.put(scan)
 

@@ -12,6 +12,12 @@ the open chunk is finished and the file flushed to the operating system, so a ki
 which the mcap library's readers and rosbags read past (docs/usage.md). ``close`` writes the
 summary. (A flush is not an fsync: a power cut may lose what the OS had not written yet.)
 
+Frames (REP 105): ``/tf_static`` holds base_link -> each sensor frame (aoa_link, laser,
+rss_link, ble_link) from the config's ``[mounting]``, written with the first message; ``/tf``
+holds odom -> base_link from every odometry record and, when fixed anchors locate the robot
+(S3), map -> odom from each estimate's odometry offset. A sensor message's ``frame_id`` is its
+sensor's frame; the device it came from (its port) is in its channel's metadata ``device``.
+
 Time: with a robot base every message is stamped on the base's own clock, the run log's time
 axis (an item gets the robot time of the latest odometry, as the homing loop does; items before
 the first odometry have no robot time and are counted, not written). Without a base (a bare
@@ -25,17 +31,20 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from collections import Counter, deque
 from pathlib import Path
 from typing import IO, Any
 
-from mcap_ros2.writer import Writer
+from mcap.writer import Writer
+from mcap_ros2._dynamic import serialize_dynamic  # the encoder mcap_ros2's own Writer uses
 
 from rfhoming.host.capture import DISCONNECTED, SNIFFED
 from rfhoming.host.drivers.common import Driver
+from rfhoming.host.drivers.robot_base import scan_of
 from rfhoming.host.drivers.rss import NodeClock
-from rfhoming.host.export import rosmsgs
+from rfhoming.host.export import frames, rosmsgs
 from rfhoming.host.replay import ReplayPort, load_capture
 from rfhoming.host.session import driver_class, recorded_kind
 from rfhoming.host.sink import Sink
@@ -62,20 +71,36 @@ class McapRecorder(Sink):
     ``commands_from``: "runlog" when a run log will give the velocity commands (live runs and
     exports with a run log), "capture" to take them from the bytes sent to the base."""
 
-    def __init__(self, output: Path | str | IO[bytes], *, clock: str = "robot", commands_from: str = "runlog") -> None:
+    def __init__(self, output: Path | str | IO[bytes], *, clock: str = "robot", commands_from: str = "runlog",
+                 mounting: Any = None, source: str | None = None) -> None:
+        """``mounting``: the config's ``[mounting]`` (sensor frames; None: all at the robot's
+        centre); ``source``: the controller's measurement source (which AoA board is off the
+        robot). A live run gives both through :meth:`watch`."""
         if clock not in ("robot", "host"):
             raise ValueError(f"clock must be robot or host, not {clock!r}")
         self._file = open(output, "wb") if isinstance(output, (str, Path)) else None
         self.writer = Writer(self._file or output, chunk_size=CHUNK_BYTES)
+        self.writer.start(profile="ros2", library="rfhoming (mcap, mcap-ros2-support)")
         self._flushed_at: tuple[float, float] | None = None  # (message time, host monotonic) of the last flush
         self.clock = clock
         self.commands_from = commands_from
-        self._schemas: dict[str, Any] = {}
+        self.mounting = mounting
+        self.source = source
+        self._schemas: dict[str, tuple[int, Any]] = {}  # type -> (schema id, CDR encoder)
+        self._channels: dict[tuple[str, str], int] = {}  # (topic, device) -> channel id
         self._clocks: dict[str, NodeClock] = {}
+        self._static_written = False
+        self._last_xy: tuple[float, float] | None = None
+        self.path_m = 0.0  # driven, by odometry: the pose covariance grows with it
         self.robot_time: float | None = None  # of the latest odometry
         self.counts: Counter[str] = Counter()  # messages per topic
         self.skipped: Counter[str] = Counter()  # items not written, per reason
         self._closed = False
+
+    def watch(self, loop: Any) -> None:
+        """The run's loop: its config's sensor mountings and its controller's source."""
+        self.mounting = loop.config.mounting
+        self.source = getattr(loop, "source", None)
 
     def _failed(self, kind: str, exc: Exception) -> None:
         """An item that cannot be written: counted as skipped, logged once per kind."""
@@ -94,19 +119,32 @@ class McapRecorder(Sink):
                 self.skipped["before odometry"] += 1
             return
         if kind == "odometry":
-            self._write(t, *rosmsgs.odometry(t, item.x_mm / 1000, item.y_mm / 1000, item.theta_urad / 1e6,
-                                             item.v_mm_s / 1000, item.w_mrad_s / 1000))
-        elif kind == "range_scan":
-            ranges = [r / 1000 if r else None for r in item.ranges_mm]
-            self._write(t, *rosmsgs.laser_scan(t, item.angle_min_mrad / 1000, item.angle_inc_mrad / 1000, ranges))
+            x, y, theta = item.x_mm / 1000, item.y_mm / 1000, item.theta_urad / 1e6
+            if self._last_xy is not None:
+                self.path_m += math.dist(self._last_xy, (x, y))
+            self._last_xy = (x, y)
+            self._write(t, *rosmsgs.odometry(t, x, y, theta, item.v_mm_s / 1000, item.w_mrad_s / 1000, self.path_m),
+                        device=device)
+            self._write(t, *rosmsgs.odom_transform(t, x, y, theta))
+        elif kind in ("range_scan", "range_scan_v2"):
+            self._write(t, *rosmsgs.laser_scan(t, scan_of(item)), device=device)
         elif kind == "angle":
-            self._write(t, *rosmsgs.aoa_angle(t, device, item))
+            self._write(t, *rosmsgs.aoa_angle(t, self._aoa_frame(item), item), device=device)
         elif kind == "adv_report":
-            self._write(t, *rosmsgs.rssi_reading(t, device, item))
+            self._write(t, *rosmsgs.rssi_reading(t, item), device=device)
         elif kind == "antenna_set":
-            self._write(t, *rosmsgs.antenna_set(t, device, item))
+            self._write(t, *rosmsgs.antenna_set(t, item), device=device)
         elif kind == "velocity_command" and self.commands_from == "capture":
-            self._write(t, *rosmsgs.twist(item.v_mm_s / 1000, item.w_mrad_s / 1000))
+            self._write(t, *rosmsgs.twist(item.v_mm_s / 1000, item.w_mrad_s / 1000), device=device)
+
+    def _aoa_frame(self, event: Any) -> str:
+        """The robot's XPLR-AOA is aoa_link; S1's is on the docking station and a fixed
+        anchor is anchor_<its id>: frames no transform places (their pose is not known)."""
+        if self.source == "dock_aoa":
+            return frames.STATION
+        if self.source == "anchors":
+            return frames.ANCHOR_PREFIX + event.anchor_id
+        return frames.AOA
 
     def _on_runlog(self, record: dict[str, Any]) -> None:
         t = float(record["t"])
@@ -114,9 +152,13 @@ class McapRecorder(Sink):
         if kind == "command" and self.commands_from == "runlog":
             self._write(t, *rosmsgs.twist(record["v"], record["w"]))
         elif kind == "estimate":
-            for field, topic in (("goal", "/rfhoming/target"), ("fix", "/rfhoming/fix")):
-                if record.get(field) is not None:
-                    self._write(t, *rosmsgs.point(topic, t, record[field]))
+            located = record.get("offset") is not None  # S3: anchors fix the robot in the map
+            if located:
+                self._write(t, *rosmsgs.transforms("/tf", t, [frames.map_to_odom(record["offset"])]))
+            if record.get("goal") is not None:
+                self._write(t, *rosmsgs.point("/rfhoming/target", t, record["goal"]))
+            if record.get("fix") is not None:  # S3: the robot in the map; S2: one target fix in odom
+                self._write(t, *rosmsgs.point("/rfhoming/fix", t, record["fix"], frames.MAP if located else frames.ODOM))
         elif kind == "measurement" and not record.get("incomplete"):
             self._write(t, *rosmsgs.bearing(t, record))
         elif kind == "event":
@@ -126,14 +168,20 @@ class McapRecorder(Sink):
     def _time(self, t_host: float) -> float | None:
         return t_host if self.clock == "host" else self.robot_time
 
-    def _write(self, t: float, topic: str, typename: str, message: dict[str, Any]) -> None:
+    def _write(self, t: float, topic: str, typename: str, message: dict[str, Any], device: str = "") -> None:
         if self._closed:
             return
-        schema = self._schemas.get(typename)
-        if schema is None:
-            schema = self._schemas[typename] = self.writer.register_msgdef(typename, rosmsgs.msgdef(typename))
+        if not self._static_written:
+            self._static_written = True
+            self._write(t, *rosmsgs.transforms("/tf_static", t, frames.sensor_mounts(self.mounting)))
+        schema_id, encode = self._schema(typename)
+        channel = self._channels.get((topic, device))
+        if channel is None:
+            metadata = {"device": device} if device else {}
+            channel = self._channels[(topic, device)] = self.writer.register_channel(topic, "cdr", schema_id, metadata)
         ns = max(0, round(t * 1e9))
-        self.writer.write_message(topic, schema, message, log_time=ns, publish_time=ns, sequence=self.counts[topic])
+        self.writer.add_message(channel, log_time=ns, publish_time=ns, sequence=self.counts[topic],
+                                data=encode(message))
         self.counts[topic] += 1
         now = time.monotonic()
         if self._flushed_at is None:
@@ -142,10 +190,18 @@ class McapRecorder(Sink):
             self.flush()
             self._flushed_at = (t, now)
 
+    def _schema(self, typename: str) -> tuple[int, Any]:
+        """The schema of a type (written once, ROS 2 message definition) and its CDR encoder."""
+        if typename not in self._schemas:
+            text = rosmsgs.msgdef(typename)
+            schema_id = self.writer.register_schema(typename, "ros2msg", text.encode())
+            self._schemas[typename] = (schema_id, serialize_dynamic(typename, text)[typename])
+        return self._schemas[typename]
+
     def flush(self) -> None:
         """Finish the open chunk and hand the file everything so far: a crash after this loses
         nothing before it."""
-        self.writer._writer.flush()  # mcap_ros2's Writer wraps mcap's, whose flush() ends the chunk (mcap >= 1.6)
+        self.writer.flush()  # ends the chunk (mcap >= 1.6)
 
     def close(self) -> None:
         if self._closed:
@@ -160,19 +216,22 @@ class McapRecorder(Sink):
                 "skipped": dict(self.skipped)}
 
 
-def export(output: Path | str, *, runlog: Path | str | None = None, capture: Path | str | None = None) -> dict[str, Any]:
+def export(output: Path | str, *, runlog: Path | str | None = None, capture: Path | str | None = None,
+           mounting: Any = None) -> dict[str, Any]:
     """An MCAP file from a run log and/or a capture; returns the recorder's summary.
 
     The capture's inbound bytes go through each device's driver decoding (its ``on_chunk``, as
     live, in recorded global order); commands come from the run log if given, else from the
-    frames sent to the base. Run log records are merged in by robot time."""
+    frames sent to the base. Run log records are merged in by robot time. ``mounting``: the
+    run's config ``[mounting]``, for the sensor frames (None: every sensor at the robot's centre)."""
     if runlog is None and capture is None:
         raise ValueError("nothing to export: give a run log, a capture, or both")
     records = _read_runlog(runlog) if runlog is not None else []
     drivers, packets = _capture_drivers(capture) if capture is not None else ({}, [])
     has_base = runlog is not None or any(d.kind == "base" for d in drivers.values())
+    source = next((r.get("source") for r in records if r.get("kind") == "measurement"), None)
     recorder = McapRecorder(output, clock="robot" if has_base else "host",
-                            commands_from="runlog" if runlog is not None else "capture")
+                            commands_from="runlog" if runlog is not None else "capture", mounting=mounting, source=source)
     pending = deque(records)
     sent = {name: FrameDecoder() for name, d in drivers.items() if d.kind == "base"}  # the commands
     for driver in drivers.values():

@@ -18,6 +18,9 @@ from typing import Any
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from rfhoming.host.export import frames
+from rfhoming.host.export.frames import Transform
+
 MSG_DIR = Path(__file__).with_name("rfhoming_msgs") / "msg"
 OWN_TYPES = ("AoaAngle", "RssiReading", "AntennaSet", "Bearing")
 
@@ -26,12 +29,15 @@ SCAN = "sensor_msgs/msg/LaserScan"
 TWIST = "geometry_msgs/msg/Twist"
 POINT = "geometry_msgs/msg/PointStamped"
 STRING = "std_msgs/msg/String"
+TF = "tf2_msgs/msg/TFMessage"
 AOA = "rfhoming_msgs/msg/AoaAngle"
 RSSI = "rfhoming_msgs/msg/RssiReading"
 ANTENNAS = "rfhoming_msgs/msg/AntennaSet"
 BEARING = "rfhoming_msgs/msg/Bearing"
 
 TOPICS = {  # topic -> type: the whole vocabulary of an rfhoming log
+    "/tf": TF,
+    "/tf_static": TF,
     "/odom": ODOM,
     "/scan": SCAN,
     "/cmd_vel": TWIST,
@@ -44,8 +50,33 @@ TOPICS = {  # topic -> type: the whole vocabulary of an rfhoming log
     "/rfhoming/rss/antenna_set": ANTENNAS,
 }
 
-ODOM_FRAME, BASE_FRAME = "odom", "base_link"
-SCAN_RANGE_MAX = 65.535  # the range scan record's largest range: u16 millimetres
+ODOM_FRAME, BASE_FRAME = frames.ODOM, frames.BASE
+
+# Odometry covariance (*assumed*: the base reports none). A planar differential drive: z, roll,
+# pitch and the sideways/vertical/roll/pitch rates are known to be zero (tiny variance). The
+# position spreads with the path driven, 2 % of it (σ), heading 0.02 rad per metre (σ), from a
+# floor of 1 mm / 1 mrad; speeds are good to 0.01 m/s and 0.01 rad/s (σ), wheel-slip level.
+KNOWN_ZERO_VAR = 1e-9
+POSE_SIGMA_PER_M, YAW_SIGMA_PER_M = 0.02, 0.02
+POSE_SIGMA_MIN, YAW_SIGMA_MIN = 0.001, 0.001
+V_SIGMA, W_SIGMA = 0.01, 0.01
+
+
+def _diagonal(*variances: float) -> list[float]:
+    out = [0.0] * 36
+    for i, v in enumerate(variances):
+        out[7 * i] = v
+    return out
+
+
+def pose_covariance(path_m: float) -> list[float]:
+    """x, y, z, roll, pitch, yaw (row-major 6×6) after ``path_m`` metres of driving."""
+    sxy = max(POSE_SIGMA_MIN, POSE_SIGMA_PER_M * path_m)
+    syaw = max(YAW_SIGMA_MIN, YAW_SIGMA_PER_M * path_m)
+    return _diagonal(sxy**2, sxy**2, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, syaw**2)
+
+
+TWIST_COVARIANCE = _diagonal(V_SIGMA**2, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, W_SIGMA**2)
 
 
 @cache
@@ -74,26 +105,40 @@ def yaw_quaternion(theta: float) -> dict[str, float]:
     return {"x": 0.0, "y": 0.0, "z": math.sin(theta / 2), "w": math.cos(theta / 2)}
 
 
-def odometry(t: float, x: float, y: float, theta: float, v: float, w: float) -> tuple[str, str, dict]:
-    """The base's odometry (metres, radians, m/s, rad/s); no covariance is known (zeros)."""
-    zero = [0.0] * 36
+def odometry(t: float, x: float, y: float, theta: float, v: float, w: float,
+             path_m: float = 0.0) -> tuple[str, str, dict]:
+    """The base's odometry (metres, radians, m/s, rad/s), with the assumed covariances above
+    after ``path_m`` metres driven."""
     return "/odom", ODOM, {
         "header": header(t, ODOM_FRAME), "child_frame_id": BASE_FRAME,
         "pose": {"pose": {"position": {"x": x, "y": y, "z": 0.0}, "orientation": yaw_quaternion(theta)},
-                 "covariance": zero},
+                 "covariance": pose_covariance(path_m)},
         "twist": {"twist": {"linear": {"x": v, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": w}},
-                  "covariance": zero},
+                  "covariance": TWIST_COVARIANCE},
     }
 
 
-def laser_scan(t: float, angle_min: float, increment: float, ranges: list[float | None]) -> tuple[str, str, dict]:
-    """A range scan; no return -> +inf (REP 117)."""
-    n = len(ranges)
+def transforms(topic: str, t: float, tfs: list[Transform]) -> tuple[str, str, dict]:
+    """``/tf`` or ``/tf_static``: a tf2_msgs/TFMessage of parent -> child transforms."""
+    return topic, TF, {"transforms": [
+        {"header": header(t, tf.parent), "child_frame_id": tf.child,
+         "transform": {"translation": dict(zip("xyz", map(float, tf.xyz))), "rotation": tf.quaternion()}}
+        for tf in tfs]}
+
+
+def odom_transform(t: float, x: float, y: float, theta: float) -> tuple[str, str, dict]:
+    """odom -> base_link on /tf, from one odometry record."""
+    return transforms("/tf", t, [Transform(ODOM_FRAME, BASE_FRAME, (x, y, 0.0), theta)])
+
+
+def laser_scan(t: float, scan: Any) -> tuple[str, str, dict]:
+    """A range scan (:class:`~rfhoming.host.drivers.robot_base.Scan`) in the ``laser`` frame;
+    no return -> +inf (REP 117); range_max is the sensor's."""
     return "/scan", SCAN, {
-        "header": header(t, BASE_FRAME), "angle_min": angle_min,
-        "angle_max": angle_min + increment * max(0, n - 1), "angle_increment": increment,
-        "time_increment": 0.0, "scan_time": 0.0, "range_min": 0.0, "range_max": SCAN_RANGE_MAX,
-        "ranges": [math.inf if r is None else r for r in ranges], "intensities": [],
+        "header": header(t, frames.LASER), "angle_min": scan.angle_min,
+        "angle_max": scan.angle_max, "angle_increment": scan.angle_increment,
+        "time_increment": 0.0, "scan_time": 0.0, "range_min": 0.0, "range_max": scan.range_max,
+        "ranges": [math.inf if r is None else r for r in scan.ranges], "intensities": [],
     }
 
 
@@ -102,35 +147,35 @@ def twist(v: float, w: float) -> tuple[str, str, dict]:
     return "/cmd_vel", TWIST, {"linear": {"x": v, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": w}}
 
 
-def point(topic: str, t: float, xy: list[float]) -> tuple[str, str, dict]:
-    return topic, POINT, {"header": header(t, ODOM_FRAME), "point": {"x": float(xy[0]), "y": float(xy[1]), "z": 0.0}}
+def point(topic: str, t: float, xy: list[float], frame: str = ODOM_FRAME) -> tuple[str, str, dict]:
+    return topic, POINT, {"header": header(t, frame), "point": {"x": float(xy[0]), "y": float(xy[1]), "z": 0.0}}
 
 
 def text(topic: str, value: str) -> tuple[str, str, dict]:
     return topic, STRING, {"data": value}
 
 
-def aoa_angle(t: float, device: str, e: Any) -> tuple[str, str, dict]:
+def aoa_angle(t: float, frame: str, e: Any) -> tuple[str, str, dict]:
     """A u-connectLocate AngleEvent."""
     return "/rfhoming/aoa/angle", AOA, {
-        "header": header(t, device), "instance_id": e.instance_id, "anchor_id": e.anchor_id,
+        "header": header(t, frame), "instance_id": e.instance_id, "anchor_id": e.anchor_id,
         "azimuth_deg": e.azimuth, "elevation_deg": e.elevation, "rssi1_dbm": e.rssi1, "rssi2_dbm": e.rssi2,
         "channel": e.channel, "timestamp_ms": e.timestamp_ms & 0xFFFFFFFF, "seq": -1 if e.seq is None else e.seq,
     }
 
 
-def rssi_reading(t: float, device: str, r: Any) -> tuple[str, str, dict]:
+def rssi_reading(t: float, r: Any) -> tuple[str, str, dict]:
     """An AdvReport record (the address goes MSB first, as printed)."""
     return "/rfhoming/ble/rssi", RSSI, {
-        "header": header(t, device), "node_id": r.node_id, "address": r.addr[::-1].hex().upper(),
+        "header": header(t, frames.BLE), "node_id": r.node_id, "address": r.addr[::-1].hex().upper(),
         "rssi_dbm": r.rssi_dbm, "tx_power_dbm": r.tx_power_dbm, "channel": r.channel,
     }
 
 
-def antenna_set(t: float, device: str, r: Any) -> tuple[str, str, dict]:
+def antenna_set(t: float, r: Any) -> tuple[str, str, dict]:
     """An AntennaSet record."""
     return "/rfhoming/rss/antenna_set", ANTENNAS, {
-        "header": header(t, device), "node_id": r.node_id, "emitter_seq": r.emitter_seq, "channel": r.channel,
+        "header": header(t, frames.RSS), "node_id": r.node_id, "emitter_seq": r.emitter_seq, "channel": r.channel,
         "page": r.page, "rssi_base_dbm": r.rssi_base_dbm, "valid_mask": r.valid_mask,
         "ed": [a.ed for a in r.antennas], "lqi": [a.lqi for a in r.antennas], "dt_us": [a.dt_us for a in r.antennas],
     }

@@ -30,6 +30,17 @@ class Mounting:
     yaw_offset_deg: float = setting(0.0, low=-360, high=360, unit="degrees")  # board boresight vs robot heading, CCW
     azimuth_sign: int = setting(-1, choices=(-1, 1))  # the XPLR-AOA reports left as negative; -1 turns that into CCW
     upside_down: bool = setting(False)  # mirrors the azimuth once more
+    # where each sensor sits on the robot (base_link: x ahead, y left, z up; REP 103): the
+    # transforms base_link -> aoa_link / laser / rss_link / ble_link of a recording
+    aoa_xyz_m: tuple[float, float, float] = setting((0.0, 0.0, 0.0), low=-10, high=10, unit=M, length=3)
+    laser_xyz_m: tuple[float, float, float] = setting((0.0, 0.0, 0.0), low=-10, high=10, unit=M, length=3)
+    laser_yaw_deg: float = setting(0.0, low=-360, high=360, unit="degrees")  # its 0 rad beam vs the robot heading, CCW
+    rss_xyz_m: tuple[float, float, float] = setting((0.0, 0.0, 0.0), low=-10, high=10, unit=M, length=3)
+    ble_xyz_m: tuple[float, float, float] = setting((0.0, 0.0, 0.0), low=-10, high=10, unit=M, length=3)
+
+    def __post_init__(self) -> None:
+        for name in ("aoa_xyz_m", "laser_xyz_m", "rss_xyz_m", "ble_xyz_m"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
 
     def to_robot(self, azimuth_deg: float) -> float:
         """Board azimuth (degrees, board convention) -> θs in the robot frame (rad, CCW)."""
@@ -182,6 +193,13 @@ DEFAULT_TOML = """\
 yaw_offset_deg = 0.0     # its boresight, degrees CCW from the robot heading
 azimuth_sign = -1        # the board reports left as negative: -1 makes it CCW
 upside_down = false      # mirrors the azimuth once more
+# where each sensor sits on the robot, metres in base_link (x ahead, y left, z up): a
+# recording's /tf_static base_link -> aoa_link, laser, rss_link, ble_link
+aoa_xyz_m = [0.0, 0.0, 0.0]
+laser_xyz_m = [0.0, 0.0, 0.0]
+laser_yaw_deg = 0.0      # the range scanner's 0 rad beam, degrees CCW from the robot heading
+rss_xyz_m = [0.0, 0.0, 0.0]
+ble_xyz_m = [0.0, 0.0, 0.0]
 
 [calibration]            # RSSI -> distance, RSSI(d) = p0_dbm - 10 n log10(d / d0_m)
 p0_dbm = -59.0

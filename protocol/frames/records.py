@@ -125,9 +125,17 @@ VELOCITY_COMMAND = Struct(  # 0x21 host -> base
     "timeout_ms" / Int16ul,  # the base stops when it expires
 )
 
-RANGE_SCAN = Struct(  # 0x22 base -> host
+RANGE_SCAN = Struct(  # 0x22 base -> host, version 1: still decoded, no longer sent
     "angle_min_mrad" / Int16sl,
-    "angle_inc_mrad" / Int16sl,
+    "angle_inc_mrad" / Int16sl,  # whole mrad: 181 beams over ±90° end at 85.3°, not 90°
+    "count" / Rebuild(Int8ul, len_(this.ranges_mm)),
+    "ranges_mm" / Array(this.count, Int16ul),  # 0 = no return
+)
+
+RANGE_SCAN_V2 = Struct(  # 0x23 base -> host: a range scan with its exact geometry
+    "angle_min_urad" / Int32sl,  # the first beam, counter-clockwise from ahead
+    "angle_max_urad" / Int32sl,  # the last beam; beams are evenly spaced between the two
+    "range_max_mm" / Int16ul,  # the sensor's own maximum range
     "count" / Rebuild(Int8ul, len_(this.ranges_mm)),
     "ranges_mm" / Array(this.count, Int16ul),  # 0 = no return
 )
@@ -314,6 +322,25 @@ class RangeScan(_RangeScan):
     to_dict = as_dict
 
 
+class _RangeScanV2(NamedTuple):
+    node_id: int
+    seq: int
+    t_us: int
+    angle_min_urad: int
+    angle_max_urad: int
+    range_max_mm: int
+    ranges_mm: tuple[int, ...]
+
+
+class RangeScanV2(_RangeScanV2):
+    """0x23: base -> host, the scan's exact geometry."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["range_scan_v2"]] = "range_scan_v2"
+    type_code: ClassVar[int] = 0x23
+    to_dict = as_dict
+
+
 class _LogText(NamedTuple):
     node_id: int
     seq: int
@@ -347,7 +374,8 @@ class NodeCommand(_NodeCommand):
     to_dict = as_dict
 
 
-Record = AdvReport | RfFrame | AntennaSet | Status | Odometry | VelocityCommand | RangeScan | LogText | NodeCommand
+Record = (AdvReport | RfFrame | AntennaSet | Status | Odometry | VelocityCommand | RangeScan | RangeScanV2 | LogText
+          | NodeCommand)
 """Any record the frame decoder yields."""
 
 
@@ -377,6 +405,7 @@ RECORD_TYPES: dict[int, RecordType] = {
         _declare(Odometry, ODOMETRY),
         _declare(VelocityCommand, VELOCITY_COMMAND),
         _declare(RangeScan, RANGE_SCAN),
+        _declare(RangeScanV2, RANGE_SCAN_V2),
         _declare(LogText, LOG_TEXT),
         _declare(NodeCommand, NODE_COMMAND),
     )

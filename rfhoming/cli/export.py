@@ -14,7 +14,8 @@ PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
 
 EXPORT_HELP = """\
 Write a run as ROS 2 messages in an MCAP file that Foxglove, rosbags and `ros2 bag` read:
-/odom (nav_msgs/Odometry), /scan (sensor_msgs/LaserScan), /cmd_vel (geometry_msgs/Twist),
+/tf and /tf_static (REP 105 frames: map, odom, base_link, and the sensors' frames from the
+--config's [mounting]), /odom (nav_msgs/Odometry), /scan (sensor_msgs/LaserScan), /cmd_vel (geometry_msgs/Twist),
 /rfhoming/target (geometry_msgs/PointStamped), and rfhoming_msgs' AoaAngle, RssiReading,
 AntennaSet and Bearing (their .msg files ship in rfhoming/host/export/rfhoming_msgs). Give the
 run log and its capture for everything; a capture alone gives the devices' own streams and the
@@ -23,6 +24,7 @@ It prints the message count per topic as one JSON object.
 
 examples:
   rfhoming export run.jsonl --capture run.pcapng -o run.mcap
+  rfhoming export run.jsonl --capture run.pcapng --config robot.toml -o run.mcap
   rfhoming export rfhoming-demo/capture.pcapng -o devices.mcap
   rfhoming export run.jsonl -o decisions.mcap
 """
@@ -43,7 +45,9 @@ def cmd_export(args: argparse.Namespace) -> int:
                     print("rfhoming export: give the run log first and the capture with --capture", file=sys.stderr)
                     return 2
                 runlog, capture = None, runlog
-        summary = export(args.output, runlog=runlog, capture=capture)
+        from rfhoming.host.homing.config import load
+
+        summary = export(args.output, runlog=runlog, capture=capture, mounting=load(args.config).mounting)
     except (OSError, Error) as exc:
         print(f"rfhoming export: {exc}", file=sys.stderr)
         return 2
@@ -57,4 +61,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run", type=Path, metavar="RUN", help="the run log (run.jsonl), or a pcapng capture alone")
     p.add_argument("--capture", type=Path, help="the run's pcapng capture (odometry, scans, raw readings)")
     p.add_argument("-o", "--output", type=output_file, required=True, help="MCAP file to write")
+    p.add_argument("--config", type=Path, help="the run's TOML config, for where the sensors sit on the robot "
+                   "([mounting]; default: all at its centre)")
     p.set_defaults(func=cmd_export)

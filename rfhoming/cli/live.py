@@ -4,13 +4,52 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+import time
 from typing import Any, TextIO
 
+from rfhoming.cli.args import nonnegative_float
+
 DEFAULT_PORT = 8765  # Foxglove's own default (rfhoming.host.foxglove_view.DEFAULT_PORT)
-FOXGLOVE_HELP = (f"also serve a live view to Foxglove/Lichtblick on ws://127.0.0.1:PORT (default {DEFAULT_PORT}, "
-                 "0 = any free port; in Foxglove open a WebSocket connection to it and import the layout "
-                 "rfhoming/host/foxglove_layout.json; needs the foxglove extra)")
+SUBPROTOCOL = "foxglove.sdk.v1"  # rfhoming.host.foxglove_view.SUBPROTOCOL, without importing the SDK
+FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {DEFAULT_PORT}, 0 = any free port) to "
+                 f"Foxglove or Lichtblick (subprotocol {SUBPROTOCOL}: Lichtblick releases of 2025-12 and later); "
+                 "in Foxglove open a WebSocket connection to it and import the layout "
+                 "rfhoming/host/foxglove_layout.json; needs the foxglove extra")
+WAIT_S = 60.0
+
+
+def add_watch_options(p: argparse.ArgumentParser) -> None:
+    """The demo's options for a person watching: wait for the viewer, stay up after the run."""
+    p.add_argument("--wait-viewer", type=nonnegative_float, default=WAIT_S, metavar="S",
+                   help=f"with --foxglove: start the run when a viewer subscribes, or after S seconds "
+                   f"(default {WAIT_S:g}; 0 = at once)")
+    p.add_argument("--linger", type=nonnegative_float, default=math.inf, metavar="S",
+                   help="with --foxglove: keep the view up S seconds after the run (default: until Ctrl-C)")
+
+
+def wait_for_viewer(view: Any, seconds: float, out: TextIO = sys.stderr) -> None:
+    """Hold the run until a viewer subscribes (or ``seconds`` pass), saying so on ``out``."""
+    if view is None or seconds <= 0:
+        return
+    print(json.dumps({"kind": "waiting", "for": "a viewer to subscribe", "timeout_s": seconds}), file=out, flush=True)
+    if not view.wait_for_viewer(seconds):
+        print(json.dumps({"kind": "no viewer", "after_s": seconds, "note": "running anyway"}), file=out, flush=True)
+
+
+def linger(view: Any, seconds: float, out: TextIO = sys.stderr) -> None:
+    """Keep the finished run's view up ``seconds`` (inf: until Ctrl-C)."""
+    if view is None or seconds <= 0:
+        return
+    print(json.dumps({"kind": "lingering", "address": view.address, "seconds": None if math.isinf(seconds) else seconds,
+                      "note": "Ctrl-C to stop"}), file=out, flush=True)
+    try:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            time.sleep(min(0.5, max(0.0, end - time.monotonic())))
+    except KeyboardInterrupt:
+        pass
 
 
 def add_foxglove_option(p: argparse.ArgumentParser) -> None:
@@ -34,6 +73,5 @@ def start_foxglove(args: argparse.Namespace, command: str, out: TextIO = sys.std
         print(f"rfhoming {command}: cannot start the Foxglove server on port {args.foxglove}: {exc}; "
               "choose another with --foxglove=PORT", file=sys.stderr)
         raise SystemExit(2) from None
-    print(json.dumps({"kind": "listening", "address": view.address, "protocol": "foxglove.websocket"}),
-          file=out, flush=True)
+    print(json.dumps({"kind": "listening", "address": view.address, "protocol": SUBPROTOCOL}), file=out, flush=True)
     return view

@@ -8,9 +8,9 @@ import json
 import sys
 from pathlib import Path
 
-from rfhoming.cli.args import output_file, xy
+from rfhoming.cli.args import nonnegative_float, output_file, xy
 from rfhoming.cli.io import add_port_defaults
-from rfhoming.cli.live import add_foxglove_option, start_foxglove
+from rfhoming.cli.live import add_foxglove_option, add_watch_options, linger, start_foxglove, wait_for_viewer
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing import assembly
@@ -148,23 +148,28 @@ def cmd_demo(args: argparse.Namespace) -> int:
     config = load(args.config)
     if args.receiver and args.scenario != "s3-arena":
         raise PortSpecError("--receiver swaps the BLE RSSI receiver of --scenario s3-arena")
+    speed = args.speed if args.speed is not None else (1.0 if args.foxglove is not None else 0.0)
     if not args.json:
         where = "in this process" if args.in_process else "on ptys"
-        print(f"demo: emulating {args.scenario} (seed {args.seed}) {where} in lockstep; homing ...", file=sys.stderr)
+        pace = "in lockstep" if speed == 0 or args.in_process else f"at {speed:g}x robot time"
+        print(f"demo: emulating {args.scenario} (seed {args.seed}) {where} {pace}; homing ...", file=sys.stderr)
     sinks = [mcap_recorder(args.mcap)] if args.mcap else []
     view = start_foxglove(args, "demo")
     try:
+        wait_for_viewer(view, args.wait_viewer)
         summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver,
-                           sinks=[*sinks, *([view] if view else [])], in_process=args.in_process)
+                           sinks=[*sinks, *([view] if view else [])], speed=speed, in_process=args.in_process)
+    except BaseException:
+        if view is not None:
+            view.close()
+        raise
     finally:
         for sink in sinks:
             sink.close()
-        if view is not None:
-            view.close()
     if args.mcap is not None:
         summary["files"]["mcap"] = str(args.mcap)
     if args.json:
-        print(json.dumps(summary))
+        print(json.dumps(summary), flush=True)
     else:
         ok = "SUCCESS" if summary["success"] else "FAILED"
         print(f"{ok}: {summary['reason']} after {summary['simulated_time_s']} s simulated")
@@ -175,7 +180,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
         for name, counters in summary["links"].items():
             print(f"  link {name:<19} {counters}")
         for name, path in summary["files"].items():
-            print(f"  {name:<24} {path}")
+            print(f"  {name:<24} {path}", flush=True)
+    if view is not None:
+        try:
+            linger(view, args.linger)
+        finally:
+            view.close()
     return 0 if summary["success"] else 1
 
 
@@ -202,7 +212,7 @@ examples:
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
   rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
   rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
-  rfhoming demo --foxglove                 # watch it live: Foxglove -> ws://127.0.0.1:8765
+  rfhoming demo --foxglove                 # watch it live at robot time: Foxglove -> ws://127.0.0.1:8765
 """
 
 RUN_HELP = """\
@@ -242,7 +252,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
     p.add_argument("--in-process", action="store_true",
                    help="the emulator in this process on its byte pipe: the same summary for the same seed")
+    p.add_argument("--speed", type=nonnegative_float, metavar="N", help="simulated seconds per wall second (0: lockstep, as "
+                   "fast as the host answers); default 1 with --foxglove, else 0")
     add_foxglove_option(p)
+    add_watch_options(p)
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
