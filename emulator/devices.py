@@ -254,7 +254,8 @@ class EspAtRunner(DeviceRunner):
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  path_loss: PathLossModel, options: dict[str, Any]) -> None:
-        super().__init__(name, EspAtFirmware, link, faults, rng)
+        version = str(options.get("version", "3.2"))  # which ESP-AT documentation the board follows
+        super().__init__(name, lambda: EspAtFirmware(version), link, faults, rng)
         self.baud = int(options.get("baud", DEFAULT_BAUD))
         self.channel = RadioChannel(path_loss, rng)
         self.schedule = _Schedule(rng)
