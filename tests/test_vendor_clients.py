@@ -67,3 +67,24 @@ def test_ublox_bring_up_with_plain_pyserial(tmp_path: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_espressif_ble_scan_example_with_plain_pyserial(tmp_path: Path) -> None:
+    """The "Bluetooth LE AT Examples" scan: init the client role, set the example's scan
+    parameters, scan 3 s, read the reports and +BLESCANDONE (the emulated board is ESP-AT 3.2)."""
+    proc, ports = emulate(tmp_path, "s3-arena", "--receiver", "esp-at")
+    try:
+        with serial.Serial(ports["ble"], 115200, timeout=0.2) as port:
+            port.write(b"AT+BLEINIT=1\r\n")
+            read_until(port, b"OK\r\n")
+            port.write(b"AT+BLESCANPARAM=0,0,0,100,50\r\n")
+            read_until(port, b"OK\r\n")
+            port.write(b"AT+BLESCAN=1,3\r\n")
+            out = read_until(port, b"+BLESCANDONE", 30)
+        reports = [line for line in out.decode().split("\r\n") if line.startswith("+BLESCAN:")]
+        assert reports
+        addr, rssi, adv, _rsp, addr_type = reports[0][len("+BLESCAN:"):].split(",")
+        assert addr.startswith('"') and -100 < int(rssi) < 0 and bytes.fromhex(adv) and addr_type in "0123"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
