@@ -283,7 +283,12 @@ class HciRunner(DeviceRunner):
         )
 
         address = str(options.get("address", "C0:FF:EE:00:00:01"))
-        super().__init__(name, lambda: HciControllerFirmware(address), link, faults, rng)
+        # extended reports in fragments of this many bytes (and the last lost: truncate), as a BT5
+        # controller sends what does not fit one event; off by default (the beacons' data fit)
+        fragment = options.get("fragment_bytes")
+        truncate = bool(options.get("truncate", False))
+        super().__init__(name, lambda: HciControllerFirmware(address, fragment_bytes=int(fragment) if fragment else None,
+                                                             truncate=truncate), link, faults, rng)
         self.baud = int(options.get("baud", 1_000_000))
         if isinstance(link, TcpLink):  # HCI over TCP (bumble's tcp-client) has no baud rate to get wrong
             link.assumed_host_baud = self.baud
