@@ -88,3 +88,25 @@ def test_espressif_ble_scan_example_with_plain_pyserial(tmp_path: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_bumble_scan_app_against_the_emulated_controller(tmp_path: Path) -> None:
+    """bumble's own ``bumble-scan`` (its Host and Device bring-up, not rfhoming's) hears the
+    emulated beacons through the emulated controller."""
+    import shutil
+
+    scan = shutil.which("bumble-scan")
+    if scan is None:
+        pytest.skip("bumble-scan is not installed (pip install 'rfhoming[hci]')")
+    proc, ports = emulate(tmp_path, "s3-arena", "--receiver", "hci")
+    try:
+        try:
+            done = subprocess.run([scan, "--passive", "--filter-duplicates", "false", f"serial:{ports['ble']},1000000"],
+                                  capture_output=True, text=True, timeout=8)
+            out = done.stdout
+        except subprocess.TimeoutExpired as expired:  # it scans until stopped
+            out = (expired.stdout or b"").decode() if isinstance(expired.stdout, bytes) else (expired.stdout or "")
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    assert "AC:00:00:00:00:0" in out and "RSSI: -" in out and "UUID-16:FEAA" in out, out[-500:]
