@@ -62,7 +62,7 @@ RESERVED = (-43, 6, 8)
 """Values of the reserved 5th +UUDF field in real lines from 1.2 on (docs/protocol.md, field 5)."""
 BINARY_ANGLE = 0x01
 """Frame type of an angle in u-locateEmbed binary output (AT+UDFCFG=7,2), as the public parser reads it."""
-C209_NAMESPACE = "NINA-B4TAG".encode().hex().upper()
+C209_NAMESPACE = b"NINA-B4TAG".hex().upper()
 """The Eddystone namespace of u-blox's C209 tag firmware (c209-aoa-tag src/main.c), 20 hex digits."""
 DEFAULT_NAMESPACE_FILTER = {Dialect.EMBED: [C209_NAMESPACE]}
 """Namespace filter a family ships with: u-locateEmbed ignores tags of any other namespace."""

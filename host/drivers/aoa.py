@@ -215,7 +215,7 @@ class AoaDriver(Driver):
         assert self._binary is not None
         for item in self._binary.feed(data):
             self.emit(t_host, item)
-            if item.kind == "angle":
+            if isinstance(item, AngleEvent):
                 self.counters["binary_events"] += 1
                 self._last_valid = time.monotonic()
                 self._bytes_at_valid = self.port.counters["bytes_in"]
