@@ -29,7 +29,7 @@ from rfhoming.emulator.faults import ByteFaults
 from rfhoming.emulator.links import Link
 from rfhoming.emulator.radio import AoaModel, PathLossModel, fold_front
 from rfhoming.emulator.world import World
-from rfhoming.firmware.xplr_aoa import Advertisement, XplrAoaFirmware
+from rfhoming.firmware.xplr_aoa import C209_NAMESPACE, Advertisement, XplrAoaFirmware
 
 
 def rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
@@ -111,7 +111,7 @@ class FixedAnchorRunner(AoaRunner):
                 el = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
                 az_ccw = az_ccw * self.az_scale - self.az_bias + float(self.rng.normal(0, self.aoa.sigma_deg(az_ccw)))
                 el = el * self.el_scale + self.el_bias + float(self.rng.normal(0, self.el_sigma))
-                fw.on_advertisement(Advertisement(tag_id, "", -max(-90.0, min(90.0, az_ccw)),
+                fw.on_advertisement(Advertisement(tag_id, C209_NAMESPACE, -max(-90.0, min(90.0, az_ccw)),
                                                   max(-90.0, min(90.0, el)), sample,
                                                   sample + float(self.rng.normal(0, 1.5))))
         fw.tick(int(t1 * 1000))

@@ -28,7 +28,7 @@ from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
 from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware
 from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.firmware.robot_base import RobotBaseFirmware, Slip
-from rfhoming.firmware.xplr_aoa import Advertisement, XplrAoaFirmware
+from rfhoming.firmware.xplr_aoa import C209_NAMESPACE, Advertisement, XplrAoaFirmware
 from rfhoming.protocol import devices
 from rfhoming.protocol.uconnect import Dialect
 
@@ -119,6 +119,8 @@ class _Schedule:
     def __init__(self, rng: np.random.Generator) -> None:
         self.rng = rng
         self.next: dict[str, float] = {}
+        self.sent: dict[str, int] = {}
+        """Transmissions per source so far (a tag's periodic-advertising event counter)."""
 
     def due(self, source: str, interval_s: float, jitter_s: float, t0: float, t1: float) -> list[float]:
         t = self.next.get(source)
@@ -143,10 +145,12 @@ class AoaRunner(DeviceRunner):
         dialect = Dialect(str(options.get("dialect", "1.2")))
         mac = str(options.get("mac", "CCF9578E0D89"))
         baud = int(options.get("baud", DEFAULT_BAUD))
-        # powered before the host opens its port (lockstep runs stay deterministic); every later
-        # boot -- AT+CPWROFF, a reboot fault -- ignores the host for its first second
-        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect, baud, paced=True, deaf_at_power_up=False),
-                         link, faults, rng)
+        # hardships no source shows are options, off by default (docs/protocol.md, "The emulated board")
+        torn = bool(options.get("torn_answers", False))
+        deaf_ms = int(options.get("deaf_after_boot_ms", 0))
+        super().__init__(name, lambda: XplrAoaFirmware(mac, dialect, baud, paced=True, torn_answers=torn,
+                                                       deaf_after_boot_ms=deaf_ms), link, faults, rng)
+        self.namespace = str(options.get("tag_namespace", C209_NAMESPACE)).upper()
         self.aoa = aoa
         self.path_loss = path_loss
         self.channel = RadioChannel(path_loss, rng)
@@ -185,6 +189,8 @@ class AoaRunner(DeviceRunner):
         for tag_id, pos, height, interval, tx in self.sources(world, t1):
             for t in self.schedule.due(tag_id, interval, interval * 0.1, t0, t1):
                 fw.tick(int(t * 1000))
+                # the tag's own event counter counts what it sent, whatever the board hears
+                counter = self.schedule.sent[tag_id] = (self.schedule.sent.get(tag_id, 0) + 1) & 0xFFFF
                 bx, by, bth = self.board_pose(world)
                 distance = math.hypot(pos[0] - bx, pos[1] - by)
                 walls = world.obstacles_crossed((bx, by), pos)
@@ -205,8 +211,8 @@ class AoaRunner(DeviceRunner):
                     azimuth = -azimuth
                 elevation = math.degrees(math.atan2(height - BOARD_HEIGHT_M, max(distance, 0.05)))
                 elevation += float(self.rng.normal(0, self.aoa.angle_deg))
-                fw.on_advertisement(Advertisement(tag_id, "", azimuth, elevation, rssi,
-                                                  rssi + float(self.rng.normal(0, 1.5))))
+                fw.on_advertisement(Advertisement(tag_id, self.namespace, azimuth, elevation, rssi,
+                                                  rssi + float(self.rng.normal(0, 1.5)), counter))
         fw.tick(int(t1 * 1000))
 
 
@@ -248,7 +254,8 @@ class EspAtRunner(DeviceRunner):
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  path_loss: PathLossModel, options: dict[str, Any]) -> None:
-        super().__init__(name, EspAtFirmware, link, faults, rng)
+        version = str(options.get("version", "3.2"))  # which ESP-AT documentation the board follows
+        super().__init__(name, lambda: EspAtFirmware(version), link, faults, rng)
         self.baud = int(options.get("baud", DEFAULT_BAUD))
         self.channel = RadioChannel(path_loss, rng)
         self.schedule = _Schedule(rng)
@@ -276,7 +283,12 @@ class HciRunner(DeviceRunner):
         )
 
         address = str(options.get("address", "C0:FF:EE:00:00:01"))
-        super().__init__(name, lambda: HciControllerFirmware(address), link, faults, rng)
+        # extended reports in fragments of this many bytes (and the last lost: truncate), as a BT5
+        # controller sends what does not fit one event; off by default (the beacons' data fit)
+        fragment = options.get("fragment_bytes")
+        truncate = bool(options.get("truncate", False))
+        super().__init__(name, lambda: HciControllerFirmware(address, fragment_bytes=int(fragment) if fragment else None,
+                                                             truncate=truncate), link, faults, rng)
         self.baud = int(options.get("baud", 1_000_000))
         if isinstance(link, TcpLink):  # HCI over TCP (bumble's tcp-client) has no baud rate to get wrong
             link.assumed_host_baud = self.baud

@@ -2,11 +2,14 @@
 
 Sans-IO, like the other models: :meth:`receive` takes the host's bytes, :meth:`read` gives the
 board's, :meth:`tick` moves its clock, :meth:`on_advertisement` is a packet at the antenna.
-What it does follows the ESP-AT documentation (docs/protocol.md section 5): echo on after
-boot, ``ready`` after a (re)boot, ``AT+BLEINIT`` roles that cannot change without ``AT+RST``,
+What it does follows the ESP-AT documentation of the firmware version it models
+(``version``: ``2.4``, ``3.2`` -- the default --, ``5.0`` or ``master``; docs/protocol.md section 5
+says which behaviour comes from which): echo on after boot, ``ready`` after a (re)boot,
+``AT+BLEINIT`` roles that cannot change without ``AT+RST`` (dual role 3 from 5.0),
 ``AT+BLESCANPARAM`` ranges (4..0x4000 units of 0.625 ms, window <= interval), ``AT+BLESCAN``
-with a duration (then ``+BLESCANDONE``) and a MAC or NAME filter, ``ERROR`` for anything
-else. Scanning has the radio's limits: only inside the scan window, only on the channel of
+with a duration (then ``+BLESCANDONE``, from 3.2) and a MAC or NAME filter (prefixes, UUID, RSSI
+and the duplicate check on master), ``busy p...`` for a command sent before the previous one
+was answered, ``ERROR`` for anything else. Scanning has the radio's limits: only inside the scan window, only on the channel of
 this interval (37, 38, 39 in turn), not when two packets collide, not below sensitivity.
 """
 
@@ -15,7 +18,7 @@ from __future__ import annotations
 import re
 
 from rfhoming.firmware.ble_scan_radio import ScanRadio, listening_channel
-from rfhoming.protocol.ad import local_name
+from rfhoming.protocol.ad import local_name, structures
 from rfhoming.protocol.espat import ScanReport, encode_scan
 
 TX_BUFFER = 16384
@@ -24,12 +27,30 @@ SENSITIVITY_DBM = -97.0
 UNIT_US = 625
 
 
+VERSIONS = ("2.4", "3.2", "5.0", "master")
+DEFAULT_SCAN = {"master": (0x140, 0x30)}
+"""Scan interval/window after boot: the ESP32 defaults master documents; older docs give none,
+so the model starts there with the docs' example 100/50 (assumed)."""
+
+
+def service_uuids(ad: bytes) -> set[str]:
+    """The advertised service UUIDs (AD types 0x02-0x07: 16-, 32-, 128-bit lists) as hex, MSB first."""
+    found = set()
+    for kind, data in structures(ad):
+        width = {0x02: 2, 0x03: 2, 0x04: 4, 0x05: 4, 0x06: 16, 0x07: 16}.get(kind)
+        if width:
+            found |= {data[i:i + width][::-1].hex() for i in range(0, len(data) - width + 1, width)}
+    return found
+
+
 class EspAtFirmware:
     """The AT command interpreter and the BLE scanner behind it."""
 
-    VERSION = "AT version:3.2.0.0 (model)"
-
-    def __init__(self) -> None:
+    def __init__(self, version: str = "3.2") -> None:
+        if version not in VERSIONS:
+            raise ValueError(f"ESP-AT version {version!r}: the model knows {', '.join(VERSIONS)}")
+        self.version = version
+        self.VERSION = f"AT version:{version} (model)"
         self.counters = {"tx_dropped": 0, "reported": 0, "duty_cycle": 0, "wrong_channel": 0,
                          "collision": 0, "below_sensitivity": 0, "filtered": 0, "errors": 0}
         self._out = bytearray()
@@ -38,11 +59,11 @@ class EspAtFirmware:
         self.echo = True
         self.role = 0
         self.scan_type = 0
-        self.interval = 100  # the ESP-AT docs' example values; the driver always sets its own
-        self.window = 50
+        self.interval, self.window = DEFAULT_SCAN.get(version, (100, 50))
         self.scanning = False
         self._scan_until: int | None = None
         self._filter: tuple[int, str] | None = None
+        self._dedup: set[str] | None = None
         self.radio = ScanRadio()
         self._write(b"\r\nready\r\n")
 
@@ -61,9 +82,14 @@ class EspAtFirmware:
     def receive(self, data: bytes) -> None:
         """Host bytes: each CR LF ends a command; an overlong line is answered with ERROR."""
         self._rx += data
+        busy = False
         while b"\r\n" in self._rx:
             line, self._rx = self._rx.split(b"\r\n", 1)
+            if busy and line.strip():  # sent before the previous command was answered
+                self._write(b"busy p...\r\n")
+                continue
             self._command(line)
+            busy = bool(line.strip())
         if len(self._rx) > MAX_COMMAND:
             self._rx = b""
             self._error()
@@ -72,7 +98,8 @@ class EspAtFirmware:
         self._now_us = now_us
         if self.scanning and self._scan_until is not None and now_us >= self._scan_until:
             self.scanning, self._scan_until = False, None
-            self._write(b"+BLESCANDONE\r\n")
+            if self.version != "2.4":  # v2.4 documents no +BLESCANDONE
+                self._write(b"+BLESCANDONE\r\n")
 
     # -- commands ---------------------------------------------------------------------------
     def _ok(self) -> None:
@@ -123,11 +150,16 @@ class EspAtFirmware:
     def _reset(self) -> None:
         self._ok()
         answered = bytes(self._out)
-        self.__init__()  # a reboot: every setting back to its default, then "ready"
+        self.__init__(self.version)  # a reboot: every setting back to its default, then "ready"
         self._out[:0] = answered
 
+    @property
+    def _client(self) -> bool:
+        return self.role in (1, 3)
+
     def _init(self, args: str) -> None:
-        if args not in ("0", "1", "2") or (self.role and args != "0" and int(args) != self.role):
+        roles = ("0", "1", "2", "3") if self.version in ("5.0", "master") else ("0", "1", "2")
+        if args not in roles or (self.role and args != "0" and int(args) != self.role):
             self._error()  # the role cannot change without AT+RST (or AT+BLEINIT=0 first)
             return
         self.role = int(args)
@@ -137,7 +169,7 @@ class EspAtFirmware:
 
     def _scan_param(self, args: str) -> None:
         m = re.fullmatch(r"([01]),([0-3]),([0-3]),(\d{1,5}),(\d{1,5})", args)
-        if self.role != 1 or m is None:
+        if not self._client or m is None:
             self._error()
             return
         interval, window = int(m.group(4)), int(m.group(5))
@@ -148,16 +180,22 @@ class EspAtFirmware:
         self._ok()
 
     def _scan(self, args: str) -> None:
-        m = re.fullmatch(r'([01])(?:,(\d{1,5}))?(?:,([12]),"?([^",]{1,32})"?)?', args)
-        if self.role != 1 or m is None or (m.group(1) == "0" and m.group(2) is not None):
+        kinds = "1234" if self.version == "master" else "12"
+        m = re.fullmatch(r'([01])(?:,(\d{1,5}))?(?:,([' + kinds + r']),("[^",]{1,32}"|-?\d{1,3})(,1)?)?', args)
+        if not self._client or m is None or (m.group(1) == "0" and m.group(2) is not None):
             self._error()
             return
         if m.group(1) == "0":
             self.scanning, self._scan_until = False, None
             self._ok()
             return
+        kind, value, dedup = m.group(3), m.group(4), m.group(5)
+        if kind is not None and (kind == "4") == value.startswith('"') or (dedup and self.version != "master"):
+            self._error()  # RSSI takes an integer, the others a quoted string; dedup on master only
+            return
         duration = int(m.group(2) or 0)
-        self._filter = (int(m.group(3)), m.group(4).lower()) if m.group(3) else None
+        self._filter = (int(kind), value.strip('"').lower()) if kind else None
+        self._dedup = set() if dedup else None
         self.scanning = True
         self._scan_until = self._now_us + duration * 1_000_000 if duration else None
         self._ok()
@@ -170,8 +208,12 @@ class EspAtFirmware:
                          addr_type: int = 0) -> None:
         """One packet on the air at ``t_us``; ``address`` MSB first as 12 hex digits."""
         reason = self.radio.loss(t_us, channel, len(ad), rssi_dbm, self.listening_channel(t_us), SENSITIVITY_DBM)
-        if reason is None and not self._passes(address, ad):
+        if reason is None and not self._passes(address, ad, rssi_dbm):
             reason = "filtered"
+        if reason is None and self._dedup is not None:
+            if address in self._dedup:
+                reason = "filtered"
+            self._dedup.add(address)
         if reason is not None:
             self.counters[reason] += 1
             return
@@ -179,10 +221,18 @@ class EspAtFirmware:
         self._write(encode_scan(ScanReport(address.upper(), rssi, ad, b"", addr_type)))
         self.counters["reported"] += 1
 
-    def _passes(self, address: str, ad: bytes) -> bool:
+    def _passes(self, address: str, ad: bytes, rssi_dbm: float) -> bool:
+        """MAC and NAME match whole values; master also prefixes ("24:0A:C4"), UUID and RSSI."""
         if self._filter is None:
             return True
         kind, value = self._filter
+        prefix = self.version == "master"
         if kind == 1:
-            return value.replace(":", "") == address.lower()
-        return (local_name(ad) or "").lower() == value
+            mac = value.replace(":", "")
+            return address.lower().startswith(mac) if prefix else address.lower() == mac
+        if kind == 2:
+            name = (local_name(ad) or "").lower()
+            return name.startswith(value) if prefix else name == value
+        if kind == 3:
+            return value in service_uuids(ad)
+        return rssi_dbm >= int(value)

@@ -38,14 +38,18 @@ UNIT_US = 625
 LE_META_EVENT_BIT = 1 << 61
 LE_ADV_REPORT_BIT, LE_EXT_ADV_REPORT_BIT = 1 << 1, 1 << 12
 DEFAULT_EVENT_MASK, DEFAULT_LE_EVENT_MASK = 0x00001FFFFFFFFFFF, 0x1F  # Core v5.4 Vol 4 Part E 7.3.1, 7.8.1
+DATA_COMPLETE, DATA_INCOMPLETE, DATA_TRUNCATED = 0, 1, 2
+"""Extended report data status, event type bits 5-6 (Core v5.4 Vol 4 Part E 7.7.65.13)."""
 
 
 class _ScanningController(Controller):
     """bumble's controller, scanning the way :class:`HciControllerFirmware` says."""
 
-    def __init__(self, out: Any, address: str) -> None:
+    def __init__(self, out: Any, address: str, fragment_bytes: int | None = None, truncate: bool = False) -> None:
         super().__init__("rfhoming-hci", public_address=hci.Address(address, hci.Address.PUBLIC_DEVICE_ADDRESS))
         self._out = out
+        self.fragment_bytes = fragment_bytes
+        self.truncate = truncate
         self.scan_interval = 16  # units of 0.625 ms: the spec's defaults (10 ms)
         self.scan_window = 16
         self.active = False
@@ -99,11 +103,23 @@ class _ScanningController(Controller):
             if not self.le_event_mask & LE_EXT_ADV_REPORT_BIT:
                 return "masked"
             Report = hci.HCI_LE_Extended_Advertising_Report_Event.Report
-            event: hci.HCI_Packet = hci.HCI_LE_Extended_Advertising_Report_Event([Report(
-                event_type=hci.HCI_LE_Extended_Advertising_Report_Event.EventType.LEGACY_ADVERTISING_PDU_USED,
-                address_type=addr_type, address=addr, primary_phy=hci.Phy.LE_1M, secondary_phy=0,
-                advertising_sid=0xFF, tx_power=0x7F, rssi=rssi, periodic_advertising_interval=0,
-                direct_address_type=0, direct_address=hci.Address.ANY, data=ad)])
+            legacy = hci.HCI_LE_Extended_Advertising_Report_Event.EventType.LEGACY_ADVERTISING_PDU_USED
+            if self.fragment_bytes:  # extended PDUs: the data in fragments, by the data status bits
+                chunks = [ad[i:i + self.fragment_bytes] for i in range(0, len(ad), self.fragment_bytes)] or [b""]
+                if self.truncate and len(chunks) > 1:
+                    chunks = chunks[:-1]
+                statuses = [DATA_INCOMPLETE] * (len(chunks) - 1) + [DATA_TRUNCATED if self.truncate else DATA_COMPLETE]
+            else:
+                chunks, statuses = [ad], [None]
+            for chunk, status in zip(chunks, statuses):
+                event_type = legacy if status is None else status << 5
+                self.send_hci_packet(hci.HCI_LE_Extended_Advertising_Report_Event([Report(
+                    event_type=event_type, address_type=addr_type, address=addr, primary_phy=hci.Phy.LE_1M,
+                    secondary_phy=0 if status is None else hci.Phy.LE_1M, advertising_sid=0xFF if status is None else 0,
+                    tx_power=0x7F, rssi=rssi, periodic_advertising_interval=0, direct_address_type=0,
+                    direct_address=hci.Address.ANY, data=chunk)]))
+            self.reported.add(address)
+            return None
         else:
             if not self.le_event_mask & LE_ADV_REPORT_BIT:
                 return "masked"
@@ -119,8 +135,13 @@ class _ScanningController(Controller):
 class HciControllerFirmware:
     """The controller model with its H4 UART and its radio."""
 
-    def __init__(self, address: str = "C0:FF:EE:00:00:01") -> None:
+    def __init__(self, address: str = "C0:FF:EE:00:00:01", *, fragment_bytes: int | None = None,
+                 truncate: bool = False) -> None:
+        """``fragment_bytes``: extended reports carry the data in fragments of this size (a BT5
+        controller fragments what does not fit one event); ``truncate``: the last fragment is
+        lost and the report ends "truncated"."""
         self.address = address
+        self.fragment_bytes, self.truncate = fragment_bytes, truncate
         self.counters = {"tx_dropped": 0, "rx_errors": 0, "reported": 0, "duty_cycle": 0, "wrong_channel": 0,
                          "collision": 0, "below_sensitivity": 0, "masked": 0, "duplicate": 0}
         self._out = bytearray()
@@ -131,7 +152,7 @@ class HciControllerFirmware:
     @property
     def controller(self) -> _ScanningController:
         if self._controller is None:
-            self._controller = _ScanningController(self._write, self.address)
+            self._controller = _ScanningController(self._write, self.address, self.fragment_bytes, self.truncate)
         return self._controller
 
     def _write(self, data: bytes) -> None:

@@ -5,23 +5,30 @@ echoes them and answers each CR-terminated line; :meth:`on_advertisement` is one
 advertisement heard by the antenna array (the emulator computes its angles);
 :meth:`tick` advances time; :meth:`read` drains the bounded TX buffer.
 
-As hard as the board (docs/protocol.md, "The emulated board"):
+Every behaviour below is in docs/protocol.md's tables with its source, or marked *assumed*
+there; a hardship no source shows is a fault option, off by default:
 
 - commands are parsed as AT syntax: integers are plain decimals (no sign other than ``-``, no
   blanks, no ``_``, no leading zeros), strings are double-quoted printable ASCII without a
   quote inside, ids are hex; anything else answers ``ERROR`` and changes nothing, so every
   stored value can be printed back and put in a ``+UUDF`` line;
 - a line longer than 512 bytes is discarded whole (answered ``ERROR``), its tail never runs;
-- for the first second after ``+STARTUP`` the UART ignores what it receives (no echo);
 - ``AT+UDFCFG`` follows the family's table (:data:`~rfhoming.protocol.uconnect.commands.UDFCFG`):
   1.x edits the *pending* settings, which take effect after ``AT&W`` + ``AT+CPWROFF``;
   2.x and u-locateEmbed apply them at once (``AT&W`` still makes them survive a restart).
-  ``AT+UMRS`` always waits for the restart; ``AT+UDFENABLE`` acts at once and is never stored;
+  ``AT+UDFFILT`` and ``AT+UMRS`` wait for the restart on every family; ``AT+UDFENABLE`` acts
+  at once and is never stored;
+- u-locateEmbed ships with the namespace filter ``NINA-B4TAG`` (the C209's namespace), so a
+  tag with another Eddystone namespace is never reported until the filter is cleared;
 - with ``paced=True`` output leaves at the UART's rate (10 bits a byte): a 115200 Bd link
   carries about 175 ``+UUDF`` lines a second, the rest queue in the bounded TX buffer and
-  arrive late; the echo and answer of a command jump that queue, so they can land in the middle
-  of an event line that is half sent;
-- 2.x writes a non-zero reserved field (values seen in real logs).
+  arrive late -- a command's echo and answer queue behind them like any output;
+- field 5 carries the second polarisation's RSSI on 1.0 and "reserved" values (-43, 6, 8) later;
+  field 10 is the tag's periodic-advertising event counter, with gaps where packets were missed.
+
+Fault options (off by default): ``torn_answers`` lets echo and answers jump the TX queue into
+a half-sent ``+UUDF`` line; ``deaf_after_boot_ms`` ignores the host for that long after
+``+STARTUP``.
 """
 
 from __future__ import annotations
@@ -51,12 +58,14 @@ RX_LINE = 512
 TAG_TIMEOUT_MS = 5000
 RESTART_MS = 300
 """Time from AT+CPWROFF's OK to +STARTUP."""
-DEAF_AFTER_BOOT_MS = 1000
-"""The UART ignores the host this long after +STARTUP."""
-RESERVED_2X = (-43, 6, 8)
-"""Values of the reserved 5th +UUDF field in real 2.x logs (shared/protocols.md §1)."""
+RESERVED = (-43, 6, 8)
+"""Values of the reserved 5th +UUDF field in real lines from 1.2 on (docs/protocol.md, field 5)."""
 BINARY_ANGLE = 0x01
-"""Frame type of an angle in this model's u-locateEmbed binary output (AT+UDFCFG=7,2)."""
+"""Frame type of an angle in u-locateEmbed binary output (AT+UDFCFG=7,2), as the public parser reads it."""
+C209_NAMESPACE = b"NINA-B4TAG".hex().upper()
+"""The Eddystone namespace of u-blox's C209 tag firmware (c209-aoa-tag src/main.c), 20 hex digits."""
+DEFAULT_NAMESPACE_FILTER = {Dialect.EMBED: [C209_NAMESPACE]}
+"""Namespace filter a family ships with: u-locateEmbed ignores tags of any other namespace."""
 
 _IDENTITY = {
     Dialect.V1_0: ('"NINA-B4-DF"', '"1.0.2-001"', '"u-connectLocate","1.0.2-001","NINA-B4"'),
@@ -64,8 +73,8 @@ _IDENTITY = {
     Dialect.V2: ("NINA-B411-40B", '"2.1.0-010"', '"u-connectLocate","2.1.0-010","NINA-B411"'),
     Dialect.EMBED: ("NINA-B411-40B", '"1.0.0-026"', '"u-locateEmbed","1.0.0-026","NINA-B411"'),
 }
-"""AT+GMM, AT+GMR, ATI9 per dialect. The u-locateEmbed strings are this emulator's convention
-(not captured from a board): hosts tell it apart by 'u-locateEmbed' in ATI9."""
+"""AT+GMM, AT+GMR, ATI9 per dialect. *Assumed*: no public capture shows an anchor's strings; only
+1.0's "NINA-B4-DF" and the ordering code are documented. Hosts tell u-locateEmbed by ATI9."""
 
 TAG_LIMIT = {Dialect.V1_0: 5, Dialect.V1_2: 20, Dialect.V2: 20, Dialect.EMBED: 20}
 
@@ -118,10 +127,11 @@ class Settings:
 
 
 def factory_settings(mac: str, dialect: Dialect = Dialect.V1_2) -> Settings:
-    """The family's AT+UDFCFG defaults (tag 4, the anchor id, defaults to the MAC)."""
+    """The family's AT+UDFCFG defaults (tag 4, the anchor id, defaults to the MAC) and filters."""
     fam = family(dialect)
     return Settings(udfcfg={tag: mac if entry.default is None else entry.default
-                            for tag, entry in UDFCFG.items() if fam in entry.ranges})
+                            for tag, entry in UDFCFG.items() if fam in entry.ranges},
+                    filters={1: list(DEFAULT_NAMESPACE_FILTER.get(dialect, [])), 2: []})
 
 
 @dataclass(frozen=True)
@@ -134,6 +144,9 @@ class Advertisement:
     elevation_deg: float
     rssi1_dbm: float
     rssi2_dbm: float
+    event_counter: int | None = None
+    """The tag's periodic-advertising event counter (2.x tags): it counts every event the tag
+    sent, so missed packets leave gaps. None: the board counts what it heard."""
 
 
 @dataclass
@@ -149,18 +162,20 @@ class XplrAoaFirmware:
     """The anchor board. Times are integer milliseconds since the emulator started."""
 
     def __init__(self, mac: str = "CCF9578E0D89", dialect: Dialect = Dialect.V1_2, baud: int = 115200,
-                 *, paced: bool = False, deaf_at_power_up: bool = True) -> None:
+                 *, paced: bool = False, torn_answers: bool = False, deaf_after_boot_ms: int = 0) -> None:
         """``baud``: the stored UART rate, as if set by AT+UMRS and AT&W before this boot.
         ``paced``: output leaves at the UART's rate (the emulator's links); otherwise
-        :meth:`read` returns everything at once (sans-IO tests). ``deaf_at_power_up=False``:
-        the board was powered before the host opened its port, so only later boots (a
-        restart, a reset) ignore the host for their first second."""
+        :meth:`read` returns everything at once (sans-IO tests). ``torn_answers`` and
+        ``deaf_after_boot_ms`` are fault options no source shows (docs/protocol.md); the
+        power-up boot is never deaf (the board was on before the host opened its port)."""
         if len(mac) != 12:
             raise ValueError("mac must be 12 hex digits")
         self.mac = mac
         self.dialect = dialect
         self.family = family(dialect)
         self.paced = paced
+        self.torn_answers = torn_answers
+        self.deaf_after_boot_ms = deaf_after_boot_ms
         self.saved = factory_settings(mac, dialect)
         self.saved.baud = baud
         self.counters: dict[str, int] = {"events": 0, "tx_overflow": 0, "rx_overflow": 0, "rx_ignored": 0}
@@ -174,15 +189,14 @@ class XplrAoaFirmware:
         self._restart_at: int | None = None
         self.powered = True
         self.boot(0)
-        if not deaf_at_power_up:
-            self._deaf_until = 0
+        self._deaf_until = 0
 
     # -- life cycle -------------------------------------------------------------------
     def boot(self, now_ms: int) -> None:
         """Power-up or reset: load stored settings, forget tags, print +STARTUP."""
         self._now_ms = now_ms
         self.booted_ms = now_ms
-        self._deaf_until = now_ms + DEAF_AFTER_BOOT_MS
+        self._deaf_until = now_ms + self.deaf_after_boot_ms
         self.active = copy.deepcopy(self.saved)
         self.pending = copy.deepcopy(self.saved)
         self.enabled = bool(self.active.udfcfg[3])
@@ -218,10 +232,11 @@ class XplrAoaFirmware:
         return data
 
     def _emit(self, data: bytes, urgent: bool = False) -> None:
+        """Queue output; ``urgent`` (echo, answers) jumps the queue only with ``torn_answers``."""
         if len(self._out) + len(data) > TX_BUFFER:
             self.counters["tx_overflow"] += 1
             return
-        if urgent:
+        if urgent and self.torn_answers:
             self._out[self._urgent:self._urgent] = data
             self._urgent += len(data)
         else:
@@ -344,9 +359,9 @@ class XplrAoaFirmware:
     def _umrs(self, params: list[int | str]) -> list[str]:
         """``<baud>,<flow>[,8,1,1,<change_after_confirm>]``: only baud and flow control are
         supported (UBX-21004616 A.5); flow 1 on, 2 off."""
-        if len(params) not in (2, 6) or params[0] not in BAUD_RATES or params[1] not in (FLOW_ON, FLOW_OFF):
+        if len(params) not in (2, 5, 6) or params[0] not in BAUD_RATES or params[1] not in (FLOW_ON, FLOW_OFF):
             raise AtSyntaxError("bad AT+UMRS")
-        if len(params) == 6 and (params[2:5] != [8, 1, 1] or params[5] not in (0, 1)):
+        if len(params) >= 5 and (params[2:5] != [8, 1, 1] or params[5:] not in ([], [0], [1])):
             raise AtSyntaxError("only 8N1 is supported")
         self.pending.baud, self.pending.flow_control = int(params[0]), params[1] == FLOW_ON
         return []
@@ -380,25 +395,29 @@ class XplrAoaFirmware:
         azimuth = _median(tag.raw_azimuths) if smooth else raw_az
         elevation = _median(tag.raw_elevations) if smooth else raw_el
         tag.seq = (tag.seq + 1) & 0xFFFF
+        if adv.event_counter is not None and self.dialect in (Dialect.V2, Dialect.EMBED):
+            tag.seq = adv.event_counter & 0xFFFF  # the tag's own counter: gaps where packets were missed
         timestamp = _int32(self._now_ms - self.booted_ms)
         rssi1 = _clamp(round(adv.rssi1_dbm), -127, 20)
+        if self.dialect is Dialect.V1_0:
+            reserved = _clamp(round(adv.rssi2_dbm), -127, 20)  # 1.0: the 2nd polarisation
+        else:
+            reserved = RESERVED[tag.seq % len(RESERVED)]  # "reserved" from 1.2 on; real lines: -43, 6, 8
         if self.dialect in (Dialect.V1_0, Dialect.V1_2):
-            rssi2 = _clamp(round(adv.rssi2_dbm), -127, 20)  # 1.0: 2nd polarisation; 1.2 prints 0
             channel = 37 + tag.seq % 3  # legacy advertising channels
         else:
-            rssi2 = RESERVED_2X[tag.seq % len(RESERVED_2X)]  # "reserved", yet not 0 on real boards
             channel = (tag.seq * 11) % 37  # periodic advertising hops the data channels
         if cfg[7] == 1:  # undocumented $MEAS text format, emulated so hosts can detect it
-            self._emit(f"\r\n$MEAS,{azimuth},{elevation},{rssi1},{rssi2},{channel},{timestamp},0,0\r\n".encode())
+            self._emit(f"\r\n$MEAS,{azimuth},{elevation},{rssi1},{reserved},{channel},{timestamp},0,0\r\n".encode())
             return
-        if cfg[7] == 2:  # u-locateEmbed binary output: FE type len16 payload
+        if cfg[7] == 2:  # u-locateEmbed binary output: FE type len16 payload (docs/protocol.md)
             payload = bytes.fromhex(adv.instance_id) + struct.pack(
-                "<bbbBiH", rssi1, azimuth, elevation, channel, timestamp, tag.seq)
+                "<bbbBiH", azimuth, elevation, rssi1, channel, timestamp, tag.seq)
             self._emit(b"\xfe" + bytes((BINARY_ANGLE,)) + struct.pack("<H", len(payload)) + payload)
             return
         raw = bool(cfg.get(121, 0))
         event = AngleEvent(
-            adv.instance_id, rssi1, azimuth, elevation, rssi2, channel,
+            adv.instance_id, rssi1, azimuth, elevation, reserved, channel,
             str(cfg[4]), str(cfg[2]), timestamp, tag.seq,
             raw_az if raw else None, raw_el if raw else None,
         )

@@ -23,7 +23,7 @@ _FRAMED = {**_DEVICE, "node_id": INT, "seq": INT, "t_us": {**INT, "description":
 SCHEMAS: dict[str, dict[str, Any]] = {
     "/rfhoming/aoa": _object("rfhoming.AngleEvent", "A +UUDF angle event of an XPLR-AOA (board frame, degrees)", {
         **_DEVICE, "instance_id": STR, "anchor_id": STR, "azimuth": {**INT, "description": "deg, board frame"},
-        "elevation": INT, "rssi1": {**INT, "description": "dBm"}, "rssi2": INT, "channel": INT, "user_str": STR,
+        "elevation": INT, "rssi1": {**INT, "description": "dBm"}, "reserved": INT, "channel": INT, "user_str": STR,
         "timestamp_ms": INT, "seq": {"type": ["integer", "null"]}, "azimuth_raw": {"type": ["integer", "null"]},
         "elevation_raw": {"type": ["integer", "null"]}}, ("device", "t", "azimuth", "rssi1")),
     "/rfhoming/ble": _object("rfhoming.AdvReport", "A BLE scan result (record 0x01)", {

@@ -62,7 +62,7 @@ def angle_events(draw: st.DrawFn, dialect: Dialect) -> AngleEvent:
         rssi1=draw(st.integers(-127, 20)),
         azimuth=draw(st.integers(-90, 90)),
         elevation=draw(st.integers(-90, 90)),
-        rssi2=draw(st.integers(-127, 20)) if dialect is Dialect.V1_0 else 0,
+        reserved=draw(st.integers(-127, 20)),
         channel=draw(st.integers(37, 39) if dialect in (Dialect.V1_0, Dialect.V1_2) else st.integers(0, 36)),
         anchor_id=draw(quoted_text),
         user_str=draw(quoted_text),

@@ -16,7 +16,7 @@ from strategies import chunked
 
 from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.host import portspec
-from rfhoming.host.drivers.espat import EspAtSetup
+from rfhoming.host.drivers.espat import EspAtDriver, EspAtSetup
 from rfhoming.host.drivers.espat import setup_from_spec as esp_at_setup
 from rfhoming.protocol.espat import MAX_LINE, EspAtDecoder, Final, Info, ScanReport, encode_scan, parse_scan
 
@@ -89,8 +89,65 @@ def test_a_flood_of_crs_is_held_bounded() -> None:
 
 
 def run(fw: EspAtFirmware, *commands: str) -> list:
-    fw.receive(b"".join(c.encode() + b"\r\n" for c in commands))
-    return [i for i in EspAtDecoder().feed(fw.read()) if i.kind != "event"]
+    """Each command after the previous one's answer, as ESP-AT requires (else ``busy p...``)."""
+    out = []
+    for command in commands:
+        fw.receive(command.encode() + b"\r\n")
+        out += [i for i in EspAtDecoder().feed(fw.read()) if i.kind != "event"]
+    return out
+
+
+def test_a_command_before_the_previous_answer_gets_busy() -> None:
+    """"all commands are executed serially ... Otherwise, you will receive busy p..." (ESP-AT,
+    Get Started, What is ESP-AT; FAQ "Why does AT return busy p...?")."""
+    fw = EspAtFirmware()
+    fw.read()
+    fw.receive(b"AT\r\nAT+BLEINIT=1\r\n")
+    events = [getattr(i, "what", i.kind) for i in EspAtDecoder().feed(fw.read())]
+    assert "busy p..." in events and fw.role == 0
+
+
+@pytest.mark.parametrize(("version", "scan", "reported"), [
+    ("3.2", 'AT+BLESCAN=1,0,1,"ac:00:00"', set()),  # prefixes are documented on master only: whole MACs
+    ("master", 'AT+BLESCAN=1,0,1,"ac:00:00"', {"AC0000000001", "AC0000000002"}),
+    ("master", 'AT+BLESCAN=1,0,2,"be"', {"AC0000000002"}),
+    ("master", 'AT+BLESCAN=1,0,3,"feaa"', {"AC0000000001"}),
+    ("master", "AT+BLESCAN=1,0,4,-70", {"AC0000000001"}),
+    ("master", 'AT+BLESCAN=1,0,1,"ac:00:00",1', {"AC0000000001", "AC0000000002"}),
+    ("3.2", "AT+BLESCAN=1,0,4,-70", None),
+])
+def test_espressif_example_filters_per_version(version: str, scan: str, reported: set[str] | None) -> None:
+    """The filters of the BLE AT Commands page, per documented version (issue 23 item 8)."""
+    fw = EspAtFirmware(version)
+    assert run(fw, "AT+BLEINIT=1", "AT+BLESCANPARAM=0,0,0,160,160") == [Final(True), Final(True)]
+    answer = run(fw, scan)
+    if reported is None:
+        assert answer == [Final(False)]
+        return
+    assert answer == [Final(True)]
+    eddystone = bytes.fromhex("0303aafe")
+    named = bytes.fromhex("0309") + b"be"
+    fw.on_advertisement(1_000, 37, "AC0000000001", -60.0, eddystone)
+    fw.on_advertisement(2_000, 37, "AC0000000002", -80.0, named)
+    fw.on_advertisement(4_000, 37, "AC0000000001", -60.0, eddystone)  # a duplicate
+    got = [i.address for i in EspAtDecoder().feed(fw.read()) if i.kind == "scan_report"]
+    assert set(got) == reported
+    if scan.endswith(",1"):
+        assert len(got) == len(reported)  # the duplicate check
+
+
+def test_dual_role_from_5_0() -> None:
+    assert run(EspAtFirmware("3.2"), "AT+BLEINIT=3") == [Final(False)]
+    fw = EspAtFirmware("5.0")
+    assert run(fw, "AT+BLEINIT=3", "AT+BLESCANPARAM=0,0,0,160,80", "AT+BLESCAN=1") == [Final(True)] * 3
+
+
+def test_scan_defaults_and_blescandone_per_version() -> None:
+    assert (EspAtFirmware("master").interval, EspAtFirmware("master").window) == (0x140, 0x30)  # ESP32
+    fw = EspAtFirmware("2.4")
+    run(fw, "AT+BLEINIT=1", "AT+BLESCAN=1,1")
+    fw.tick(2_000_000)
+    assert not any(getattr(i, "what", "") == "blescandone" for i in EspAtDecoder().feed(fw.read()))
 
 
 def test_firmware_answers_as_documented() -> None:
@@ -154,3 +211,52 @@ def test_demo_runs_s3_on_an_esp_at_board(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["success"] and "esp-at" in summary["links"]
+
+
+class _Wire:
+    """The driver's port wired straight to a firmware model (no pty): what it writes, in order."""
+
+    name = "esp-at-test"
+
+    def __init__(self, fw: EspAtFirmware) -> None:
+        self.fw, self.sent = fw, []
+        self.counters = {"bytes_in": 0}
+
+    def write(self, data: bytes) -> None:
+        self.sent.append(data.decode().strip())
+        self.fw.receive(data)
+
+
+async def _set_up(fw: EspAtFirmware) -> tuple[EspAtDriver, _Wire]:
+    import asyncio
+
+    wire = _Wire(fw)
+    driver = EspAtDriver(wire)  # type: ignore[arg-type]
+
+    async def pump() -> None:
+        while True:
+            driver.on_chunk(fw.read(), 0.0)
+            await asyncio.sleep(0.001)
+
+    task = asyncio.create_task(pump())
+    try:
+        async with asyncio.timeout(10):
+            await driver._set_up()
+    finally:
+        task.cancel()
+    return driver, wire
+
+
+async def test_driver_stops_an_earlier_scan_before_its_parameters() -> None:
+    """A board still scanning from an earlier run gets AT+BLESCAN=0 first (issue 23 item 9)."""
+    fw = EspAtFirmware()
+    run(fw, "AT+BLEINIT=1", "AT+BLESCAN=1")
+    _, wire = await _set_up(fw)
+    assert wire.sent.index("AT+BLESCAN=0") < next(i for i, c in enumerate(wire.sent) if c.startswith("AT+BLESCANPARAM"))
+
+
+async def test_driver_keeps_a_dual_role() -> None:
+    fw = EspAtFirmware("5.0")
+    run(fw, "AT+BLEINIT=3")
+    driver, wire = await _set_up(fw)
+    assert "AT+BLEINIT=0" not in wire.sent and fw.role == 3 and fw.scanning and driver.state == "streaming"

@@ -7,9 +7,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rfhoming.firmware.xplr_aoa import (
-    DEAF_AFTER_BOOT_MS,
     RESTART_MS,
     TAG_TIMEOUT_MS,
+    C209_NAMESPACE,
     Advertisement,
     XplrAoaFirmware,
 )
@@ -25,7 +25,6 @@ class Host:
         self.decoder = UConnectDecoder()
         self.matcher = CommandMatcher()
         self.urcs: list = []
-        fw.tick(fw.booted_ms + DEAF_AFTER_BOOT_MS)  # the UART ignores the host for a second after boot
 
     def drain(self) -> list[Response]:
         responses = []
@@ -47,12 +46,11 @@ class Host:
         self.fw.tick(now_ms)
         assert self.send(c.restart()).ok
         self.fw.tick(now_ms + RESTART_MS)
-        self.fw.tick(now_ms + RESTART_MS + DEAF_AFTER_BOOT_MS)
         self.drain()
 
 
 def adv(tag: str = "CCF9578E0D8A", az: float = 12.4, rssi: float = -55.0) -> Advertisement:
-    return Advertisement(tag, "", az, 0.0, rssi, rssi - 1)
+    return Advertisement(tag, C209_NAMESPACE, az, 0.0, rssi, rssi - 1)
 
 
 @pytest.fixture
@@ -71,7 +69,6 @@ def test_boot_banner_then_echo_info_ok(host: Host) -> None:
 
 def test_echo_bytes_exactly_then_answer() -> None:
     fw = XplrAoaFirmware()
-    fw.tick(DEAF_AFTER_BOOT_MS)
     fw.read()
     fw.receive(b"AT\r")
     assert fw.read() == b"AT\r\r\nOK\r\n"
@@ -135,7 +132,7 @@ def test_angle_event_fields(host: Host) -> None:
     host.fw.on_advertisement(adv(az=-33.6, rssi=-61.4))
     host.drain()
     event = host.urcs[-1]
-    assert (event.azimuth, event.rssi1, event.rssi2, event.timestamp_ms) == (-34, -61, 0, 1234)
+    assert (event.azimuth, event.rssi1, event.timestamp_ms) == (-34, -61, 1234)
     assert event.channel in (37, 38, 39) and event.anchor_id == "CCF9578E0D89"
 
 
@@ -168,7 +165,7 @@ def test_tag_limit_and_five_second_drop(dialect: Dialect, limit: int) -> None:
         h.fw.on_advertisement(adv(f"{i:012X}"))
     h.drain()
     assert len({u.instance_id for u in h.urcs if u.kind == "angle"}) == limit
-    h.fw.tick(DEAF_AFTER_BOOT_MS + TAG_TIMEOUT_MS + 1)
+    h.fw.tick(TAG_TIMEOUT_MS + 1)
     assert h.fw.tags == {}
     h.fw.on_advertisement(adv("FFFFFFFFFFFF"))
     h.drain()
@@ -274,14 +271,27 @@ def test_at_syntax_the_board_refuses(host: Host, line: bytes) -> None:
     assert (host.fw.pending.udfcfg, host.fw.pending.filters) == before
 
 
-def test_commands_are_ignored_for_a_second_after_startup() -> None:
+def test_deafness_after_startup_is_a_fault_option_off_by_default() -> None:
+    """No source says the board ignores the host after +STARTUP (docs/protocol.md): the
+    default board answers at once; ``deaf_after_boot_ms`` models it as a fault."""
     fw = XplrAoaFirmware()
-    fw.tick(500)
+    fw.read()
     fw.receive(b"AT\r")
-    assert fw.read() == b"\r\n+STARTUP\r\n" and fw.counters["rx_ignored"] == 3
-    fw.tick(1000)
+    fw.tick(1)
+    fw.receive(b"AT+CPWROFF\r")
+    assert fw.read() == b"AT\r\r\nOK\r\nAT+CPWROFF\r\r\nOK\r\n"
+    fw.tick(1 + RESTART_MS)
     fw.receive(b"AT\r")
-    assert fw.read() == b"AT\r\r\nOK\r\n"
+    assert fw.read() == b"\r\n+STARTUP\r\nAT\r\r\nOK\r\n" and fw.counters["rx_ignored"] == 0
+    deaf = XplrAoaFirmware(deaf_after_boot_ms=1000)
+    deaf.read()
+    deaf.receive(b"AT\r")  # the power-up boot is never deaf: the board was on before the host
+    assert deaf.read() == b"AT\r\r\nOK\r\n"
+    deaf.receive(b"AT+CPWROFF\r")
+    deaf.tick(RESTART_MS)
+    deaf.tick(RESTART_MS + 500)
+    deaf.receive(b"AT\r")
+    assert deaf.read().endswith(b"\r\n+STARTUP\r\n") and deaf.counters["rx_ignored"] == 3
 
 
 @pytest.mark.parametrize(("dialect", "live"), [(Dialect.V1_2, False), (Dialect.V2, True), (Dialect.EMBED, True)])
@@ -301,13 +311,32 @@ def test_2x_has_a_nonzero_reserved_field_and_its_own_tags() -> None:
         h.fw.tick(ms)
         h.fw.on_advertisement(adv())
     h.drain()
-    assert {u.rssi2 for u in h.urcs if u.kind == "angle"} <= {-43, 6, 8} and h.urcs[-1].rssi2 != 0
+    assert {u.reserved for u in h.urcs if u.kind == "angle"} <= {-43, 6, 8} and h.urcs[-1].reserved != 0
     assert h.send(c.set_config(10, 50, "2.x")).ok and h.send(c.set_config(13, 1, "2.x")).ok
     assert not h.send(c.set_config(121, 1)).ok  # u-locateEmbed only
 
 
-def test_paced_output_leaves_at_the_baud_rate_and_answers_jump_the_queue() -> None:
+def test_answers_queue_behind_output_already_sent() -> None:
+    """A saturated 115,200 Bd link delays answers: they leave after what the board queued
+    before the command (issue 23 item 4); nothing is torn."""
     fw = XplrAoaFirmware(paced=True)
+    fw.tick(1000)
+    fw.read()
+    for i in range(20):
+        fw.on_advertisement(adv(f"{i:012X}"))
+    queued = len(fw._out)
+    fw.receive(b"AT\r")
+    out = b""
+    for ms in range(1010, 1300, 10):
+        fw.tick(ms)
+        out += fw.read()
+    assert out.index(b"AT\r\r\nOK\r\n") == queued  # the echo and answer come after all 20 lines
+    items = UConnectDecoder().feed(out)
+    assert sum(i.kind == "angle" for i in items) == 20 and not any(i.kind == "drop" for i in items)
+
+
+def test_torn_answers_are_a_fault_option() -> None:
+    fw = XplrAoaFirmware(paced=True, torn_answers=True)
     fw.tick(1000)
     fw.read()
     for i in range(20):  # 20 tags heard at once: ~1.3 kB queued
@@ -326,6 +355,54 @@ def test_paced_output_leaves_at_the_baud_rate_and_answers_jump_the_queue() -> No
     decoder = UConnectDecoder()
     items = decoder.feed(first + second + rest)
     assert sum(i.kind == "angle" for i in items) == 19 and any(i.kind == "final" for i in items)
+
+
+def test_9_field_lines_carry_reserved_values_not_zero() -> None:
+    """Field 5 of 1.2 lines is "reserved"; real 9-field lines carry 6 and 8 there (item 3)."""
+    h = Host(XplrAoaFirmware(dialect=Dialect.V1_2))
+    h.drain()
+    for ms in range(1000, 1100, 20):
+        h.fw.tick(ms)
+        h.fw.on_advertisement(adv())
+    h.drain()
+    assert {u.reserved for u in h.urcs if u.kind == "angle"} - {-43, 6, 8} == set()
+
+
+def test_embed_ignores_other_namespaces_until_the_filter_is_cleared() -> None:
+    """u-locateEmbed ships with the NINA-B4TAG namespace filter (item 1); 1.x and 2.x have none."""
+    other = Advertisement("CCF9578E0D8A", "00112233445566778899", 5.0, 0.0, -50, -51)
+    h = Host(XplrAoaFirmware(dialect=Dialect.EMBED))
+    h.drain()
+    h.fw.on_advertisement(other)
+    h.drain()
+    assert not [u for u in h.urcs if u.kind == "angle"]
+    assert h.send(c.read_filter(c.FILTER_NAMESPACE)).info == [f'+UDFFILT:1,"{C209_NAMESPACE}"']
+    assert h.send(c.set_filter(c.FILTER_NAMESPACE, c.FILTER_CLEAR)).ok and h.send(c.store()).ok
+    h.restart()
+    h.fw.tick(2000)
+    h.fw.on_advertisement(other)
+    h.drain()
+    assert [u.instance_id for u in h.urcs if u.kind == "angle"] == ["CCF9578E0D8A"]
+    v2 = Host(XplrAoaFirmware(dialect=Dialect.V2))
+    v2.drain()
+    v2.fw.on_advertisement(other)
+    v2.drain()
+    assert [u.kind for u in v2.urcs if u.kind == "angle"] == ["angle"]
+
+
+def test_event_counter_is_the_tags_and_has_gaps() -> None:
+    """Field 10 is the tag's periodic-advertising event counter: missed packets leave gaps."""
+    h = Host(XplrAoaFirmware(dialect=Dialect.V2))
+    h.drain()
+    for ms, counter in ((1000, 7), (1100, 9), (1200, 13)):
+        h.fw.tick(ms)
+        h.fw.on_advertisement(Advertisement("CCF9578E0D8A", C209_NAMESPACE, 1.0, 0.0, -50, -51, counter))
+    h.drain()
+    assert [u.seq for u in h.urcs if u.kind == "angle"] == [7, 9, 13]
+
+
+def test_five_parameter_umrs_of_public_clients_is_accepted(host: Host) -> None:
+    assert finals(host, b"AT+UMRS=115200,2,8,1,1\r") == [True]
 
 
 AT_WORDS = [b"AT", b"+UDFCFG", b"+UDFFILT", b"+UMRS", b"+UDFENABLE", b"=", b"?", b",", b'"', b"1", b"0", b"-",

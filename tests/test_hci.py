@@ -280,3 +280,36 @@ def test_hci_items_print_as_json_lines() -> None:
     assert rows == [{"kind": "advertisement", "address": "AC0000000001", "address_type": 0, "rssi_dbm": -61,
                      "extended": True, "data": "020106"},
                     {"kind": "hci", "name": "HCI_COMMAND_COMPLETE_EVENT", "raw": "040e0401030c00"}]
+
+
+EXTENDED = (hci.HCI_LE_Set_Extended_Scan_Parameters_Command(
+    own_address_type=0, scanning_filter_policy=0, scanning_phys=1, scan_types=[0], scan_intervals=[160],
+    scan_windows=[160]),
+    hci.HCI_LE_Set_Extended_Scan_Enable_Command(enable=1, filter_duplicates=0, duration=0, period=0))
+
+
+class _NoPort:
+    name = "hci-test"
+    counters = {"bytes_in": 0}
+
+
+@pytest.mark.parametrize("truncate", [False, True])
+async def test_fragmented_extended_reports_are_reassembled(truncate: bool) -> None:
+    """One advertisement in several extended-report fragments is one reading, and a name in a
+    later fragment still passes adname= (issue 23 item 10; data status, Core v5.4 Vol 4 Part E 7.7.65.13)."""
+    name_last = bytes.fromhex("020106") + bytes.fromhex("0303aafe") + bytes([9, 0x09]) + b"Beacon-1"
+    fw = HciControllerFirmware(fragment_bytes=8, truncate=truncate)
+    fw.receive(commands(hci.HCI_Reset_Command(), *MASKS, *EXTENDED))
+    fw.read()
+    fw.on_advertisement(1_000, 37, "AC:00:00:00:00:01", -60.0, name_last)
+    fw.on_advertisement(2_000, 37, "AC:00:00:00:00:01", -61.0, name_last)
+    wire = fw.read()
+    assert sum(len(e.reports) for e in (hci.HCI_Packet.from_bytes(p) for p in H4Splitter().feed(wire))) == 6 - 2 * truncate
+    driver = HciDriver(_NoPort(), HciSetup(name="Beacon-1"))  # type: ignore[arg-type]
+    shown: list = []
+    driver.listeners.append(lambda _port, _t, item: shown.append(item))
+    driver.on_chunk(wire, 0.0)
+    advertisements = [i for i in shown if getattr(i, "kind", "") == "advertisement"]
+    assert [a.data for a in advertisements] == [name_last[:16] if truncate else name_last] * 2
+    assert len(driver.out) == (0 if truncate else 2)  # a truncated report lost its name
+    assert driver.counters["truncated"] == 2 * truncate and driver.counters["fragments"] == 4 - 2 * truncate

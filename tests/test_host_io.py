@@ -199,6 +199,63 @@ async def test_binary_output_is_told_from_a_baud_mismatch(tmp_path: Path) -> Non
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.counters["binary_output"] >= 1, 15)
     assert "AT+UDFCFG=7,2" in driver.problem and driver.counters["baud_mismatch"] == 0
+    # decoded, azimuth at payload byte 6 as the public parser reads it (issue 23 item 6)
+    await until(lambda: driver.counters["binary_events"] > 5 and len(driver.out) > 0, 15)
+    first = driver.out.get_nowait()
+    assert first.event.instance_id in driver.tags_heard and -90 <= first.event.azimuth <= 90
+    await stop(em, task)
+
+
+def test_binary_payload_byte_6_is_the_azimuth() -> None:
+    """The public parser reads the azimuth as a signed byte at payload offset 6 (docs/protocol.md)."""
+    from rfhoming.firmware.xplr_aoa import C209_NAMESPACE, Advertisement, XplrAoaFirmware
+    from rfhoming.protocol.uconnect.binary import BinaryDecoder
+    fw = XplrAoaFirmware(dialect=Dialect.EMBED)
+    fw.saved.udfcfg[7] = fw.active.udfcfg[7] = 2
+    fw.read()
+    fw.tick(100)
+    fw.on_advertisement(Advertisement("CCF9578E0D8A", C209_NAMESPACE, -37.0, 4.0, -60, -61))
+    frame = fw.read()
+    assert frame[0] == 0xFE and frame[1] == 0x01 and int.from_bytes(frame[4 + 6:4 + 7], "little", signed=True) == -37
+    (event,) = BinaryDecoder().feed(b"\x00\xfe" + frame[:5] + frame[5:])
+    assert (event.instance_id, event.azimuth) == ("CCF9578E0D8A", -37)
+
+
+async def test_setup_stops_a_streaming_board_first(tmp_path: Path) -> None:
+    """A board still streaming +UUDF gets AT+UDFENABLE=0 before any other set-up command, as
+    u-blox's own clients do (issue 23 item 4)."""
+    em = await start(tmp_path)
+    fw = em.device("aoa").firmware
+    seen: list[bytes] = []
+    receive = fw.receive
+    fw.receive = lambda data: (seen.append(data), receive(data))[1]
+    driver = AoaDriver(HostPort(where(em, "aoa")))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.state == "streaming", 15)
+    sent = b"".join(seen)
+    assert sent.index(b"AT+UDFENABLE=0\r") < sent.index(b"AT+GMM\r") < sent.index(b"AT+UDFENABLE=1\r")
+    await stop(em, task)
+
+
+async def test_board_filter_without_effect_is_reported(tmp_path: Path) -> None:
+    """The driver checks that the on-board filter works (other tags stop), not only its read-back."""
+    em = await start(tmp_path)
+    fw = em.device("aoa").firmware
+    fw.boot = lambda now_ms, boot=fw.boot: (boot(now_ms), fw.active.filters.update({2: []}))[0]  # ignores it
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup().with_tags(("000000000000",)))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["board_filter_leaks"] >= 3, 15)
+    assert driver.counters["restarts"] == 1 and len(driver.out) == 0  # the host filter is the backstop
+    await stop(em, task)
+
+
+async def test_embed_silence_names_the_namespace_filter(tmp_path: Path) -> None:
+    em = await start(tmp_path, dialect="embed")
+    em.device("aoa").namespace = "00112233445566778899"  # a home-made tag's namespace
+    driver = AoaDriver(HostPort(where(em, "aoa")), AoaSetup(silence_timeout=1.0))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.counters["silent"] == 1, 15)
+    assert "NINA-B4TAG" in driver.problem and "AT+UDFFILT=1,1" in driver.problem
     await stop(em, task)
 
 

@@ -6,7 +6,6 @@ range; the device is in the channel metadata, not the frame id."""
 
 from __future__ import annotations
 
-import json
 import math
 import subprocess
 import sys

@@ -99,7 +99,7 @@ def test_last_line_without_terminator_needs_flush() -> None:
         (OFFICIAL.replace(b",20,", b",91,"), "uudf_range", "azimuth 91 out of range"),
         (OFFICIAL.replace(b",0,-43", b",-91,-43"), "uudf_range", "elevation -91"),
         (OFFICIAL.replace(b"-42", b"-128"), "uudf_range", "rssi1 -128"),
-        (OFFICIAL.replace(b"-43", b"21"), "uudf_range", "rssi2 21"),
+        (OFFICIAL.replace(b"-43", b"21"), "uudf_range", "reserved 21"),
         (OFFICIAL.replace(b",37,", b",40,"), "uudf_range", "channel 40"),
         (OFFICIAL.replace(b"CCF9578E0D8A", b"CCF9578E0D8"), "uudf_range", "instance id"),
         (OFFICIAL.replace(b"CCF9578E0D8A", b"CCF9578E0D8G"), "uudf_range", "instance id"),

@@ -27,7 +27,7 @@ EVENT = AngleEvent("CCF9578E0D8A", -42, 20, 0, -43, 37, "CCF9578E0D89", "", 1586
     ("dialect", "wire"),
     [
         (Dialect.V1_0, b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869\r\n'),
-        (Dialect.V1_2, b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,0,37,"CCF9578E0D89","",15869\r\n'),
+        (Dialect.V1_2, b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869\r\n'),
         (Dialect.V2, b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869,23\r\n'),
         (Dialect.EMBED, b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869,23,-5,3\r\n'),
     ],

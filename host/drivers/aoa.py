@@ -9,13 +9,17 @@ State machine::
         garbage is u-locateEmbed binary frames (AT+UDFCFG=7,2), or unknown_output when it is
         well-formed text lines that are not +UUDF ($MEAS, raw-IQ JSON debug lines)
 
-Set-up (docs/hardware.md explains each command): ``AT`` until the board answers (it ignores
-the host for a while after booting); identify the firmware with ``AT+GMM``, ``AT+GMR`` and
+Set-up (docs/hardware.md explains each command): ``AT`` until the board answers;
+``AT+UDFENABLE=0``, so a board that still streams from an earlier run stops crowding the link
+(u-blox's own clients do the same); identify the firmware with ``AT+GMM``, ``AT+GMR`` and
 ``ATI9`` -- an identification that fails only costs the guess (1.2, the common dialect, until
 the ``+UUDF`` field count says otherwise); read each wanted ``AT+UDFCFG``/``AT+UDFFILT`` and
 write those that differ and that the family accepts; if something was written, ``AT&W``, read
-back, and ``AT+CPWROFF`` only when the family applies settings at restart (1.x) or the board
-still reports the old value; then ``AT+UDFENABLE=1``.
+back, and ``AT+CPWROFF`` when the family applies settings at restart (1.x), the tag filter
+changed (no source says it applies at once, so it is treated as applying at restart on every
+family), or the board still reports the old value; then ``AT+UDFENABLE=1``. With an on-board tag
+filter the driver then checks its effect: other tags still arriving is reported once (the host
+filter stays as a backstop).
 """
 
 from __future__ import annotations
@@ -43,12 +47,18 @@ from rfhoming.protocol.uconnect import (
     UConnectDecoder,
 )
 from rfhoming.protocol.uconnect import commands as c
+from rfhoming.protocol.uconnect.binary import BinaryDecoder
 
 log = logging.getLogger(__name__)
 
 FLOW_HINT = "check the RTS/CTS wiring, or try flow=none in the port spec (e.g. /dev/ttyUSB0,flow=none)"
 SILENT_HINT = ("the tag is not advertising (battery, or asleep), or the tag and anchor firmware "
                "generations do not match; see docs/hardware.md, troubleshooting")
+NAMESPACE_HINT = ("; u-locateEmbed reports only tags whose Eddystone namespace is NINA-B4TAG "
+                  "(4E494E412D4234544147, the C209's): advertise that namespace, or clear the board's "
+                  "filter with AT+UDFFILT=1,1, AT&W, AT+CPWROFF")
+LEAK_EVENTS = 3
+"""Events of other tags after an on-board filter was set before the driver says it had no effect."""
 
 
 
@@ -72,6 +82,12 @@ class AoaSetup:
     the only tag heard, or report the tags heard (:attr:`AoaDriver.ambiguous_tags`) and keep
     holding. None: pass every tag on (listen, capture)."""
     probe_baud: bool = False
+
+    def with_tags(self, tags: tuple[str, ...] | frozenset[str]) -> AoaSetup:
+        """Home on ``tags``: the board's own instance filter (so other tags stop crowding the
+        link) and the host filter as a backstop."""
+        wanted = tuple(sorted({t.upper() for t in tags}))
+        return replace(self, instance_filter=wanted, host_filter=frozenset(wanted))
 
 
 class TimedAngle(NamedTuple):
@@ -126,10 +142,10 @@ class AoaDriver(Driver):
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> AoaDriver:
-        """``tags=`` filters on the host, ``timeout=`` bounds each set-up command."""
+        """``tags=`` sets the board's tag filter and the host's, ``timeout=`` bounds each set-up command."""
         setup = options.pop("setup", AoaSetup())
         if spec.tags:
-            setup = replace(setup, host_filter=frozenset(spec.tags))
+            setup = setup.with_tags(spec.tags)
         if spec.timeout:
             setup = replace(setup, command_timeout=spec.timeout)
         return cls(serial_port(spec, taps), setup, **options)
@@ -143,7 +159,8 @@ class AoaDriver(Driver):
         self.dialect: Dialect | None = None
         self.identity: dict[str, str] = {}
         self.counters.update(setups=0, reboots=0, retries=0, filtered=0, held=0, baud_mismatch=0, binary_output=0,
-                             unknown_output=0, config_skipped=0, restarts=0, silent=0)
+                             unknown_output=0, config_skipped=0, restarts=0, silent=0, board_filter_leaks=0,
+                             binary_events=0)
         self.tags_heard: dict[str, int] = {}
         """Every tag id seen in a +UUDF line (before any filter) and how often; at most 256 ids
         (a board tracks at most 20 at a time)."""
@@ -158,11 +175,14 @@ class AoaDriver(Driver):
         self._streaming_at = 0.0
         self._recent = bytearray()
         self._unknown_lines: deque[str] = deque(maxlen=5)
+        self._binary: BinaryDecoder | None = None  # decodes u-locateEmbed binary output once it is recognised
 
     # -- reading ----------------------------------------------------------------------
     def on_chunk(self, data: bytes, t_host: float) -> None:
         self._recent += data
         del self._recent[:-512]  # bounded: enough to recognise binary output
+        if self._binary is not None:
+            self._feed_binary(data, t_host)
         for item in self.decoder.feed(data):
             kind = item.kind
             if not (kind == "angle" and self.chosen and item.instance_id not in self.chosen):
@@ -190,6 +210,17 @@ class AoaDriver(Driver):
             if response is not None and self._answer is not None and not self._answer.done():
                 self._answer.set_result(response)
 
+    def _feed_binary(self, data: bytes, t_host: float) -> None:
+        """u-locateEmbed binary frames -> angle events (only the azimuth is vouched for)."""
+        assert self._binary is not None
+        for item in self._binary.feed(data):
+            self.emit(t_host, item)
+            if isinstance(item, AngleEvent):
+                self.counters["binary_events"] += 1
+                self._last_valid = time.monotonic()
+                self._bytes_at_valid = self.port.counters["bytes_in"]
+                self._on_angle(item, t_host)
+
     def _on_angle(self, event: AngleEvent, t_host: float) -> None:
         self.last_event = time.monotonic()
         if len(self.tags_heard) < 256 or event.instance_id in self.tags_heard:
@@ -204,8 +235,20 @@ class AoaDriver(Driver):
             self.counters["held"] += 1
         elif self.chosen and event.instance_id not in self.chosen:
             self.counters["filtered"] += 1
+            self._check_board_filter(event)
         else:
             self.out.put(TimedAngle(t_host, event))
+
+    def _check_board_filter(self, event: AngleEvent) -> None:
+        """An on-board filter is set, yet another tag streams: say so once; the host filters."""
+        if self.state != "streaming" or event.instance_id in self.setup.instance_filter \
+                or not self.setup.instance_filter:
+            return
+        self.counters["board_filter_leaks"] += 1
+        if self.counters["board_filter_leaks"] == LEAK_EVENTS:
+            log.warning("%s: the board still reports tag %s although its filter is %s: the filter has no "
+                        "effect on this firmware; filtering on the host instead", self.port.name,
+                        event.instance_id, ",".join(self.setup.instance_filter))
 
     def _choose(self, board_ms: int) -> bool:
         """Listening for the tags in view: True once the only one heard is chosen. Measured on
@@ -286,6 +329,8 @@ class AoaDriver(Driver):
     async def _set_up(self) -> None:
         self.state = "setting_up"
         await self._wake()
+        # a board still streaming from an earlier run would crowd the link and delay every answer
+        await self.command(c.enable_angles(False))
         self.identity = {"model": await self._identify(c.identify_model()),
                          "version": await self._identify(c.identify_version()),
                          "software": await self._identify(c.identify_software())}
@@ -294,7 +339,7 @@ class AoaDriver(Driver):
         if written:
             await self.command(c.store())
             stale = [tag for tag, value in written.items() if not await self._reads_back(tag, value)]
-            if c.family(self.dialect) not in c.LIVE_FAMILIES or stale:
+            if c.family(self.dialect) not in c.LIVE_FAMILIES or "filter" in written or stale:
                 await self._restart()
         await self.command(c.enable_angles(True))
         self.counters["setups"] += 1
@@ -357,7 +402,8 @@ class AoaDriver(Driver):
             elif not warned:
                 warned = True
                 self.counters["silent"] += 1
-                self.problem = f"no +UUDF for {self.setup.silence_timeout:g} s although the board answers: {SILENT_HINT}"
+                hint = SILENT_HINT + (NAMESPACE_HINT if self.dialect is Dialect.EMBED else "")
+                self.problem = f"no +UUDF for {self.setup.silence_timeout:g} s although the board answers: {hint}"
                 log.warning("%s: %s", self.port.name, self.problem)
 
     # -- garbage / baud ---------------------------------------------------------------
@@ -370,9 +416,12 @@ class AoaDriver(Driver):
                     self.counters["binary_output"] += 1
                     self.state = "binary_output"
                     self.problem = ("the board writes u-locateEmbed binary output (AT+UDFCFG=7,2), not +UUDF "
-                                    "lines: set AT+UDFCFG=7,0 (add 7: 0 to the AoA set-up, or send it, AT&W, "
-                                    "AT+CPWROFF)")
+                                    "lines: decoding only its azimuth is vouched for (docs/protocol.md); set "
+                                    "AT+UDFCFG=7,0 for +UUDF lines (add 7: 0 to the AoA set-up, or send it, "
+                                    "AT&W, AT+CPWROFF)")
                     log.error("%s: %s", self.port.name, self.problem)
+                    self._binary = BinaryDecoder()
+                    self._feed_binary(bytes(self._recent), time.monotonic())
                     self._last_valid = time.monotonic()
                     self._bytes_at_valid = self.port.counters["bytes_in"]
                     continue

@@ -1,7 +1,8 @@
 """Driver for an ESP32 running Espressif's ESP-AT firmware, as a BLE RSSI receiver.
 
 After every open and every reboot (``ready``) it sets the board up -- ``AT``, ``AT+BLEINIT?``,
-``AT+BLEINIT=1`` if needed, ``AT+BLESCANPARAM=...``, ``AT+BLESCAN=1,...`` -- and turns every
+``AT+BLEINIT=1`` if needed (a client or dual role is kept), ``AT+BLESCAN=0`` (a board still
+scanning from an earlier run), ``AT+BLESCANPARAM=...``, ``AT+BLESCAN=1,...`` -- and turns every
 ``+BLESCAN:`` report into the same :class:`~rfhoming.host.drivers.rss.BleRssi` reading the
 rfhoming ESP32 scanner gives, so the S3 trilateration, S1 and S4 consumers take either. ESP-AT
 reports carry no timestamp: the reading's time is the host's arrival time of its line.
@@ -27,6 +28,9 @@ from rfhoming.protocol.espat import EspAtDecoder, Final
 
 log = logging.getLogger(__name__)
 UNIT_MS = 0.625
+NO_BLE_HINT = ("this ESP-AT build has no Bluetooth LE commands (the default ESP32-C2 firmware has none: "
+               "build the ESP32C2-2MB-BLE variant, ESP-AT docs 'Bluetooth LE AT Commands')")
+BUSY_RETRY_S = 0.1
 
 
 
@@ -88,6 +92,7 @@ class EspAtDriver(Driver):
         self.counters.update(setups=0, reboots=0, retries=0, scans_done=0)
         self._answer: asyncio.Future[list[Any]] | None = None
         self._lines: list[Any] = []
+        self.counters.update(busy=0)
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
         for item in self.decoder.feed(data):
@@ -106,6 +111,10 @@ class EspAtDriver(Driver):
                 self._needs_setup.set()
             elif item.kind == "event" and item.what == "blescandone":
                 self.counters["scans_done"] += 1
+            elif item.kind == "event" and item.what == "busy p...":
+                self.counters["busy"] += 1  # still running an earlier command: ours was not taken
+                if self._answer is not None and not self._answer.done():
+                    self._answer.set_result([])
 
     async def command(self, text: str) -> list[Any]:
         """Send one command; its information lines and final answer (CommandFailed on ERROR)."""
@@ -117,6 +126,9 @@ class EspAtDriver(Driver):
                     answer = await self._answer
             except TimeoutError:
                 self.counters["retries"] += 1
+                continue
+            if not answer:  # busy p...: try again once the board is done
+                await asyncio.sleep(BUSY_RETRY_S)
                 continue
             if not answer[-1].ok:
                 raise CommandFailed(f"{text} answered ERROR")
@@ -131,12 +143,21 @@ class EspAtDriver(Driver):
     async def _set_up(self) -> None:
         self.state = "setting_up"
         await self.command("AT")
-        role = next((i.value for i in await self.command("AT+BLEINIT?") if i.name == "BLEINIT"), "0")
-        if role not in ("0", "1"):  # a server role cannot become a client without a deinit
+        try:
+            answer = await self.command("AT+BLEINIT?")
+        except CommandFailed:
+            raise CommandFailed(f"AT+BLEINIT? answered ERROR: {NO_BLE_HINT}") from None
+        role = next((i.value for i in answer if i.name == "BLEINIT"), "0")
+        if role not in ("0", "1", "3"):  # a server role cannot become a client without a deinit
             await self.command("AT+BLEINIT=0")
             role = "0"
         if role == "0":
             await self.command("AT+BLEINIT=1")
+        else:
+            try:  # it may still scan from an earlier run; not scanning may answer ERROR
+                await self.command("AT+BLESCAN=0")
+            except CommandFailed:
+                pass
         for text in self.setup.commands():
             await self.command(text)
         self.counters["setups"] += 1

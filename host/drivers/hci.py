@@ -40,6 +40,9 @@ LE_EVENT_MASK = (1 << 1) | (1 << 12)  # LE Advertising Report, LE Extended Adver
 RSSI_NOT_AVAILABLE = 127
 HARDWARE_ERROR_EVENT = 0x10  # the controller lost its state: set it up again
 CONTENT_FILTERS = {"ibeacon": adv.is_ibeacon, "eddystone": adv.is_eddystone}
+DATA_STATUS_SHIFT, MORE_TO_COME, TRUNCATED = 5, 1, 2  # extended report event type bits 5-6 (7.7.65.13)
+MAX_PARTIAL = 64  # advertisers with a fragment pending; the oldest is dropped beyond
+MAX_AD = 1650  # the longest extended advertising data (Core v5.4 Vol 4 Part E 7.8.54)
 
 
 class Advertisement(NamedTuple):
@@ -130,7 +133,9 @@ class HciDriver(Driver):
         self.setup = setup
         self.splitter = H4Splitter(h4.TO_HOST)
         self.counters.update(setups=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0,
+                             fragments=0, truncated=0, partial_dropped=0,
                              **{"drop.not_event": 0, "drop.malformed": 0, "drop.error": 0})
+        self._partial: dict[tuple, tuple[Any, bytearray]] = {}  # fragments of extended reports, by advertiser
         self.extended: bool | None = None
         self._pending: tuple[int, asyncio.Future[Any]] | None = None
 
@@ -159,7 +164,9 @@ class HciDriver(Driver):
         extended = isinstance(packet, hci.HCI_LE_Extended_Advertising_Report_Event)
         if extended or isinstance(packet, hci.HCI_LE_Advertising_Report_Event):
             for report in packet.reports:
-                self._report(report, extended, t_host)
+                whole = self._reassemble(report) if extended else (report, bytes(report.data))
+                if whole is not None:
+                    self._report(*whole, extended, t_host)
             return
         self.emit(t_host, HciPacket(packet.name, raw))
         if isinstance(packet, (hci.HCI_Command_Complete_Event, hci.HCI_Command_Status_Event)):
@@ -180,13 +187,33 @@ class HciDriver(Driver):
         self.counters["bad_packets"] += 1
         self.emit(t_host, Drop(reason, detail, raw[:64]))
 
-    def _report(self, report: Any, extended: bool, t_host: float) -> None:
+    def _reassemble(self, report: Any) -> tuple[Any, bytes] | None:
+        """An extended report's fragments joined by their data status: (first fragment, data)
+        once complete or truncated, None while more is to come."""
+        status = (report.event_type >> DATA_STATUS_SHIFT) & 0x3
+        key = (bytes(report.address), report.address_type, report.advertising_sid,
+               report.event_type & 0x1F)
+        first, data = self._partial.pop(key, (report, bytearray()))
+        data += bytes(report.data)
+        del data[MAX_AD:]
+        if status == MORE_TO_COME:
+            self.counters["fragments"] += 1
+            if len(self._partial) >= MAX_PARTIAL:
+                self._partial.pop(next(iter(self._partial)))
+                self.counters["partial_dropped"] += 1
+            self._partial[key] = (first, data)
+            return None
+        if status == TRUNCATED:
+            self.counters["truncated"] += 1
+        return first, bytes(data)
+
+    def _report(self, report: Any, data: bytes, extended: bool, t_host: float) -> None:
         self.counters["reports"] += 1
         address = address_text(report.address)
-        self.emit(t_host, Advertisement(address, report.address_type, report.rssi, extended, bytes(report.data)))
+        self.emit(t_host, Advertisement(address, report.address_type, report.rssi, extended, data))
         if report.rssi == RSSI_NOT_AVAILABLE:
             self.counters["no_rssi"] += 1
-        elif not self.setup.keeps(address, bytes(report.data)):
+        elif not self.setup.keeps(address, data):
             self.counters["filtered"] += 1
         else:
             self.out.put(BleRssi(t_host, self.setup.node_id, address, report.rssi))

@@ -159,7 +159,7 @@ def aoa_angle(t: float, frame: str, e: Any) -> tuple[str, str, dict]:
     """A u-connectLocate AngleEvent."""
     return "/rfhoming/aoa/angle", AOA, {
         "header": header(t, frame), "instance_id": e.instance_id, "anchor_id": e.anchor_id,
-        "azimuth_deg": e.azimuth, "elevation_deg": e.elevation, "rssi1_dbm": e.rssi1, "rssi2_dbm": e.rssi2,
+        "azimuth_deg": e.azimuth, "elevation_deg": e.elevation, "rssi1_dbm": e.rssi1, "reserved": e.reserved,
         "channel": e.channel, "timestamp_ms": e.timestamp_ms & 0xFFFFFFFF, "seq": -1 if e.seq is None else e.seq,
     }
 

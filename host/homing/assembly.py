@@ -237,7 +237,7 @@ def _driver(plan: Homing, device: Device, inputs: BoundedStream[Any]) -> tuple[D
         record = devices.kind(device.kind or devices.ROLES[device.role].default_kind)
         options = _options(plan, device, record.name)
         if plan.tags and "setup" in options:
-            options["setup"] = replace(options["setup"], host_filter=frozenset(plan.tags))
+            options["setup"] = options["setup"].with_tags(plan.tags)
         driver = driver_class(record)(device.port, out=inputs, **options)
         return driver, (record.setup_timeout_s if isinstance(device.port, HostPort) else None)
     spec = parse_spec(device.spec or "")

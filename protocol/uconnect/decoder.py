@@ -164,7 +164,7 @@ def parse_angle_event(line: bytes) -> AngleEvent | Drop:
         (1, "rssi1", RSSI_RANGE),
         (2, "azimuth", AZIMUTH_RANGE),
         (3, "elevation", AZIMUTH_RANGE),
-        (4, "rssi2", RSSI_RANGE),
+        (4, "reserved", RSSI_RANGE),
         (5, "channel", CHANNEL_RANGE),
         (8, "timestamp", TIMESTAMP_RANGE),
     )
@@ -191,9 +191,9 @@ def parse_angle_event(line: bytes) -> AngleEvent | Drop:
             if isinstance(value, str):
                 return Drop("uudf_range", value, line)
             extra[slot] = value
-    rssi1, azimuth, elevation, rssi2, channel, timestamp = ints
+    rssi1, azimuth, elevation, reserved, channel, timestamp = ints
     return AngleEvent(
-        fields[0].decode(), rssi1, azimuth, elevation, rssi2, channel,
+        fields[0].decode(), rssi1, azimuth, elevation, reserved, channel,
         strings[0], strings[1], timestamp, *extra,
     )
 

@@ -26,12 +26,12 @@ class Dialect(enum.Enum):
     """How a firmware generation writes ``+UUDF`` (see docs/protocol.md)."""
 
     V1_0 = "1.0"
-    """9 fields; rssi2 is the second polarisation's RSSI; channel 37..39."""
+    """9 fields; field 5 is the second polarisation's RSSI; channel 37..39."""
     V1_2 = "1.2"
-    """9 fields; rssi2 is reserved and always 0."""
+    """9 fields; field 5 is "reserved" (real 9-field lines carry 6, 8 there, not 0)."""
     V2 = "2.x"
-    """10 fields: adds the periodic-advertising event counter; channel 0..36; rssi2 "reserved"
-    (documented as 0, real logs show -43, 6, 8)."""
+    """10 fields: adds the periodic-advertising event counter; channel 0..36; field 5
+    "reserved" (real logs show -43, 6, 8)."""
     EMBED = "embed"
     """u-locateEmbed with AT+UDFCFG=121,1: 12 fields, the unsmoothed angles appended."""
 
@@ -56,13 +56,12 @@ def encode_angle_event(event: AngleEvent, dialect: Dialect) -> bytes:
     """One ``+UUDF`` URC as ``dialect`` writes it; raises ValueError on out-of-range fields."""
     if len(event.instance_id) != 12 or not all(c in "0123456789ABCDEF" for c in event.instance_id):
         raise ValueError("instance_id must be 12 upper-case hex digits")
-    rssi2 = 0 if dialect is Dialect.V1_2 else event.rssi2
     fields = [
         event.instance_id,
         str(_check(event.rssi1, "rssi1", RSSI_RANGE)),
         str(_check(event.azimuth, "azimuth", AZIMUTH_RANGE)),
         str(_check(event.elevation, "elevation", AZIMUTH_RANGE)),
-        str(_check(rssi2, "rssi2", RSSI_RANGE)),
+        str(_check(event.reserved, "reserved", RSSI_RANGE)),
         str(_check(event.channel, "channel", CHANNEL_RANGE)),
         _quoted(event.anchor_id, "anchor_id"),
         _quoted(event.user_str, "user_str"),

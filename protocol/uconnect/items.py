@@ -24,7 +24,9 @@ class AngleEvent(NamedTuple):
     rssi1: int
     azimuth: int
     elevation: int
-    rssi2: int
+    reserved: int
+    """Field 5: the second polarisation's RSSI on 1.0 ([UG-R02] A.4.3), "reserved" from 1.2 on
+    ([UG-R10] section 6); real lines carry -43, 6, 8 there. Never an RSSI, never a dialect sign."""
     channel: int
     anchor_id: str
     user_str: str
