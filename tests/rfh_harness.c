@@ -54,6 +54,20 @@ static size_t reencode(const rfh_decoder_t *dec, uint8_t *out, size_t cap, int *
         r.ranges_mm = ranges;
         return rfh_encode_range_scan(out, cap, h, &r);
     }
+    case 0x23: {
+        rfh_range_scan_v2_t r;
+        const uint8_t *le;
+        uint16_t ranges[256];
+        size_t i;
+        if (!rfh_parse_range_scan_v2(b, len, &r, &le)) {
+            return 0;
+        }
+        for (i = 0; i < r.count; ++i) {
+            ranges[i] = (uint16_t)(le[2 * i] | (le[2 * i + 1] << 8));
+        }
+        r.ranges_mm = ranges;
+        return rfh_encode_range_scan_v2(out, cap, h, &r);
+    }
     case 0x7F: { rfh_log_text_t r; return rfh_parse_log_text(b, len, &r) ? rfh_encode_log_text(out, cap, h, &r) : 0; }
     case 0x80: { rfh_node_command_t r; return rfh_parse_node_command(b, len, &r) ? rfh_encode_node_command(out, cap, h, &r) : 0; }
     default:
