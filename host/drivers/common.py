@@ -7,6 +7,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Callable
+from dataclasses import replace
 from typing import Any, Generic, TypeVar
 
 from rfhoming.host.ports import (
@@ -17,7 +18,7 @@ from rfhoming.host.ports import (
     Tap,
     reopen,
 )
-from rfhoming.host.portspec import PortSpec
+from rfhoming.host.portspec import PortSpec, PortSpecError
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -35,6 +36,20 @@ def serial_port(spec: PortSpec, taps: list[Tap]) -> HostPort:
 
 class CommandFailed(Exception):
     """A device refused a set-up command or did not answer it; the message says which."""
+
+
+def scan_settings(spec: PortSpec, setup: Any, **extra: Any) -> Any:
+    """A BLE receiver's scan settings from a spec (active, interval, window, timeout, and the
+    kind's own ``extra`` fields) over ``setup``; a window left out follows a shorter interval.
+    PortSpecError when the set-up refuses the combination."""
+    s = spec.settings
+    interval = s.get("interval", setup.interval_ms)
+    try:
+        return replace(setup, active=s.get("active", setup.active), interval_ms=interval,
+                       window_ms=s.get("window", min(setup.window_ms, interval)),
+                       command_timeout=spec.timeout or setup.command_timeout, **extra)
+    except ValueError as exc:
+        raise PortSpecError(f"{spec}: {exc}") from None
 
 
 class BoundedStream(Generic[T]):

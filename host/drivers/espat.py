@@ -12,18 +12,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
-from rfhoming.host.drivers.common import (
-    BoundedStream,
-    CommandFailed,
-    Driver,
-    serial_port,
-)
+from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver, scan_settings, serial_port
 from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.ports import HostPort, Tap
-from rfhoming.host.portspec import PortSpec, PortSpecError
+from rfhoming.host.portspec import PortSpec
 from rfhoming.protocol.espat import EspAtDecoder, Final
 
 log = logging.getLogger(__name__)
@@ -67,14 +62,8 @@ class EspAtSetup:
 def setup_from_spec(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
     """The spec's scan settings (active, interval, window, mac, adname) over ``setup``."""
     s = spec.settings
-    interval = s.get("interval", setup.interval_ms)
-    try:
-        return replace(setup, active=s.get("active", setup.active), interval_ms=interval,
-                       window_ms=s.get("window", min(setup.window_ms, interval)),
-                       filter_mac=s.get("mac", setup.filter_mac), filter_name=s.get("adname", setup.filter_name),
-                       command_timeout=spec.timeout or setup.command_timeout)
-    except ValueError as exc:
-        raise PortSpecError(f"{spec}: {exc}") from None
+    return scan_settings(spec, setup, filter_mac=s.get("mac", setup.filter_mac),
+                         filter_name=s.get("adname", setup.filter_name))
 
 
 class EspAtDriver(Driver):

@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from bumble import hci
 
-from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver
+from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver, scan_settings
 from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.ports import Disconnected, HostPort, PortError, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
@@ -103,16 +103,10 @@ def setup_from_spec(spec: PortSpec, setup: HciSetup | None = None) -> HciSetup:
     """The spec's scan settings over ``setup`` (default settings if None)."""
     setup = setup or HciSetup()
     s = spec.settings
-    interval = s.get("interval", setup.interval_ms)
-    try:
-        return replace(setup, active=s.get("active", setup.active), interval_ms=interval,
-                       window_ms=s.get("window", min(setup.window_ms, interval)),
-                       extended=s.get("extended", setup.extended), filter_duplicates=s.get("dedup", setup.filter_duplicates),
-                       addresses=frozenset([s["mac"].replace(":", "")]) if "mac" in s else setup.addresses,
-                       name=s.get("adname", setup.name), content=s.get("content", setup.content),
-                       command_timeout=spec.timeout or setup.command_timeout)
-    except ValueError as exc:
-        raise PortSpecError(f"{spec}: {exc}") from None
+    return scan_settings(spec, setup, extended=s.get("extended", setup.extended),
+                         filter_duplicates=s.get("dedup", setup.filter_duplicates),
+                         addresses=frozenset([s["mac"].replace(":", "")]) if "mac" in s else setup.addresses,
+                         name=s.get("adname", setup.name), content=s.get("content", setup.content))
 
 
 class HciDriver(Driver):
