@@ -227,11 +227,20 @@ async def test_reboot_prints_startup_mid_session() -> None:
     await em.close()
 
 
+async def _advance(em: Emulator, until: float) -> None:
+    """Step the emulator to simulated time ``until``: the test keeps the clock, so a loaded
+    machine changes nothing (a real-time run once raced a poll against a timed unplug)."""
+    while em.t + 1e-9 < until:
+        await em.step()
+        await asyncio.sleep(0)  # the links' readers and writers run
+
+
 async def _poll(port: serial.Serial, em: Emulator, seconds: float) -> bytes:
+    """Step the emulator ``seconds`` of simulated time, reading what the port got after each step."""
     data = b""
     end = em.t + seconds
-    while em.t < end:
-        await asyncio.sleep(0.01)
+    while em.t + 1e-9 < end:
+        await _advance(em, em.t + em.step_s)
         data += port.read(65536)
     return data
 
@@ -241,19 +250,15 @@ async def test_pty_unplug_and_replug_at_the_same_path(tmp_path) -> None:
     (endpoint, _) = await em.start()
     path = endpoint["path"]
     port = serial.Serial(path, 115200, timeout=0)
-    task = asyncio.create_task(em.run(3.5))
     before = await _poll(port, em, 0.9)
-    while em.t < 1.2:
-        await asyncio.sleep(0.01)
+    await _advance(em, 1.2)
     assert not os.path.exists(path)
     with pytest.raises(serial.SerialException):
         port.read(100)  # the device went away under the host
     port.close()
-    while em.t < 2.1:
-        await asyncio.sleep(0.01)
+    await _advance(em, 2.1)
     port = serial.Serial(path, 115200, timeout=0)
     after = await _poll(port, em, 1.0)
-    await task
     assert len(angles(before)) > 10 and len(angles(after)) > 10
     assert em.device("aoa").link.counters["unplugs"] == 1
     port.close()
@@ -264,17 +269,14 @@ async def test_baud_mismatch_is_garbage_until_the_host_follows(tmp_path) -> None
     em = make(transport="pty", speed=5, faults=[Fault.parse("baud@aoa:at=0.5,rate=1000000")], link_dir=tmp_path)
     endpoints = await em.start()
     port = serial.Serial(endpoints[0]["path"], 115200, timeout=0)
-    task = asyncio.create_task(em.run(3.0))
     good = await _poll(port, em, 0.45)
-    while em.t < 0.6:
-        await asyncio.sleep(0.01)
+    await _advance(em, 0.6)
     port.read(65536)
     garbage = await _poll(port, em, 1.0)
     port.baudrate = 1000000
     assert termios.tcgetattr(em.device("aoa").link.master)[5] == termios.B1000000
     port.read(65536)
     healed = await _poll(port, em, 1.0)
-    await task
     assert len(angles(good)) > 5 and angles(garbage) == [] and len(garbage) > 100
     assert len(angles(healed)) > 20
     port.close()
@@ -286,10 +288,8 @@ async def test_tcp_transport_serves_pyserial_socket_urls() -> None:
     endpoints = await em.start()
     assert endpoints[0]["url"].startswith("socket://127.0.0.1:")
     port = serial.serial_for_url(endpoints[0]["url"], timeout=0)
-    task = asyncio.create_task(em.run(1.0))
     port.write(b"AT+GMI\r")
     data = await _poll(port, em, 0.9)
-    await task
     items = UConnectDecoder().feed(data)
     assert [i.text for i in items if i.kind == "info"] == ['"u-blox"']
     assert len([i for i in items if i.kind == "angle"]) > 10
@@ -300,7 +300,6 @@ async def test_tcp_transport_serves_pyserial_socket_urls() -> None:
 async def test_umrs_moves_the_board_and_the_host_must_follow(tmp_path) -> None:
     em = make(transport="pty", speed=5, link_dir=tmp_path)
     endpoints = await em.start()
-    task = asyncio.create_task(em.run(6.0))
     port = serial.Serial(endpoints[0]["path"], 115200, timeout=0)
     for command in (b"AT+UMRS=460800,2\r", b"AT&W\r", b"AT+CPWROFF\r"):
         port.write(command)
@@ -313,7 +312,6 @@ async def test_umrs_moves_the_board_and_the_host_must_follow(tmp_path) -> None:
     await _poll(port, em, 1.0)  # after the restart the board ignores the host for a second
     port.write(b"AT\r")
     healed = await _poll(port, em, 0.6)
-    await task
     assert angles(garbage) == [] and len(garbage) > 50
     items = UConnectDecoder().feed(healed)
     assert any(i.kind == "final" and i.ok for i in items) and len([i for i in items if i.kind == "angle"]) > 5
