@@ -216,6 +216,7 @@ def reencode(lib: C.CDLL, dec: Decoder) -> bytes | None:
     return c_encode_struct(lib, code, header, struct)
 
 
+@pytest.mark.slow
 @settings(max_examples=1500, deadline=None)
 @given(st.lists(records, min_size=1, max_size=4))
 def test_python_frames_round_trip_through_the_c_decoder(lib: C.CDLL, recs: list) -> None:

@@ -134,6 +134,7 @@ def test_a_file_that_is_not_utf8_is_refused(tmp_path: Path) -> None:
         load_text(b'[loop]\nx = "\xff\xfe"\n', tmp_path / "robot.toml")
 
 
+@pytest.mark.slow
 def test_config_check_gives_one_line_and_exit_2(tmp_path: Path) -> None:
     for n, (text, message) in enumerate([*BAD_CONFIGS[:5], (b"\xff\xfe[loop]\n", "is not UTF-8 text")]):
         path = tmp_path / f"c{n}.toml"

@@ -178,6 +178,7 @@ def test_sh_example_runs(doc: Path, index: int, tmp_path: Path) -> None:
 PY_DOCS = [doc for doc in DOCS if any(b[0] == "python" for b in blocks(doc))]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("doc", PY_DOCS, ids=[str(d.relative_to(ROOT)) for d in PY_DOCS])
 def test_python_examples_run(doc: Path, tmp_path: Path) -> None:
     python = [b for b in blocks(doc) if b[0] == "python"]
@@ -252,6 +253,7 @@ def test_every_help_example_parses(tmp_path: Path, monkeypatch) -> None:
                 pytest.fail(f"rfhoming {command} --help example does not parse: {line} (exit {exc.code})")
 
 
+@pytest.mark.slow
 def test_help_examples_that_need_no_hardware_run(tmp_path: Path) -> None:
     link_dir = tmp_path / "kit"
     site = tmp_path / "docs" / "sites" / "kit-room.toml"

@@ -228,6 +228,7 @@ def simulate(filter_cls, k: int = 40, seed: int = 0, dim: int = 2, missing_every
     return np.linalg.norm(filt.beacon - beacons, axis=1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", [BeaconEkf, BeaconUkf])
 def test_s4_filters_localise_beacons(cls) -> None:
     err = simulate(cls)

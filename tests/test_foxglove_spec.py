@@ -51,6 +51,7 @@ def test_the_sdk_takes_foxglove_sdk_v1_and_refuses_the_specs_websocket_v1() -> N
         view.close()
 
 
+@pytest.mark.slow
 def test_a_viewer_3_s_late_sees_the_whole_run_at_robot_time(tmp_path: Path) -> None:
     demo, address = start_demo(tmp_path, "--speed", "4")
     time.sleep(3)  # a person opening Foxglove; the demo waits for the first subscription
@@ -78,6 +79,7 @@ def test_a_viewer_3_s_late_sees_the_whole_run_at_robot_time(tmp_path: Path) -> N
             assert set(schema["required"]) <= set(message), topic
 
 
+@pytest.mark.slow
 def test_demo_with_foxglove_runs_at_robot_time(tmp_path: Path) -> None:
     """At --speed 4 a run of T simulated seconds takes at least T/4 wall seconds (a lower
     bound: a slow machine only makes it longer)."""

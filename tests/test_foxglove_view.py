@@ -13,6 +13,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
@@ -120,6 +121,7 @@ def test_a_websocket_client_receives_the_scene_during_demo(tmp_path: Path) -> No
     assert commands[start:start + len(seen)] == seen  # in order, none missing, none made up
 
 
+@pytest.mark.slow
 def test_the_particle_cloud_and_mapped_obstacles_of_s2_are_published(tmp_path: Path) -> None:
     got, runlog = watched_demo(tmp_path, "--scenario", "s2-a", "--speed", "0")
     clouds = got["/rfhoming/particles"]

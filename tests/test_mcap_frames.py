@@ -17,8 +17,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
-
 from rfhoming.emulator.devices import BaseRunner
+
+pytestmark = pytest.mark.slow  # three demo runs through ptys feed every test here
 
 FRAMES = {"map", "odom", "base_link", "aoa_link", "laser", "rss_link", "ble_link"}
 SENSOR_TOPICS = {"/scan", "/rfhoming/aoa/angle", "/rfhoming/ble/rssi", "/rfhoming/rss/antenna_set"}

@@ -71,6 +71,7 @@ def test_a_fixed_anchor_run_replays_to_the_same_run_log(tmp_path: Path) -> None:
     assert log == (tmp_path / "run.jsonl").read_text().splitlines()
 
 
+@pytest.mark.slow
 def test_another_config_on_the_same_capture_says_where_it_diverged(tmp_path: Path) -> None:
     demo = rfhoming("demo", "--json", "--out", str(tmp_path))
     assert demo.returncode == 0, demo.stderr
@@ -94,6 +95,7 @@ def test_a_capture_without_a_run_record_is_a_one_line_error(tmp_path: Path) -> N
     assert done.returncode == 2 and "holds no homing run's record" in done.stderr and done.stderr.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_the_in_process_demo_gives_the_same_summary_for_the_same_seed(tmp_path: Path) -> None:
     runs = [rfhoming("demo", "--in-process", "--seed", "3", "--json", "--out", str(tmp_path / str(k))) for k in range(2)]
     summaries = [json.loads(r.stdout) for r in runs]
@@ -112,6 +114,7 @@ def test_the_in_process_demo_gives_the_same_summary_for_the_same_seed(tmp_path: 
     assert [c["state"] for c in counters] == ["ended", "ended"] and all(c["unanswered"] == 0 for c in counters)
 
 
+@pytest.mark.slow
 def test_a_run_takes_its_devices_from_a_capture_by_role(tmp_path: Path) -> None:
     """`run --aoa capture:F --base capture:F`: one device per role, no device= needed; the run
     log is the live one."""

@@ -52,11 +52,13 @@ def test_importing_rfhoming_stays_light() -> None:
     assert done.stdout.strip() == "[]"
 
 
+@pytest.mark.slow
 def test_the_api_modules_pass_mypy_strict(tmp_path: Path) -> None:
     done = mypy(tmp_path, "-m", "rfhoming", "-m", "rfhoming.api")
     assert done.returncode == 0, f"mypy --strict -m rfhoming -m rfhoming.api:\n{done.stdout}{done.stderr}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("doc", TYPED_DOCS, ids=[str(d.relative_to(ROOT)) for d in TYPED_DOCS])
 def test_the_docs_examples_pass_mypy_strict(doc: Path, tmp_path: Path) -> None:
     """Every ```python block of the page (those not run too), as one program like the docs test runs."""

@@ -90,6 +90,7 @@ def test_espressif_ble_scan_example_with_plain_pyserial(tmp_path: Path) -> None:
         proc.wait(timeout=10)
 
 
+@pytest.mark.slow
 def test_bumble_scan_app_against_the_emulated_controller(tmp_path: Path) -> None:
     """bumble's own ``bumble-scan`` (its Host and Device bring-up, not rfhoming's) hears the
     emulated beacons through the emulated controller."""
