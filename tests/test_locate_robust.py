@@ -32,7 +32,8 @@ def synthetic(site: sites.Site, path, duration: float, *, rate_hz: float = 25.0,
             d = rot.T @ (np.asarray(path(t)) - np.array(a.position))
             if d[0] <= 0:
                 continue
-            az, el = board_angles(d, model or getattr(a, "angle_model", "spherical"))
+            m = model or getattr(a, "angle_model", "spherical")
+            az, el = board_angles(d) if m == "spherical" else board_angles(d, m)
             az = scale * az + bias + rng.normal(0, noise_deg)
             el = el + rng.normal(0, 2 * noise_deg)
             events.append((round(t, 6), AngleEvent(tag, -50, round(max(-90, min(90, az))),
