@@ -61,3 +61,34 @@ def test_ekf_recovers_when_the_tag_jumps():
     assert loc.counters["restarts"] >= 1
     before = [p for p in out if 2.0 < p.t < 4.0]
     assert all(np.linalg.norm(p.point[:2] - a[:2]) < 0.3 for p in before)
+
+
+def test_a_replayed_angle_stream_without_set_up_is_no_false_alarm(tmp_path):
+    """Old code: each driver sent AT into the replay, waited, and reported a wiring problem
+    (and after the wake timeout "set-up failed ... is this an XPLR-AOA") though every event was used."""
+    import json
+    import subprocess
+
+    from rfhoming.host.capture import CaptureWriter
+    from tests.test_locate import RFHOMING
+
+    path = tmp_path / "angles.pcapng"
+    writer = CaptureWriter(path)
+    anchors = (("west", "CCF9578E0A01", -20), ("east", "CCF9578E0A02", 25), ("south", "CCF9578E0A03", 10))
+    for port, _, _ in anchors:
+        writer.describe(port, kind="xplr-aoa")
+    for k in range(300):
+        for port, anchor, az in anchors:
+            line = f'+UUDF:{TAG},-42,{az},-10,-43,37,"{anchor}","",{k * 20}\r\n'
+            writer.tap(port, "in", 1000.0 + k * 0.02, line.encode())
+    writer.close()
+    cli = subprocess.run([*RFHOMING, "-v", "locate", str(SITE), "--from", f"capture:{path}"],
+                         capture_output=True, text=True, timeout=60)
+    assert cli.returncode == 0, cli.stderr
+    counters = [json.loads(line) for line in cli.stderr.splitlines() if line.startswith('{"kind": "counters"')]
+    assert len(counters) == 3 and all(c["problem"] is None for c in counters), counters
+    assert "set-up failed" not in cli.stderr and "AT" not in cli.stderr.replace("ATTR", "")
+    notes = [line for line in cli.stderr.splitlines() if "no set-up exchange" in line]
+    assert len(notes) == 1 and "west, east, south" in notes[0]
+    summary = json.loads(cli.stdout.splitlines()[-1])
+    assert summary["events"] == 900

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import logging
 import math
 import sys
 from collections.abc import Callable
@@ -18,13 +19,15 @@ from rfhoming.cli.io import _run_until, add_port_defaults
 from rfhoming.host import site as sites
 from rfhoming.host.calibration import CalibrationError, calibrate
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.aoa import AoaDriver, replayed_without_set_up
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.locate import Locator, Position
 from rfhoming.host.ports import PortError
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.textfile import read_toml
+
+log = logging.getLogger(__name__)
 
 LOCATE_HELP = """\
 Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
@@ -96,6 +99,10 @@ async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
 
+    as_recorded = [d.port.name for d in drivers if isinstance(d, AoaDriver) and replayed_without_set_up(d.port)]
+    if as_recorded:
+        log.info("replayed angle streams with no set-up exchange (%s): angles taken as recorded",
+                 ", ".join(as_recorded))
     heard: dict[str, set[str]] = {}  # device -> the anchor ids in its events
 
     def listener(device: str, t: float, item: Any) -> None:
