@@ -92,3 +92,96 @@ def test_a_replayed_angle_stream_without_set_up_is_no_false_alarm(tmp_path):
     assert len(notes) == 1 and "west, east, south" in notes[0]
     summary = json.loads(cli.stdout.splitlines()[-1])
     assert summary["events"] == 900
+
+
+ONE_HEIGHT = {"CCF9578E0C01": (2.0, 1.5, 1.0), "CCF9578E0C02": (6.0, 3.0, 1.0), "CCF9578E0C03": (10.0, 4.5, 1.0),
+              "CCF9578E0C04": (3.5, 4.8, 1.0), "CCF9578E0C05": (9.0, 1.2, 1.0)}
+
+
+def _static_events(site, points, elevation=lambda el, rng: el + rng.normal(0, 3), az_scale=1.0, seed=1):
+    rng = np.random.default_rng(seed)
+    events = []
+    for tag, p in points.items():
+        for k in range(60):
+            for a in site.anchors:
+                az, el = board_angles(a.rotation().T @ (np.array(p) - np.array(a.position)))
+                events.append((k * 0.02, AngleEvent(tag, -50, round(max(-90, min(90, az_scale * az + rng.normal(0, 2)))),
+                                                    round(elevation(el, rng)), -50, 37, a.id, "", 0)))
+    return events
+
+
+def test_calibration_on_points_at_one_height_writes_a_site_file_locate_accepts(tmp_path):
+    """Old code: elevation fitted from points at one height; a board whose elevation reads
+    mostly a reflection gave el_scale 0.23, which the site file refuses (0.5..2)."""
+    from rfhoming.host.calibration import calibrate
+
+    site = sites.load(SITE)
+    events = _static_events(site, ONE_HEIGHT, elevation=lambda el, rng: 0.2 * el - 15 + rng.normal(0, 6))
+    fits = calibrate(site, events, ONE_HEIGHT)
+    path = tmp_path / "site.toml"
+    path.write_text(SITE.read_text())
+    sites.write_calibration(path, {f.anchor: f.calibration for f in fits})
+    loaded = sites.load(path)  # SiteError on the old code
+    assert all(a.calibration.el_scale == 1.0 and a.calibration.el_bias_deg == 0.0 for a in loaded.anchors)
+    assert all("one height" in (getattr(f, "held", None) or {}).get("el_scale", "") for f in fits)
+
+
+def test_calibration_refuses_a_fit_beyond_the_site_file_limits():
+    from rfhoming.host.calibration import CalibrationError, calibrate
+
+    site = sites.load(SITE)
+    points = {**ONE_HEIGHT, "CCF9578E0C06": (6.0, 5.0, 1.5)}
+    with pytest.raises(CalibrationError, match="limit"):
+        calibrate(site, _static_events(site, points, az_scale=2.6), points)
+
+
+def test_azimuth_only_calibration_holds_elevation():
+    from rfhoming.host.calibration import calibrate
+
+    site = sites.load(SITE)
+    points = {**ONE_HEIGHT, "CCF9578E0C06": (6.0, 5.0, 1.5), "CCF9578E0C07": (8.0, 2.0, 0.3)}
+    events = _static_events(site, points, elevation=lambda el, rng: 1.2 * el + 4 + rng.normal(0, 2), az_scale=1.1)
+    full = calibrate(site, events, points)
+    assert all(abs(f.calibration.el_bias_deg - 4) < 2.5 for f in full)
+    only = calibrate(site, events, points, azimuth_only=True)
+    assert all(f.calibration.el_scale == 1.0 and f.calibration.el_bias_deg == 0.0 for f in only)
+    assert all(abs(f.calibration.az_scale - 1.1) < 0.05 for f in only)
+
+
+def _carried(points, dwell_s=8.0, walk_s=3.0):
+    """One tag carried from point to point: dwell, walk, dwell... (x, y, z) at t."""
+    legs = []
+    t = 1.0
+    for k, p in enumerate(points):
+        legs.append((t, t + dwell_s, np.array(p), np.array(points[min(k + 1, len(points) - 1)])))
+        t += dwell_s + walk_s
+
+    def at(t):
+        if t < legs[0][0]:
+            return legs[0][2]
+        for start, end, p, q in legs:
+            if t <= end:
+                return p
+            if t <= end + walk_s:
+                return p + (q - p) * (t - end) / walk_s
+        return legs[-1][2]
+    return at, t
+
+
+def test_one_tag_carried_from_point_to_point_calibrates_from_found_dwells():
+    """Old code: the points file maps a tag to one point, so this session cannot be described."""
+    from rfhoming.host.calibration import Point, assign_dwells, calibrate
+
+    site = sites.load(SITE)
+    where = [(2.0, 1.5, 0.8), (6.0, 3.0, 0.3), (10.0, 4.5, 1.2), (3.5, 4.8, 0.5), (9.0, 1.2, 1.0)]
+    path, duration = _carried(where)
+    truth = {a.id: (a.rotation(), 1.08, 2.0) for a in site.anchors}
+    events = synthetic(site, path, duration, noise_deg=1.5, true=truth, tag=TAG)
+    points, report = assign_dwells(events, [Point(TAG, p) for p in where])
+    assert len(report) == 1 and "5 dwells found" in report[0]
+    for p, (start, _, _, _) in zip(points, [(1.0 + k * 11.0, 0, 0, 0) for k in range(5)]):
+        assert start <= p.start_s <= start + 2.0 and p.end_s - p.start_s >= 5.0
+    fits = calibrate(site, events, points, azimuth_only=True)
+    assert all(abs(f.calibration.az_scale - 1.08) < 0.04 and abs(f.calibration.az_bias_deg - 2.0) < 1.0 for f in fits)
+    with pytest.raises(Exception, match="dwells"):
+        assign_dwells(events, [Point(TAG, p) for p in where[:4]])
