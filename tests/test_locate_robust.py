@@ -185,3 +185,38 @@ def test_one_tag_carried_from_point_to_point_calibrates_from_found_dwells():
     assert all(abs(f.calibration.az_scale - 1.08) < 0.04 and abs(f.calibration.az_bias_deg - 2.0) < 1.0 for f in fits)
     with pytest.raises(Exception, match="dwells"):
         assign_dwells(events, [Point(TAG, p) for p in where[:4]])
+
+
+NOMINAL_YAW = {"west": 0.0, "east": 180.0, "south": 90.0, "north": -90.0}
+
+
+def test_self_calibration_recovers_the_emulated_boards_hidden_errors():
+    """The emulator draws each board's azimuth scale, bias and mounting yaw from the seed and
+    tells the host nothing; the walk of three tags over the room gives them back, up to the
+    gauge (the scales' geometric mean)."""
+    from rfhoming.campaigns.kit import record
+    from rfhoming.host.calibration import self_calibrate
+
+    site = sites.load(SITE)
+    rec = record(seed=4, duration=30.0)
+    result = self_calibrate(site, [rec.events])
+    truth = {t["device"]: t for t in rec.anchors_truth}
+    gauge = math.exp(np.mean([math.log(t["az_scale"]) for t in truth.values()]))
+    assert result.rms_after_deg < 0.5 * result.rms_before_deg
+    for f in result.fits:
+        t = truth[f.anchor]
+        yaw_error = (t["true_yaw_deg"] - NOMINAL_YAW[f.anchor] + 180) % 360 - 180
+        assert abs(f.calibration.az_scale - t["az_scale"] / gauge) < 0.05
+        assert abs(f.calibration.az_bias_deg - (t["az_bias_deg"] + t["az_scale"] * yaw_error)) < 1.5
+        assert f.sigma["az_scale"] < 0.03 and f.sigma["az_bias_deg"] < 1.0
+
+
+def test_self_calibration_refuses_tags_that_did_not_cover_the_room():
+    from rfhoming.campaigns.kit import record
+    from rfhoming.host.calibration import CalibrationError, self_calibrate
+
+    site = sites.load(SITE)
+    still = [(t, e) for t, e in record(seed=4, duration=30.0, calibration=True).events
+             if e.instance_id == "CCF9578E0C02"]  # one tag standing in the middle
+    with pytest.raises(CalibrationError, match="did not cover the room"):
+        self_calibrate(site, [still])
