@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, angle_sigma_deg, locate, make_ray
-from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity
+from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
 from rfhoming.host.site import Anchor, Calibration, Site
 from rfhoming.protocol.uconnect import AngleEvent
 
@@ -57,6 +57,7 @@ class Position:
     tracked: bool
     quality: float | None = None  # the fix's rms normalised ray miss (None: no fix this tick)
     smoothed: bool = False  # True: from the RTS smoother over a whole recording (not causal)
+    t_fix: float | None = None  # a raw fix: the mean time of the angles it rests on
 
     def as_dict(self) -> dict[str, Any]:
         out = {"t": round(self.t, 6), "tag": self.tag, "x": round(float(self.point[0]), 3),
@@ -220,7 +221,8 @@ class Locator:
             self.counters["fixes"] += 1
             self.counters["rejected_anchor"] += len(fix.rejected)
             if not self.track:
-                out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False, fix.rms))
+                out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False, fix.rms,
+                                    t_fix=t_fix))
                 continue
             if self.tracker == "ekf":  # a fix starts (or restarts) the filter; angles drive it
                 ekf = self._ekfs[tag] = BearingEkf(self.accel_psd)
@@ -238,6 +240,21 @@ class Locator:
                 point = np.array([point[0], point[1], height])
             out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, fix.rms))
         return out
+
+
+def smooth(fixes: list[Position], accel_psd: float = 1.0) -> list[Position]:
+    """RTS-smoothed positions from a whole recording's raw fixes (``Locator(track=False)``),
+    labelled ``smoothed``; each at its tick, from the smoothed state at its angles' mean time."""
+    out = []
+    for tag in sorted({p.tag for p in fixes}):
+        mine = [p for p in fixes if p.tag == tag]
+        times = np.array([p.t if p.t_fix is None else p.t_fix for p in mine])
+        states, covs = rts_smooth(times, np.array([p.point for p in mine]), np.array([p.covariance for p in mine]),
+                                  accel_psd)
+        for p, x, c, t_fix in zip(mine, states, covs, times):
+            point = x[:3] + x[3:] * (p.t - t_fix)
+            out.append(replace(p, point=point, covariance=c, tracked=True, smoothed=True))
+    return sorted(out, key=lambda p: (p.t, p.tag))
 
 
 def _uncalibrated(anchor: Anchor) -> Anchor:

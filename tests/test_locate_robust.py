@@ -220,3 +220,92 @@ def test_self_calibration_refuses_tags_that_did_not_cover_the_room():
              if e.instance_id == "CCF9578E0C02"]  # one tag standing in the middle
     with pytest.raises(CalibrationError, match="did not cover the room"):
         self_calibrate(site, [still])
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-80, 80), st.floats(-60, 60))
+def test_cone_angles_round_trip_and_differ_from_spherical_off_axis(az, el):
+    from rfhoming.host.estimation.anchors3d import board_direction
+
+    if math.sin(math.radians(az)) ** 2 + math.sin(math.radians(el)) ** 2 >= 0.99:
+        return  # no direction has these cosines
+    d = board_direction(az, el, "cone")
+    assert abs(np.linalg.norm(d) - 1) < 1e-9
+    assert abs(d[1] + math.sin(math.radians(az))) < 1e-9 and abs(d[2] - math.sin(math.radians(el))) < 1e-9
+    back = board_angles(d, "cone")
+    assert abs(back[0] - az) < 1e-6 and abs(back[1] - el) < 1e-6
+    if abs(az) > 20 and abs(el) > 20:  # off both axes the two readings are different directions
+        assert np.linalg.norm(d - board_direction(az, el)) > 0.01
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.floats(1.0, 11.0), st.floats(1.0, 5.0), st.floats(0.0, 1.5))
+def test_ekf_converges_on_exact_cone_angles(x, y, z):
+    from rfhoming.host.estimation.anchors3d import rotation
+    from rfhoming.host.estimation.tracking import BearingEkf
+
+    anchors = [((0.0, 3.0, 2.4), 0.0), ((12.0, 3.0, 2.4), 180.0), ((6.0, 0.0, 2.4), 90.0), ((6.0, 6.0, 2.4), -90.0)]
+    ekf = BearingEkf(0.1)
+    ekf.start(0.0, np.array([x + 0.8, y - 0.6, z + 0.3]), np.eye(3) * 1.0)
+    for k in range(200):
+        pos, yaw = anchors[k % 4]
+        rot = rotation(yaw, -20)
+        az, el = board_angles(rot.T @ (np.array([x, y, z]) - np.array(pos)), "cone")
+        ekf.update_angles(0.02 * (k + 1), np.array(pos), rot, az, el, 2.0, model="cone")
+    assert np.linalg.norm(ekf.x[:3] - np.array([x, y, z])) < 0.05
+
+
+def test_calibration_chooses_the_boards_angle_model_by_residual():
+    from rfhoming.host.calibration import calibrate
+
+    site = sites.load(SITE)
+    points = {**ONE_HEIGHT, "CCF9578E0C06": (6.0, 5.0, 1.5), "CCF9578E0C07": (8.0, 2.0, 0.3)}
+    rng = np.random.default_rng(3)
+    for truth in ("cone", "spherical"):
+        events = []
+        for tag, p in points.items():
+            for k in range(40):
+                for a in site.anchors:
+                    az, el = board_angles(a.rotation().T @ (np.array(p) - np.array(a.position)), truth)
+                    events.append((k * 0.02, AngleEvent(tag, -50, round(az + rng.normal(0, 1)),
+                                                        round(el + rng.normal(0, 1)), -50, 37, a.id, "", 0)))
+        fits = calibrate(site, events, points)
+        assert {f.angle_model for f in fits} == {truth}
+        assert fits[0].rms_by_model[truth] < fits[0].rms_by_model[{"cone": "spherical", "spherical": "cone"}[truth]]
+
+
+def test_cauchy_loss_keeps_a_reflected_ray_from_pulling_the_fix():
+    from rfhoming.host.estimation.anchors3d import locate, make_ray
+
+    site = sites.load(SITE)
+    tag = np.array([4.0, 2.0, 1.0])
+    rays = []
+    for k, a in enumerate(site.anchors):
+        az, el = board_angles(a.rotation().T @ (tag - np.array(a.position)))
+        if k == 0:
+            az += 25.0  # a reflection
+        rays.append(make_ray(a.name, a.position, a.rotation(), az, el, 2.0))
+    fix = locate(rays, height=1.0, loss="cauchy")
+    assert np.linalg.norm(fix.point[:2] - tag[:2]) < 0.15
+    assert fix.rms > 2  # the quality says one ray disagreed
+
+
+def test_rts_smoother_beats_the_causal_filter_on_a_recording():
+    from rfhoming.campaigns.kit import record
+    from rfhoming.host.locate import smooth
+
+    site = sites.load(SITE)
+    rec = record(seed=1, duration=20.0)
+    raw, cv = run(Locator(site, reorder_s=0.0, track=False), rec.events), run(Locator(site, reorder_s=0.0), rec.events)
+    smoothed = smooth(raw)
+
+    def error(out):
+        return np.mean([np.linalg.norm(p.point[:2] - rec.truth(p.tag, p.t)[:2]) for p in out if p.t > 2])
+
+    assert all(p.smoothed for p in smoothed) and not any(p.smoothed for p in cv)
+    assert len(smoothed) == len(raw)
+    assert error(smoothed) < 0.9 * error(cv)

@@ -154,3 +154,37 @@ class BearingEkf(ConstantVelocity):
             self.p[:, [2, 5]] = 0.0
         self.counters["updates"] += 1
         return True
+
+
+def rts_smooth(times: np.ndarray, points: np.ndarray, covariances: np.ndarray, accel_psd: float = 1.0,
+               gate: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
+    """Rauch-Tung-Striebel smoothing of one tag's fixes over a whole recording: the same
+    constant-velocity model as :class:`ConstantVelocity` run forward, then backward, so each
+    position rests on the fixes after it as well as before (not causal: recordings only).
+    A fix beyond ``gate`` of the forward prediction is left out (the forward filter coasts).
+    Returns (states (N, 6): position and velocity, position covariances (N, 3, 3)) at ``times``."""
+    cv = ConstantVelocity(accel_psd, gate, max_misses=10**9)
+    n = len(times)
+    xs_f, ps_f, xs_p, ps_p, fs = [], [], [], [], []
+    for k in range(n):
+        if cv.t is None:
+            cv.update(times[k], points[k], covariances[k])
+            f = np.eye(6)
+            xs_p.append(cv.x.copy())
+            ps_p.append(cv.p.copy())
+        else:
+            f, q = cv._transition(max(0.0, times[k] - cv.t))
+            xs_p.append(f @ cv.x)
+            ps_p.append(f @ cv.p @ f.T + q)
+            if not cv.update(times[k], points[k], covariances[k]):
+                cv.x, cv.p, cv.t = xs_p[-1], ps_p[-1], max(cv.t, times[k])
+        fs.append(f)
+        xs_f.append(cv.x.copy())
+        ps_f.append(cv.p.copy())
+    xs, ps = list(xs_f), list(ps_f)
+    for k in range(n - 2, -1, -1):
+        f = fs[k + 1]
+        gain = ps_f[k] @ f.T @ np.linalg.pinv(ps_p[k + 1])
+        xs[k] = xs_f[k] + gain @ (xs[k + 1] - xs_p[k + 1])
+        ps[k] = ps_f[k] + gain @ (ps[k + 1] - ps_p[k + 1]) @ gain.T
+    return np.array(xs), np.array([p[:3, :3] for p in ps])

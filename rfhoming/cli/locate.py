@@ -21,7 +21,7 @@ from rfhoming.host.calibration import CalibrationError, Point, assign_dwells, ca
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.aoa import AoaDriver, replayed_without_set_up
 from rfhoming.host.drivers.common import BoundedStream, Driver
-from rfhoming.host.locate import Locator, Position
+from rfhoming.host.locate import Locator, Position, smooth
 from rfhoming.host.ports import PortError
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.errors import Error
@@ -160,23 +160,38 @@ def cmd_locate(args: argparse.Namespace) -> int:
     if args.rate:
         site = sites.Site(site.name, site.anchors, site.tags, args.rate, site.window_s, site.stale_s,
                           site.sigma_deg, site.path)
-    locator = Locator(site, track=not args.no_track, tracker=args.tracker, accel_psd=args.accel_psd)
+    if args.smooth and not (args.sources and all(s.startswith("capture:") for s in args.sources)):
+        print("rfhoming locate: --smooth needs a whole recording (--from capture:FILE); a live run stays causal",
+              file=sys.stderr)
+        return 2
+    locator = Locator(site, track=not (args.no_track or args.smooth), tracker=args.tracker,
+                      accel_psd=args.accel_psd, loss=args.loss, height_sigma=args.height_sigma)
     out = args.output.open("w") if args.output else sys.stdout
     per_tag: dict[str, list[float]] = {}
+    fixes: list[Position] = []
 
     def show(positions: list[Position]) -> None:
+        if args.smooth:  # held for the smoother at the end
+            fixes.extend(positions)
+            return
         for p in positions:
             per_tag.setdefault(p.tag, []).append(float(np.trace(p.covariance)))
             out.write(json.dumps({"kind": "position", **p.as_dict()}) + "\n")
         if positions:
             out.flush()
 
+    smoothed = args.smooth
     code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event)), locator.disconnected))
     if code:
         return code
     show(locator.flush())
+    if args.smooth:
+        args.smooth = False
+        show(smooth(fixes, args.accel_psd))
     names = {a.id: a.name for a in site.anchors}
     summary = {"kind": "summary", "site": site.name,
+               "estimate": "smoothed (RTS over the whole recording)" if smoothed else
+               "raw fixes" if args.no_track else f"causal ({args.tracker} tracker)",
                "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
                         for tag, v in sorted(per_tag.items())},
                "anchors": sorted(names.values()), **locator.counters}
@@ -325,6 +340,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                 "pair updates the track as it arrives (more accurate, ~10x the cost)")
             p.add_argument("--accel-psd", type=positive_float, default=1.0,
                            help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
+            p.add_argument("--smooth", action="store_true",
+                           help="recordings only (--from capture:): RTS-smooth each tag's fixes over the whole "
+                                "recording; positions are labelled \"smoothed\" (not causal)")
+            p.add_argument("--loss", choices=("huber", "cauchy"), default="huber",
+                           help="the fix's robust loss: huber (default; one bad anchor left out) or cauchy "
+                                "(every anchor kept, each down-weighted by its miss)")
+            p.add_argument("--height-sigma", type=positive_float, metavar="M",
+                           help="a tag's known height is a prior of this sigma (m), not a constraint")
             p.set_defaults(func=cmd_locate)
         else:
             p.add_argument("--points", type=Path, help="TOML: [points] TAGID = [x, y, z] and/or [[dwell]] tables")
