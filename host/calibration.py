@@ -329,7 +329,19 @@ def _epochs(site: Site, recording: Sequence[tuple[float, AngleEvent]], window_s:
     return out
 
 
-def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]]) -> SelfCalibration:
+def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]],
+                   angle_model: str = "auto") -> SelfCalibration:
+    """:func:`self_calibrate_model` in the site's angle models (``angle_model="site"``), in one
+    model for every anchor, or in each model, keeping the smaller residual ("auto")."""
+    if angle_model == "site":
+        return self_calibrate_model(site, recordings)
+    models = ANGLE_MODELS if angle_model == "auto" else (angle_model,)
+    results = [self_calibrate_model(replace(site, anchors=tuple(replace(a, angle_model=m) for a in site.anchors)),
+                                    recordings) for m in models]
+    return min(results, key=lambda r: r.rms_after_deg)
+
+
+def self_calibrate_model(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]]) -> SelfCalibration:
     """Each anchor's azimuth scale and bias from tags moving over the room, no known points: a
     joint robust fit (soft-L1) of the per-anchor parameters and every epoch's position to the
     azimuths (elevation, noisier and biased per board, is not used; a known tag height is).

@@ -293,7 +293,7 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
             return code
         recordings.append(events)
     try:
-        result = self_calibrate(site, recordings)
+        result = self_calibrate(site, recordings, args.angle_model)
     except CalibrationError as exc:
         print(f"rfhoming calibrate: {exc}", file=sys.stderr)
         return 2
@@ -307,7 +307,7 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
                           "az_bias_deg": round(c.az_bias_deg, 2), "el_scale": round(c.el_scale, 4),
                           "el_bias_deg": round(c.el_bias_deg, 2),
                           "sigma": {k: round(v, 4) for k, v in f.sigma.items()}, "held": f.held}))
-    return _write(args, {f.anchor: f.calibration for f in result.fits}, {})
+    return _write(args, {f.anchor: f.calibration for f in result.fits}, {f.anchor: f.angle_model for f in result.fits})
 
 
 def _write(args: argparse.Namespace, calibrations: dict[str, Any], models: dict[str, str]) -> int:
