@@ -302,6 +302,7 @@ class SelfCalibration:
     epochs: int
     rms_before_deg: float
     rms_after_deg: float
+    cost: float = 0.0  # the robust fit's final cost per residual (azimuth and elevation): the model choice
     gauge: str = "the anchors' azimuth scales have geometric mean 1 (an overall scale is not observable)"
 
 
@@ -338,7 +339,7 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
     models = ANGLE_MODELS if angle_model == "auto" else (angle_model,)
     results = [self_calibrate_model(replace(site, anchors=tuple(replace(a, angle_model=m) for a in site.anchors)),
                                     recordings) for m in models]
-    return min(results, key=lambda r: r.rms_after_deg)
+    return min(results, key=lambda r: r.cost)
 
 
 def self_calibrate_model(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]]) -> SelfCalibration:
@@ -492,4 +493,5 @@ def self_calibrate_model(site: Site, recordings: Sequence[Sequence[tuple[float, 
                 f"kept as it was: fewer than {SELF_MIN_EPOCHS} epochs of tags with a known height")
         fits.append(AnchorFit(a.name, cal, int(mine.sum()), float(np.sqrt(np.mean(before[mine] ** 2))),
                               float(np.sqrt(np.mean(after[mine] ** 2))), a.angle_model, sd, held))
-    return SelfCalibration(fits, n_e, float(np.sqrt(np.mean(before**2))), float(np.sqrt(np.mean(after**2))))
+    return SelfCalibration(fits, n_e, float(np.sqrt(np.mean(before**2))), float(np.sqrt(np.mean(after**2))),
+                           float(sol.cost) / len(sol.fun))

@@ -263,7 +263,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         points, found = assign_dwells(events, points)
         for line in found:
             print(line, file=sys.stderr)
-        fits = calibrate(site, events, points, azimuth_only=args.azimuth_only, angle_model=args.angle_model)
+        fits = calibrate(site, events, points, azimuth_only=args.azimuth_only, angle_model=args.angle_model or "auto")
     except CalibrationError as exc:
         print(f"rfhoming calibrate: {exc}", file=sys.stderr)
         return 2
@@ -293,7 +293,7 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
             return code
         recordings.append(events)
     try:
-        result = self_calibrate(site, recordings, args.angle_model)
+        result = self_calibrate(site, recordings, args.angle_model or "site")
     except CalibrationError as exc:
         print(f"rfhoming calibrate: {exc}", file=sys.stderr)
         return 2
@@ -356,7 +356,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                 "the whole room (give the recordings with --from capture:FILE)")
             p.add_argument("--azimuth-only", action="store_true",
                            help="fit azimuth (and yaw) only; elevation keeps scale 1 and bias 0")
-            p.add_argument("--angle-model", choices=("auto", "spherical", "cone"), default="auto",
-                           help="the boards' angle model; auto (default): the one with the smaller residual")
+            p.add_argument("--angle-model", choices=("auto", "spherical", "cone"),
+                           help="the boards' angle model; auto: the one with the smaller residual (default with "
+                                "--points; with --self the site file's, since positions fitted freely tell the "
+                                "models apart only weakly)")
             p.add_argument("--dry-run", action="store_true", help="report the fit, leave the site file alone")
             p.set_defaults(func=cmd_calibrate)
