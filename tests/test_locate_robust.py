@@ -309,3 +309,80 @@ def test_rts_smoother_beats_the_causal_filter_on_a_recording():
     assert all(p.smoothed for p in smoothed) and not any(p.smoothed for p in cv)
     assert len(smoothed) == len(raw)
     assert error(smoothed) < 0.9 * error(cv)
+
+
+def test_rts_smoother_matches_filterpy():
+    """Checked against an independent implementation: filterpy's Kalman filter and RTS smoother
+    with the same constant-velocity model, start and noise."""
+    from filterpy.kalman import KalmanFilter
+
+    from rfhoming.host.estimation.tracking import ConstantVelocity, rts_smooth
+
+    rng = np.random.default_rng(5)
+    times = np.cumsum(rng.uniform(0.05, 0.15, 60))
+    truth = np.stack([np.sin(times), 0.5 * times, 0.2 * np.cos(times)], axis=1)
+    r = np.diag([0.04, 0.09, 0.01])
+    z = truth + rng.multivariate_normal(np.zeros(3), r, len(times))
+    mine, mine_cov = rts_smooth(times, z, np.repeat(r[None], len(times), 0), accel_psd=0.5, gate=1e9)
+    kf = KalmanFilter(dim_x=6, dim_z=3)
+    kf.x = np.concatenate([z[0], np.zeros(3)])
+    kf.P = np.zeros((6, 6))
+    kf.P[:3, :3] = r
+    kf.P[3:, 3:] = np.eye(3)
+    kf.H = np.hstack([np.eye(3), np.zeros((3, 3))])
+    kf.R = r
+    cv = ConstantVelocity(0.5)
+    fs, qs = [np.eye(6)], [np.zeros((6, 6))]
+    for dt in np.diff(times):
+        f, q = cv._transition(float(dt))
+        fs.append(f)
+        qs.append(q)
+    xs, ps = [kf.x.copy()], [kf.P.copy()]
+    for k in range(1, len(times)):
+        kf.predict(F=fs[k], Q=qs[k])
+        kf.update(z[k])
+        xs.append(kf.x.copy())
+        ps.append(kf.P.copy())
+    smoothed, cov, _, _ = kf.rts_smoother(np.array(xs), np.array(ps), Fs=np.array(fs), Qs=np.array(qs))
+    assert np.allclose(mine, smoothed, atol=1e-6)
+    assert np.allclose(mine_cov, cov[:, :3, :3], atol=1e-6)
+
+
+def _capture_of(events, path, site):
+    from rfhoming.host.capture import CaptureWriter
+
+    names = {a.id: a.name for a in site.anchors}
+    writer = CaptureWriter(path)
+    for name in names.values():
+        writer.describe(name, kind="xplr-aoa")
+    for t, e in events:
+        line = f'+UUDF:{e.instance_id},-42,{e.azimuth},{e.elevation},-43,37,"{e.anchor_id}","",{int(t * 1000)}\r\n'
+        writer.tap(names[e.anchor_id], "in", 1000.0 + t, line.encode())
+    writer.close()
+
+
+def test_calibrate_cli_takes_dwells_of_one_carried_tag(tmp_path):
+    import json
+    import subprocess
+
+    from tests.test_locate import RFHOMING
+
+    site = sites.load(SITE)
+    where = [(2.0, 1.5, 0.8), (6.0, 3.0, 0.3), (10.0, 4.5, 1.2), (3.5, 4.8, 0.5), (9.0, 1.2, 1.0)]
+    path, duration = _carried(where)
+    truth = {a.id: (a.rotation(), 0.93, -3.0) for a in site.anchors}
+    _capture_of(synthetic(site, path, duration, noise_deg=1.5, true=truth), tmp_path / "cal.pcapng", site)
+    points = tmp_path / "points.toml"
+    points.write_text("".join(f'[[dwell]]\ntag = "{TAG}"\nposition = [{x}, {y}, {z}]\n\n' for x, y, z in where))
+    cli = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--points", str(points), "--azimuth-only",
+                          "--from", f"capture:{tmp_path / 'cal.pcapng'}", "--dry-run"],
+                         capture_output=True, text=True, timeout=90)
+    assert cli.returncode == 0, cli.stderr
+    assert "5 dwells found" in cli.stderr
+    report = [json.loads(line) for line in cli.stdout.splitlines()]
+    assert len(report) == 4 and all(abs(r["az_scale"] - 0.93) < 0.04 for r in report)
+    assert all(r["held"]["el_scale"] == "azimuth-only calibration" for r in report)
+    points.write_text(f'[[dwell]]\ntag = "{TAG}"\nposition = [1, 2, 3]\nfrom_s = 5\n')
+    bad = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--points", str(points), "--dry-run",
+                          "--from", f"capture:{tmp_path / 'cal.pcapng'}"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "from_s and to_s must both be given" in bad.stderr
