@@ -386,3 +386,26 @@ def test_calibrate_cli_takes_dwells_of_one_carried_tag(tmp_path):
     bad = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--points", str(points), "--dry-run",
                           "--from", f"capture:{tmp_path / 'cal.pcapng'}"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "from_s and to_s must both be given" in bad.stderr
+
+
+def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path):
+    import json
+    import subprocess
+
+    from rfhoming.campaigns.kit import record
+    from tests.test_locate import RFHOMING
+
+    site = sites.load(SITE)
+    _capture_of(record(seed=4, duration=30.0).events, tmp_path / "walk.pcapng", site)
+    cli = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run",
+                          "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True, timeout=120)
+    assert cli.returncode == 0, cli.stderr
+    assert "geometric mean 1" in cli.stderr
+    report = [json.loads(line) for line in cli.stdout.splitlines()]
+    assert len(report) == 4 and all(r["self"] and set(r["sigma"]) >= {"az_scale", "az_bias_deg"} for r in report)
+    still = [(t, e) for t, e in synthetic(site, lambda t: np.array([6.0, 3.0, 1.0]), 30.0)]
+    _capture_of(still, tmp_path / "still.pcapng", site)
+    refused = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run",
+                              "--from", f"capture:{tmp_path / 'still.pcapng'}"], capture_output=True, text=True,
+                             timeout=120)
+    assert refused.returncode == 2 and "did not cover the room" in refused.stderr
