@@ -198,7 +198,7 @@ def main() -> int:
     if result["self_recovers_of_surveyed"] is not None:
         print(f"self-calibration recovers {100 * result['self_recovers_of_surveyed']:.0f} % of the mean-error cut "
               f"that surveyed-point calibration gives, {100 * result['self_cone_recovers_of_surveyed']:.0f} % with the "
-              "boards' model set in the site (goal >= 80 %)")
+              "cone model set in the site (goal >= 80 %)")
     for c in cal_report:
         print(f"seed {c['seed']}: angle model chosen {c['angle_model_chosen']} {c['rms_by_model_deg']} "
               f"(self-cal: {c['angle_model_self']}); self-cal "
