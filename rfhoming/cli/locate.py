@@ -34,13 +34,16 @@ Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "F
 Every anchor's angle events are merged by host arrival time; at --rate (default: the site's
 rate_hz) each tag seen by enough fresh anchors gets a fix (3-D rays, weighted, one bad anchor
 left out) that a constant-velocity filter tracks. Output: one JSON line per position
-(kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected), and on
-exit one "summary" line. A capture of the anchors gives the same lines as the live run did.
+(kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected, rms = the
+fix's quality), and on exit one "summary" line (its "estimate" says causal or smoothed). A
+capture of the anchors gives the same lines as the live run did; --smooth on a capture gives
+RTS-smoothed positions instead, each marked "smoothed": true.
 
 examples:
   rfhoming locate site.toml                                # the anchors' ports from the site
   rfhoming locate site.toml --duration 30 --capture run.pcapng
   rfhoming locate site.toml --from capture:run.pcapng      # the same positions, from the capture
+  rfhoming locate site.toml --from capture:run.pcapng --smooth --loss cauchy   # after the fact
 
 the kit room of docs/sites, emulated (its first line printed, every link exists):
   mkdir -p /tmp/rfhoming-kit
@@ -337,7 +340,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
             p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
                            help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
-                                "pair updates the track as it arrives (more accurate, ~10x the cost)")
+                                "pair updates the track as it arrives (more accurate, ~3x the CPU: docs/BENCHMARKS.md)")
             p.add_argument("--accel-psd", type=positive_float, default=1.0,
                            help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
             p.add_argument("--smooth", action="store_true",
