@@ -126,7 +126,8 @@ def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray, *, mode
         if np.ptp(truth[:, 1]) >= MIN_AZ_SPAN_DEG / 2:
             free.append(3)
         else:
-            held["el_scale"] = f"the points span {np.ptp(truth[:, 1]):.0f} deg of elevation; a scale needs {MIN_AZ_SPAN_DEG / 2:g}+"
+            held["el_scale"] = (f"the points span {np.ptp(truth[:, 1]):.0f} deg of elevation; "
+                                f"a scale needs {MIN_AZ_SPAN_DEG / 2:g}+")
     weights = np.ones(2)
     if 4 not in free:
         weights[1] = 0.0  # elevation held: its residuals say nothing about the azimuth parameters
@@ -137,7 +138,8 @@ def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray, *, mode
     jac = _jacobian(resid, DEFAULT, [0, 2])
     corr = abs(float(jac[:, 0] @ jac[:, 1]) / (np.linalg.norm(jac[:, 0]) * np.linalg.norm(jac[:, 1]) + 1e-12))
     if corr > SAME_CORRELATION:
-        held["yaw_offset_deg"] = f"moves every point's azimuth like the bias (correlation {corr:.2f}): fitted as the bias"
+        held["yaw_offset_deg"] = (f"moves every point's azimuth like the bias (correlation {corr:.2f}): "
+                                  "fitted as the bias")
     else:
         free.append(0)
     free.sort()
@@ -391,7 +393,8 @@ def self_calibrate_model(site: Site, recordings: Sequence[Sequence[tuple[float, 
             rows_a.append(index[a])
             meas.append(az)
             meas_el.append(el)
-    rows_e_arr, rows_a_arr, meas_arr, meas_el_arr = np.array(rows_e), np.array(rows_a), np.array(meas), np.array(meas_el)
+    rows_e_arr, rows_a_arr = np.array(rows_e), np.array(rows_a)
+    meas_arr, meas_el_arr = np.array(meas), np.array(meas_el)
     for k, a in enumerate(anchors):
         seen = meas_arr[rows_a_arr == k]
         span = float(np.percentile(seen, 95) - np.percentile(seen, 5)) if len(seen) else 0.0

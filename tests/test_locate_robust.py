@@ -105,8 +105,8 @@ def _static_events(site, points, elevation=lambda el, rng: el + rng.normal(0, 3)
         for k in range(60):
             for a in site.anchors:
                 az, el = board_angles(a.rotation().T @ (np.array(p) - np.array(a.position)))
-                events.append((k * 0.02, AngleEvent(tag, -50, round(max(-90, min(90, az_scale * az + rng.normal(0, 2)))),
-                                                    round(elevation(el, rng)), -50, 37, a.id, "", 0)))
+                az = round(max(-90, min(90, az_scale * az + rng.normal(0, 2))))
+                events.append((k * 0.02, AngleEvent(tag, -50, az, round(elevation(el, rng)), -50, 37, a.id, "", 0)))
     return events
 
 
