@@ -273,7 +273,7 @@ class AoaDriver(Driver):
             if replayed_without_set_up(self.port):
                 self.state = "streaming"
                 log.debug("%s: a replayed angle stream with no set-up exchange recorded: angles taken as "
-                         "recorded, no board to set up", self.port.name)
+                          "recorded, no board to set up", self.port.name)
                 await asyncio.Event().wait()  # until the reader ends the session
             await self.keep_set_up()
         finally:
