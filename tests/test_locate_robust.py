@@ -13,7 +13,7 @@ from rfhoming.host import site as sites
 from rfhoming.host.estimation.anchors3d import board_angles
 from rfhoming.host.locate import Locator
 from rfhoming.protocol.uconnect import AngleEvent
-from tests.test_locate import SITE
+from test_locate import SITE
 
 TAG = "CCF9578E0D8A"  # the kit site's "cart", height 1.0 m
 
@@ -70,7 +70,7 @@ def test_a_replayed_angle_stream_without_set_up_is_no_false_alarm(tmp_path):
     import subprocess
 
     from rfhoming.host.capture import CaptureWriter
-    from tests.test_locate import RFHOMING
+    from test_locate import RFHOMING
 
     path = tmp_path / "angles.pcapng"
     writer = CaptureWriter(path)
@@ -365,7 +365,7 @@ def test_calibrate_cli_takes_dwells_of_one_carried_tag(tmp_path):
     import json
     import subprocess
 
-    from tests.test_locate import RFHOMING
+    from test_locate import RFHOMING
 
     site = sites.load(SITE)
     where = [(2.0, 1.5, 0.8), (6.0, 3.0, 0.3), (10.0, 4.5, 1.2), (3.5, 4.8, 0.5), (9.0, 1.2, 1.0)]
@@ -393,7 +393,7 @@ def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path)
     import subprocess
 
     from rfhoming.campaigns.kit import record
-    from tests.test_locate import RFHOMING
+    from test_locate import RFHOMING
 
     site = sites.load(SITE)
     _capture_of(record(seed=4, duration=30.0).events, tmp_path / "walk.pcapng", site)
