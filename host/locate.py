@@ -236,7 +236,7 @@ class Locator:
             if tracker.t is None:
                 continue
             point, cov = tracker.predicted(t)
-            if height is not None:
+            if height is not None and self.height_sigma is None:  # a constraint, not a prior
                 point = np.array([point[0], point[1], height])
             out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, fix.rms))
         return out
