@@ -305,6 +305,7 @@ class SelfCalibration:
     rms_before_deg: float
     rms_after_deg: float
     cost: float = 0.0  # the robust fit's final cost per residual (azimuth and elevation): the model choice
+    cost_by_model: dict[str, float] = field(default_factory=dict)  # with angle_model="auto"
     gauge: str = "the anchors' azimuth scales have geometric mean 1 (an overall scale is not observable)"
 
 
@@ -341,7 +342,8 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
     models = ANGLE_MODELS if angle_model == "auto" else (angle_model,)
     results = [self_calibrate_model(replace(site, anchors=tuple(replace(a, angle_model=m) for a in site.anchors)),
                                     recordings) for m in models]
-    return min(results, key=lambda r: r.cost)
+    best = min(results, key=lambda r: r.cost)
+    return replace(best, cost_by_model={m: round(r.cost, 5) for m, r in zip(models, results)})
 
 
 def self_calibrate_model(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]]) -> SelfCalibration:

@@ -302,6 +302,11 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
         return 2
     print(f"self-calibration: {result.epochs} epochs, azimuth rms {result.rms_before_deg:.2f} -> "
           f"{result.rms_after_deg:.2f} deg; gauge: {result.gauge}", file=sys.stderr)
+    if len(result.cost_by_model) > 1:
+        costs = sorted(result.cost_by_model.values())
+        print(f"angle model {result.fits[0].angle_model} by robust cost {result.cost_by_model}"
+              + ("; they differ by under 1 %: weak evidence, a points calibration tells the models apart better"
+                 if costs[1] < 1.01 * costs[0] else ""), file=sys.stderr)
     for f in result.fits:
         c = f.calibration
         print(json.dumps({"kind": "calibration", "anchor": f.anchor, "self": True, "epochs": f.points,
