@@ -14,6 +14,16 @@ elevation out of it. What a real board adds, drawn once per anchor from the seed
 - reflections: near a wall of the room (within ``reflection_range_m``) the board locks onto
   the tag's mirror image in that wall with a probability up to ``reflection``.
 
+Harder boards, each an option off by default (*assumed*: issue 27 reports them from real
+recordings this repository does not hold; docs/protocol.md):
+
+- ``angle_model = "cone"``: the board reports direction cosines along its two array axes,
+  sin(az) = -u.y, sin(el) = u.z, instead of atan2 angles (the physics of a planar array);
+- ``az_compression``: |azimuth| is read short toward +-90: az * (1 - c (az / 90)^2);
+- ``slow_bias_deg`` / ``slow_bias_s``: a slowly wandering bias per (anchor, tag) -- multipath
+  that changes as people and the tag move -- an Ornstein-Uhlenbeck process of that sigma and
+  time constant, on azimuth and (doubled) on elevation.
+
 The host is told none of this: a calibration run through the same anchors has to find it.
 """
 
@@ -67,12 +77,33 @@ class FixedAnchorRunner(AoaRunner):
         self.reflection = float(o.get("reflection", 0.3))
         self.reflection_range = float(o.get("reflection_range_m", 1.0))
         self.rot = rotation(*self.true_pose)
+        self.angle_model = str(o.get("angle_model", "spherical"))
+        if self.angle_model not in ("spherical", "cone"):
+            raise ValueError(f"{name}: angle_model must be \"spherical\" or \"cone\"")
+        self.az_compression = float(o.get("az_compression", 0.0))
+        self.slow_bias = float(o.get("slow_bias_deg", 0.0))
+        self.slow_tau = float(o.get("slow_bias_s", 10.0))
+        self._slow: dict[str, tuple[float, float, float]] = {}  # tag -> (t, az offset, el offset)
 
     def truth(self) -> dict[str, Any]:
         """The hidden error model, for the truth log and the calibration test's cross-check."""
         return {"device": self.name, "true_yaw_deg": self.true_pose[0], "true_pitch_deg": self.true_pose[1],
                 "az_scale": self.az_scale, "az_bias_deg": self.az_bias,
-                "el_scale": self.el_scale, "el_bias_deg": self.el_bias}
+                "el_scale": self.el_scale, "el_bias_deg": self.el_bias, "angle_model": self.angle_model,
+                "az_compression": self.az_compression}
+
+    def _slow_offsets(self, tag_id: str, t: float) -> tuple[float, float]:
+        """The (azimuth, elevation) wander of this tag's multipath at ``t`` (exact OU steps)."""
+        if self.slow_bias <= 0:
+            return 0.0, 0.0
+        t_prev, a, e = self._slow.get(tag_id, (t, float(self.rng.normal(0, self.slow_bias)),
+                                               float(self.rng.normal(0, 2 * self.slow_bias))))
+        keep = math.exp(-max(0.0, t - t_prev) / self.slow_tau)
+        spread = math.sqrt(1 - keep * keep)
+        a = a * keep + spread * float(self.rng.normal(0, self.slow_bias))
+        e = e * keep + spread * float(self.rng.normal(0, 2 * self.slow_bias))
+        self._slow[tag_id] = (t, a, e)
+        return a, e
 
     def sources(self, world: World, t: float) -> list[tuple[str, tuple[float, float], float, float, float]]:
         """Every tag in the room: the targets' and, if the robot carries one, the robot's."""
@@ -105,12 +136,20 @@ class FixedAnchorRunner(AoaRunner):
                 if sample is None or sample < -100:
                     continue
                 d = self.rot.T @ (self._image(world, tag) - self.position)
-                az_ccw = fold_front(math.degrees(math.atan2(d[1], d[0])))
                 if d[0] < 0:  # behind the board's plane: the array sees the front image
                     d = d * np.array([-1.0, 1.0, 1.0])
-                el = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
-                az_ccw = az_ccw * self.az_scale - self.az_bias + float(self.rng.normal(0, self.aoa.sigma_deg(az_ccw)))
-                el = el * self.el_scale + self.el_bias + float(self.rng.normal(0, self.el_sigma))
+                if self.angle_model == "cone":
+                    r = float(np.linalg.norm(d))
+                    az_ccw, el = math.degrees(math.asin(d[1] / r)), math.degrees(math.asin(d[2] / r))
+                else:
+                    az_ccw = fold_front(math.degrees(math.atan2(d[1], d[0])))
+                    el = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
+                if self.az_compression:
+                    az_ccw *= 1 - self.az_compression * (az_ccw / 90) ** 2
+                slow_az, slow_el = self._slow_offsets(tag_id, t)
+                az_ccw = (az_ccw * self.az_scale - self.az_bias + slow_az
+                          + float(self.rng.normal(0, self.aoa.sigma_deg(az_ccw))))
+                el = el * self.el_scale + self.el_bias + slow_el + float(self.rng.normal(0, self.el_sigma))
                 fw.on_advertisement(Advertisement(tag_id, C209_NAMESPACE, -max(-90.0, min(90.0, az_ccw)),
                                                   max(-90.0, min(90.0, el)), sample,
                                                   sample + float(self.rng.normal(0, 1.5))))

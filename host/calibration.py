@@ -1,36 +1,76 @@
 """Per-anchor calibration from tags at known points: a yaw offset and azimuth/elevation scale and
-bias, fitted so that the corrected angles point at the points.
+bias, fitted so that the corrected angles point at the points -- only those the points determine.
 
 Model (reported angles, board sign): az = s_az * az_true + b_az, el = s_el * el_true + b_el,
-where (az_true, el_true) are the board angles of the point seen from the anchor's position with
-its yaw turned by the offset. For a level board a yaw offset and an azimuth bias are the same
-thing; a weak prior (``PRIOR_DEG``) on both splits it evenly rather than leaving the fit
-singular. Gauss-Newton on the medians of each (anchor, point) pair; at least three points that
-an anchor sees, not all on one line through it.
+where (az_true, el_true) are the board angles (in the anchor's angle model) of the point seen
+from the anchor's position with its yaw turned by the offset. What is fitted, and why not:
+
+- the azimuth bias always; the azimuth scale when the points span ``MIN_AZ_SPAN_DEG`` of
+  azimuth seen from the anchor; the yaw offset only when it is not the azimuth bias by another
+  name (for a board near level the two move every point's azimuth alike: correlation above
+  ``SAME_CORRELATION``);
+- elevation only when the points are at different heights (``MIN_HEIGHT_SPREAD_M``): with every
+  point at one height the elevation scale and bias trade against the ranges and the pitch, and a
+  fit runs anywhere (issue 27). ``azimuth_only`` holds elevation at its defaults as well.
+
+The fit is robust (soft-L1 on 2-degree residuals: a reflected point does not drag it) and held
+inside the site file's limits (``site.CALIBRATION_LIMITS``); a parameter that ends on a limit
+is refused with the reason, since the points then do not fit the anchor's nominal pose. Each
+anchor is fitted in both angle models and the one with the smaller residual over all anchors
+is chosen (or the one asked for).
+
+Points: a tag that stays at one point all recording, or one tag carried from point to point,
+with a time window per point or windows found from the recording (:func:`find_dwells`).
 """
 
 from __future__ import annotations
 
+import math
 import statistics
-from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.optimize import least_squares
 
-from rfhoming.host.estimation.anchors3d import board_angles, rotation
-from rfhoming.host.site import Anchor, Calibration, Site
+from rfhoming.host.estimation.anchors3d import ANGLE_MODELS, board_angles_many, rotation
+from rfhoming.host.site import CALIBRATION_LIMITS, Anchor, Calibration, Site
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.uconnect import AngleEvent
-
-PRIOR_DEG = 5.0
-"""Prior sigma on the yaw offset and the azimuth bias (degrees); scales' prior sigma is 0.3."""
 
 MIN_EVENTS = 10
 """Angle events an (anchor, point) pair needs to count."""
 
+MIN_AZ_SPAN_DEG = 20.0
+"""Azimuth span of the points (seen from the anchor) that determines the azimuth scale."""
+
+MIN_HEIGHT_SPREAD_M = 0.3
+"""Height spread of the points that determines elevation at all."""
+
+SAME_CORRELATION = 0.95
+"""Yaw offset and azimuth bias this correlated are one parameter: the bias is fitted."""
+
+ROBUST_DEG = 2.0
+"""Soft-L1 scale of the residuals (degrees)."""
+
+PARAMS = ("yaw_offset_deg", "az_scale", "az_bias_deg", "el_scale", "el_bias_deg")
+DEFAULT = np.array([0.0, 1.0, 0.0, 1.0, 0.0])
+
 
 class CalibrationError(Error, ValueError):
-    """Not enough data to calibrate an anchor; the message says what to record."""
+    """Not enough data to calibrate an anchor, or a fit the site file would refuse; the
+    message says what to record or check."""
+
+
+@dataclass(frozen=True)
+class Point:
+    """A known position of ``tag`` (x, y, z metres), during [start_s, end_s] seconds from the
+    recording's first angle event (None: the whole recording)."""
+
+    tag: str
+    position: tuple[float, float, float]
+    start_s: float | None = None
+    end_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -40,60 +80,423 @@ class AnchorFit:
     points: int
     rms_before_deg: float
     rms_after_deg: float
+    angle_model: str = "spherical"
+    sigma: dict[str, float] = field(default_factory=dict)  # fitted parameter -> its standard deviation
+    held: dict[str, str] = field(default_factory=dict)  # parameter not fitted -> why
+    rms_by_model: dict[str, float] = field(default_factory=dict)
 
 
-def _predict(anchor: Anchor, theta: np.ndarray, points: np.ndarray) -> np.ndarray:
+def _predict(anchor: Anchor, theta: np.ndarray, points: np.ndarray, model: str) -> np.ndarray:
     yaw_off, s_az, b_az, s_el, b_el = theta
     rot = rotation(anchor.yaw_deg + yaw_off, anchor.pitch_deg, anchor.roll_deg)
-    out = []
+    ang = board_angles_many((points - np.asarray(anchor.position)) @ rot, model)
+    return np.stack([s_az * ang[:, 0] + b_az, s_el * ang[:, 1] + b_el], axis=1)
+
+
+def _jacobian(f, theta: np.ndarray, free: list[int]) -> np.ndarray:
+    r0 = f(theta)
+    cols = []
+    for k in free:
+        step = np.zeros(5)
+        step[k] = 1e-4
+        cols.append((f(theta + step) - r0) / 1e-4)
+    return np.stack(cols, axis=1)
+
+
+def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray, *, model: str = "spherical",
+               azimuth_only: bool = False) -> AnchorFit:
+    """One anchor's fit from its (point, median angles) pairs in one angle model."""
+    truth = _predict(anchor, DEFAULT, points, model)
+    held: dict[str, str] = {}
+    free = [2]
+    if np.ptp(truth[:, 0]) >= MIN_AZ_SPAN_DEG:
+        free.append(1)
+    else:
+        held["az_scale"] = (f"the points span {np.ptp(truth[:, 0]):.0f} deg of azimuth from this anchor; "
+                            f"a scale needs {MIN_AZ_SPAN_DEG:g}+")
+    spread = float(np.ptp(points[:, 2]))
+    if azimuth_only:
+        held["el_scale"] = held["el_bias_deg"] = "azimuth-only calibration"
+    elif spread < MIN_HEIGHT_SPREAD_M:
+        why = (f"every point at one height (spread {spread:.2f} m < {MIN_HEIGHT_SPREAD_M:g} m): elevation "
+               "scale and bias trade against range and pitch")
+        held["el_scale"] = held["el_bias_deg"] = why
+    else:
+        free.append(4)
+        if np.ptp(truth[:, 1]) >= MIN_AZ_SPAN_DEG / 2:
+            free.append(3)
+        else:
+            held["el_scale"] = (f"the points span {np.ptp(truth[:, 1]):.0f} deg of elevation; "
+                                f"a scale needs {MIN_AZ_SPAN_DEG / 2:g}+")
+    weights = np.ones(2)
+    if 4 not in free:
+        weights[1] = 0.0  # elevation held: its residuals say nothing about the azimuth parameters
+
+    def resid(theta: np.ndarray) -> np.ndarray:
+        return ((_predict(anchor, theta, points, model) - measured) * weights).ravel()
+
+    jac = _jacobian(resid, DEFAULT, [0, 2])
+    corr = abs(float(jac[:, 0] @ jac[:, 1]) / (np.linalg.norm(jac[:, 0]) * np.linalg.norm(jac[:, 1]) + 1e-12))
+    if corr > SAME_CORRELATION:
+        held["yaw_offset_deg"] = (f"moves every point's azimuth like the bias (correlation {corr:.2f}): "
+                                  "fitted as the bias")
+    else:
+        free.append(0)
+    free.sort()
+    lo = np.array([CALIBRATION_LIMITS[p][0] for p in PARAMS])
+    hi = np.array([CALIBRATION_LIMITS[p][1] for p in PARAMS])
+
+    def sub(x: np.ndarray) -> np.ndarray:
+        theta = DEFAULT.copy()
+        theta[free] = x
+        return theta
+
+    solution = least_squares(lambda x: resid(sub(x)), DEFAULT[free], bounds=(lo[free], hi[free]),
+                             loss="soft_l1", f_scale=ROBUST_DEG)
+    theta = sub(solution.x)
+    for k in free:
+        if min(theta[k] - lo[k], hi[k] - theta[k]) < 1e-3 * (hi[k] - lo[k]):
+            raise CalibrationError(
+                f"anchor {anchor.name}: {PARAMS[k]} ran to the site file's limit {lo[k]:g}..{hi[k]:g}: its "
+                f"angles do not fit the points from its nominal pose; check its position, yaw_deg and "
+                f"pitch_deg, and the points (or calibrate --azimuth-only)")
+    r = resid(theta)
+    n_used = int(weights.sum()) * len(points)
+    rms_after = math.sqrt(float(r @ r) / n_used)
+    r0 = resid(DEFAULT)
+    rms_before = math.sqrt(float(r0 @ r0) / n_used)
+    j = _jacobian(resid, theta, free)
+    dof = max(1, n_used - len(free))
+    try:
+        cov = np.linalg.inv(j.T @ j) * max(float(r @ r) / dof, 0.25)
+        sig = {PARAMS[k]: float(math.sqrt(max(cov[i, i], 0.0))) for i, k in enumerate(free)}
+    except np.linalg.LinAlgError:
+        sig = {PARAMS[k]: math.inf for k in free}
+    cal = Calibration(*(float(v) for v in theta))
+    return AnchorFit(anchor.name, cal, len(points), rms_before, rms_after, model, sig, held)
+
+
+def find_dwells(events: Sequence[tuple[float, AngleEvent]], tag: str, *, min_s: float = 5.0,
+                still_deg: float = 2.0, t0: float | None = None) -> list[tuple[float, float]]:
+    """The spans (seconds from ``t0``, default the first event) in which ``tag`` stood still:
+    runs of 1 s bins in which no anchor's median azimuth moved more than ``still_deg`` from the
+    bin before, ``min_s`` or longer, one bin trimmed at each end (the tag being set down)."""
+    if not events:
+        return []
+    t0 = events[0][0] if t0 is None else t0
+    bins: dict[int, dict[str, list[int]]] = {}
+    for t, e in events:
+        if e.instance_id == tag:
+            bins.setdefault(int((t - t0) // 1.0), {}).setdefault(e.anchor_id, []).append(e.azimuth)
+    medians = {k: {a: statistics.median(v) for a, v in b.items() if len(v) >= 3} for k, b in bins.items()}
+    still = []
+    for k in sorted(medians):
+        prev = medians.get(k - 1)
+        common = set(medians[k]) & set(prev or {})
+        still.append((k, bool(prev) and len(common) >= 2
+                      and all(abs(medians[k][a] - prev[a]) <= still_deg for a in common)))
+    runs: list[list[int]] = []  # [first bin, last bin] of each still run
+    for k, ok in still:
+        if ok and runs and runs[-1][1] == k - 1:
+            runs[-1][1] = k
+        elif ok:
+            runs.append([k - 1, k])  # the bin before matched this one: part of the dwell
+    return [(float(a + 1), float(b)) for a, b in runs if b - a - 1 >= min_s]
+
+
+def assign_dwells(events: Sequence[tuple[float, AngleEvent]], points: list[Point]) -> tuple[list[Point], list[str]]:
+    """Points without a window get the dwells found in the recording, in order, per tag;
+    (points with windows, one report line per tag); CalibrationError when the counts differ."""
+    out, report = [], []
+    t0 = events[0][0] if events else 0.0
+    by_tag: dict[str, list[Point]] = {}
     for p in points:
-        az, el = board_angles(rot.T @ (p - np.asarray(anchor.position)))
-        out.append((s_az * az + b_az, s_el * el + b_el))
-    return np.array(out)
+        by_tag.setdefault(p.tag, []).append(p)
+    for tag, pts in by_tag.items():
+        if all(p.start_s is not None for p in pts):
+            out += pts
+            continue
+        if len(pts) == 1 and pts[0].start_s is None:
+            out += pts  # one point: the whole recording
+            continue
+        dwells = find_dwells(events, tag, t0=t0)
+        spans = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in dwells) or "none"
+        if len(dwells) != len(pts):
+            raise CalibrationError(f"tag {tag}: {len(pts)} points listed without from_s/to_s, but the recording "
+                                   f"shows {len(dwells)} dwells of 5 s or more ({spans}); give each point "
+                                   "from_s and to_s (seconds from the first angle event)")
+        out += [replace(p, start_s=a, end_s=b) for p, (a, b) in zip(pts, dwells)]
+        report.append(f"tag {tag}: {len(dwells)} dwells found ({spans}), taken as its points in the listed order")
+    return out, report
 
 
-def _residual(anchor: Anchor, theta: np.ndarray, points: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    prior = np.array([theta[0] / PRIOR_DEG, theta[2] / PRIOR_DEG, (theta[1] - 1) / 0.3, (theta[3] - 1) / 0.3,
-                      theta[4] / (3 * PRIOR_DEG)])
-    return np.concatenate([(_predict(anchor, theta, points) - measured).ravel(), prior])
+def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]],
+              points: dict[str, tuple[float, float, float]] | list[Point], *, azimuth_only: bool = False,
+              angle_model: str = "auto") -> list[AnchorFit]:
+    """Fit every anchor of ``site`` from angle events of tags at known ``points`` (tag -> x, y,
+    z, or :class:`Point` s with time windows); ``angle_model`` "auto" picks the model with the
+    smaller residual over all anchors. CalibrationError names an anchor that saw too few points
+    or whose fit would leave the site file's limits."""
+    events = list(events)
+    if isinstance(points, dict):
+        points = [Point(tag, tuple(map(float, p))) for tag, p in points.items()]  # type: ignore[misc]
+    t0 = events[0][0] if events else 0.0
+    samples: dict[tuple[str, int], list[tuple[int, int]]] = {}
+    by_tag: dict[str, list[int]] = {}
+    for i, p in enumerate(points):
+        by_tag.setdefault(p.tag, []).append(i)
+    for t, event in events:
+        for i in by_tag.get(event.instance_id, ()):
+            p = points[i]
+            if p.start_s is None or p.start_s <= t - t0 <= p.end_s:
+                samples.setdefault((event.anchor_id, i), []).append((event.azimuth, event.elevation))
+    models = ANGLE_MODELS if angle_model == "auto" else (angle_model,)
+    per_model: dict[str, list[AnchorFit]] = {}
+    errors: dict[str, CalibrationError] = {}
+    for model in models:
+        fits = []
+        try:
+            for anchor in site.anchors:
+                seen = [(i, v) for (a, i), v in sorted(samples.items()) if a == anchor.id and len(v) >= MIN_EVENTS]
+                if len(seen) < 3:
+                    raise CalibrationError(
+                        f"anchor {anchor.name} ({anchor.id}) saw {len(seen)} known point(s) with {MIN_EVENTS}+ "
+                        "angles each; it needs 3 or more: record longer or add points it sees")
+                pts = np.array([points[i].position for i, _ in seen], float)
+                measured = np.array([(statistics.median(a for a, _ in v), statistics.median(e for _, e in v))
+                                     for _, v in seen])
+                fits.append(fit_anchor(replace(anchor, calibration=Calibration()), pts, measured, model=model,
+                                       azimuth_only=azimuth_only))
+        except CalibrationError as exc:
+            errors[model] = exc
+            continue
+        per_model[model] = fits
+    if not per_model:
+        raise next(iter(errors.values()))
+    total = {m: math.sqrt(sum(f.rms_after_deg**2 for f in fits) / len(fits)) for m, fits in per_model.items()}
+    best = min(total, key=total.__getitem__)
+    return [replace(f, rms_by_model={m: round(total[m], 3) for m in total}) for f in per_model[best]]
 
 
-def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray) -> tuple[Calibration, float, float]:
-    """(calibration, rms angle error before, after) for one anchor's (point, median angles)."""
-    theta = np.array([0.0, 1.0, 0.0, 1.0, 0.0])
-    before = float(np.sqrt(np.mean((_predict(anchor, theta, points) - measured) ** 2)))
-    for _ in range(10):
-        r = _residual(anchor, theta, points, measured)
-        jac = np.empty((len(r), 5))
-        for k in range(5):
-            step = np.zeros(5)
-            step[k] = 1e-4
-            jac[:, k] = (_residual(anchor, theta + step, points, measured) - r) / 1e-4
-        delta = np.linalg.lstsq(jac, -r, rcond=None)[0]
-        theta = theta + delta
-        if np.abs(delta).max() < 1e-5:
-            break
-    after = float(np.sqrt(np.mean((_predict(anchor, theta, points) - measured) ** 2)))
-    cal = Calibration(float(theta[0]), float(theta[1]), float(theta[2]), float(theta[3]), float(theta[4]))
-    return cal, before, after
+# -- self-calibration ---------------------------------------------------------------------------
+
+SELF_EPOCH_S = 0.5
+"""One epoch per tag every this many seconds (each anchor's median angle of the window before)."""
+
+SELF_MIN_EPOCHS = 40
+"""Epochs a self-calibration needs at the least."""
+
+SELF_MIN_SPREAD = 0.2
+"""The epochs' positions must spread (standard deviation along their narrowest direction) over
+at least this fraction of the anchors' extent: a dwell cannot separate scale from position."""
+
+SELF_MIN_AZ_SPAN_DEG = 40.0
+"""Azimuth span each anchor must see over the epochs (5th to 95th percentile)."""
 
 
-def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]], points: dict[str, tuple[float, float, float]]
-              ) -> list[AnchorFit]:
-    """Fit every anchor of ``site`` from angle events of tags at known ``points`` (tag -> x, y, z);
-    CalibrationError names an anchor that saw too few points."""
-    samples: dict[tuple[str, str], list[tuple[int, int]]] = {}
-    for _, event in events:
-        if event.instance_id in points:
-            samples.setdefault((event.anchor_id, event.instance_id), []).append((event.azimuth, event.elevation))
+ELEVATION_NOISIER = 2.0
+"""Elevation's sigma as a multiple of azimuth's in the self-calibration (the weaker axis)."""
+
+
+@dataclass(frozen=True)
+class SelfCalibration:
+    fits: list[AnchorFit]
+    epochs: int
+    rms_before_deg: float
+    rms_after_deg: float
+    cost: float = 0.0  # the robust fit's final cost per residual (azimuth and elevation): the model choice
+    cost_by_model: dict[str, float] = field(default_factory=dict)  # with angle_model="auto"
+    gauge: str = "the anchors' azimuth scales have geometric mean 1 (an overall scale is not observable)"
+
+
+def _epochs(site: Site, recording: Sequence[tuple[float, AngleEvent]], window_s: float) -> list[tuple[str, dict]]:
+    """(tag, {anchor id: (median az, median el)}) every SELF_EPOCH_S per tag, 3+ anchors fresh."""
+    series: dict[tuple[str, str], list[tuple[float, int, int]]] = {}
+    wanted = {a.id for a in site.anchors}
+    for t, e in recording:
+        if e.anchor_id in wanted:
+            series.setdefault((e.instance_id, e.anchor_id), []).append((t, e.azimuth, e.elevation))
+    tags = sorted({tag for tag, _ in series})
+    out = []
+    for tag in tags:
+        per = {a: np.array(v) for (tg, a), v in series.items() if tg == tag}
+        t_lo = min(v[0, 0] for v in per.values())
+        t_hi = max(v[-1, 0] for v in per.values())
+        for t in np.arange(t_lo + window_s, t_hi, SELF_EPOCH_S):
+            angles = {}
+            for a, v in per.items():
+                i, j = np.searchsorted(v[:, 0], [t - window_s, t], side="right")
+                if j - i >= 3:
+                    angles[a] = (float(np.median(v[i:j, 1])), float(np.median(v[i:j, 2])))
+            if len(angles) >= 3:
+                out.append((tag, angles))
+    return out
+
+
+def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]],
+                   angle_model: str = "auto") -> SelfCalibration:
+    """:func:`self_calibrate_model` in the site's angle models (``angle_model="site"``), in one
+    model for every anchor, or in each model, keeping the smaller residual ("auto")."""
+    if angle_model == "site":
+        return self_calibrate_model(site, recordings)
+    models = ANGLE_MODELS if angle_model == "auto" else (angle_model,)
+    results = [self_calibrate_model(replace(site, anchors=tuple(replace(a, angle_model=m) for a in site.anchors)),
+                                    recordings) for m in models]
+    best = min(results, key=lambda r: r.cost)
+    return replace(best, cost_by_model={m: round(r.cost, 5) for m, r in zip(models, results)})
+
+
+def self_calibrate_model(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]]) -> SelfCalibration:
+    """Each anchor's azimuth scale and bias from tags moving over the room, no known points: a
+    joint robust fit (soft-L1) of the per-anchor parameters and every epoch's position to the
+    azimuths (elevation, noisier and biased per board, is not used; a known tag height is).
+
+    Gauge: scaling every anchor's azimuth up together while pulling the positions toward the
+    middle barely changes the residuals, so the scales' geometric mean is fixed to 1. A yaw
+    offset moves a near-level board's azimuths like its bias: it is fitted as the bias.
+    CalibrationError when the epochs do not spread over the room or an anchor sees too narrow a
+    span of azimuth; each parameter's standard deviation says how well it was determined."""
+    from rfhoming.host.estimation.anchors3d import Degenerate, locate, make_ray
+
+    anchors = list(site.anchors)
+    index = {a.id: k for k, a in enumerate(anchors)}
+    raw = [replace(a, calibration=Calibration()) for a in anchors]
+    rots = [a.rotation() for a in raw]
+    origins = np.array([a.position for a in anchors])
+    epochs = []
+    for rec in recordings:
+        for tag, angles in _epochs(site, rec, site.window_s):
+            info = site.tag(tag)
+            height = info.height if info else None
+            rays = [make_ray(anchors[index[a]].name, origins[index[a]], rots[index[a]], az, el, site.sigma_deg,
+                             model=anchors[index[a]].angle_model) for a, (az, el) in angles.items()]
+            try:
+                fix = locate(rays, height=height)
+            except Degenerate:
+                continue
+            epochs.append((height, angles, fix.point))
+    if len(epochs) < SELF_MIN_EPOCHS:
+        raise CalibrationError(f"self-calibration needs {SELF_MIN_EPOCHS}+ epochs (a tag heard by 3+ anchors, one "
+                               f"per {SELF_EPOCH_S:g} s); the recordings give {len(epochs)}: record longer")
+    start = np.array([p for _, _, p in epochs])
+    extent = float(min(np.ptp(origins[:, 0]), np.ptp(origins[:, 1])) or max(np.ptp(origins[:, :2], axis=0)))
+    narrowest = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(start[:, :2].T))[0], 0.0)))
+    if narrowest < SELF_MIN_SPREAD * extent:
+        raise CalibrationError(
+            f"the tags did not cover the room: their positions spread {narrowest:.2f} m across their narrowest "
+            f"direction, {SELF_MIN_SPREAD * extent:.2f} m needed ({SELF_MIN_SPREAD:g} of the anchors' extent); "
+            "a dwell at one point cannot tell an anchor's scale from the tag's position: walk the tags over the "
+            "whole room, or calibrate on known points (--points)")
+    n_a, n_e = len(anchors), len(epochs)
+    rows_e, rows_a, meas, meas_el = [], [], [], []
+    for e, (_, angles, _) in enumerate(epochs):
+        for a, (az, el) in angles.items():
+            rows_e.append(e)
+            rows_a.append(index[a])
+            meas.append(az)
+            meas_el.append(el)
+    rows_e_arr, rows_a_arr = np.array(rows_e), np.array(rows_a)
+    meas_arr, meas_el_arr = np.array(meas), np.array(meas_el)
+    for k, a in enumerate(anchors):
+        seen = meas_arr[rows_a_arr == k]
+        span = float(np.percentile(seen, 95) - np.percentile(seen, 5)) if len(seen) else 0.0
+        if span < SELF_MIN_AZ_SPAN_DEG:
+            raise CalibrationError(f"anchor {a.name} saw the tags over {span:.0f} deg of azimuth, "
+                                   f"{SELF_MIN_AZ_SPAN_DEG:g}+ needed to tell its scale: walk the tags across its view")
+    heights = np.array([np.nan if h is None else h for h, _, _ in epochs])
+    free_z = np.isnan(heights)
+    n_z = int(free_z.sum())
+    rot_stack = np.array(rots)
+    models = [a.angle_model for a in anchors]
+    fit_el = bool((~free_z).sum() >= SELF_MIN_EPOCHS)  # elevation needs tags of known height
+    n_p = 2 * n_a - 1 + (2 * n_a if fit_el else 0)  # log scales (one fewer: the gauge), biases, el scale/bias
+
+    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        logs = np.append(x[:n_a - 1], -x[:n_a - 1].sum())  # the gauge: sum of log scales = 0
+        bias = x[n_a - 1:2 * n_a - 1]
+        el_scale = x[2 * n_a - 1:3 * n_a - 1] if fit_el else np.ones(n_a)
+        el_bias = x[3 * n_a - 1:4 * n_a - 1] if fit_el else np.zeros(n_a)
+        xy = x[n_p:n_p + 2 * n_e].reshape(n_e, 2)
+        z = heights.copy()
+        z[free_z] = x[n_p + 2 * n_e:]
+        return np.exp(logs), bias, el_scale, el_bias, np.column_stack([xy, z])
+
+    def predicted(p: np.ndarray) -> np.ndarray:
+        d = np.einsum("nji,nj->ni", rot_stack[rows_a_arr], p[rows_e_arr] - origins[rows_a_arr])
+        out = np.empty((len(d), 2))
+        for model in set(models):
+            m = np.array([models[k] == model for k in rows_a_arr])
+            out[m] = board_angles_many(d[m], model)
+        return out
+
+    sigma = site.sigma_deg
+    el_sigma = ELEVATION_NOISIER * sigma
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        scale, bias, el_scale, el_bias, p = unpack(x)
+        ang = predicted(p)
+        r = (scale[rows_a_arr] * ang[:, 0] + bias[rows_a_arr] - meas_arr) / sigma
+        r_el = (el_scale[rows_a_arr] * ang[:, 1] + el_bias[rows_a_arr] - meas_el_arr) / el_sigma
+        return np.concatenate([r, r_el, (p[free_z, 2] - 1.0) / 0.5])  # an unknown height: 1 +- 0.5 m
+
+    x0 = np.concatenate([np.zeros(2 * n_a - 1), np.ones(n_a) if fit_el else [],
+                         np.zeros(n_a) if fit_el else [], start[:, :2].ravel(), np.ones(n_z)])
+    from scipy.sparse import lil_matrix
+
+    n_m = len(meas_arr)
+    sparsity = lil_matrix((2 * n_m + n_z, len(x0)), dtype=int)
+    z_col = {e: n_p + 2 * n_e + j for j, e in enumerate(np.flatnonzero(free_z))}
+    for i, (e, a) in enumerate(zip(rows_e_arr, rows_a_arr)):
+        for row in (i, n_m + i):
+            sparsity[row, n_p + 2 * e:n_p + 2 * e + 2] = 1
+            if e in z_col:
+                sparsity[row, z_col[e]] = 1
+        sparsity[i, :n_a - 1] = 1
+        sparsity[i, n_a - 1 + a] = 1
+        if fit_el:
+            sparsity[n_m + i, 2 * n_a - 1 + a] = 1
+            sparsity[n_m + i, 3 * n_a - 1 + a] = 1
+    for j, e in enumerate(np.flatnonzero(free_z)):
+        sparsity[2 * n_m + j, z_col[e]] = 1
+    before = resid(x0)[:n_m] * sigma
+    sol = least_squares(resid, x0, jac_sparsity=sparsity, loss="soft_l1", f_scale=1.5, x_scale="jac",
+                        method="trf", tr_solver="lsmr")
+    scale, bias, el_scale, el_bias, _ = unpack(sol.x)
+    after = resid(sol.x)[:n_m] * sigma
+    # standard deviations: (J^T J)^-1 of the robust fit, scaled by its residual variance
+    jac = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+    r = sol.fun
+    dof = max(1, len(r) - len(x0))
+    try:
+        cov = np.linalg.pinv(jac.T @ jac) * max(float(r @ r) / dof, 1.0)
+    except np.linalg.LinAlgError:
+        cov = np.full((len(x0), len(x0)), np.inf)
+    g = np.zeros((n_a, len(x0)))  # log scales as linear functions of the free ones
+    g[:n_a - 1, :n_a - 1] = np.eye(n_a - 1)
+    g[n_a - 1, :n_a - 1] = -1.0
+    log_cov = g @ cov @ g.T
+    lo_s, hi_s = CALIBRATION_LIMITS["az_scale"]
+    lo_b, hi_b = CALIBRATION_LIMITS["az_bias_deg"]
     fits = []
-    for anchor in site.anchors:
-        seen = [(tag, v) for (a, tag), v in sorted(samples.items()) if a == anchor.id and len(v) >= MIN_EVENTS]
-        if len(seen) < 3:
-            raise CalibrationError(f"anchor {anchor.name} ({anchor.id}) saw {len(seen)} known point(s) with "
-                                   f"{MIN_EVENTS}+ angles each; it needs 3 or more: record longer or add points it sees")
-        pts = np.array([points[tag] for tag, _ in seen], float)
-        measured = np.array([(statistics.median(a for a, _ in v), statistics.median(e for _, e in v)) for _, v in seen])
-        cal, before, after = fit_anchor(replace(anchor, calibration=Calibration()), pts, measured)
-        fits.append(AnchorFit(anchor.name, cal, len(seen), before, after))
-    return fits
+    for k, a in enumerate(anchors):
+        if not (lo_s < scale[k] < hi_s and lo_b < bias[k] < hi_b):
+            raise CalibrationError(f"anchor {a.name}: self-calibration gives az_scale {scale[k]:.3f}, az_bias_deg "
+                                   f"{bias[k]:.1f}, outside the site file's limits: check its pose in the site file")
+        mine = rows_a_arr == k
+        cal = replace(a.calibration, yaw_offset_deg=0.0, az_scale=float(scale[k]), az_bias_deg=float(bias[k]))
+        sd = {"az_scale": float(scale[k] * math.sqrt(max(log_cov[k, k], 0.0))),
+              "az_bias_deg": float(math.sqrt(max(cov[n_a - 1 + k, n_a - 1 + k], 0.0)))}
+        held = {"yaw_offset_deg": "moves a near-level board's azimuths like its bias: fitted as the bias"}
+        if fit_el:
+            el_s = float(np.clip(el_scale[k], *CALIBRATION_LIMITS["el_scale"]))
+            el_b = float(np.clip(el_bias[k], *CALIBRATION_LIMITS["el_bias_deg"]))
+            cal = replace(cal, el_scale=el_s, el_bias_deg=el_b)
+            sd |= {"el_scale": float(math.sqrt(max(cov[2 * n_a - 1 + k, 2 * n_a - 1 + k], 0.0))),
+                   "el_bias_deg": float(math.sqrt(max(cov[3 * n_a - 1 + k, 3 * n_a - 1 + k], 0.0)))}
+        else:
+            held["el_scale"] = held["el_bias_deg"] = (
+                f"kept as it was: fewer than {SELF_MIN_EPOCHS} epochs of tags with a known height")
+        fits.append(AnchorFit(a.name, cal, int(mine.sum()), float(np.sqrt(np.mean(before[mine] ** 2))),
+                              float(np.sqrt(np.mean(after[mine] ** 2))), a.angle_model, sd, held))
+    return SelfCalibration(fits, n_e, float(np.sqrt(np.mean(before**2))), float(np.sqrt(np.mean(after**2))),
+                           float(sol.cost) / len(sol.fun))

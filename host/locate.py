@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.host.estimation.anchors3d import Degenerate, angle_sigma_deg, locate, make_ray
-from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity
+from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, angle_sigma_deg, locate, make_ray
+from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
 from rfhoming.host.site import Anchor, Calibration, Site
 from rfhoming.protocol.uconnect import AngleEvent
 
@@ -55,19 +55,34 @@ class Position:
     anchors: tuple[str, ...]  # anchor names the fix rests on
     rejected: tuple[str, ...]
     tracked: bool
+    quality: float | None = None  # the fix's rms normalised ray miss (None: no fix this tick)
+    smoothed: bool = False  # True: from the RTS smoother over a whole recording (not causal)
+    t_fix: float | None = None  # a raw fix: the mean time of the angles it rests on
 
     def as_dict(self) -> dict[str, Any]:
-        return {"t": round(self.t, 6), "tag": self.tag, "x": round(float(self.point[0]), 3),
-                "y": round(float(self.point[1]), 3), "z": round(float(self.point[2]), 3),
-                "cov": [[round(float(v), 5) for v in row] for row in self.covariance],
-                "anchors": list(self.anchors), "rejected": list(self.rejected)}
+        out = {"t": round(self.t, 6), "tag": self.tag, "x": round(float(self.point[0]), 3),
+               "y": round(float(self.point[1]), 3), "z": round(float(self.point[2]), 3),
+               "cov": [[round(float(v), 5) for v in row] for row in self.covariance],
+               "anchors": list(self.anchors), "rejected": list(self.rejected)}
+        if self.quality is not None:
+            out["rms"] = round(self.quality, 3)
+        if self.smoothed:
+            out["smoothed"] = True
+        return out
 
 
 class Locator:
     def __init__(self, site: Site, *, track: bool = True, tracker: str = "cv", accel_psd: float = 1.0,
-                 reorder_s: float = 0.2, calibrated: bool = True) -> None:
+                 reorder_s: float = 0.2, calibrated: bool = True, loss: str = "huber",
+                 height_sigma: float | None = None) -> None:
+        """``loss``: the fix's robust loss (anchors3d.LOSSES); ``height_sigma``: a known tag
+        height is a prior of this sigma (m) rather than a constraint (None)."""
         if tracker not in TRACKERS:
             raise ValueError(f"tracker must be one of {', '.join(TRACKERS)}")
+        if loss not in LOSSES:
+            raise ValueError(f"loss must be one of {', '.join(LOSSES)}")
+        self.loss = loss
+        self.height_sigma = height_sigma
         self.site = site
         self.anchors = site.anchor_by_id()
         self.rotations = {a.id: a.rotation() if calibrated else _uncalibrated(a).rotation() for a in site.anchors}
@@ -87,7 +102,8 @@ class Locator:
         self._ekfs: dict[str, BearingEkf] = {}
         self._lost: dict[str, float] = {}  # anchor id -> host time its driver last reported it gone
         self.counters = {"events": 0, "unknown_anchor": 0, "other_tag": 0, "late": 0, "overflow": 0,
-                         "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0, "disconnects": 0}
+                         "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0, "restarts": 0,
+                         "disconnects": 0}
 
     # -- input -------------------------------------------------------------------------
     def feed(self, t: float, event: AngleEvent) -> list[Position]:
@@ -144,8 +160,10 @@ class Locator:
             info = self.site.tag(tag)
             sigma = math.hypot(angle_sigma_deg(a, e, self.site.sigma_deg), self.site.sigma_deg * SYSTEMATIC)
             if not ekf.update_angles(t, self._origins[anchor_id], self.rotations[anchor_id], a, e, sigma,
-                                     info.height if info else None):
+                                     info.height if info else None, self.anchors[anchor_id].angle_model):
                 self.counters["gated"] += 1
+                if ekf.t is None:  # refused max_misses pairs in a row: the next tick fixes afresh
+                    self.counters["restarts"] += 1
         return out
 
     # -- output ------------------------------------------------------------------------
@@ -169,7 +187,7 @@ class Locator:
             el = statistics.median(w[2] for w in recent)
             sigma = math.hypot(sigma0 * 1.25 / math.sqrt(len(recent)), sigma0 * SYSTEMATIC)
             rays.append(make_ray(anchor.name, anchor.position, self.rotations[anchor_id], az, el, sigma,
-                                 anchor.two_sided))
+                                 anchor.two_sided, anchor.angle_model))
             times.append(sum(w[0] for w in recent) / len(recent))
         return rays, sum(times) / len(times) if times else t
 
@@ -196,20 +214,21 @@ class Locator:
                 self.counters["no_fix"] += 1
                 continue
             try:
-                fix = locate(rays, height=height)
+                fix = locate(rays, height=height, loss=self.loss, height_sigma=self.height_sigma)
             except Degenerate:
                 self.counters["no_fix"] += 1
                 continue
             self.counters["fixes"] += 1
             self.counters["rejected_anchor"] += len(fix.rejected)
             if not self.track:
-                out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False))
+                out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False, fix.rms,
+                                    t_fix=t_fix))
                 continue
             if self.tracker == "ekf":  # a fix starts (or restarts) the filter; angles drive it
                 ekf = self._ekfs[tag] = BearingEkf(self.accel_psd)
                 ekf.start(t_fix, fix.point, fix.covariance)
                 point, cov = ekf.predicted(t)
-                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True))
+                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, fix.rms))
                 continue
             tracker = self._trackers.setdefault(tag, ConstantVelocity(self.accel_psd))
             if not tracker.update(t_fix, fix.point, fix.covariance):
@@ -217,10 +236,25 @@ class Locator:
             if tracker.t is None:
                 continue
             point, cov = tracker.predicted(t)
-            if height is not None:
+            if height is not None and self.height_sigma is None:  # a constraint, not a prior
                 point = np.array([point[0], point[1], height])
-            out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True))
+            out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, fix.rms))
         return out
+
+
+def smooth(fixes: list[Position], accel_psd: float = 1.0) -> list[Position]:
+    """RTS-smoothed positions from a whole recording's raw fixes (``Locator(track=False)``),
+    labelled ``smoothed``; each at its tick, from the smoothed state at its angles' mean time."""
+    out = []
+    for tag in sorted({p.tag for p in fixes}):
+        mine = [p for p in fixes if p.tag == tag]
+        times = np.array([p.t if p.t_fix is None else p.t_fix for p in mine])
+        states, covs = rts_smooth(times, np.array([p.point for p in mine]), np.array([p.covariance for p in mine]),
+                                  accel_psd)
+        for p, x, c, t_fix in zip(mine, states, covs, times):
+            point = x[:3] + x[3:] * (p.t - t_fix)
+            out.append(replace(p, point=point, covariance=c, tracked=True, smoothed=True))
+    return sorted(out, key=lambda p: (p.t, p.tag))
 
 
 def _uncalibrated(anchor: Anchor) -> Anchor:

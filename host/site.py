@@ -18,6 +18,7 @@ calibrated, and which tags to locate.
     pitch_deg = -20                   # boresight tilt, negative = down (ceiling: -90)
     roll_deg = 0
     two_sided = false                 # true when tags can be behind it (a pole, not a wall)
+    angle_model = "spherical"         # or "cone" (direction cosines); `calibrate` may choose it
     [anchors.north.calibration]       # written by `rfhoming calibrate`
     yaw_offset_deg = 0.0
     az_scale = 1.0
@@ -41,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host import portspec
-from rfhoming.host.estimation.anchors3d import rotation
+from rfhoming.host.estimation.anchors3d import ANGLE_MODELS, rotation
 from rfhoming.host.portspec import TAG_ID, PortSpecError
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
@@ -78,11 +79,16 @@ class Anchor:
     roll_deg: float = 0.0
     two_sided: bool = False
     calibration: Calibration = Calibration()
+    angle_model: str = "spherical"
 
     def rotation(self) -> np.ndarray:
         """Board -> world, the calibrated yaw offset included."""
         return rotation(self.yaw_deg + self.calibration.yaw_offset_deg, self.pitch_deg, self.roll_deg)
 
+
+CALIBRATION_LIMITS = {"yaw_offset_deg": (-45.0, 45.0), "az_scale": (0.5, 2.0), "az_bias_deg": (-45.0, 45.0),
+                      "el_scale": (0.5, 2.0), "el_bias_deg": (-45.0, 45.0)}
+"""What a site file accepts in [anchors.NAME.calibration]; `calibrate` keeps its fits inside."""
 
 MAX_COORD_M = 10_000.0
 """Anchor coordinates beyond this (metres) are a typo, not a site: the solver would lose its precision."""
@@ -153,7 +159,8 @@ def _anchor(name: str, table: Any) -> Anchor:
     where = f"anchors.{name}"
     if not isinstance(table, dict):
         raise SiteError(f"[{where}] must be a table")
-    _check_keys(table, {"id", "port", "position", "yaw_deg", "pitch_deg", "roll_deg", "two_sided", "calibration"}, where)
+    _check_keys(table, {"id", "port", "position", "yaw_deg", "pitch_deg", "roll_deg", "two_sided", "calibration",
+                        "angle_model"}, where)
     anchor_id = table.get("id")
     if not isinstance(anchor_id, str) or not 0 < len(anchor_id) <= 30:
         raise SiteError(f"[{where}] needs id = \"<its +UUDF anchor id>\" (1-30 characters; by default the board's MAC)")
@@ -176,14 +183,17 @@ def _anchor(name: str, table: Any) -> Anchor:
     known = {f.name for f in fields(Calibration)}
     _check_keys(cal, known, f"{where}.calibration")
     calibration = Calibration(**{k: _number(cal, k, f"{where}.calibration", getattr(Calibration(), k),
-                                            *((0.5, 2.0) if k.endswith("scale") else (-45, 45)))
-                                 for k in known})
+                                            *CALIBRATION_LIMITS[k]) for k in known})
+    model = table.get("angle_model", "spherical")
+    if model not in ANGLE_MODELS:
+        raise SiteError(f"[{where}] angle_model = {model!r}: expected \"spherical\" (atan2 angles) or \"cone\" "
+                        "(direction cosines of the array's axes; docs/estimation.md)")
     two_sided = table.get("two_sided", False)
     if not isinstance(two_sided, bool):
         raise SiteError(f"[{where}] two_sided must be true or false")
     return Anchor(name, anchor_id, None if port is None else str(port), tuple(float(v) for v in pos),  # type: ignore[arg-type]
                   _number(table, "yaw_deg", where, 0.0, -360, 360), _number(table, "pitch_deg", where, 0.0, -90, 90),
-                  _number(table, "roll_deg", where, 0.0, -180, 180), two_sided, calibration)
+                  _number(table, "roll_deg", where, 0.0, -180, 180), two_sided, calibration, model)
 
 
 def _tag(tag_id: str, table: Any) -> TagInfo:
@@ -234,13 +244,16 @@ def load(path: str | Path) -> Site:
     return Site(site.name, site.anchors, site.tags, site.rate_hz, site.window_s, site.stale_s, site.sigma_deg, path)
 
 
-def write_calibration(path: str | Path, calibrations: dict[str, Calibration]) -> None:
-    """Write each anchor's calibration (by anchor name) into the site file, keeping the rest of
-    it -- comments and order -- as it was."""
+def write_calibration(path: str | Path, calibrations: dict[str, Calibration],
+                      models: dict[str, str] | None = None) -> None:
+    """Write each anchor's calibration (by anchor name), and its angle model if given, into the
+    site file, keeping the rest of it -- comments and order -- as it was."""
     import tomlkit
 
     path = Path(path)
     doc = tomlkit.parse(path.read_text())
+    for name, model in (models or {}).items():
+        doc["anchors"][name]["angle_model"] = model  # type: ignore[index]
     for name, cal in calibrations.items():
         table = tomlkit.table()
         for f in fields(Calibration):

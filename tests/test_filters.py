@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -124,3 +126,27 @@ def test_batch_forms_are_bit_identical(rows: list[list[int]], n: int, shift: int
 def test_bad_alpha_is_refused() -> None:
     with pytest.raises(ValueError, match="alpha_q15"):
         f.Ema(alpha_q15=40000)
+
+
+@given(st.lists(st.floats(-179.9, 179.9), min_size=1, max_size=80), st.sampled_from(f.ANGLE_FILTERS),
+       st.floats(5.0, 100.0))
+def test_angle_filter_in_degrees_and_seconds_matches_its_fixed_point_filter(samples, kind, rate_hz) -> None:
+    """The degrees/seconds API is the BAM16 filter with its memory converted at the given rate."""
+    unit = f.AngleFilter(kind, rate_hz, window_s=0.3, tau_s=0.3, q_deg2_per_s=5.0, r_deg2=16.0)
+    n = max(1, round(0.3 * rate_hz))
+    fixed = {"mean": f.CircularMovingAverage(n), "median": f.CircularMedian(n),
+             "ema": f.CircularEma(max(0, round(math.log2(max(1.0, 0.3 * rate_hz))))),
+             "kalman": f.CircularKalman(5.0 / rate_hz, 16.0)}[kind]
+    for deg in samples:
+        got = unit.update(deg)
+        assert -180 <= got < 180
+        assert got == bam16_to_deg(fixed.update(deg_to_bam16(deg)))
+
+
+def test_angle_filter_memory_is_in_seconds_not_samples() -> None:
+    """The same 0.5 s window at 10 Hz and at 50 Hz forgets a step after the same time."""
+    for rate in (10.0, 50.0):
+        mean = f.AngleFilter("mean", rate, window_s=0.5)
+        out = [mean.update(0.0 if k < rate else 40.0) for k in range(int(2 * rate))]
+        settled = next(k for k, v in enumerate(out) if abs(v - 40.0) < 0.01) / rate
+        assert abs(settled - (1.5 - 1 / rate)) < 1e-9  # the window's last old sample leaves at 1.5 s

@@ -46,10 +46,18 @@ from rfhoming.protocol.uconnect import (
     Response,
     UConnectDecoder,
 )
+from rfhoming.protocol import pcapng
 from rfhoming.protocol.uconnect import commands as c
 from rfhoming.protocol.uconnect.binary import BinaryDecoder
 
 log = logging.getLogger(__name__)
+
+
+def replayed_without_set_up(port: Any) -> bool:
+    """A replay (host/replay.py ReplayPort) of a capture in which the host wrote nothing: the
+    board was streaming already, so there is no answer to wait for."""
+    packets = getattr(port, "packets", None)
+    return packets is not None and not any(p.direction == pcapng.OUTBOUND for p in packets)
 
 FLOW_HINT = "check the RTS/CTS wiring, or try flow=none in the port spec (e.g. /dev/ttyUSB0,flow=none)"
 SILENT_HINT = ("the tag is not advertising (battery, or asleep), or the tag and anchor firmware "
@@ -313,6 +321,11 @@ class AoaDriver(Driver):
         """Set the board up after every open and every reboot; watch for garbage meanwhile."""
         watchdogs = [asyncio.create_task(self._watch_garbage()), asyncio.create_task(self._watch_silence())]
         try:
+            if replayed_without_set_up(self.port):
+                self.state = "streaming"
+                log.debug("%s: a replayed angle stream with no set-up exchange recorded: angles taken as "
+                          "recorded, no board to set up", self.port.name)
+                await asyncio.Event().wait()  # until the reader ends the session
             await self.keep_set_up()
         finally:
             for task in watchdogs:

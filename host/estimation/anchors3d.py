@@ -8,9 +8,14 @@ both -90..90 degrees. The anchor's pose turns the board frame into the world fra
 (x, y on the floor, z up): yaw about world z (CCW from +x, like every heading in rfhoming),
 then pitch (positive = boresight tilted up), then roll about the boresight.
 
-The fix minimises sum_i w_i |(I - u_i u_i^T)(p - o_i)|^2, the squared distance of p from each
+Two readings of the two angles (``model``, an anchor setting): "spherical", azimuth in the
+x-y plane and elevation out of it (atan2 angles), and "cone", the direction cosines a planar
+array's two axes measure: sin(az) = -u.y, sin(el) = u.z (docs/estimation.md, "The angle model").
+
+The fix minimises sum_i w_i rho(|(I - u_i u_i^T)(p - o_i)|^2), the squared distance of p from each
 ray, with w_i = 1 / (r_i sigma_i)^2: an angle error sigma_i moves the ray sideways by about
-r_i sigma_i at the range r_i along it, so the weights need a first fix (iterated).
+r_i sigma_i at the range r_i along it, so the weights need a first fix (iterated); rho is a
+robust loss (Huber, or Cauchy which lets a reflected ray pull far less).
 """
 
 from __future__ import annotations
@@ -35,6 +40,12 @@ OUTLIER_CHI2 = 9.0
 SUSPECT_CHI2 = 4.0
 """A fix with a ray beyond 2 sigma is checked for one bad anchor."""
 
+CAUCHY_C = 1.5
+"""Cauchy loss scale (normalised residual): weight 1 / (1 + (z / c)^2)."""
+
+ANGLE_MODELS = ("spherical", "cone")
+LOSSES = ("huber", "cauchy")
+
 
 def rotation(yaw_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
     """Board -> world rotation: R = Rz(yaw) Ry(-pitch) Rx(roll)."""
@@ -46,16 +57,37 @@ def rotation(yaw_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> n
     return rz @ ry @ rx
 
 
-def board_direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
-    """Unit vector in the board frame for the board's (azimuth, elevation) (board sign)."""
+def board_direction(azimuth_deg: float, elevation_deg: float, model: str = "spherical") -> np.ndarray:
+    """Unit vector in the board frame for the board's (azimuth, elevation) (board sign).
+
+    "cone": the angles are direction cosines along the array's axes; a pair no direction has
+    (sin^2 az + sin^2 el > 1, noise near the edge) is put on the board's plane."""
     a, e = math.radians(-azimuth_deg), math.radians(elevation_deg)
+    if model == "cone":
+        y, z = math.sin(a), math.sin(e)
+        n = y * y + z * z
+        if n > 1.0:
+            y, z, n = y / math.sqrt(n), z / math.sqrt(n), 1.0
+        return np.array([math.sqrt(1.0 - n), y, z])
     return np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
 
 
-def board_angles(direction: Sequence[float]) -> tuple[float, float]:
+def board_angles(direction: Sequence[float], model: str = "spherical") -> tuple[float, float]:
     """Inverse of :func:`board_direction` for a vector in front of the board (degrees)."""
     x, y, z = direction
+    if model == "cone":
+        r = math.sqrt(x * x + y * y + z * z)
+        return -math.degrees(math.asin(y / r)), math.degrees(math.asin(z / r))
     return -math.degrees(math.atan2(y, x)), math.degrees(math.atan2(z, math.hypot(x, y)))
+
+
+def board_angles_many(d: np.ndarray, model: str = "spherical") -> np.ndarray:
+    """:func:`board_angles` of (N, 3) board-frame vectors -> (N, 2) degrees (for the fits)."""
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    if model == "cone":
+        r = np.sqrt(x * x + y * y + z * z)
+        return np.degrees(np.stack([-np.arcsin(np.clip(y / r, -1, 1)), np.arcsin(np.clip(z / r, -1, 1))], axis=1))
+    return np.degrees(np.stack([-np.arctan2(y, x), np.arctan2(z, np.hypot(x, y))], axis=1))
 
 
 def angle_sigma_deg(azimuth_deg: float, elevation_deg: float, sigma0_deg: float) -> float:
@@ -77,10 +109,10 @@ class Ray:
 
 
 def make_ray(anchor: str, origin: Sequence[float], rot: np.ndarray, azimuth_deg: float, elevation_deg: float,
-             sigma0_deg: float, two_sided: bool = False) -> Ray:
+             sigma0_deg: float, two_sided: bool = False, model: str = "spherical") -> Ray:
     """The world ray of one (azimuth, elevation) from an anchor at ``origin`` turned by ``rot``;
     a two-sided anchor (nothing behind it blocks tags) also carries the fold's mirror image."""
-    d = board_direction(azimuth_deg, elevation_deg)
+    d = board_direction(azimuth_deg, elevation_deg, model)
     sigma = math.radians(angle_sigma_deg(azimuth_deg, elevation_deg, sigma0_deg))
     mirror = rot @ (d * np.array([-1.0, 1.0, 1.0])) if two_sided else None
     return Ray(anchor, np.asarray(origin, float), rot @ d, sigma, mirror)
@@ -96,15 +128,26 @@ class Fix:
     rejected: tuple[str, ...]
     chi2: float
 
+    @property
+    def rms(self) -> float:
+        """The fix's quality: rms normalised miss of its rays (about 1 when they agree as
+        their sigmas say; several when an anchor is biased or reflected)."""
+        return math.sqrt(self.chi2 / max(1, len(self.used)))
 
-def _solve(o: np.ndarray, u: np.ndarray, weights: np.ndarray, height: float | None
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted LS point (and inverse normal matrix); with ``height`` only x, y are free.
+
+def _solve(o: np.ndarray, u: np.ndarray, weights: np.ndarray, height: float | None,
+           height_sigma: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted LS point (and inverse normal matrix); with ``height`` only x, y are free, or,
+    given ``height_sigma`` (m), z is free with the height as a prior of that sigma.
 
     Normal equations in closed form: A = sum(w) I - U^T W U, b = W o - U^T W (u . o) summed."""
     uw = u * weights[:, None]
     a = weights.sum() * _I3 - u.T @ uw
     b = weights @ o - uw.T @ (u * o).sum(axis=1)
+    if height is not None and height_sigma is not None:
+        a[2, 2] += 1.0 / height_sigma**2
+        b[2] += height / height_sigma**2
+        height = None
     if height is not None:  # p = (x, y, h): move the known z to the right-hand side
         b = b[:2] - a[:2, 2] * height
         a = a[:2, :2]
@@ -149,13 +192,14 @@ def _residuals(point: np.ndarray, o: np.ndarray, u: np.ndarray) -> tuple[np.ndar
     return along, perp
 
 
-def _fit(rays: list[Ray], height: float | None, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """IRLS: range weights from the last fix, Huber on normalised residuals, folds resolved."""
+def _fit(rays: list[Ray], height: float | None, iterations: int, loss: str = "huber",
+         height_sigma: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IRLS: range weights from the last fix, a robust loss on normalised residuals, folds resolved."""
     o = np.array([r.origin for r in rays])
     u = np.array([r.direction for r in rays])
     sig = np.array([r.sigma_rad for r in rays])
     folds = [(i, r.direction, r.mirror) for i, r in enumerate(rays) if r.mirror is not None]
-    point, cov = _solve(o, u, 1 / sig**2, height)
+    point, cov = _solve(o, u, 1 / sig**2, height, height_sigma)
     for _ in range(iterations):
         for i, front, back in folds:  # the fold: keep the candidate the fix lies in front of and near
             cands = np.array([front, back])
@@ -164,31 +208,39 @@ def _fit(rays: list[Ray], height: float | None, iterations: int) -> tuple[np.nda
         along, perp = _residuals(point, o, u)
         ranges = np.maximum(along, MIN_RANGE_M)
         z = perp / (ranges * sig)
-        robust = np.where(z > HUBER_K, HUBER_K / np.maximum(z, 1e-12), 1.0)
+        if loss == "cauchy":
+            robust = 1.0 / (1.0 + (z / CAUCHY_C) ** 2)
+        else:
+            robust = np.where(z > HUBER_K, HUBER_K / np.maximum(z, 1e-12), 1.0)
         robust = np.where(along < 0, 1e-3, robust)  # a fix behind an anchor cannot be on its ray
-        point, cov = _solve(o, u, robust / (ranges * sig) ** 2, height)
+        point, cov = _solve(o, u, robust / (ranges * sig) ** 2, height, height_sigma)
     along, perp = _residuals(point, o, u)
     z2 = (perp / (np.maximum(along, MIN_RANGE_M) * sig)) ** 2 + np.where(along < 0, 1e6, 0.0)
     return point, cov, z2
 
 
-def locate(rays: list[Ray], height: float | None = None, iterations: int = 2) -> Fix:
+def locate(rays: list[Ray], height: float | None = None, iterations: int = 2, *, loss: str = "huber",
+           height_sigma: float | None = None) -> Fix:
     """The tag's position from two or more rays (with ``height``) or three or more (3-D).
 
-    One bad anchor (a reflection, a wrong mounting) is found by its residual and left out when
-    the others then agree (consensus by leave-one-out); Degenerate when the rays cannot fix a
-    point (too few, parallel)."""
+    ``loss="huber"``: one bad anchor (a reflection, a wrong mounting) is found by its residual
+    and left out when the others then agree (consensus by leave-one-out). ``loss="cauchy"``
+    keeps every ray, each weighted down by its own miss (more IRLS rounds, no leave-one-out).
+    ``height_sigma``: the height is a prior of that sigma (m), not a constraint. Degenerate
+    when the rays cannot fix a point (too few, parallel)."""
     need = 2
     if len(rays) < need:
         raise Degenerate(f"need at least {need} anchors, have {len(rays)}")
-    point, cov, z2 = _fit(rays, height, iterations)
+    if loss == "cauchy":
+        iterations = max(iterations, 4)
+    point, cov, z2 = _fit(rays, height, iterations, loss, height_sigma)
     rejected: tuple[str, ...] = ()
-    if len(rays) >= 4 and z2.max() > SUSPECT_CHI2:
+    if loss == "huber" and len(rays) >= 4 and z2.max() > SUSPECT_CHI2:
         best = None
         for k, bad in enumerate(rays):  # consensus: which one ray, left out, lets the rest agree?
             rest = rays[:k] + rays[k + 1:]
             try:
-                p2, c2, z2b = _fit(rest, height, iterations)
+                p2, c2, z2b = _fit(rest, height, iterations, loss, height_sigma)
             except Degenerate:
                 continue
             along, perp = _residuals(p2, bad.origin[None], bad.direction[None])
@@ -198,6 +250,6 @@ def locate(rays: list[Ray], height: float | None = None, iterations: int = 2) ->
         if best is not None:
             point, cov, z2, rays, left_out = best
             rejected = (left_out,)
-    dof = max(1, 2 * len(rays) - (2 if height is not None else 3))
+    dof = max(1, 2 * len(rays) - (2 if height is not None and height_sigma is None else 3))
     scale = max(1.0, float(z2.sum()) / dof)  # rays that disagree widen the covariance
     return Fix(point, cov * scale, tuple(r.anchor for r in rays), rejected, float(z2.sum()))

@@ -7,17 +7,19 @@ series at once (columns of a (T, M) array) for campaigns and give bit-identical 
 scalar classes.
 
 RSSI filters take and return Q7.8; angle filters take and return BAM16 and handle the ±180°
-wrap (their float references work in degrees).
+wrap (their float references work in degrees). :class:`AngleFilter` is the angle filters at the
+public API's units: degrees in and out, memory in seconds.
 """
 
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
 
 import numpy as np
 
-from rfhoming.host.estimation.fixed import INT32, div_round, sat, wrap16, wrap32, wrap_deg
+from rfhoming.host.estimation.fixed import INT32, bam16_to_deg, deg_to_bam16, div_round, sat, wrap16, wrap32, wrap_deg
 
 INT32_MIN, INT32_MAX = INT32
 
@@ -322,3 +324,37 @@ class CircularKalmanFloat:
         self._x = wrap_deg(self._x + k * wrap_deg(deg - self._x))
         self._p = (1 - k) * p
         return self._x
+
+
+# -- the public API's units: degrees in and out, memory in seconds --------------------------------
+
+ANGLE_FILTERS = ("mean", "median", "ema", "kalman")
+
+
+class AngleFilter:
+    """One of the circular filters above at the public API's units: degrees in and out, its
+    memory in seconds at a stated sample rate (the BAM16 fixed-point filter runs inside, as
+    firmware would). ``window_s`` sizes the mean and the median, ``tau_s`` the EMA (alpha the
+    nearest power of two to 1 / (tau_s rate_hz)); the Kalman filter's process noise is a
+    random walk of ``q_deg2_per_s`` (deg^2 per second, so it means the same at any rate) and its
+    measurement noise ``r_deg2``. Output in [-180, 180)."""
+
+    def __init__(self, kind: str, rate_hz: float, *, window_s: float = 0.5, tau_s: float = 0.5,
+                 q_deg2_per_s: float = 10.0, r_deg2: float = 25.0) -> None:
+        if kind not in ANGLE_FILTERS:
+            raise ValueError(f"kind must be one of {', '.join(ANGLE_FILTERS)}")
+        if not rate_hz > 0 or not window_s > 0 or not tau_s > 0:
+            raise ValueError("rate_hz, window_s and tau_s must be positive")
+        n = max(1, round(window_s * rate_hz))
+        self.kind = kind
+        if kind == "mean":
+            self._f: CircularMovingAverage | CircularMedian | CircularEma | CircularKalman = CircularMovingAverage(n)
+        elif kind == "median":
+            self._f = CircularMedian(n)
+        elif kind == "ema":
+            self._f = CircularEma(max(0, round(math.log2(max(1.0, tau_s * rate_hz)))))
+        else:
+            self._f = CircularKalman(q_deg2_per_s / rate_hz, r_deg2)
+
+    def update(self, degrees: float) -> float:
+        return bam16_to_deg(self._f.update(deg_to_bam16(degrees)))

@@ -81,34 +81,56 @@ class BearingEkf(ConstantVelocity):
     (an extended Kalman filter on bearings) instead of by fixes.
 
     h(p) = the board angles of p seen from ``origin`` through ``rot`` (board -> world), in
-    radians, board sign (docs/estimation.md); its Jacobian is written out. A pair whose
-    innovation is beyond ``gate`` (chi-square, 2 dof) is refused: a reflection, a fold.
-    With ``height`` the z state is pinned after every update."""
+    radians, board sign, read by the anchor's angle ``model`` (docs/estimation.md); its
+    Jacobian is written out. A pair whose innovation is beyond ``gate`` (chi-square, 2 dof) is
+    refused (a reflection, a fold) and leaves the state as it was, time included: the track's
+    age then says how long the angles have disagreed with it. ``max_misses`` refusals in a row
+    end the track (``t`` None, counted in ``restarts``): the tag jumped, and the caller starts
+    it again from a fix. With ``height`` the z state is pinned after every update."""
 
     def __init__(self, accel_psd: float = 1.0, gate: float = 16.0, max_misses: int = 25) -> None:
         super().__init__(accel_psd, gate, max_misses)
 
     def start(self, t: float, point: np.ndarray, covariance: np.ndarray) -> None:
+        self.t = None
+        self.misses = 0
         self.update(t, point, covariance)
 
+    def _miss(self) -> bool:
+        self.misses += 1
+        self.counters["gated"] += 1
+        if self.misses >= self.max_misses:
+            self.counters["restarts"] += 1
+            self.t = None
+            self.misses = 0
+        return False
+
     def update_angles(self, t: float, origin: np.ndarray, rot: np.ndarray, azimuth_deg: float,
-                      elevation_deg: float, sigma_deg: float, height: float | None = None) -> bool:
+                      elevation_deg: float, sigma_deg: float, height: float | None = None,
+                      model: str = "spherical") -> bool:
         if self.t is None:
             raise ValueError("start the filter from a first fix")
         f, q = self._transition(max(0.0, t - self.t))
         x = f @ self.x
         p = f @ self.p @ f.T + q
-        self.t = max(t, self.t)
         d = rot.T @ (x[:3] - origin)
         rho2 = d[0] ** 2 + d[1] ** 2
         rho = np.sqrt(rho2)
         r2 = rho2 + d[2] ** 2
-        if rho < 1e-6:
-            self.x, self.p = x, p
-            return False
-        predicted = np.array([-np.arctan2(d[1], d[0]), np.arctan2(d[2], rho)])
-        jac_d = np.array([[d[1] / rho2, -d[0] / rho2, 0.0],
-                          [-d[0] * d[2] / (rho * r2), -d[1] * d[2] / (rho * r2), rho / r2]])
+        if rho < 1e-6 or d[0] < 0:  # on the anchor, or behind its plane: no usable angle
+            return self._miss()
+        if model == "cone":
+            r = math.sqrt(r2)
+            sy, sz = d[1] / r, d[2] / r
+            predicted = np.array([-math.asin(sy), math.asin(sz)])
+            # d(asin(d_k / r))/dd = (e_k - (d_k / r) d / r) / (r sqrt(1 - (d_k / r)^2))
+            g_y = (np.array([0.0, 1.0, 0.0]) - sy * d / r) / (r * math.sqrt(max(1e-9, 1 - sy * sy)))
+            g_z = (np.array([0.0, 0.0, 1.0]) - sz * d / r) / (r * math.sqrt(max(1e-9, 1 - sz * sz)))
+            jac_d = np.array([-g_y, g_z])
+        else:
+            predicted = np.array([-np.arctan2(d[1], d[0]), np.arctan2(d[2], rho)])
+            jac_d = np.array([[d[1] / rho2, -d[0] / rho2, 0.0],
+                              [-d[0] * d[2] / (rho * r2), -d[1] * d[2] / (rho * r2), rho / r2]])
         h = np.zeros((2, 6))
         h[:, :3] = jac_d @ rot.T
         innovation = np.radians([azimuth_deg, elevation_deg]) - predicted
@@ -118,10 +140,10 @@ class BearingEkf(ConstantVelocity):
         a, e = a + var, e + var
         s_inv = np.array([[e, -b], [-c, a]]) / (a * e - b * c)  # 2 x 2: cheaper than LAPACK
         d2 = float(innovation @ s_inv @ innovation)
-        if d2 > self.gate or d[0] < 0:
-            self.x, self.p = x, p
-            self.counters["gated"] += 1
-            return False
+        if d2 > self.gate:
+            return self._miss()
+        self.t = max(t, self.t)
+        self.misses = 0
         k = pht @ s_inv
         self.x = x + k @ innovation
         self.p = p - k @ (h @ p)
@@ -132,3 +154,37 @@ class BearingEkf(ConstantVelocity):
             self.p[:, [2, 5]] = 0.0
         self.counters["updates"] += 1
         return True
+
+
+def rts_smooth(times: np.ndarray, points: np.ndarray, covariances: np.ndarray, accel_psd: float = 1.0,
+               gate: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
+    """Rauch-Tung-Striebel smoothing of one tag's fixes over a whole recording: the same
+    constant-velocity model as :class:`ConstantVelocity` run forward, then backward, so each
+    position rests on the fixes after it as well as before (not causal: recordings only).
+    A fix beyond ``gate`` of the forward prediction is left out (the forward filter coasts).
+    Returns (states (N, 6): position and velocity, position covariances (N, 3, 3)) at ``times``."""
+    cv = ConstantVelocity(accel_psd, gate, max_misses=10**9)
+    n = len(times)
+    xs_f, ps_f, xs_p, ps_p, fs = [], [], [], [], []
+    for k in range(n):
+        if cv.t is None:
+            cv.update(times[k], points[k], covariances[k])
+            f = np.eye(6)
+            xs_p.append(cv.x.copy())
+            ps_p.append(cv.p.copy())
+        else:
+            f, q = cv._transition(max(0.0, times[k] - cv.t))
+            xs_p.append(f @ cv.x)
+            ps_p.append(f @ cv.p @ f.T + q)
+            if not cv.update(times[k], points[k], covariances[k]):
+                cv.x, cv.p, cv.t = xs_p[-1], ps_p[-1], max(cv.t, times[k])
+        fs.append(f)
+        xs_f.append(cv.x.copy())
+        ps_f.append(cv.p.copy())
+    xs, ps = list(xs_f), list(ps_f)
+    for k in range(n - 2, -1, -1):
+        f = fs[k + 1]
+        gain = ps_f[k] @ f.T @ np.linalg.pinv(ps_p[k + 1])
+        xs[k] = xs_f[k] + gain @ (xs[k + 1] - xs_p[k + 1])
+        ps[k] = ps_f[k] + gain @ (ps[k + 1] - ps_p[k + 1]) @ gain.T
+    return np.array(xs), np.array([p[:3, :3] for p in ps])

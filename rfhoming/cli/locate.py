@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import logging
 import math
 import sys
 from collections.abc import Callable
@@ -16,28 +17,33 @@ import numpy as np
 from rfhoming.cli.args import output_file, positive_float
 from rfhoming.cli.io import _run_until, add_port_defaults
 from rfhoming.host import site as sites
-from rfhoming.host.calibration import CalibrationError, calibrate
+from rfhoming.host.calibration import CalibrationError, Point, assign_dwells, calibrate, self_calibrate
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver
+from rfhoming.host.drivers.aoa import AoaDriver, replayed_without_set_up
 from rfhoming.host.drivers.common import BoundedStream, Driver
-from rfhoming.host.locate import Locator, Position
+from rfhoming.host.locate import Locator, Position, smooth
 from rfhoming.host.ports import PortError
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.textfile import read_toml
+
+log = logging.getLogger(__name__)
 
 LOCATE_HELP = """\
 Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
 Every anchor's angle events are merged by host arrival time; at --rate (default: the site's
 rate_hz) each tag seen by enough fresh anchors gets a fix (3-D rays, weighted, one bad anchor
 left out) that a constant-velocity filter tracks. Output: one JSON line per position
-(kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected), and on
-exit one "summary" line. A capture of the anchors gives the same lines as the live run did.
+(kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected, rms = the
+fix's quality), and on exit one "summary" line (its "estimate" says causal or smoothed). A
+capture of the anchors gives the same lines as the live run did; --smooth on a capture gives
+RTS-smoothed positions instead, each marked "smoothed": true.
 
 examples:
   rfhoming locate site.toml                                # the anchors' ports from the site
   rfhoming locate site.toml --duration 30 --capture run.pcapng
   rfhoming locate site.toml --from capture:run.pcapng      # the same positions, from the capture
+  rfhoming locate site.toml --from capture:run.pcapng --smooth --loss cauchy   # after the fact
 
 the kit room of docs/sites, emulated (its first line printed, every link exists):
   mkdir -p /tmp/rfhoming-kit
@@ -45,19 +51,34 @@ the kit room of docs/sites, emulated (its first line printed, every link exists)
 """
 
 CALIBRATE_HELP = """\
-Fit each anchor's yaw offset and azimuth/elevation scale and bias from tags placed at known
-points, write them into the site file's [anchors.NAME.calibration] tables (the rest of the file
-is kept as it was), and report each anchor's angle error before and after. The points file
-maps tag ids to positions:
+Fit each anchor's angle corrections and write them, with its angle model, into the site file's
+[anchors.NAME] tables (the rest of the file is kept as it was); report each anchor's angle
+error before and after, each fitted parameter's standard deviation, and which parameters were
+held and why (only what the points determine is fitted: e.g. no elevation when every point is
+at one height). Results stay within the site file's limits, or nothing is written.
 
-  [points]
+With known points (--points FILE):
+
+  [points]                           # tags that stay at one point all the recording
   CCF9578E0C01 = [2.0, 1.5, 0.8]     # x, y, z in metres, the site's frame
 
+  [[dwell]]                          # one tag carried from point to point
+  tag = "CCF9578E0D8A"
+  position = [2.0, 1.5, 0.8]
+  from_s = 10                        # seconds from the first angle event; leave both out and
+  to_s = 40                          # the dwells (5 s or more still) are found, in order
+
 Every anchor must see three or more points (spread out, not on one line through it).
+
+Without (--self): tags walked over the whole room; each anchor's azimuth scale and bias are
+fitted jointly with every epoch's position (the scales' geometric mean is fixed to 1: an
+overall scale is not observable). Refused when the tags did not cover the room.
 
 examples:
   rfhoming calibrate site.toml --points points.toml --duration 20
   rfhoming calibrate site.toml --points points.toml --from capture:cal.pcapng --dry-run
+  rfhoming calibrate site.toml --points points.toml --azimuth-only --from capture:cal.pcapng
+  rfhoming calibrate site.toml --self --from capture:walk1.pcapng --from capture:walk2.pcapng
 """
 
 
@@ -96,6 +117,10 @@ async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable
         print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
         return 2
 
+    as_recorded = [d.port.name for d in drivers if isinstance(d, AoaDriver) and replayed_without_set_up(d.port)]
+    if as_recorded:
+        log.info("replayed angle streams with no set-up exchange (%s): angles taken as recorded",
+                 ", ".join(as_recorded))
     heard: dict[str, set[str]] = {}  # device -> the anchor ids in its events
 
     def listener(device: str, t: float, item: Any) -> None:
@@ -138,23 +163,38 @@ def cmd_locate(args: argparse.Namespace) -> int:
     if args.rate:
         site = sites.Site(site.name, site.anchors, site.tags, args.rate, site.window_s, site.stale_s,
                           site.sigma_deg, site.path)
-    locator = Locator(site, track=not args.no_track, tracker=args.tracker, accel_psd=args.accel_psd)
+    if args.smooth and not (args.sources and all(s.startswith("capture:") for s in args.sources)):
+        print("rfhoming locate: --smooth needs a whole recording (--from capture:FILE); a live run stays causal",
+              file=sys.stderr)
+        return 2
+    locator = Locator(site, track=not (args.no_track or args.smooth), tracker=args.tracker,
+                      accel_psd=args.accel_psd, loss=args.loss, height_sigma=args.height_sigma)
     out = args.output.open("w") if args.output else sys.stdout
     per_tag: dict[str, list[float]] = {}
+    fixes: list[Position] = []
 
     def show(positions: list[Position]) -> None:
+        if args.smooth:  # held for the smoother at the end
+            fixes.extend(positions)
+            return
         for p in positions:
             per_tag.setdefault(p.tag, []).append(float(np.trace(p.covariance)))
             out.write(json.dumps({"kind": "position", **p.as_dict()}) + "\n")
         if positions:
             out.flush()
 
+    smoothed = args.smooth
     code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event)), locator.disconnected))
     if code:
         return code
     show(locator.flush())
+    if args.smooth:
+        args.smooth = False
+        show(smooth(fixes, args.accel_psd))
     names = {a.id: a.name for a in site.anchors}
     summary = {"kind": "summary", "site": site.name,
+               "estimate": "smoothed (RTS over the whole recording)" if smoothed else
+               "raw fixes" if args.no_track else f"causal ({args.tracker} tracker)",
                "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
                         for tag, v in sorted(per_tag.items())},
                "anchors": sorted(names.values()), **locator.counters}
@@ -164,24 +204,52 @@ def cmd_locate(args: argparse.Namespace) -> int:
     return code
 
 
-def _load_points(path: Path) -> dict[str, tuple[float, float, float]]:
-    """The [points] table of known tag positions; CalibrationError names the line to fix."""
+def _position(value: Any, where: str) -> tuple[float, float, float]:
+    if (not isinstance(value, list) or len(value) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+        raise CalibrationError(f"{where} = {value!r} must be [x, y, z], finite numbers in metres")
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def _load_points(path: Path) -> list[Point]:
+    """The known points: [points] TAGID = [x, y, z] (a tag at one point all recording) and
+    [[dwell]] tables (one tag carried from point to point); CalibrationError names what to fix."""
     raw = read_toml(path, "points file", CalibrationError)
-    points = raw.get("points")
-    if not isinstance(points, dict) or not points:
-        raise CalibrationError(f"{path} needs a [points] table: TAGID = [x, y, z], one line per known point")
-    out = {}
-    for tag, value in points.items():
-        if (not isinstance(value, list) or len(value) != 3
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
-            raise CalibrationError(f"{path}: point {tag} = {value!r} must be [x, y, z], finite numbers in metres")
-        out[tag.upper()] = (float(value[0]), float(value[1]), float(value[2]))
+    unknown = sorted(set(raw) - {"points", "dwell"})
+    if unknown:
+        raise CalibrationError(f"{path}: unknown table(s) {', '.join(unknown)}; known: [points], [[dwell]]")
+    points = raw.get("points", {})
+    dwells = raw.get("dwell", [])
+    if not isinstance(points, dict) or not isinstance(dwells, list) or not (points or dwells):
+        raise CalibrationError(f"{path} needs a [points] table (TAGID = [x, y, z], one line per tag at a known "
+                               "point) or [[dwell]] tables (tag, position, optional from_s and to_s)")
+    out = [Point(tag.upper(), _position(value, f"{path}: point {tag}")) for tag, value in points.items()]
+    for k, d in enumerate(dwells, 1):
+        where = f"{path}: [[dwell]] number {k}"
+        if not isinstance(d, dict) or not isinstance(d.get("tag"), str):
+            raise CalibrationError(f"{where} needs tag = \"TAGID\" and position = [x, y, z]")
+        extra = sorted(set(d) - {"tag", "position", "from_s", "to_s"})
+        if extra:
+            raise CalibrationError(f"{where} has unknown key(s) {', '.join(extra)}; known: tag, position, from_s, to_s")
+        window = [d.get("from_s"), d.get("to_s")]
+        if window != [None, None] and not (
+                all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in window) and window[0] < window[1]):
+            raise CalibrationError(f"{where}: from_s and to_s must both be given, seconds from the first angle "
+                                   f"event with from_s < to_s (or both left out: dwells are found); got {window}")
+        out.append(Point(d["tag"].upper(), _position(d.get("position"), f"{where} position"),
+                         *(None if v is None else float(v) for v in window)))
     return out
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     site = _load_site(args.site, "calibrate")
     if site is None:
+        return 2
+    if args.self_calibrate:
+        return _self_calibrate(args, site)
+    if args.points is None:
+        print("rfhoming calibrate: give --points FILE (tags at known points) or --self (from a recording of "
+              "tags moving over the room)", file=sys.stderr)
         return 2
     try:
         points = _load_points(args.points)
@@ -195,22 +263,67 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if code:
         return code
     try:
-        fits = calibrate(site, events, points)
+        points, found = assign_dwells(events, points)
+        for line in found:
+            print(line, file=sys.stderr)
+        fits = calibrate(site, events, points, azimuth_only=args.azimuth_only, angle_model=args.angle_model or "auto")
     except CalibrationError as exc:
         print(f"rfhoming calibrate: {exc}", file=sys.stderr)
         return 2
     for f in fits:
         c = f.calibration
-        print(json.dumps({"kind": "calibration", "anchor": f.anchor, "points": f.points,
+        print(json.dumps({"kind": "calibration", "anchor": f.anchor, "points": f.points, "angle_model": f.angle_model,
                           "rms_before_deg": round(f.rms_before_deg, 2), "rms_after_deg": round(f.rms_after_deg, 2),
                           "yaw_offset_deg": round(c.yaw_offset_deg, 2), "az_scale": round(c.az_scale, 4),
                           "az_bias_deg": round(c.az_bias_deg, 2), "el_scale": round(c.el_scale, 4),
-                          "el_bias_deg": round(c.el_bias_deg, 2)}))
+                          "el_bias_deg": round(c.el_bias_deg, 2),
+                          "sigma": {k: round(v, 4) for k, v in f.sigma.items()}, "held": f.held,
+                          "rms_by_model_deg": f.rms_by_model}))
+    return _write(args, {f.anchor: f.calibration for f in fits}, {f.anchor: f.angle_model for f in fits})
+
+
+def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
+    """--self: each --from recording gathered on its own (their clocks need not line up)."""
+    if args.points is not None:
+        print("rfhoming calibrate: --self fits without known points; leave out --points", file=sys.stderr)
+        return 2
+    recordings = []
+    for source in args.sources or [None]:
+        events: list[tuple[float, Any]] = []
+        code = asyncio.run(_gather(argparse.Namespace(**{**vars(args), "sources": [source] if source else None}),
+                                   site, lambda t, event: events.append((t, event))))
+        if code:
+            return code
+        recordings.append(events)
+    try:
+        result = self_calibrate(site, recordings, args.angle_model or "site")
+    except CalibrationError as exc:
+        print(f"rfhoming calibrate: {exc}", file=sys.stderr)
+        return 2
+    print(f"self-calibration: {result.epochs} epochs, azimuth rms {result.rms_before_deg:.2f} -> "
+          f"{result.rms_after_deg:.2f} deg; gauge: {result.gauge}", file=sys.stderr)
+    if len(result.cost_by_model) > 1:
+        costs = sorted(result.cost_by_model.values())
+        print(f"angle model {result.fits[0].angle_model} by robust cost {result.cost_by_model}"
+              + ("; they differ by under 1 %: weak evidence, a points calibration tells the models apart better"
+                 if costs[1] < 1.01 * costs[0] else ""), file=sys.stderr)
+    for f in result.fits:
+        c = f.calibration
+        print(json.dumps({"kind": "calibration", "anchor": f.anchor, "self": True, "epochs": f.points,
+                          "angle_model": f.angle_model, "rms_before_deg": round(f.rms_before_deg, 2),
+                          "rms_after_deg": round(f.rms_after_deg, 2), "az_scale": round(c.az_scale, 4),
+                          "az_bias_deg": round(c.az_bias_deg, 2), "el_scale": round(c.el_scale, 4),
+                          "el_bias_deg": round(c.el_bias_deg, 2),
+                          "sigma": {k: round(v, 4) for k, v in f.sigma.items()}, "held": f.held}))
+    return _write(args, {f.anchor: f.calibration for f in result.fits}, {f.anchor: f.angle_model for f in result.fits})
+
+
+def _write(args: argparse.Namespace, calibrations: dict[str, Any], models: dict[str, str]) -> int:
     if args.dry_run:
         print("--dry-run: the site file is unchanged", file=sys.stderr)
         return 0
-    sites.write_calibration(args.site, {f.anchor: f.calibration for f in fits})
-    print(f"wrote the calibration of {len(fits)} anchors into {args.site}", file=sys.stderr)
+    sites.write_calibration(args.site, calibrations, models)
+    print(f"wrote the calibration of {len(calibrations)} anchors into {args.site}", file=sys.stderr)
     return 0
 
 
@@ -232,11 +345,28 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
             p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
                            help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
-                                "pair updates the track as it arrives (more accurate, ~10x the cost)")
+                                "pair updates the track as it arrives (more accurate, ~3x the CPU: docs/BENCHMARKS.md)")
             p.add_argument("--accel-psd", type=positive_float, default=1.0,
                            help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
+            p.add_argument("--smooth", action="store_true",
+                           help="recordings only (--from capture:): RTS-smooth each tag's fixes over the whole "
+                                "recording; positions are labelled \"smoothed\" (not causal)")
+            p.add_argument("--loss", choices=("huber", "cauchy"), default="huber",
+                           help="the fix's robust loss: huber (default; one bad anchor left out) or cauchy "
+                                "(every anchor kept, each down-weighted by its miss)")
+            p.add_argument("--height-sigma", type=positive_float, metavar="M",
+                           help="a tag's known height is a prior of this sigma (m), not a constraint")
             p.set_defaults(func=cmd_locate)
         else:
-            p.add_argument("--points", type=Path, required=True, help="TOML [points] TAGID = [x, y, z]")
+            p.add_argument("--points", type=Path, help="TOML: [points] TAGID = [x, y, z] and/or [[dwell]] tables")
+            p.add_argument("--self", dest="self_calibrate", action="store_true",
+                           help="no known points: fit each anchor's azimuth scale and bias from tags moving over "
+                                "the whole room (give the recordings with --from capture:FILE)")
+            p.add_argument("--azimuth-only", action="store_true",
+                           help="fit azimuth (and yaw) only; elevation keeps scale 1 and bias 0")
+            p.add_argument("--angle-model", choices=("auto", "spherical", "cone"),
+                           help="the boards' angle model; auto: the one with the smaller residual (default with "
+                                "--points; with --self the site file's, since positions fitted freely tell the "
+                                "models apart only weakly)")
             p.add_argument("--dry-run", action="store_true", help="report the fit, leave the site file alone")
             p.set_defaults(func=cmd_calibrate)
