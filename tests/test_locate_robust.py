@@ -159,7 +159,7 @@ def _carried(points, dwell_s=8.0, walk_s=3.0):
     def at(t):
         if t < legs[0][0]:
             return legs[0][2]
-        for start, end, p, q in legs:
+        for _start, end, p, q in legs:
             if t <= end:
                 return p
             if t <= end + walk_s:

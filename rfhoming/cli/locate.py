@@ -291,7 +291,7 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
     for source in args.sources or [None]:
         events: list[tuple[float, Any]] = []
         code = asyncio.run(_gather(argparse.Namespace(**{**vars(args), "sources": [source] if source else None}),
-                                   site, lambda t, event: events.append((t, event))))
+                                   site, lambda t, event, into=events: into.append((t, event))))
         if code:
             return code
         recordings.append(events)
