@@ -33,14 +33,23 @@ class Sequencer:
     A port's next chunk goes out only when every earlier chunk of every port has been taken
     and its reader has come back for more (it has handled the previous one). The loop upstairs
     then sees its inputs in the order the live host did.
+
+    ``lead``: a port's chunks recorded before its host first wrote go out at once, as bytes
+    waiting in a port's buffer when it is opened do (a replay of drivers alone, with no loop
+    to feed in order: a board's +STARTUP must reach its driver before its first AT, as live).
     """
 
-    def __init__(self, packets: dict[str, list[pcapng.Packet]]) -> None:
+    def __init__(self, packets: dict[str, list[pcapng.Packet]], *, lead: bool = False) -> None:
+        self._free = {name: _lead(ps) if lead else 0 for name, ps in packets.items()}
         order = sorted((p.t, name, i) for name, ps in packets.items() for i, p in enumerate(ps)
-                       if p.direction != pcapng.OUTBOUND)
+                       if p.direction != pcapng.OUTBOUND and i >= self._free[name])
         self._order = [(name, i) for _, name, i in order]
         self._pos = 0
         self._moved = asyncio.Event()
+
+    def free(self, name: str, index: int) -> bool:
+        """Whether this chunk goes out at once (``lead``), outside the global order."""
+        return index < self._free.get(name, 0)
 
     async def turn(self, name: str, index: int) -> None:
         """Wait until (name, index) is the next inbound chunk to release."""
@@ -102,17 +111,18 @@ class ReplayPort:
                 if self.match_writes:
                     await self._await_write(p)
                 continue
-            if self.sequencer is not None:
+            ordered = self.sequencer is not None and not self.sequencer.free(self.name, self._i - 1)
+            if ordered:
                 await self.sequencer.turn(self.name, self._i - 1)
             if p.comment == DISCONNECTED:
-                if self.sequencer is not None:
+                if ordered:
                     self.sequencer.taken()
                 self._open = False
                 self.counters["disconnects"] += 1
                 for tap in self.taps:  # as a live port's taps hear it go
                     tap(self.name, "lost", p.t, b"")
                 raise Disconnected(f"{self.name}: disconnected here in the recording")
-            self._holding = self.sequencer is not None
+            self._holding = ordered
             await self._pace(p.t)
             for tap in self.taps:
                 tap(self.name, "in", p.t, p.data)
@@ -152,6 +162,8 @@ class ReplayPort:
         self._wait = False
 
     def write(self, data: bytes) -> None:
+        for tap in self.taps:  # a capture of the replayed run hears the host, as on a live port
+            tap(self.name, "out", time.time(), data)
         self.counters["bytes_out"] += len(data)
         if len(self._writes) == self._writes.maxlen:  # the oldest is never matched now
             self.counters["diverged"] += 1
@@ -168,6 +180,11 @@ class ReplayPort:
 
     async def close(self) -> None:
         self._open = False
+
+
+def _lead(packets: list[pcapng.Packet]) -> int:
+    """How many of a port's first packets came in before its host first wrote."""
+    return next((i for i, p in enumerate(packets) if p.direction == pcapng.OUTBOUND), len(packets))
 
 
 def load_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatError], None] | None = None

@@ -168,7 +168,7 @@ def replay_drivers(spec: PortSpec, partial: Callable[[Exception], None] | None =
     if not chosen:
         held = "; ".join(" = ".join(names_of(iface)) for iface in interfaces) or "none"
         raise PortSpecError(f"{spec.where} has no device {wanted!r}; it holds: {held}")
-    sequencer = Sequencer({interfaces[i].name: packets[i] for i in chosen})
+    sequencer = Sequencer({interfaces[i].name: packets[i] for i in chosen}, lead=True)  # no loop to feed
     drivers = []
     for i in chosen:
         record = recorded_kind(interfaces[i])

@@ -60,7 +60,9 @@ async def supervise(deadlines: dict[Driver, float]) -> None:
             if driver.error is not None:
                 if isinstance(driver.error, PortError):
                     raise PortError(str(driver.error))
-                raise DeviceNotReady(f"{driver.port.name}: {driver.error}")
+                if isinstance(driver.error, Error):
+                    raise DeviceNotReady(f"{driver.port.name}: {driver.error}")
+                raise driver.error  # a bug in the driver, not the user's to fix
             if isinstance(driver, AoaDriver) and driver.ambiguous_tags:
                 raise DeviceNotReady(f"{driver.port.name}: {driver.problem}")
         for driver, limit in list(waiting.items()):

@@ -105,13 +105,13 @@ def test_the_in_process_demo_gives_the_same_summary_for_the_same_seed(tmp_path: 
     done, log = replayed(tmp_path / "0" / "capture.pcapng")
     assert json.loads(done.stdout)["replay"]["diverged"] == 0
     assert log == (tmp_path / "0" / "run.jsonl").read_text().splitlines()
-    # the drivers alone: here the replayed driver's first AT can go out before it reads the +STARTUP
-    # the live one read first (the in-process pipe had it waiting at open); once that failed the set-up
-    # ("no answer to AT") -- now the driver tries AT again, as it must when a board boots under it
+    # the drivers alone: the board's +STARTUP waited in the in-process pipe when the host opened it, and
+    # reaches the replayed driver before its first AT, as it did live (it once failed the set-up)
     drivers = rfhoming("replay", str(tmp_path / "0" / "capture.pcapng"), "--json")
-    counters = [json.loads(line) for line in drivers.stdout.splitlines() if '"kind": "counters"' in line]
+    counters = {c["driver"]: c for c in map(json.loads, drivers.stdout.splitlines()) if c.get("kind") == "counters"}
     assert drivers.returncode == 0 and drivers.stderr == "", drivers.stderr
-    assert [c["state"] for c in counters] == ["ended", "ended"] and all(c["unanswered"] == 0 for c in counters)
+    assert all((c["diverged"], c["unanswered"]) == (0, 0) for c in counters.values()), counters
+    assert counters["xplr-aoa"]["setups"] == 1 and counters["xplr-aoa"]["dialect"] is not None
 
 
 @pytest.mark.slow
@@ -127,3 +127,18 @@ def test_a_run_takes_its_devices_from_a_capture_by_role(tmp_path: Path) -> None:
     assert (tmp_path / "again.jsonl").read_text() == (tmp_path / "run.jsonl").read_text()
     wrong = rfhoming("run", "--aoa", f"capture:{capture},device=nope", "--base", f"capture:{capture}")
     assert wrong.returncode == 2 and "no device 'nope'" in wrong.stderr and "aoa" in wrong.stderr
+    swapped = rfhoming("run", "--aoa", f"capture:{capture},device=base", "--base", f"capture:{capture}")
+    assert swapped.returncode == 2 and "cannot be" in swapped.stderr and swapped.stderr.count("\n") == 1
+
+
+def test_a_run_with_spec_settings_replays_to_the_same_run_log(tmp_path: Path) -> None:
+    """The run record keeps each device's spec: tags= (and scan settings) reach the replayed drivers."""
+    demo = rfhoming("demo", "--in-process", "--json", "--out", str(tmp_path))
+    assert demo.returncode == 0, demo.stderr
+    capture = tmp_path / "capture.pcapng"
+    run = rfhoming("run", "--aoa", f"capture:{capture},device=aoa", "--base", f"capture:{capture}", "--tag",
+                   "CCF9578E0D8A", "--capture", str(tmp_path / "again.pcapng"), "--log", str(tmp_path / "again.jsonl"))
+    assert run.returncode == 0, run.stderr
+    done, log = replayed(tmp_path / "again.pcapng")
+    assert json.loads(done.stdout)["replay"]["diverged"] == 0, done.stderr
+    assert log == (tmp_path / "again.jsonl").read_text().splitlines()

@@ -89,6 +89,21 @@ def test_with_two_tags_in_view_the_robot_homes_on_the_chosen_one(tmp_path: Path,
     assert math.dist(robot, where[CHOSEN]) < 1.0 < math.dist(robot, where[OTHER])
 
 
+@pytest.mark.slow
+def test_a_run_whose_spec_chooses_the_tag_replays_to_the_same_run_log(tmp_path: Path, two_tags: Path) -> None:
+    """tags= in the --aoa spec is part of the run: the capture's run record keeps every device's
+    spec, so the replayed driver filters as the live one did (it once replayed unfiltered)."""
+    done = subprocess.run(rfhoming("run", "--aoa", f"xplr-aoa:{tmp_path / 'aoa'},tags={CHOSEN}", "--base",
+                                   f"base:{tmp_path / 'base'}", "--config", str(tmp_path / "robot.toml"),
+                                   "--capture", str(tmp_path / "run.pcapng"), "--log", str(tmp_path / "run.jsonl")),
+                          capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr
+    replay = subprocess.run(rfhoming("replay", str(tmp_path / "run.pcapng"), "--run", "--log",
+                                     str(tmp_path / "replayed.jsonl")), capture_output=True, text=True, timeout=240)
+    assert json.loads(replay.stdout)["replay"]["diverged"] == 0, replay.stderr
+    assert (tmp_path / "replayed.jsonl").read_text() == (tmp_path / "run.jsonl").read_text()
+
+
 def test_with_two_tags_in_view_and_none_chosen_run_refuses_and_lists_them(tmp_path: Path, two_tags: Path) -> None:
     done = run_on(tmp_path)
     assert done.returncode == 2

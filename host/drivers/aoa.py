@@ -149,14 +149,14 @@ class AoaDriver(Driver):
     kind = "xplr-aoa"
 
     @classmethod
-    def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> AoaDriver:
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> AoaDriver:
         """``tags=`` sets the board's tag filter and the host's, ``timeout=`` bounds each set-up command."""
         setup = options.pop("setup", AoaSetup())
         if spec.tags:
             setup = setup.with_tags(spec.tags)
         if spec.timeout:
             setup = replace(setup, command_timeout=spec.timeout)
-        return cls(serial_port(spec, taps), setup, **options)
+        return cls(port or serial_port(spec, taps), setup, **options)
 
     def __init__(self, port: HostPort, setup: AoaSetup = AoaSetup(), *, queue_size: int = 1000,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:

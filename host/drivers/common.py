@@ -122,10 +122,11 @@ class Driver:
         supervisor that does not await the task itself."""
 
     @classmethod
-    def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> Driver:
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> Driver:
         """The driver on the port a spec names, with the spec's settings; ``options`` go to
-        the constructor. Kinds with settings of their own (tags, scan timing) extend it."""
-        return cls(serial_port(spec, taps), **options)
+        the constructor; ``port``: one already made (a replay, the in-process pipe) in place of
+        the spec's. Kinds with settings of their own (tags, scan timing) extend it."""
+        return cls(port or serial_port(spec, taps), **options)
 
     def emit(self, t: float, item: Any) -> Any:
         """Show one decoded item (record, line or drop) to the listeners; returns it."""

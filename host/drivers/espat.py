@@ -70,8 +70,8 @@ class EspAtDriver(Driver):
     kind = "esp-at"
 
     @classmethod
-    def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> EspAtDriver:
-        return cls(serial_port(spec, taps), setup_from_spec(spec, options.pop("setup", EspAtSetup())), **options)
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> EspAtDriver:
+        return cls(port or serial_port(spec, taps), setup_from_spec(spec, options.pop("setup", EspAtSetup())), **options)
 
     def __init__(self, port: HostPort, setup: EspAtSetup = EspAtSetup(), *, queue_size: int = 4000,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:

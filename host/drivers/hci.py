@@ -113,12 +113,13 @@ class HciDriver(Driver):
     kind = "hci"
 
     @classmethod
-    def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> HciDriver:
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> HciDriver:
         """WHERE is a bumble transport name (serial:PATH,SPEED, usb:0, tcp-client:H:P ...)."""
-        try:
-            port = open_port(spec.where, name=spec.name, taps=taps)
-        except ValueError as exc:
-            raise PortSpecError(str(exc)) from None
+        if port is None:
+            try:
+                port = open_port(spec.where, name=spec.name, taps=taps)
+            except ValueError as exc:
+                raise PortSpecError(str(exc)) from None
         return cls(port, setup_from_spec(spec, options.pop("setup", None)), **options)
 
     def __init__(self, port: HostPort, setup: HciSetup = HciSetup(), *, queue_size: int = 4000,

@@ -172,10 +172,10 @@ async def resolve_devices(plan: Homing) -> Homing:
             continue
         spec = await resolve(spec, baud=plan.baud, flow=plan.flow, taps=taps, kind=spec.kind, describe=describe)
         out.append(replace(device, spec=spec))
-    return replace(plan, devices=_recorded(out))
+    return replace(plan, devices=_recorded(out, plan.capture))
 
 
-def _recorded(devices_: list[Device]) -> list[Device]:
+def _recorded(devices_: list[Device], capture: CaptureWriter | None) -> list[Device]:
     """Devices given as ``capture:FILE[,device=NAME]`` -> their recorded ports, released in the
     file's recorded global order: ``device=`` names one (a path, label or role `rfhoming replay`
     lists); without it, the one recorded in the device's role, or the one whose kind fills it."""
@@ -188,10 +188,20 @@ def _recorded(devices_: list[Device]) -> list[Device]:
     for path, indexes in files.items():
         interfaces, packets, _torn, _ = read_capture(path)
         picked = [_pick(path, interfaces, devices_[i]) for i in indexes]
+        for i, k in zip(indexes, picked):
+            kind = recorded_kind(interfaces[k])
+            if devices_[i].role not in kind.roles or picked.count(k) > 1:
+                why = "is taken twice" if picked.count(k) > 1 else f"is a {kind.name}"
+                raise PortSpecError(f"{path}: {interfaces[k].name} {why}; it cannot be the "
+                                    f"{devices.ROLES[devices_[i].role].title}")
         sequencer = Sequencer({interfaces[k].name: packets[k] for k in picked})
         for i, k in zip(indexes, picked):
             port = ReplayPort(interfaces[k].name, packets[k], sequencer=sequencer)
-            out[i] = replace(devices_[i], spec=None, port=port, kind=recorded_kind(interfaces[k]).name)
+            kind = recorded_kind(interfaces[k]).name
+            if capture is not None:  # a run on recorded devices is a run: its capture replays too
+                port.taps.append(capture.tap)
+                capture.describe(port.name, kind=kind, role=devices_[i].role)
+            out[i] = replace(devices_[i], spec=None, port=port, kind=kind)
     return out
 
 
@@ -230,25 +240,25 @@ def _options(plan: Homing, device: Device, kind: str) -> dict[str, Any]:
 
 
 def _driver(plan: Homing, device: Device, inputs: BoundedStream[Any]) -> tuple[Driver, float | None]:
-    """The device's driver, handing its items to ``inputs``; and its set-up deadline (None: a
-    port that needs none, e.g. the in-process pipe)."""
+    """The device's driver, handing its items to ``inputs``, with its spec's settings (also on a
+    port already made: a replay keeps the live run's tags= and scan settings); and its set-up
+    deadline (None: a port that needs none, the in-process pipe or a replay)."""
     taps = [plan.capture.tap] if plan.capture else []
-    if device.port is not None:
-        record = devices.kind(device.kind or devices.ROLES[device.role].default_kind)
-        options = _options(plan, device, record.name)
-        if plan.tags and "setup" in options:
-            options["setup"] = options["setup"].with_tags(plan.tags)
-        driver = driver_class(record)(device.port, out=inputs, **options)
-        return driver, (record.setup_timeout_s if isinstance(device.port, HostPort) else None)
-    spec = parse_spec(device.spec or "")
-    if spec.kind == "serve":
+    spec = parse_spec(device.spec) if device.spec is not None else None
+    if spec is not None and spec.kind == "serve":
         served = serve_driver(spec, out=inputs)
         return served, deadline(served, spec.timeout)
+    record = spec.device if spec is not None and device.port is None else devices.kind(
+        device.kind or devices.ROLES[device.role].default_kind)
+    assert record is not None, device
+    if spec is None or spec.kind != record.name:  # a port made without a spec: the kind's defaults
+        spec = PortSpec(record.name, getattr(device.port, "name", "port"), spec.settings if spec else {})
     if plan.tags and device.role == "aoa":
         spec = replace(spec, settings={**spec.settings, "tags": tuple(dict.fromkeys((*spec.tags, *plan.tags)))})
-    record = spec.device
-    assert record is not None, spec
-    driver = driver_class(record).from_spec(spec, taps, out=inputs, **_options(plan, device, record.name))
+    driver = driver_class(record).from_spec(spec, taps, port=device.port, out=inputs,
+                                            **_options(plan, device, record.name))
+    if device.port is not None and not isinstance(device.port, HostPort):
+        return driver, None
     return driver, deadline(driver, spec.timeout)
 
 
@@ -258,12 +268,15 @@ RUN_RECORD = "rfhoming-run"
 
 def run_record(plan: Homing, site_text: str | None = None) -> str:
     """What a run's capture keeps of its plan, so that :func:`replay_plan` runs the same loop on
-    its bytes: the controller, the whole config as used, the tags, and the site file's text."""
+    its bytes: the controller, the whole config as used, the tags, every device's spec (its
+    settings: tags=, scan timing ...) in the order of the capture's interfaces of its role, and
+    the site file's text."""
     if not isinstance(plan.controller, str):
         raise PortSpecError("only a run of one of the METHODS can be recorded for replay")
+    specs = [[d.role, str(parse_spec(d.spec)) if d.spec is not None else None] for d in plan.devices]
     return json.dumps({RUN_RECORD: 1, "controller": plan.controller, "config": to_tables(plan.config),
                        "tags": list(plan.tags), "choose_tag_s": plan.choose_tag_s, "probe_baud": plan.probe_baud,
-                       "site": site_text})
+                       "devices": specs, "site": site_text})
 
 
 def replay_plan(path: Path | str, *, controller: str | None = None, config: Config | None = None) -> Homing:
@@ -271,24 +284,52 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
     recorded global order, the loop's writes matched against the recorded ones. ``controller``
     and ``config`` replace the recorded ones (the replay then reports where it diverged)."""
     interfaces, packets, _torn, comments = read_capture(path)
-    record = next((json.loads(c) for c in comments if c.startswith(f'{{"{RUN_RECORD}"')), None)
-    if record is None:
-        raise CaptureFormatError(0, f"{path} holds no homing run's record (a capture of `rfhoming listen` or "
-                                    "`capture`, or of a run before rfhoming recorded them): replay its devices with "
-                                    "rfhoming replay CAPTURE, without --run")
-    sequencer = Sequencer({iface.name: packets[i] for i, iface in enumerate(interfaces)})
-    roles = []
+    record = _record(path, comments)
+    specs: dict[str, list[str | None]] = {}
+    for role, text in record["devices"]:
+        specs.setdefault(role, []).append(text)
+    roles, ports = [], {}
     for i, iface in enumerate(interfaces):
         role = describe_interface(iface).get("role")
         if role is None:  # bytes sniffed or recorded for no device of the run
             continue
-        port = ReplayPort(iface.name, packets[i], sequencer=sequencer)
-        roles.append(Device(role, port=port, kind=recorded_kind(iface).name))
-    site = sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record.get("site") else None
+        ports[iface.name] = packets[i]
+        text = specs.get(role, []).pop(0) if specs.get(role) else None
+        roles.append(Device(role, spec=text, kind=recorded_kind(iface).name, port=iface.name))
+    sequencer = Sequencer(ports)
+    roles = [replace(d, port=ReplayPort(d.port, ports[d.port], sequencer=sequencer)) for d in roles]
+    try:
+        site = sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record["site"] else None
+    except tomllib.TOMLDecodeError as exc:
+        raise CaptureFormatError(0, f"{path}: its run record's site file is not TOML ({exc})") from None
     return Homing(controller or record["controller"], roles,
                   config if config is not None else from_tables(record["config"], f"{path}: the recorded config"),
                   site=site, tags=tuple(record["tags"]), choose_tag_s=record["choose_tag_s"],
                   probe_baud=record["probe_baud"])
+
+
+RECORD_KEYS = {"controller": str, "config": dict, "tags": list, "choose_tag_s": (float, int, type(None)),
+               "probe_baud": bool, "devices": list, "site": (str, type(None))}
+
+
+def _record(path: Path | str, comments: list[str]) -> dict[str, Any]:
+    """The capture's run record, checked; CaptureFormatError says what is missing or wrong."""
+    text = next((c for c in comments if c.startswith(f'{{"{RUN_RECORD}"')), None)
+    if text is None:
+        raise CaptureFormatError(0, f"{path} holds no homing run's record (a capture of `rfhoming listen` or "
+                                    "`capture`, or of a run before rfhoming recorded them): replay its devices with "
+                                    "rfhoming replay CAPTURE, without --run")
+    try:
+        record = json.loads(text)
+    except ValueError as exc:
+        raise CaptureFormatError(0, f"{path}: its run record is not JSON ({exc})") from None
+    if record.get(RUN_RECORD) != 1:
+        raise CaptureFormatError(0, f"{path}: a run record of version {record.get(RUN_RECORD)!r}; this rfhoming "
+                                    "reads version 1")
+    bad = [k for k, kind in RECORD_KEYS.items() if not isinstance(record.get(k), kind)]
+    if bad or record["controller"] not in METHODS:
+        raise CaptureFormatError(0, f"{path}: its run record lacks or mangles {', '.join(bad) or 'controller'}")
+    return record
 
 
 @dataclass

@@ -44,7 +44,7 @@ from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.grid import OccupancyGrid, lookahead
 from rfhoming.host.homing.s0_aoa import S0Homing
 from rfhoming.host.homing.types import Controller, ControllerDefaults, Decision, Pose
-from rfhoming.host.ports import EndOfInput
+from rfhoming.host.ports import PortError
 
 log = logging.getLogger(__name__)
 
@@ -152,6 +152,7 @@ class HomingLoop:
         self._braking: bool | None = None  # base brake mode as last sent; None: unknown, send it
         self._brake_logged = False  # brake mode as the run log last said
         self.clock_resets = 0
+        self._tasks: list[asyncio.Task[None]] = []
         # the loop's state, on robot time
         self.t = 0.0
         self.t0: float | None = None
@@ -166,6 +167,7 @@ class HomingLoop:
 
     async def run(self) -> Outcome:
         tasks = [asyncio.create_task(self.base.run())] + [asyncio.create_task(s.run()) for s in self.sensors]
+        self._tasks = tasks
         try:
             async with self.base:
                 await self._base_connected(tasks[0])
@@ -176,6 +178,13 @@ class HomingLoop:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
 
+    def _raise_if_a_driver_died(self) -> None:
+        """A driver whose task ended with an error ends the run with it: nothing else may be
+        watching (a replay, the in-process pipe), and its stream would stay silent for ever."""
+        for task in self._tasks:
+            if task.done() and not task.cancelled() and task.exception() is not None:
+                raise task.exception()  # type: ignore[misc]
+
     async def _base_connected(self, base_task: asyncio.Task[None]) -> None:
         """Wait for the base's port, or raise why its driver ended (a port that never opened)."""
         connected = asyncio.create_task(self.base.connected.wait())
@@ -185,12 +194,13 @@ class HomingLoop:
             connected.cancel()
         if not self.base.connected.is_set():
             base_task.result()  # raises the driver's error
-            raise EndOfInput(f"{self.base.port.name} ended before it connected")
+            raise PortError(f"{self.base.port.name} ended before it connected (an empty recording?)")
 
     async def _loop(self) -> Outcome:
         while True:
             item = await self._next_item()
             if item is None:
+                self._raise_if_a_driver_died()
                 if self.base.state == "ended":  # a replay's recording is over, and nothing is left to read
                     elapsed = self.t - self.t0 if self.t0 is not None else 0.0
                     return self._outcome(False, "end of recording", elapsed, self.pose, self.controller.reported)
