@@ -56,7 +56,11 @@ def main() -> None:
     drivers_s, drivers = timed("replay", str(capture), "--json", repeats=args.repeats)
     counters = [json.loads(line) for line in drivers.stdout.splitlines() if '"kind": "counters"' in line]
     items = sum(1 for line in drivers.stdout.splitlines() if '"kind": "counters"' not in line)
+    if drivers.returncode != 0:
+        sys.exit(f"replay_bench: replay --json failed: {drivers.stderr.strip()}")
     run_s, run = timed("replay", str(capture), "--run", "--log", str(out / "replayed.jsonl"), repeats=args.repeats)
+    if run.returncode not in (0, 1):
+        sys.exit(f"replay_bench: replay --run failed: {run.stderr.strip()}")
     same_log = (out / "replayed.jsonl").read_text() == (out / "run.jsonl").read_text()
     result = {
         "scenario": args.scenario, "seed": args.seed, "capture_span_s": round(span, 2),

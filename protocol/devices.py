@@ -2,7 +2,7 @@
 
 Each layer reads what it needs from here -- the port spec's kinds and settings
 (host/portspec.py), the driver to build (host/session.py), the set-up deadline
-(host/supervise.py), the roles a kind may fill in a homing run (host/assembly.py), the
+(host/supervise.py), the roles a kind may fill in a homing run (host/homing/assembly.py), the
 capture's link type and the recorded kind (host/capture.py, host/session.py), the emulator's
 boards and their firmware models (emulator/devices.py). It lives in the protocol layer, which
 every other layer may import; what belongs to a higher layer (a driver, a firmware model) is

@@ -1,8 +1,9 @@
 """``rfhoming demo``: the emulator in its own process on ptys, the host homing against it.
 
-The host side is exactly ``rfhoming run``: drivers on the pty paths the emulator printed, the
-loop, the capture. This module never imports the emulator: it starts ``rfhoming emulate`` as a
-subprocess, as a user would, and reads the truth file it writes for the summary and the plot.
+The host side is exactly ``rfhoming run``: the one run assembly, on the pty paths the emulator
+printed, with a capture. On ptys the emulator is a subprocess (``rfhoming emulate``), as a
+user would start it, and its truth file gives the summary and the plot; only ``--in-process``
+imports the emulator, to join it and the host by its in-process byte pipe.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import shutil
 import signal
 import subprocess
 import sys
@@ -221,9 +223,9 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
                                      receiver, speed)
-    if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
-        config = trilat_config(config, truth, target)
     try:
+        if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
+            config = trilat_config(config, truth, target)
         outcome = asyncio.run(asyncio.wait_for(home(plan(endpoints, out, config, tuple(sinks)), out),
                                                config.loop.max_time_s + 60))
     finally:
@@ -232,6 +234,7 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
+        shutil.rmtree(link_dir, ignore_errors=True)
     summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
     return _finish(summary, out)
 

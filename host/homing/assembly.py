@@ -6,7 +6,7 @@ A :class:`Homing` says what to run: the controller, each device by its role (``a
 ``ble``, ``anchor``, ``base``; rfhoming.protocol.devices.ROLES) and either a port spec to open
 or a port already made (the campaigns' in-process pipe, a replay). :func:`build` makes the
 drivers -- each handing its readings to the loop's one input stream from the start -- and the
-loop; :func:`run` resolves the specs first (``auto``, a sniffed protocol), then runs the loop
+loop; :func:`run` resolves the specs first (``auto`` found, each kind fixed by its role), then runs the loop
 while :func:`~rfhoming.host.supervise.supervise` watches every driver on a real port: one that
 fails, or is not ready by its kind's deadline, ends the run with an Error naming its port.
 """

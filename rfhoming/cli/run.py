@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import asyncio
 import json
 import sys
@@ -76,32 +77,26 @@ def cmd_run(args: argparse.Namespace) -> int:
     config = load(args.config)
     role = METHODS[args.controller].role
     devices, site = _devices(args, config, role)
-    tags = _tags(args.tag)
-    if tags and role != "aoa":
-        raise PortSpecError(f"--tag chooses an XPLR-AOA tag; --controller {args.controller} has none")
-    sinks: list[Sink] = []
-    if args.mcap:
-        sinks.append(mcap_recorder(args.mcap))
-    view = start_foxglove(args, "run")
-    if view is not None:
-        sinks.append(view)
-    runlog = open(args.log, "w") if args.log else None
-    plan = Homing(args.controller, devices, config, site=site, runlog=RunLog(runlog), sinks=sinks,
-                  tags=tags, choose_tag_s=CHOOSE_TAG_S, probe_baud=args.probe_baud, baud=args.baud, flow=args.flow)
-    site_text = args.site.read_text() if site is not None else None
-    capture = plan.capture = CaptureWriter(args.capture, comment=run_record(plan, site_text)) if args.capture else None
-    try:
-        outcome = asyncio.run(assembly.run(plan))
-    except KeyboardInterrupt:
-        print("rfhoming run: interrupted; the base was told to stop", file=sys.stderr)
-        return 130
-    finally:
-        if runlog:
-            runlog.close()
-        if capture:
-            capture.close()
-        for sink in sinks:
-            sink.close()
+    plan = Homing(args.controller, devices, config, site=site, tags=_tags(args.tag), choose_tag_s=CHOOSE_TAG_S,
+                  probe_baud=args.probe_baud, baud=args.baud, flow=args.flow)
+    assembly.check(plan)  # before anything is opened or created
+    with contextlib.ExitStack() as opened:  # whatever was opened is closed, however the run ends
+        sinks: list[Sink] = []
+        if args.mcap:
+            sinks.append(opened.enter_context(contextlib.closing(mcap_recorder(args.mcap))))
+        view = start_foxglove(args, "run")
+        if view is not None:
+            sinks.append(opened.enter_context(contextlib.closing(view)))
+        plan.sinks = sinks
+        plan.runlog = RunLog(opened.enter_context(open(args.log, "w")) if args.log else None)
+        if args.capture:
+            record = run_record(plan, args.site.read_text() if site is not None else None)
+            plan.capture = opened.enter_context(contextlib.closing(CaptureWriter(args.capture, comment=record)))
+        try:
+            outcome = asyncio.run(assembly.run(plan))
+        except KeyboardInterrupt:
+            print("rfhoming run: interrupted; the base was told to stop", file=sys.stderr)
+            return 130
     print(json.dumps(outcome.summary()))
     return 0 if outcome.arrived else 1
 
