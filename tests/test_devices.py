@@ -36,7 +36,7 @@ def test_each_kind_is_complete(name: str) -> None:
     assert set(record.roles) <= set(devices.ROLES) and record.roles
     assert set(record.settings) <= set(portspec.SETTINGS)
     assert set(record.topics) <= set(rosmsgs.TOPICS)
-    assert record.setup_timeout_s > 0 and record.boards
+    assert record.setup_timeout_s > 0 and (record.boards or record.emulated_as)
     for board in record.boards:
         firmware = devices.load(board.firmware)
         assert inspect.isclass(firmware) and firmware.__module__.startswith("rfhoming.firmware.")

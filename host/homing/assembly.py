@@ -190,7 +190,8 @@ def _recorded(devices_: list[Device]) -> list[Device]:
         picked = [_pick(path, interfaces, devices_[i]) for i in indexes]
         sequencer = Sequencer({interfaces[k].name: packets[k] for k in picked})
         for i, k in zip(indexes, picked):
-            port = ReplayPort(interfaces[k].name, packets[k], sequencer=sequencer)
+            port = ReplayPort(interfaces[k].name, packets[k], sequencer=sequencer,
+                              description=describe_interface(interfaces[k]))
             out[i] = replace(devices_[i], spec=None, port=port, kind=recorded_kind(interfaces[k]).name)
     return out
 
@@ -282,7 +283,7 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
         role = describe_interface(iface).get("role")
         if role is None:  # bytes sniffed or recorded for no device of the run
             continue
-        port = ReplayPort(iface.name, packets[i], sequencer=sequencer)
+        port = ReplayPort(iface.name, packets[i], sequencer=sequencer, description=describe_interface(iface))
         roles.append(Device(role, port=port, kind=recorded_kind(iface).name))
     site = sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record.get("site") else None
     return Homing(controller or record["controller"], roles,
