@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 pytest.importorskip("cyclonedds")
 
-from rfhoming.host import ros2dds as dds  # noqa: E402
+from rfhoming.protocol import ros2dds as dds  # noqa: E402
 from rfhoming.host.drivers.robot_base import Pose2D, Scan  # noqa: E402
 from rfhoming.host.drivers.ros2_base import Ros2BaseDriver, Topics  # noqa: E402
 from rfhoming.host.portspec import PortSpecError, parse  # noqa: E402

@@ -1,0 +1,54 @@
+"""`rfhoming emulate --robot ros2` + `rfhoming run --base ros2:` in their own processes: the
+robot homes through DDS (checked on the emulator's truth), a base on another domain is a
+one-line error, and the run's capture (DDS samples as sample records) replays to the same
+run log."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("cyclonedds")
+
+
+def rfhoming(*args: str, timeout: float = 240) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "rfhoming", *args], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.slow
+def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) -> None:
+    domain = random.SystemRandom().randint(1, 230)
+    truth = tmp_path / "truth.jsonl"
+    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--robot", f"ros2:domain={domain}",
+                                 "--truth", str(truth), "--link-dir", str(tmp_path)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        endpoints = [json.loads(emulator.stdout.readline()) for _ in range(2)]
+        base = next(e for e in endpoints if e["device"] == "base")
+        assert base["kind"] == "ros2" and base["path"] == f"ros2:domain={domain}"
+        aoa = next(e["path"] for e in endpoints if e["device"] == "aoa")
+        silent = rfhoming("run", "--aoa", aoa, "--base", f"ros2:domain={(domain % 230) + 1},timeout=2")
+        assert silent.returncode == 2 and silent.stderr.strip().count("\n") == 0, silent.stderr
+        assert "/odom" in silent.stderr and "not ready" in silent.stderr
+        run = rfhoming("run", "--aoa", aoa, "--base", f"ros2:domain={domain}", "--capture", str(tmp_path / "run.pcapng"),
+                       "--log", str(tmp_path / "run.jsonl"))
+    finally:
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(timeout=30)
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout)["arrived"]
+    last = json.loads(truth.read_text().splitlines()[-1])
+    target = last["targets"][0]
+    assert math.dist((last["robot"]["x"], last["robot"]["y"]), (target["x"], target["y"])) < 1.0
+    replay_log = tmp_path / "replayed.jsonl"
+    done = rfhoming("replay", str(tmp_path / "run.pcapng"), "--run", "--log", str(replay_log))
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["replay"] == {"diverged": 0, "unanswered": 0, "first_divergence": None}
+    assert replay_log.read_text().splitlines() == (tmp_path / "run.jsonl").read_text().splitlines()
