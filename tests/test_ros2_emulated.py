@@ -1,6 +1,7 @@
 """`rfhoming emulate --robot ros2` + `rfhoming run --base ros2:` in their own processes: the
 robot homes through DDS (checked on the emulator's truth), a base on another domain is a
-one-line error, and the run's capture (DDS samples as sample records) replays to the same
+one-line error, a second reader written with plain cyclonedds (tests/ros2_listener.py) hears
+/odom, /tf and rfhoming's /cmd_vel, and the run's capture (DDS samples as sample records) replays to the same
 run log."""
 
 from __future__ import annotations
@@ -34,14 +35,27 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
         base = next(e for e in endpoints if e["device"] == "base")
         assert base["kind"] == "ros2" and base["path"] == f"ros2:domain={domain}"
         aoa = next(e["path"] for e in endpoints if e["device"] == "aoa")
+        heard_file = (tmp_path / "heard.jsonl").open("w")
+        listener = subprocess.Popen([sys.executable, str(Path(__file__).with_name("ros2_listener.py")), str(domain),
+                                     "120"], stdin=subprocess.PIPE, stdout=heard_file, text=True)
         silent = rfhoming("run", "--aoa", aoa, "--base", f"ros2:domain={(domain % 230) + 1},timeout=2")
         assert silent.returncode == 2 and silent.stderr.strip().count("\n") == 0, silent.stderr
         assert "/odom" in silent.stderr and "not ready" in silent.stderr
         run = rfhoming("run", "--aoa", aoa, "--base", f"ros2:domain={domain}", "--capture", str(tmp_path / "run.pcapng"),
                        "--log", str(tmp_path / "run.jsonl"))
+        listener.communicate(timeout=150)  # its stdin closed: it reads what is on its way, then ends
+        heard_file.close()
+        heard = [json.loads(line) for line in (tmp_path / "heard.jsonl").read_text().splitlines()][1:]
     finally:
         emulator.send_signal(signal.SIGINT)
         emulator.wait(timeout=30)
+    # the second reader (plain cyclonedds, its own types) heard the emulated robot and rfhoming
+    topics = {h["topic"] for h in heard}
+    assert topics == {"cmd_vel", "odom", "tf"}, topics  # s0-open's base has no scanner
+    assert next(h for h in heard if h["topic"] == "odom")["child"] == "base_link"
+    assert ["odom", "base_link"] in next(h for h in heard if h["topic"] == "tf")["frames"]
+    commands = [(h["v"], h["w"]) for h in heard if h["topic"] == "cmd_vel"]
+    assert any(v > 0.3 for v, _ in commands) and commands[-3:] == [(0.0, 0.0)] * 3
     assert run.returncode == 0, run.stderr
     assert json.loads(run.stdout)["arrived"]
     last = json.loads(truth.read_text().splitlines()[-1])
