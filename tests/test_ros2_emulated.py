@@ -7,6 +7,7 @@ run log."""
 from __future__ import annotations
 
 import json
+from collections import Counter
 import math
 import random
 import signal
@@ -16,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 pytest.importorskip("cyclonedds")
 
@@ -63,7 +65,7 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
         interrupted.wait(timeout=60)
         wait_for(lambda: commands_heard(tmp_path)[-3:] == [(0.0, 0.0)] * 3, "three zero commands after Ctrl-C")
         run = rfhoming("run", "--aoa", aoa, "--base", f"ros2:domain={domain}", "--capture", str(tmp_path / "run.pcapng"),
-                       "--log", str(tmp_path / "run.jsonl"))
+                       "--log", str(tmp_path / "run.jsonl"), "--mcap", str(tmp_path / "run.mcap"))
         listener.communicate(timeout=150)  # its stdin closed: it reads what is on its way, then ends
         heard_file.close()
         heard = [json.loads(line) for line in (tmp_path / "heard.jsonl").read_text().splitlines()][1:]
@@ -82,6 +84,9 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
     last = json.loads(truth.read_text().splitlines()[-1])
     target = last["targets"][0]
     assert math.dist((last["robot"]["x"], last["robot"]["y"]), (target["x"], target["y"])) < 1.0
+    with (tmp_path / "run.mcap").open("rb") as f:  # the MCAP recording has the ROS 2 base's odometry
+        topics_recorded = Counter(channel.topic for _, channel, _ in make_reader(f).iter_messages())
+    assert topics_recorded["/odom"] > 100 and topics_recorded["/tf"] > 100 and topics_recorded["/cmd_vel"] > 10
     replay_log = tmp_path / "replayed.jsonl"
     done = rfhoming("replay", str(tmp_path / "run.pcapng"), "--run", "--log", str(replay_log))
     assert done.returncode == 0, done.stderr
