@@ -48,7 +48,7 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.mark.slow
 async def test_rfhoming_drives_a_fast_dds_robot(robot: Path) -> None:
-    domain = random.SystemRandom().randint(1, 230)
+    domain = random.SystemRandom().randint(77, 153)  # tests/test_ros2.py random_domain says why
     wanted = 3 + STOP_REPEATS
     proc = await asyncio.create_subprocess_exec(str(robot), str(domain), "120", str(wanted), stdout=subprocess.PIPE)
     driver = Ros2BaseDriver.from_spec(parse(f"ros2:domain={domain}"), [])
