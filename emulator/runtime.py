@@ -89,7 +89,11 @@ class Emulator:
 
     @staticmethod
     def _ros2_link(robot: dict[str, Any]) -> Link:
-        from rfhoming.emulator.ros2robot import Ros2Link  # cyclonedds: the ros2 extra
+        try:
+            from rfhoming.emulator.ros2robot import Ros2Link  # cyclonedds: the ros2 extra
+        except ImportError as exc:
+            raise ScenarioError(f"--robot ros2 needs {exc.name or exc}; install it with "
+                                "pip install 'rfhoming[ros2]'") from None
 
         return Ros2Link(**robot)
 

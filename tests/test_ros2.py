@@ -197,3 +197,13 @@ def test_loopback_only_by_default() -> None:
     assert "<AllowMulticast>false</AllowMulticast>" in xml and '<Peer address="127.0.0.1"/>' in xml
     assert dds.config(5, "subnet") is None
     assert Topics().discovery == "localhost"
+
+
+def test_without_cyclonedds_a_ros2_base_is_a_one_line_error(monkeypatch) -> None:
+    import sys
+
+    from rfhoming.host.ports import PortError
+
+    monkeypatch.setitem(sys.modules, "rfhoming.host.ros2dds", None)  # import fails as without the wheel
+    with pytest.raises(PortError, match=r"rfhoming\[ros2\]"):
+        Ros2BaseDriver.from_spec(parse("ros2:domain=3"), [])

@@ -17,7 +17,7 @@ from typing import Any
 
 from rfhoming.host.drivers.common import BoundedStream
 from rfhoming.host.drivers.robot_base import BaseDriver, Pose2D, Scan
-from rfhoming.host.ports import Disconnected, Tap
+from rfhoming.host.ports import Disconnected, PortError, Tap
 from rfhoming.host.portspec import PortSpec
 from rfhoming.protocol import ros2
 
@@ -80,7 +80,11 @@ class Ros2BaseDriver(BaseDriver):
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], **options: Any) -> BaseDriver:
-        from rfhoming.host.ros2dds import Ros2Port  # cyclonedds: the ros2 extra
+        try:
+            from rfhoming.host.ros2dds import Ros2Port  # cyclonedds: the ros2 extra
+        except ImportError as exc:
+            raise PortError(f"{spec}: a ROS 2 base needs {exc.name or exc}; install it with "
+                            "pip install 'rfhoming[ros2]'") from None
 
         return cls(Ros2Port(topics_of(spec), name=spec.name or spec.where, taps=taps), **options)
 
