@@ -1,6 +1,7 @@
 """A second reader of ROS 2 topics, written with nothing but the cyclonedds binding: its own
 IDL types (from ros2/common_interfaces' .msg files, ROS 2's DDS names) and its own loopback
-configuration. Reads rt/cmd_vel, rt/odom, rt/scan and rt/tf on a domain and prints one JSON line
+configuration. Reads rt/cmd_vel, rt/odom, rt/scan, rt/tf,
+rt/rfhoming/target and rt/rfhoming/events on a domain and prints one JSON line
 per sample; ends after SECONDS, or once its standard input closes and then 3 s pass with
 no command on rt/cmd_vel (what was still on its way is read).
 
@@ -17,7 +18,7 @@ from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint32
-from cyclonedds.sub import DataReader
+from cyclonedds.sub import DataReader, InvalidSample
 from cyclonedds.topic import Topic
 
 
@@ -115,6 +116,17 @@ class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformS
 
 
 @dataclass
+class PointStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PointStamped_"):
+    header: Header
+    point: Point
+
+
+@dataclass
+class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
+    data: str
+
+
+@dataclass
 class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
     transforms: sequence[TransformStamped]
 
@@ -129,7 +141,8 @@ def main() -> None:
     dp = DomainParticipant(domain)
     best_effort = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(50))
     readers = {name: DataReader(dp, Topic(dp, "rt/" + name, kind), qos=best_effort)
-               for name, kind in (("cmd_vel", Twist), ("odom", Odometry), ("scan", LaserScan), ("tf", TFMessage))}
+               for name, kind in (("cmd_vel", Twist), ("odom", Odometry), ("scan", LaserScan), ("tf", TFMessage),
+                                  ("rfhoming/target", PointStamped), ("rfhoming/events", String))}
     print(json.dumps({"ready": domain}), flush=True)
     end = time.monotonic() + seconds
     closing = False
@@ -138,6 +151,8 @@ def main() -> None:
             closing, end = True, time.monotonic() + 3.0
         for name, reader in readers.items():
             for s in reader.take(50):
+                if isinstance(s, InvalidSample):  # a writer went away: no data
+                    continue
                 if closing and name == "cmd_vel":
                     end = time.monotonic() + 3.0
                 if name == "cmd_vel":
@@ -146,6 +161,10 @@ def main() -> None:
                     out = {"x": s.pose.pose.position.x, "frame": s.header.frame_id, "child": s.child_frame_id}
                 elif name == "scan":
                     out = {"beams": len(s.ranges), "frame": s.header.frame_id, "range_max": s.range_max}
+                elif name == "rfhoming/target":
+                    out = {"frame": s.header.frame_id, "xy": [s.point.x, s.point.y]}
+                elif name == "rfhoming/events":
+                    out = {"what": s.data}
                 else:
                     out = {"frames": [[t.header.frame_id, t.child_frame_id] for t in s.transforms]}
                 print(json.dumps({"topic": name, **out}), flush=True)

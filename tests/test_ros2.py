@@ -207,3 +207,19 @@ def test_without_cyclonedds_a_ros2_base_is_a_one_line_error(monkeypatch) -> None
     monkeypatch.setitem(sys.modules, "rfhoming.host.ros2dds", None)  # import fails as without the wheel
     with pytest.raises(PortError, match=r"rfhoming\[ros2\]"):
         Ros2BaseDriver.from_spec(parse("ros2:domain=3"), [])
+
+
+def test_live_ros2_messages_are_the_mcap_recordings_cdr() -> None:
+    """--ros2 publishes what the MCAP recording holds: the same message serialized by
+    cyclonedds (from types made of the definitions) and by mcap-ros2-support is the same bytes."""
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    from rfhoming.host.export import frames, ros2live, rosmsgs
+
+    messages = [rosmsgs.point("/rfhoming/target", 12.25, [1.0, -2.0]), rosmsgs.text("/rfhoming/events", "arrived"),
+                rosmsgs.twist(0.3, -0.2), rosmsgs.odometry(3.5, 1.0, 2.0, 0.5, 0.2, 0.1, 4.0),
+                rosmsgs.transforms("/tf_static", 1.0, frames.sensor_mounts(None)),
+                rosmsgs.bearing(2.0, {"bearing_deg": 10.0, "range_m": 2.5, "rssi_dbm": -60.0})]
+    for _topic, typename, message in messages:
+        mcap = serialize_dynamic(typename, rosmsgs.msgdef(typename))[typename](message)
+        assert ros2live.sample(typename, message).serialize() == mcap, typename

@@ -65,7 +65,8 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
         interrupted.wait(timeout=60)
         wait_for(lambda: commands_heard(tmp_path)[-3:] == [(0.0, 0.0)] * 3, "three zero commands after Ctrl-C")
         run = rfhoming("run", "--aoa", aoa, "--base", f"ros2:domain={domain}", "--capture", str(tmp_path / "run.pcapng"),
-                       "--log", str(tmp_path / "run.jsonl"), "--mcap", str(tmp_path / "run.mcap"))
+                       "--log", str(tmp_path / "run.jsonl"), "--mcap", str(tmp_path / "run.mcap"),
+                       "--ros2", f"domain={domain}")
         listener.communicate(timeout=150)  # its stdin closed: it reads what is on its way, then ends
         heard_file.close()
         heard = [json.loads(line) for line in (tmp_path / "heard.jsonl").read_text().splitlines()][1:]
@@ -74,7 +75,11 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
         emulator.wait(timeout=30)
     # the second reader (plain cyclonedds, its own types) heard the emulated robot and rfhoming
     topics = {h["topic"] for h in heard}
-    assert topics == {"cmd_vel", "odom", "tf"}, topics  # s0-open's base has no scanner
+    # s0-open's base has no scanner; --ros2 adds the run's target and events, not a second /odom
+    assert topics == {"cmd_vel", "odom", "tf", "rfhoming/target", "rfhoming/events"}, topics
+    assert next(h for h in heard if h["topic"] == "rfhoming/target")["frame"] == "odom"
+    assert {"topic": "rfhoming/events", "what": "arrived"} in heard
+    assert all(h["child"] == "base_link" and h["frame"] == "odom" for h in heard if h["topic"] == "odom")
     assert next(h for h in heard if h["topic"] == "odom")["child"] == "base_link"
     assert ["odom", "base_link"] in next(h for h in heard if h["topic"] == "tf")["frames"]
     commands = [(h["v"], h["w"]) for h in heard if h["topic"] == "cmd_vel"]
