@@ -7,7 +7,11 @@ other's); at
 the true path length from that moment until the robot is at rest, with its true speed when the
 data ended: the loop's own log is not consulted. The target is <= 0.25 m from full speed.
 
-    python bench/stopping_bench.py [--runs 8] [--json]
+``--base ros2`` drives the same emulated base as a ROS 2 robot over DDS on loopback
+(emulator/ros2robot.py; the host's ``ros2:`` base, a random domain per run): a ROS 2 base has
+no brake mode, so the stop is the zero Twist at the base's normal deceleration.
+
+    python bench/stopping_bench.py [--runs 8] [--base serial|ros2] [--json]
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import asyncio
 import io
 import json
 import math
+import random
 import statistics
 import sys
 from dataclasses import replace
@@ -42,19 +47,21 @@ def driven_after(truth: str, t_from: float) -> tuple[float, float, float]:
     return speed, sum(step(k) for k in range(i + 1, len(pts))), rest - t_from
 
 
-async def one(seed: int, target: tuple[float, float], at: float) -> dict:
+async def one(seed: int, target: tuple[float, float], at: float, over: str = "serial") -> dict:
     truth = io.StringIO()
+    domain = random.SystemRandom().randint(1, 230)
     em = Emulator(load("s0-open", seed=seed, target=target), transport="pipe", seed=seed, lockstep=True,
-                  lockstep_timeout=2.0, truth=truth,
+                  lockstep_timeout=2.0, truth=truth, robot={"domain": domain} if over == "ros2" else None,
                   faults=[Fault.parse(f"unplug@aoa:at={at},for=1000")])
     await em.start()
     world = asyncio.create_task(em.run())
     config = Config().for_lockstep()
     config = replace(config, loop=replace(config.loop, max_time_s=at + 3))
     try:
-        base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
-        await asyncio.wait_for(assembly.run(Homing("aoa", [Device("base", port=base), Device("aoa", port=aoa)], config)),
-                               120)
+        aoa = PipePort("aoa", em.device("aoa").link.host)
+        base = (Device("base", spec=f"ros2:domain={domain}") if over == "ros2"
+                else Device("base", port=PipePort("base", em.device("base").link.host)))
+        await asyncio.wait_for(assembly.run(Homing("aoa", [base, Device("aoa", port=aoa)], config)), 120)
     finally:
         world.cancel()
         await asyncio.gather(world, return_exceptions=True)
@@ -67,15 +74,17 @@ async def one(seed: int, target: tuple[float, float], at: float) -> dict:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--runs", type=int, default=8)
+    p.add_argument("--base", choices=("serial", "ros2"), default="serial",
+                   help="the base over rfhoming's framing (in-process pipe) or as a ROS 2 robot over DDS")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
-    runs = [asyncio.run(one(k + 1, TARGETS[k % len(TARGETS)], 4.0 + 0.37 * k)) for k in range(args.runs)]
+    runs = [asyncio.run(one(k + 1, TARGETS[k % len(TARGETS)], 4.0 + 0.37 * k, args.base)) for k in range(args.runs)]
     fast = [r for r in runs if r["speed_m_s"] >= 0.6]
     summary = {"runs": len(runs), "at_full_speed": len(fast),
                "driven_m_max": max(r["driven_m"] for r in runs),
                "driven_m_max_from_full_speed": max((r["driven_m"] for r in fast), default=None),
                "driven_m_median": statistics.median(r["driven_m"] for r in runs),
-               "at_rest_after_s_max": max(r["at_rest_after_s"] for r in runs), "target_m": 0.25}
+               "at_rest_after_s_max": max(r["at_rest_after_s"] for r in runs), "target_m": 0.25, "base": args.base}
     if args.json:
         print(json.dumps({"summary": summary, "runs": runs}))
     else:

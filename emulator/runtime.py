@@ -49,7 +49,8 @@ class Emulator:
                  step_ms: int = 10, speed: float = 1.0, lockstep: bool = False,
                  control_period_ms: int = 100, lockstep_timeout: float = 5.0,
                  faults: list[Fault] = (), truth: IO[str] | None = None,
-                 link_dir: Path | None = None) -> None:
+                 link_dir: Path | None = None, robot: dict[str, Any] | None = None) -> None:
+        """``robot``: the base as a ROS 2 robot (emulator/ros2robot.py), e.g. {"domain": 7, "ns": ""}."""
         if transport not in TRANSPORTS:
             raise ScenarioError(f"transport must be one of {TRANSPORTS}")
         self.scenario = scenario
@@ -74,7 +75,7 @@ class Emulator:
             raise FaultError(f"fault names unknown device(s) {sorted(unknown)}; this scenario has: {names}")
         for k, spec in enumerate(scenario.devices):
             rng = np.random.default_rng([seed, k])
-            link = self._link(transport, spec.name)
+            link = self._ros2_link(robot) if robot is not None and spec.type == "base" else self._link(transport, spec.name)
             byte_faults = ByteFaults([f for f in self.faults if f.hits(spec.name)], np.random.default_rng([seed, k, 1]))
             self.devices.append(self._device(spec.type, spec.name, k, link, byte_faults, rng, spec.options))
         self._timed = sorted(
@@ -85,6 +86,16 @@ class Emulator:
         self._next_control = self.control_period_s
         if lockstep and self.base is None:
             raise ValueError("lockstep needs a robot base in the scenario: the host's velocity command is its answer")
+
+    @staticmethod
+    def _ros2_link(robot: dict[str, Any]) -> Link:
+        try:
+            from rfhoming.emulator.ros2robot import Ros2Link  # cyclonedds: the ros2 extra
+        except ImportError as exc:
+            raise ScenarioError(f"--robot ros2 needs {exc.name or exc}; install it with "
+                                "pip install 'rfhoming[ros2]'") from None
+
+        return Ros2Link(**robot)
 
     def _link(self, transport: str, name: str) -> Link:
         if transport == "pty":

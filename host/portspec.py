@@ -129,11 +129,31 @@ def _content(text: str) -> str:
     return text
 
 
+def _domain(text: str) -> int:
+    if not text.isdigit() or not 0 <= int(text) <= 232:
+        raise ValueError("a ROS 2 domain id, 0 to 232 (ROS_DOMAIN_ID)")
+    return int(text)
+
+
+def _ros_name(text: str) -> str:
+    if not re.fullmatch(r"/?[A-Za-z_~][A-Za-z0-9_/]*|/", text) or "//" in text:
+        raise ValueError("a ROS 2 name: letters, digits, _ and /, e.g. cmd_vel or /robot1")
+    return text
+
+
+def _discovery(text: str) -> str:
+    if text not in ("localhost", "subnet"):
+        raise ValueError("localhost (this machine only: loopback, no multicast) or subnet (the network)")
+    return text
+
+
 SETTINGS: dict[str, Callable[[str], Any]] = {
     "baud": _baud, "flow": _flow, "name": _name, "timeout": _seconds,  # serial ports
     "tags": _tags,  # the XPLR-AOA's tag filter
     "active": _yes_no, "interval": _scan_ms, "window": _scan_ms, "mac": _mac, "adname": _ad_name,  # BLE scans
     "extended": _extended, "content": _content, "dedup": _yes_no,  # HCI scans
+    "domain": _domain, "ns": _ros_name, "cmd_vel": _ros_name, "odom": _ros_name, "scan": _ros_name,  # ROS 2
+    "stamped": _yes_no, "discovery": _discovery,
 }
 """Every setting's parser (text -> value; ValueError says what is allowed). Which settings a
 device kind takes is its record's ``settings`` in the device table."""
@@ -236,6 +256,9 @@ def parse(text: str | PortSpec) -> PortSpec:
                             f"{', '.join([*devices.KINDS, *SOURCES])} (or leave KIND: out to sniff the protocol)")
     else:
         kind, body = None, text
+    default_where = devices.kind(kind, notice=False).default_where if kind and kind not in SOURCES else None
+    if default_where is not None and (not body or re.match(r"[a-z_]+=", body)):
+        body = default_where + ("," + body if body else "")
     where, settings = _split(body, text)
     if not where:
         raise PortSpecError(f"{text!r} names no device: give a path, socket://HOST:PORT or auto after the kind")

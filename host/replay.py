@@ -68,8 +68,10 @@ class ReplayPort:
     (the loop's, in a replay of the drivers alone), which are then passed over at once."""
 
     def __init__(self, name: str, packets: list[pcapng.Packet], *, speed: float | None = None,
-                 sequencer: Sequencer | None = None, match_writes: bool = True) -> None:
+                 sequencer: Sequencer | None = None, match_writes: bool = True,
+                 description: dict[str, str] | None = None) -> None:
         self.name = self.spec = name
+        self.description = description or {}  # the interface's recorded facts (a ROS 2 base's topics)
         self.packets = packets
         self.speed = speed
         self.baud = 115200

@@ -116,7 +116,9 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
         spec = spec.with_kind(await sniff(spec, lambda *event: sniffed.append(event)))
     if describe is not None:
         record = devices.kind(spec.kind)
-        describe(spec.name or spec.where, protocol=record.protocol, kind=record.name, label=label(spec.where, spec.name))
+        recorded = getattr(driver_class(record), "describe_spec", None)  # e.g. a ROS 2 base's topics
+        describe(spec.name or spec.where, protocol=record.protocol, kind=record.name, label=label(spec.where, spec.name),
+                 **(recorded(spec) if recorded else {}))
     for name, direction, t, data in sniffed:
         for tap in taps:
             tap(name, f"sniffed-{direction}", t, data)

@@ -46,6 +46,8 @@ PROTOCOLS: dict[str, WireProtocol] = {p.name: p for p in (
                  "rfhoming.protocol.espat:EspAtDecoder", pcapng.LINKTYPE_ESP_AT),
     WireProtocol("h4", "Bluetooth HCI over UART (H4) packets",
                  "rfhoming.protocol.h4:H4Splitter", pcapng.LINKTYPE_H4_STREAM, ("hci",)),
+    WireProtocol("ros2", "ROS 2 messages over DDS: one sample record (topic, type, CDR) per packet",
+                 "rfhoming.protocol.ros2:SampleDecoder", pcapng.LINKTYPE_ROS2_SAMPLES),
 )}
 
 
@@ -95,6 +97,8 @@ class DeviceKind:
     # the loop does not wait for them)
     extra: str | None = None  # the pip extra its driver needs
     aliases: tuple[str, ...] = ()
+    emulated_as: str | None = None  # how the emulator serves a kind that is no board of a scenario
+    default_where: str | None = None  # a kind reached by settings, not a path: WHERE when none is given
 
     @property
     def wire(self) -> WireProtocol:
@@ -126,6 +130,12 @@ KINDS: dict[str, DeviceKind] = {k.name: k for k in (
                "rfhoming.host.drivers.robot_base:BaseDriver",
                (Board("base", "rfhoming.firmware.robot_base:RobotBaseFirmware"),), ("base",), 5.0, "stm32",
                ("/odom", "/scan", "/cmd_vel"), commanded=True, aliases=("robot-base",)),
+    DeviceKind("ros2", "a ROS 2 robot base over DDS (nav_msgs/Odometry, sensor_msgs/LaserScan in; "
+               "geometry_msgs/Twist out); WHERE is its namespace", "ros2",
+               ("name", "timeout", "domain", "ns", "cmd_vel", "odom", "scan", "stamped", "discovery"),
+               "rfhoming.host.drivers.ros2_base:Ros2BaseDriver", (), ("base",), 10.0, None,
+               ("/odom", "/scan", "/cmd_vel"), commanded=True, extra="ros2",
+               emulated_as="rfhoming emulate SCENARIO --robot ros2", default_where="/"),
 )}
 
 BOARDS: dict[str, tuple[DeviceKind, Board]] = {b.name: (k, b) for k in KINDS.values() for b in k.boards}

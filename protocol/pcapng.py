@@ -5,7 +5,8 @@ rfhoming stores raw serial bytes: one interface per device (if_name = the port, 
 microsecond timestamps, and the direction in epb_flags (1 inbound, 2 outbound). Link types are
 the user-defined ones: 147 (USER0) for u-connectLocate text, 148 (USER1) for COBS records,
 149 (USER2) for ESP-AT text, 150 (USER3) for an HCI H4 byte stream (chunks as read, so a chunk
-need not hold whole HCI packets -- the reason it is not LINKTYPE_BLUETOOTH_HCI_H4).
+need not hold whole HCI packets -- the reason it is not LINKTYPE_BLUETOOTH_HCI_H4), 151 (USER4)
+for ROS 2 DDS samples, one sample record (topic, type, CDR; rfhoming.protocol.ros2) per packet.
 
 Spec: IETF draft-ietf-opsawg-pcapng. Little-endian sections; the reader also reads big-endian.
 """
@@ -23,6 +24,7 @@ LINKTYPE_UCONNECT = 147
 LINKTYPE_FRAMES = 148
 LINKTYPE_ESP_AT = 149
 LINKTYPE_H4_STREAM = 150
+LINKTYPE_ROS2_SAMPLES = 151
 OPT_END, OPT_COMMENT, OPT_SHB_USERAPPL = 0, 1, 4
 OPT_IF_NAME, OPT_IF_DESCRIPTION, OPT_IF_TSRESOL = 2, 3, 9
 OPT_EPB_FLAGS = 2

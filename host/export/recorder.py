@@ -42,7 +42,7 @@ from mcap_ros2._dynamic import serialize_dynamic  # the encoder mcap_ros2's own 
 
 from rfhoming.host.capture import DISCONNECTED, SNIFFED
 from rfhoming.host.drivers.common import Driver
-from rfhoming.host.drivers.robot_base import scan_of
+from rfhoming.host.drivers.robot_base import Pose2D, Scan, scan_of
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.export import frames, rosmsgs
 from rfhoming.host.replay import ReplayPort, load_capture
@@ -109,6 +109,9 @@ class McapRecorder(Sink):
         self.skipped[f"unwritable {kind}"] += 1
 
     def _on_item(self, device: str, t_host: float, item: Any) -> None:
+        if isinstance(item, (Pose2D, Scan)):  # a ROS 2 base hands over the loop's items, not records
+            self._on_ros2_base(device, t_host, item)
+            return
         kind = getattr(item, "kind", None)
         if kind == "odometry":
             clock = self._clocks.setdefault(device, NodeClock())
@@ -136,6 +139,23 @@ class McapRecorder(Sink):
             self._write(t, *rosmsgs.antenna_set(t, item), device=device)
         elif kind == "velocity_command" and self.commands_from == "capture":
             self._write(t, *rosmsgs.twist(item.v_mm_s / 1000, item.w_mrad_s / 1000), device=device)
+
+    def _on_ros2_base(self, device: str, t_host: float, item: Pose2D | Scan) -> None:
+        """Odometry and scans of a ``ros2:`` base, on its header stamps as robot time."""
+        if isinstance(item, Pose2D):
+            self.robot_time = item.t_robot
+        t = self._time(t_host)
+        if t is None:
+            self.skipped["before odometry"] += 1
+            return
+        if isinstance(item, Scan):
+            self._write(t, *rosmsgs.laser_scan(t, item), device=device)
+            return
+        if self._last_xy is not None:
+            self.path_m += math.dist(self._last_xy, (item.x, item.y))
+        self._last_xy = (item.x, item.y)
+        self._write(t, *rosmsgs.odometry(t, item.x, item.y, item.theta, item.v, item.w, self.path_m), device=device)
+        self._write(t, *rosmsgs.odom_transform(t, item.x, item.y, item.theta))
 
     def _aoa_frame(self, event: Any) -> str:
         """The robot's XPLR-AOA is aoa_link; S1's is on the docking station and a fixed

@@ -196,7 +196,8 @@ def _recorded(devices_: list[Device], capture: CaptureWriter | None) -> list[Dev
                                     f"{devices.ROLES[devices_[i].role].title}")
         sequencer = Sequencer({interfaces[k].name: packets[k] for k in picked})
         for i, k in zip(indexes, picked):
-            port = ReplayPort(interfaces[k].name, packets[k], sequencer=sequencer)
+            port = ReplayPort(interfaces[k].name, packets[k], sequencer=sequencer,
+                              description=describe_interface(interfaces[k]))
             kind = recorded_kind(interfaces[k]).name
             if capture is not None:  # a run on recorded devices is a run: its capture replays too
                 port.taps.append(capture.tap)
@@ -288,16 +289,18 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
     specs: dict[str, list[str | None]] = {}
     for role, text in record["devices"]:
         specs.setdefault(role, []).append(text)
-    roles, ports = [], {}
+    roles, ports, descriptions = [], {}, {}
     for i, iface in enumerate(interfaces):
         role = describe_interface(iface).get("role")
         if role is None:  # bytes sniffed or recorded for no device of the run
             continue
         ports[iface.name] = packets[i]
+        descriptions[iface.name] = describe_interface(iface)
         text = specs.get(role, []).pop(0) if specs.get(role) else None
         roles.append(Device(role, spec=text, kind=recorded_kind(iface).name, port=iface.name))
     sequencer = Sequencer(ports)
-    roles = [replace(d, port=ReplayPort(d.port, ports[d.port], sequencer=sequencer)) for d in roles]
+    roles = [replace(d, port=ReplayPort(d.port, ports[d.port], sequencer=sequencer, description=descriptions[d.port]))
+             for d in roles]
     try:
         site = sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record["site"] else None
     except tomllib.TOMLDecodeError as exc:

@@ -11,10 +11,13 @@ import signal
 import sys
 from pathlib import Path
 
+from typing import Any
+
 from rfhoming.cli.args import nonnegative_float, output_file, positive_float, xy
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import BLE_RECEIVERS, ScenarioError, load, presets
+from rfhoming.host import portspec
 from rfhoming.protocol.errors import Error
 
 HELP = """\
@@ -55,8 +58,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
     p.add_argument("--truth", type=output_file, help="write the true robot pose and target positions as JSON lines")
     p.add_argument("--duration", type=positive_float, help="stop after this many simulated seconds")
+    p.add_argument("--robot", type=ros2_robot, metavar="ros2[:domain=N,ns=NS,discovery=subnet]",
+                   help="the robot base as a ROS 2 robot over DDS (/odom, /scan, /tf out, /cmd_vel in), not a "
+                        "serial port; this machine only unless discovery=subnet (docs/hardware.md, Robots)")
     p.add_argument("--link-dir", type=Path, help="directory for the pty symlinks (default: a new temp dir)")
     p.set_defaults(func=cmd_emulate)
+
+
+def ros2_robot(text: str) -> dict[str, Any]:
+    """``ros2[:domain=N,ns=NS,discovery=localhost|subnet]`` -> Ros2Link's arguments."""
+    kind, _, rest = text.partition(":")
+    if kind != "ros2":
+        raise argparse.ArgumentTypeError(f"{text!r}: the robot can be ros2[:domain=N,ns=NS]")
+    try:
+        spec = portspec.parse("ros2:" + rest)
+    except portspec.PortSpecError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if set(spec.settings) - {"domain", "ns", "discovery"}:
+        raise argparse.ArgumentTypeError(f"{text!r}: --robot ros2 takes domain=, ns= and discovery=")
+    return {"domain": spec.settings.get("domain", 0), "ns": str(spec.settings.get("ns", spec.where)).strip("/"),
+            "discovery": spec.settings.get("discovery", "localhost")}
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
@@ -77,7 +98,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         emulator = Emulator(
             scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
             speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
-            faults=faults, truth=truth, link_dir=args.link_dir,
+            faults=faults, truth=truth, link_dir=args.link_dir, robot=args.robot,
         )
     except Error as exc:
         print(f"rfhoming emulate: {exc}", file=sys.stderr)

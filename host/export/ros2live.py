@@ -1,0 +1,121 @@
+"""``--ros2``: what rfhoming senses, published live on ROS 2 -- the same topics, types and
+frames as the MCAP recording (host/export/recorder.py makes the messages; this sink publishes
+them over DDS instead of writing them). The IDL types are made from the same message
+definitions the MCAP schemas carry (rosbags' ROS 2 Humble store plus rfhoming_msgs), under
+ROS 2's DDS names. QoS: /tf_static reliable and transient-local (as tf2's static broadcaster),
+everything else ROS 2's default profile. Loopback only unless ``discovery=subnet``.
+"""
+
+# no `from __future__ import annotations`: cyclonedds reads the generated fields at run time
+from collections import Counter
+from functools import cache
+from typing import Any
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.idl import IdlStruct, make_idl_struct
+from cyclonedds.idl import types as idl
+from cyclonedds.pub import DataWriter
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.base import Nodetype
+
+from rfhoming.host.export import frames, rosmsgs
+from rfhoming.host.export.recorder import McapRecorder
+from rfhoming.protocol import ros2
+from rfhoming.protocol.ros2dds import DEFAULT_QOS, participant
+
+BASE = {"bool": bool, "int8": idl.int8, "uint8": idl.uint8, "byte": idl.uint8, "char": idl.uint8, "octet": idl.uint8,
+        "int16": idl.int16, "uint16": idl.uint16, "int32": idl.int32, "uint32": idl.uint32, "int64": idl.int64,
+        "uint64": idl.uint64, "float32": idl.float32, "float64": idl.float64, "string": str}
+STATIC_QOS = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.Durability.TransientLocal,
+                 Policy.History.KeepLast(1))
+
+
+@cache
+def _store() -> Any:
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    own = {}
+    for name in rosmsgs.OWN_TYPES:
+        own.update(get_types_from_msg((rosmsgs.MSG_DIR / f"{name}.msg").read_text(), f"rfhoming_msgs/msg/{name}"))
+    store.register(own)
+    return store
+
+
+def _annotation(node: tuple[Any, Any]) -> Any:
+    kind, rest = node
+    if kind == Nodetype.BASE:
+        return BASE[rest[0]]
+    if kind == Nodetype.NAME:
+        return idl_type(rest)
+    inner, length = rest
+    if kind == Nodetype.ARRAY:
+        return idl.array[_annotation(inner), length]
+    return idl.sequence[_annotation(inner)]
+
+
+@cache
+def idl_type(ros_type: str) -> type[IdlStruct]:
+    """A ROS 2 message type as a cyclonedds IDL struct named as ROS 2 names it on DDS."""
+    _, fields = _store().fielddefs[ros_type]
+    return make_idl_struct(ros_type.replace("/", "_"), ros2.dds_type(ros_type),
+                           {name: _annotation(node) for name, node in fields} or {"structure_needs_at_least_one_member": idl.uint8})
+
+
+def sample(ros_type: str, message: dict[str, Any]) -> IdlStruct:
+    """A message as rosmsgs builds it (dicts by field name) -> an instance of its IDL type."""
+    _, fields = _store().fielddefs[ros_type]
+    values = {}
+    for name, (kind, rest) in fields:
+        value = message[name]
+        if kind == Nodetype.NAME:
+            value = sample(rest, value)
+        elif kind in (Nodetype.ARRAY, Nodetype.SEQUENCE) and rest[0][0] == Nodetype.NAME:
+            value = [sample(rest[0][1], v) for v in value]
+        elif kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            value = list(value)
+        values[name] = value
+    return idl_type(ros_type)(**values)
+
+
+class Ros2Publisher(McapRecorder):
+    """The MCAP recorder's messages, published on a DDS domain instead of written."""
+
+    def __init__(self, domain: int = 0, discovery: str = "localhost", *, clock: str = "robot",
+                 skip: frozenset[str] = frozenset()) -> None:
+        """``skip``: topics not to publish (a ROS 2 base's own /odom, /scan, /tf, /cmd_vel on its domain)."""
+        # McapRecorder's state, without its file
+        self.clock, self.commands_from, self.mounting, self.source = clock, "runlog", None, None
+        self._clocks: dict[str, Any] = {}
+        self._static_written = False
+        self._last_xy: tuple[float, float] | None = None
+        self.path_m = 0.0
+        self.robot_time: float | None = None
+        self.counts: Counter[str] = Counter()
+        self.skipped: Counter[str] = Counter()
+        self._closed = False
+        self.domain = domain
+        self._participant = participant(domain, discovery)
+        self._writers: dict[str, DataWriter] = {}
+        self.skip = skip
+
+    def _write(self, t: float, topic: str, typename: str, message: dict[str, Any], device: str = "") -> None:
+        if self._closed or topic in self.skip:
+            return
+        if not self._static_written:
+            self._static_written = True
+            self._write(t, *rosmsgs.transforms("/tf_static", t, frames.sensor_mounts(self.mounting)))
+        writer = self._writers.get(topic)
+        if writer is None:
+            qos = STATIC_QOS if topic == "/tf_static" else DEFAULT_QOS
+            writer = self._writers[topic] = DataWriter(self._participant, Topic(
+                self._participant, ros2.dds_topic(topic), idl_type(typename)), qos=qos)
+        writer.write(sample(typename, message))
+        self.counts[topic] += 1
+
+    def flush(self) -> None:
+        """Nothing is held: every message is published as it is made."""
+
+    def close(self) -> None:
+        self._closed = True
+        self._writers = {}

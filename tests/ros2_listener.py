@@ -1,0 +1,175 @@
+"""A second reader of ROS 2 topics, written with nothing but the cyclonedds binding: its own
+IDL types (from ros2/common_interfaces' .msg files, ROS 2's DDS names) and its own loopback
+configuration. Reads rt/cmd_vel, rt/odom, rt/scan, rt/tf,
+rt/rfhoming/target and rt/rfhoming/events on a domain and prints one JSON line
+per sample; ends after SECONDS, or once its standard input closes and then 3 s pass with
+no command on rt/cmd_vel (what was still on its way is read).
+
+    python tests/ros2_listener.py DOMAIN SECONDS
+"""
+
+import json
+import select
+import sys
+import time
+from dataclasses import dataclass
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint32
+from cyclonedds.sub import DataReader, InvalidSample
+from cyclonedds.topic import Topic
+
+
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32
+    nanosec: uint32
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time
+    frame_id: str
+
+
+@dataclass
+class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: float64
+    y: float64
+    z: float64
+    w: float64
+
+
+@dataclass
+class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    linear: Vector3
+    angular: Vector3
+
+
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point
+    orientation: Quaternion
+
+
+@dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose
+    covariance: array[float64, 36]
+
+
+@dataclass
+class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+    twist: Twist
+    covariance: array[float64, 36]
+
+
+@dataclass
+class Odometry(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+    header: Header
+    child_frame_id: str
+    pose: PoseWithCovariance
+    twist: TwistWithCovariance
+
+
+@dataclass
+class LaserScan(IdlStruct, typename="sensor_msgs::msg::dds_::LaserScan_"):
+    header: Header
+    angle_min: float32
+    angle_max: float32
+    angle_increment: float32
+    time_increment: float32
+    scan_time: float32
+    range_min: float32
+    range_max: float32
+    ranges: sequence[float32]
+    intensities: sequence[float32]
+
+
+@dataclass
+class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+    translation: Vector3
+    rotation: Quaternion
+
+
+@dataclass
+class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+    header: Header
+    child_frame_id: str
+    transform: Transform
+
+
+@dataclass
+class PointStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PointStamped_"):
+    header: Header
+    point: Point
+
+
+@dataclass
+class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
+    data: str
+
+
+@dataclass
+class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+    transforms: sequence[TransformStamped]
+
+
+def main() -> None:
+    domain, seconds = int(sys.argv[1]), float(sys.argv[2])
+    config = (f'<CycloneDDS><Domain id="{domain}"><General><Interfaces><NetworkInterface address="127.0.0.1"/>'
+              "</Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto"
+              "</ParticipantIndex><MaxAutoParticipantIndex>30</MaxAutoParticipantIndex><Peers>"
+              '<Peer address="127.0.0.1"/></Peers></Discovery></Domain></CycloneDDS>')
+    _domain = Domain(domain, config)  # noqa: F841 -- kept alive with the participant
+    dp = DomainParticipant(domain)
+    best_effort = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(50))
+    readers = {name: DataReader(dp, Topic(dp, "rt/" + name, kind), qos=best_effort)
+               for name, kind in (("cmd_vel", Twist), ("odom", Odometry), ("scan", LaserScan), ("tf", TFMessage),
+                                  ("rfhoming/target", PointStamped), ("rfhoming/events", String))}
+    print(json.dumps({"ready": domain}), flush=True)
+    end = time.monotonic() + seconds
+    closing = False
+    while time.monotonic() < end:
+        if not closing and select.select([sys.stdin], [], [], 0)[0] and not sys.stdin.read(1):
+            closing, end = True, time.monotonic() + 3.0
+        for name, reader in readers.items():
+            for s in reader.take(50):
+                if isinstance(s, InvalidSample):  # a writer went away: no data
+                    continue
+                if closing and name == "cmd_vel":
+                    end = time.monotonic() + 3.0
+                if name == "cmd_vel":
+                    out = {"v": s.linear.x, "w": s.angular.z}
+                elif name == "odom":
+                    out = {"x": s.pose.pose.position.x, "frame": s.header.frame_id, "child": s.child_frame_id}
+                elif name == "scan":
+                    out = {"beams": len(s.ranges), "frame": s.header.frame_id, "range_max": s.range_max}
+                elif name == "rfhoming/target":
+                    out = {"frame": s.header.frame_id, "xy": [s.point.x, s.point.y]}
+                elif name == "rfhoming/events":
+                    out = {"what": s.data}
+                else:
+                    out = {"frames": [[t.header.frame_id, t.child_frame_id] for t in s.transforms]}
+                print(json.dumps({"topic": name, **out}), flush=True)
+        time.sleep(0.01)
+
+
+if __name__ == "__main__":
+    main()
