@@ -177,13 +177,13 @@ class Worker:
     merges its gateways' batches on one clock, fixes every tag per tick and publishes positions."""
 
     def __init__(self, site: Site, broker: Broker, *, worker_id: str, partitions: int,
-                 rate_hz: float | None = None, reorder_s: float = 0.02, ca_file: str | None = None,
+                 rate_hz: float | None = None, reorder_s: float = 0.02, track: bool = True, ca_file: str | None = None,
                  clock: Callable[[], float] = time.time) -> None:
         self.site, self.worker_id, self.partitions = site, worker_id, partitions
         self.period = 1.0 / (rate_hz or site.rate_hz)
         self.reorder_s = reorder_s
         self.clock = clock
-        self.engine = BatchLocator(site)
+        self.engine = BatchLocator(site, track=track)
         self.live: set[str] = {worker_id}
         self.owned: set[int] = set()
         self._inbox: collections.deque[tuple[float, str, bytes]] = collections.deque(maxlen=INBOX_MESSAGES)

@@ -314,3 +314,32 @@ def test_two_workers_split_the_site_and_one_takes_over_when_the_other_dies(broke
     last = w1_tags_last_t or killed_at_t
     print(f"handover: w2's first position of a w1 tag came {first_w2_of_w1_tags - last:.2f} s of site time "
           f"({(first_w2_of_w1_tags - last) * 20:.0f} ticks at 20 Hz) after w1's last")
+
+
+def test_batch_tracker_equals_the_per_tag_tracker() -> None:
+    """Locator(tracker="cv") and BatchLocator(track=True), tick after tick on the same events."""
+    sc = SiteScenario(16, 40, seed=5, clock_spread_s=0.0)
+    site = _site(sc)
+    rows = sorted(r for rs in sc.events(10.0, 13.0).values() for r in rs)
+    loc = Locator(site, track=True, tracker="cv", reorder_s=0.0)
+    ref = []
+    for t, a, tag, az, el in rows:
+        ref += loc.feed(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0))
+    batch = BatchLocator(site, track=True)
+    ticks = sorted({p.t for p in ref})
+    i = 0
+    compared = 0
+    for t in ticks:
+        j = i
+        while j < len(rows) and rows[j][0] < t:
+            j += 1
+        batch.feed(rows[i:j])
+        i = j
+        mine = {f.tag: f for f in batch.tick(t)}
+        theirs = {p.tag: p for p in ref if p.t == t}
+        assert set(mine) == set(theirs)
+        for tag, p in theirs.items():
+            np.testing.assert_allclose(mine[tag].fix.point, p.point, atol=1e-8)
+            np.testing.assert_allclose(mine[tag].fix.covariance, p.covariance, atol=1e-10)
+            compared += 1
+    assert compared > 40 * 20

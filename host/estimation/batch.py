@@ -141,6 +141,7 @@ class TagFix:
     fix: Fix
     newest: float
     quality: float
+    tracked: bool = False
 
 
 class BatchLocator:
@@ -152,8 +153,9 @@ class BatchLocator:
     (one gateway hears one anchor); tags not listed in the site are located too (a warehouse's
     tags come and go), without a known height."""
 
-    def __init__(self, site: Site, calibrated: bool = True) -> None:
+    def __init__(self, site: Site, calibrated: bool = True, track: bool = False, accel_psd: float = 1.0) -> None:
         self.site = site
+        self.tracker = BatchConstantVelocity(accel_psd) if track else None
         anchors = site.anchors
         self.anchor_index = {a.id: i for i, a in enumerate(anchors)}
         self.anchor_names = [a.name for a in anchors]
@@ -175,13 +177,15 @@ class BatchLocator:
         self._ptag = np.zeros(cap, np.int64)
         self._panchor = np.zeros(cap, np.int64)
         self.counters = {"events": 0, "unknown_anchor": 0, "overflow": 0, "fixes": 0, "no_fix": 0,
-                         "consensus": 0, "rejected_anchor": 0}
+                         "consensus": 0, "rejected_anchor": 0, "gated": 0}
         self._known = {t.id: t for t in site.tags}
 
     def _tag(self, tag: str) -> int:
         i = self.tag_index.get(tag)
         if i is None:
             i = self.tag_index[tag] = len(self.tags)
+            if self.tracker is not None:
+                self.tracker.grow(i + 1)
             self.tags.append(tag)
             info = self._known.get(tag)
             self._heights.append(info.height if info is not None and info.height is not None else math.nan)
@@ -251,12 +255,13 @@ class BatchLocator:
         tt = upto[fresh]
         inside = tt > (last[fresh] - site.window_s)[:, None]
         count = inside.sum(axis=1)
+        mean_t = np.where(inside, tt, 0.0).sum(axis=1) / count
         ang = np.where(inside[:, :, None], self._ang[fresh], np.nan)
         med = np.nanmedian(ang, axis=1)
         tag = self._ptag[fresh]
         anc = self._panchor[fresh]
         order = np.lexsort((anc, tag))  # by tag, then anchor in site order (as the per-tag path)
-        fresh, med, count, tag, anc = (x[order] for x in (fresh, med, count, tag, anc))
+        fresh, med, count, tag, anc, mean_t = (x[order] for x in (fresh, med, count, tag, anc, mean_t))
         heights_all = np.array(self._heights)
         nrays = np.bincount(tag, minlength=len(self.tags))
         need = np.where(np.isnan(heights_all), 3, 2)
@@ -264,7 +269,7 @@ class BatchLocator:
         folded = np.zeros(len(self.tags), bool)
         folded[tag[self.two_sided[anc]]] = True
         keep = enough[tag]
-        fresh, med, count, tag, anc = (x[keep] for x in (fresh, med, count, tag, anc))
+        fresh, med, count, tag, anc, mean_t = (x[keep] for x in (fresh, med, count, tag, anc, mean_t))
         self.counters["no_fix"] += int(((nrays > 0) & ~enough).sum())
         if len(tag) == 0:
             return []
@@ -282,10 +287,10 @@ class BatchLocator:
         result = fix_batch(o, u, sigma, g, heights)
         newest = np.full(len(rows), -np.inf)
         np.maximum.at(newest, g, last[fresh])
+        t_fix = np.bincount(g, weights=mean_t) / np.bincount(g)  # the fix's time: its angles' mean
         starts = np.r_[0, np.flatnonzero(g[1:] != g[:-1]) + 1, len(g)]
-        out = []
+        fixes: list[tuple[int, Fix, float, float, float]] = []
         for k, row in enumerate(rows):
-            name = self.tags[row]
             lo, hi = starts[k], starts[k + 1]
             height = None if np.isnan(heights[k]) else float(heights[k])
             if result.suspect[k] or folded[row]:  # the reference does the rare cases itself
@@ -305,9 +310,98 @@ class BatchLocator:
             self.counters["fixes"] += 1
             self.counters["rejected_anchor"] += len(fix.rejected)
             dof = max(1, 2 * len(fix.used) - (3 if height is None else 2))
-            out.append(TagFix(t, name, fix, float(newest[k]), fix.chi2 / dof))
+            fixes.append((k, fix, float(newest[k]), float(t_fix[k]), fix.chi2 / dof))
+        if self.tracker is None:
+            return [TagFix(t, self.tags[rows[k]], fix, new, qual) for k, fix, new, _, qual in fixes]
+        if not fixes:
+            return []
+        which = np.array([rows[k] for k, *_ in fixes])
+        ok = self.tracker.update(which, np.array([f[3] for f in fixes]), np.array([f.point for _, f, *_ in fixes]),
+                                 np.array([f.covariance for _, f, *_ in fixes]))
+        self.counters["gated"] += int((~ok).sum())
+        live = ~np.isnan(self.tracker.t[which])
+        points, covs = self.tracker.predicted(which[live], t)
+        out = []
+        for (k, fix, new, _, qual), point, cov in zip([f for f, keep in zip(fixes, live) if keep], points, covs):
+            if not np.isnan(heights[k]):
+                point = np.array([point[0], point[1], heights[k]])
+            out.append(TagFix(t, self.tags[rows[k]], Fix(point, cov, fix.used, fix.rejected, fix.chi2), new, qual, True))
         return out
 
     def _ray(self, ai: int, med: np.ndarray, sigma_deg: float) -> Ray:
         a = self._anchors[ai]
         return make_ray(a.name, a.position, self.rotations[ai], float(med[0]), float(med[1]), sigma_deg, a.two_sided)
+
+
+class BatchConstantVelocity:
+    """tracking.ConstantVelocity for every tag at once: rows of flat state arrays, the same
+    transition, gate, restart after ``max_misses`` refusals and first-fix start."""
+
+    def __init__(self, accel_psd: float = 1.0, gate: float = 25.0, max_misses: int = 3) -> None:
+        self.q, self.gate, self.max_misses = accel_psd, gate, max_misses
+        self.t = np.zeros(0)
+        self.x = np.zeros((0, 6))
+        self.p = np.zeros((0, 6, 6))
+        self.misses = np.zeros(0, np.int64)
+
+    def grow(self, n: int) -> None:
+        if n > len(self.t):
+            extra = max(n - len(self.t), len(self.t))
+            self.t = np.r_[self.t, np.full(extra, np.nan)]
+            self.x = np.concatenate([self.x, np.zeros((extra, 6))])
+            self.p = np.concatenate([self.p, np.zeros((extra, 6, 6))])
+            self.misses = np.r_[self.misses, np.zeros(extra, np.int64)]
+
+    def _predict(self, rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        dt = np.maximum(0.0, t - self.t[rows])
+        n = len(rows)
+        f = np.tile(np.eye(6), (n, 1, 1))
+        f[:, [0, 1, 2], [3, 4, 5]] = dt[:, None]
+        q = np.zeros((n, 6, 6))
+        for i in range(3):
+            q[:, i, i] = dt**3 / 3 * self.q
+            q[:, i, i + 3] = q[:, i + 3, i] = dt**2 / 2 * self.q
+            q[:, i + 3, i + 3] = dt * self.q
+        x = np.einsum("nij,nj->ni", f, self.x[rows])
+        p = f @ self.p[rows] @ f.transpose(0, 2, 1) + q
+        return x, p
+
+    def predicted(self, rows: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        x, p = self._predict(rows, np.full(len(rows), t))
+        return x[:, :3], p[:, :3, :3]
+
+    def update(self, rows: np.ndarray, t: np.ndarray, z: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """Fixes ``z`` (K, 3) with covariances ``r`` (K, 3, 3) made at ``t`` (K,) for tag rows ``rows``
+        (each once); True where taken, False where gated out."""
+        diag = np.diagonal(r, axis1=1, axis2=2)
+        r = r + np.einsum("ni,ij->nij", np.where(diag <= 0, 1e-6, 0.0), np.eye(3))
+        ok = np.ones(len(rows), bool)
+        new = np.isnan(self.t[rows])
+        if new.any():
+            nr = rows[new]
+            self.x[nr] = np.concatenate([z[new], np.zeros((len(nr), 3))], axis=1)
+            self.p[nr] = 0.0
+            self.p[nr, :3, :3] = r[new]
+            self.p[nr, 3:, 3:] = np.eye(3)
+            self.t[nr] = t[new]
+        old = ~new
+        if not old.any():
+            return ok
+        o = rows[old]
+        x, p = self._predict(o, t[old])
+        s = p[:, :3, :3] + r[old]
+        innovation = z[old] - x[:, :3]
+        d2 = np.einsum("ni,ni->n", innovation, np.linalg.solve(s, innovation[:, :, None])[:, :, 0])
+        self.t[o] = np.maximum(t[old], self.t[o])
+        gated = d2 > self.gate
+        k = p[:, :, :3] @ np.linalg.inv(s)
+        x_new = x + np.einsum("nij,nj->ni", k, innovation)
+        p_new = p - k @ p[:, :3, :]
+        self.x[o] = np.where(gated[:, None], x, x_new)
+        self.p[o] = np.where(gated[:, None, None], p, p_new)
+        self.misses[o] = np.where(gated, self.misses[o] + 1, 0)
+        restart = o[gated & (self.misses[o] >= self.max_misses)]
+        self.t[restart] = np.nan
+        self.misses[restart] = 0
+        ok[old] = ~gated
+        return ok

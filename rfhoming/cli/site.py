@@ -102,7 +102,8 @@ def cmd_worker(args: argparse.Namespace) -> int:
     broker = Broker.parse(args.source)
     site = resolve_site(args.site, args.seed)
     partitions = broker.partitions or sitebus.DEFAULT_PARTITIONS
-    worker = Worker(site, broker, worker_id=args.id, partitions=partitions, rate_hz=args.rate, ca_file=args.ca)
+    worker = Worker(site, broker, worker_id=args.id, partitions=partitions, rate_hz=args.rate,
+                    track=not args.fixes_only, ca_file=args.ca)
     stop = _stop_on_signals()
     try:
         worker.run(args.duration, stop)
@@ -131,6 +132,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     w.add_argument("--from", dest="source", required=True, metavar="URL", help="mqtt://HOST[:PORT][/PARTITIONS]")
     w.add_argument("--id", default="w1", help="this worker's name among the site's workers (default w1)")
     w.add_argument("--rate", type=positive_float, metavar="HZ", help="output ticks per second (default: the site's)")
+    w.add_argument("--fixes-only", action="store_true",
+                   help="publish each tick's fixes, without the constant-velocity tracker")
     w.add_argument("--seed", type=int, default=1, help="an emulated site's seed (default 1)")
     w.add_argument("--duration", type=positive_float, help="stop after this many seconds")
     w.add_argument("--ca", metavar="PEM", help="CA certificate for mqtts://")
