@@ -132,6 +132,14 @@ def fix_batch(o: np.ndarray, u: np.ndarray, sigma: np.ndarray, g: np.ndarray, he
     return BatchFix(point, cov, chi2, ok, suspect)
 
 
+def _median(values: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Per row the median over axis 1 of its first ``count`` finite values (the rest +inf): as
+    statistics.median, the mean of the two middle ones for an even count."""
+    ordered = np.sort(values, axis=1)
+    rows = np.arange(len(count))
+    return (ordered[rows, (count - 1) // 2] + ordered[rows, count // 2]) / 2
+
+
 @dataclass(frozen=True)
 class TagFix:
     """One tag's fix at tick ``t``; ``newest`` = the site time of the newest angle it rests on."""
@@ -256,8 +264,7 @@ class BatchLocator:
         inside = tt > (last[fresh] - site.window_s)[:, None]
         count = inside.sum(axis=1)
         mean_t = np.where(inside, tt, 0.0).sum(axis=1) / count
-        ang = np.where(inside[:, :, None], self._ang[fresh], np.nan)
-        med = np.nanmedian(ang, axis=1)
+        med = _median(np.where(inside[:, :, None], self._ang[fresh], np.inf), count)
         tag = self._ptag[fresh]
         anc = self._panchor[fresh]
         order = np.lexsort((anc, tag))  # by tag, then anchor in site order (as the per-tag path)
@@ -290,10 +297,13 @@ class BatchLocator:
         t_fix = np.bincount(g, weights=mean_t) / np.bincount(g)  # the fix's time: its angles' mean
         starts = np.r_[0, np.flatnonzero(g[1:] != g[:-1]) + 1, len(g)]
         fixes: list[tuple[int, Fix, float, float, float]] = []
-        for k, row in enumerate(rows):
-            lo, hi = starts[k], starts[k + 1]
-            height = None if np.isnan(heights[k]) else float(heights[k])
-            if result.suspect[k] or folded[row]:  # the reference does the rare cases itself
+        names = [self.anchor_names[i] for i in anc.tolist()]
+        hlist, suspect, ok = heights.tolist(), (result.suspect | folded[rows]).tolist(), result.ok.tolist()
+        newest_l, t_fix_l, chi2_l, starts_l = newest.tolist(), t_fix.tolist(), result.chi2.tolist(), starts.tolist()
+        for k in range(len(rows)):
+            lo, hi = starts_l[k], starts_l[k + 1]
+            height = None if math.isnan(hlist[k]) else hlist[k]
+            if suspect[k]:  # the reference does the rare cases itself
                 self.counters["consensus"] += 1
                 rays = [self._ray(int(anc[r]), med[r], float(sig_deg[r])) for r in range(lo, hi)]
                 try:
@@ -301,16 +311,15 @@ class BatchLocator:
                 except Degenerate:
                     self.counters["no_fix"] += 1
                     continue
-            elif result.ok[k]:
-                fix = Fix(result.points[k], result.covariances[k],
-                          tuple(self.anchor_names[int(i)] for i in anc[lo:hi]), (), float(result.chi2[k]))
+            elif ok[k]:
+                fix = Fix(result.points[k], result.covariances[k], tuple(names[lo:hi]), (), chi2_l[k])
             else:
                 self.counters["no_fix"] += 1
                 continue
             self.counters["fixes"] += 1
             self.counters["rejected_anchor"] += len(fix.rejected)
             dof = max(1, 2 * len(fix.used) - (3 if height is None else 2))
-            fixes.append((k, fix, float(newest[k]), float(t_fix[k]), fix.chi2 / dof))
+            fixes.append((k, fix, newest_l[k], t_fix_l[k], fix.chi2 / dof))
         if self.tracker is None:
             return [TagFix(t, self.tags[rows[k]], fix, new, qual) for k, fix, new, _, qual in fixes]
         if not fixes:
