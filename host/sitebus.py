@@ -282,8 +282,8 @@ class Worker:
             owned = set(self.owned)
         site = self.site.name
         for f in self.engine.tick(t):
-            if f.newest <= t - self.period:
-                continue  # nothing new of this tag since the last tick: its last position stands
+            if not f.new:
+                continue  # nothing new of this tag since its last position: that one stands
             if sitebus.partition(f.tag, self.partitions) not in owned:
                 self.counters["other_partition"] += 1  # a partition handed away: its tags age out
                 continue

@@ -150,6 +150,7 @@ class TagFix:
     newest: float
     quality: float
     tracked: bool = False
+    new: bool = True  # rests on an angle no earlier tick of this tag had
 
 
 class BatchLocator:
@@ -177,6 +178,7 @@ class BatchLocator:
         self.tag_index: dict[str, int] = {}
         self.tags: list[str] = []
         self._heights: list[float] = []
+        self._reported: list[float] = []  # per tag the newest angle time a tick has used
         self._pairs: dict[tuple[str, str], int] = {}
         cap = 1024
         self._t = np.full((cap, SLOTS), -np.inf)
@@ -192,6 +194,7 @@ class BatchLocator:
         i = self.tag_index.get(tag)
         if i is None:
             i = self.tag_index[tag] = len(self.tags)
+            self._reported.append(-math.inf)
             if self.tracker is not None:
                 self.tracker.grow(i + 1)
             self.tags.append(tag)
@@ -298,6 +301,7 @@ class BatchLocator:
         starts = np.r_[0, np.flatnonzero(g[1:] != g[:-1]) + 1, len(g)]
         fixes: list[tuple[int, Fix, float, float, float]] = []
         names = [self.anchor_names[i] for i in anc.tolist()]
+        rows_l = rows.tolist()
         hlist, suspect, ok = heights.tolist(), (result.suspect | folded[rows]).tolist(), result.ok.tolist()
         newest_l, t_fix_l, chi2_l, starts_l = newest.tolist(), t_fix.tolist(), result.chi2.tolist(), starts.tolist()
         for k in range(len(rows)):
@@ -320,8 +324,15 @@ class BatchLocator:
             self.counters["rejected_anchor"] += len(fix.rejected)
             dof = max(1, 2 * len(fix.used) - (3 if height is None else 2))
             fixes.append((k, fix, newest_l[k], t_fix_l[k], fix.chi2 / dof))
+        reported = self._reported
+        new = []
+        for k, _, newest_k, _, _ in fixes:
+            row = rows_l[k]
+            new.append(newest_k > reported[row])
+            reported[row] = max(reported[row], newest_k)
         if self.tracker is None:
-            return [TagFix(t, self.tags[rows[k]], fix, new, qual) for k, fix, new, _, qual in fixes]
+            return [TagFix(t, self.tags[rows_l[k]], fix, newest_k, qual, False, is_new)
+                    for (k, fix, newest_k, _, qual), is_new in zip(fixes, new)]
         if not fixes:
             return []
         which = np.array([rows[k] for k, *_ in fixes])
@@ -331,10 +342,12 @@ class BatchLocator:
         live = ~np.isnan(self.tracker.t[which])
         points, covs = self.tracker.predicted(which[live], t)
         out = []
-        for (k, fix, new, _, qual), point, cov in zip([f for f, keep in zip(fixes, live) if keep], points, covs):
+        kept = [(f, is_new) for f, is_new, keep in zip(fixes, new, live) if keep]
+        for ((k, fix, newest_k, _, qual), is_new), point, cov in zip(kept, points, covs):
             if not np.isnan(heights[k]):
                 point = np.array([point[0], point[1], heights[k]])
-            out.append(TagFix(t, self.tags[rows[k]], Fix(point, cov, fix.used, fix.rejected, fix.chi2), new, qual, True))
+            out.append(TagFix(t, self.tags[rows_l[k]], Fix(point, cov, fix.used, fix.rejected, fix.chi2), newest_k,
+                              qual, True, is_new))
         return out
 
     def _ray(self, ai: int, med: np.ndarray, sigma_deg: float) -> Ray:
