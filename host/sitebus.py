@@ -281,7 +281,7 @@ class Worker:
         with self._lock:
             owned = set(self.owned)
         site = self.site.name
-        for f in self.engine.tick(t):
+        for f in self.engine.tick(t, only_new=True):
             if not f.new:
                 continue  # nothing new of this tag since its last position: that one stands
             if sitebus.partition(f.tag, self.partitions) not in owned:

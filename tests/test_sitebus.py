@@ -344,3 +344,19 @@ def test_batch_tracker_equals_the_per_tag_tracker() -> None:
             np.testing.assert_allclose(mine[tag].fix.covariance, p.covariance, atol=1e-10)
             compared += 1
     assert compared > 40 * 20
+
+
+def test_only_new_fixes_the_tags_that_spoke_with_the_same_answer() -> None:
+    sc = SiteScenario(16, 30, seed=7, clock_spread_s=0.0)
+    rows = sorted(r for rs in sc.events(10.0, 11.0).values() for r in rs)
+    every, new = BatchLocator(_site(sc)), BatchLocator(_site(sc))  # fixes (a tracker fed the same fix twice moves)
+    for k in range(1, 21):  # 20 Hz ticks, 10 Hz tags: each tag is new at about every other tick
+        t = 10.0 + k * 0.05
+        chunk = [r for r in rows if t - 0.05 <= r[0] < t]
+        every.feed(chunk)
+        new.feed(chunk)
+        a = {f.tag: f for f in every.tick(t) if f.new}
+        b = {f.tag: f for f in new.tick(t, only_new=True)}
+        assert set(a) == set(b) and all(f.new for f in b.values())
+        for tag in a:
+            np.testing.assert_allclose(a[tag].fix.point, b[tag].fix.point, atol=1e-6)

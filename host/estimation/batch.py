@@ -251,8 +251,9 @@ class BatchLocator:
         self._ang[sp, slot] = ang[order]
         self._pos[sp[first]] += counts
 
-    def tick(self, t: float) -> list[TagFix]:
-        """Every tag with enough fresh anchors fixed at site time ``t``."""
+    def tick(self, t: float, only_new: bool = False) -> list[TagFix]:
+        """Every tag with enough fresh anchors fixed at site time ``t``; with ``only_new`` only the
+        tags with an angle no earlier tick used (a worker ticking faster than its tags talk)."""
         site = self.site
         n = len(self._pairs)
         if n == 0:
@@ -260,7 +261,13 @@ class BatchLocator:
         times = self._t[:n]
         upto = np.where(times <= t, times, -np.inf)
         last = upto.max(axis=1)
-        fresh = np.flatnonzero(last >= t - site.stale_s)
+        fresh = last >= t - site.stale_s
+        if only_new:
+            reported = np.array(self._reported)
+            tag_newest = np.full(len(self.tags), -np.inf)
+            np.maximum.at(tag_newest, self._ptag[:n], np.where(fresh, last, -np.inf))
+            fresh &= (tag_newest > reported)[self._ptag[:n]]
+        fresh = np.flatnonzero(fresh)
         if len(fresh) == 0:
             return []
         tt = upto[fresh]
