@@ -31,6 +31,7 @@ from rfhoming.host.estimation.batch import BatchLocator
 from rfhoming.host.site import Site
 from rfhoming.protocol import sitebus
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.uconnect.items import AngleEvent
 
 log = logging.getLogger(__name__)
 
@@ -161,6 +162,12 @@ class Gateway:
                 self._part_of.clear()
         self._parts.setdefault(part, []).append((t_host, anchor_id, tag, azimuth, elevation))
         self.events += 1
+
+    def on_item(self, device: str, t: float, item: object) -> None:
+        """A driver listener (host/drivers/common.py): its decoded angle events go on the bus, the
+        rest (drops, other lines) stays with the driver's own counters."""
+        if isinstance(item, AngleEvent):
+            self.add(t, item.anchor_id, item.instance_id, item.azimuth, item.elevation)
 
     def flush(self, now: float) -> None:
         """Publish each partition's events since the last flush (``now`` on this gateway's clock)."""

@@ -234,6 +234,26 @@ def test_gateway_batches_read_by_mosquitto_sub(broker: int) -> None:
     assert json.loads(lines[1].split(" ", 1)[1])["seq"] == body["seq"] + 1
 
 
+def test_a_driver_listener_feeds_the_gateway() -> None:
+    from rfhoming.host.sitebus import Gateway
+
+    class Sink:
+        def __init__(self) -> None:
+            self.sent: list[tuple[str, bytes]] = []
+
+        def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> None:
+            self.sent.append((topic, payload))
+
+    sink = Sink()
+    gw = Gateway(sink, "s1", "gw00", 8)  # type: ignore[arg-type]
+    gw.on_item("aoa0", 12.5, AngleEvent("T1", -50, 20, -5, 0, 37, "A9", "", 0))
+    gw.on_item("aoa0", 12.6, object())  # not an angle event: not the bus's
+    gw.flush(13.0)
+    (topic, payload), = sink.sent
+    assert topic == f"rfhoming/s1/angles/{sitebus.partition('T1', 8)}"
+    assert sitebus.decode_angles(payload).events == [(12.5, "A9", "T1", 20.0, -5.0)]
+
+
 @needs_broker
 def test_publisher_buffers_boundedly_while_the_broker_is_away(tmp_path: Path) -> None:
     """No broker: five retained messages into a buffer of three; the broker comes; the newest three
