@@ -175,7 +175,7 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
     per10k = 10_000 / rate
     return {"site": name, "tag_rate_hz": tag_rate, "workers": workers, "seconds": seconds,
             "partitions": partitions, "output_hz": out_rate,
-            "events_per_s": round(rate), "gateway_behind": gw_line["behind"], "gateway_dropped": gw_line["dropped"],
+            "events_per_s": round(rate), "batches_per_s": round(gw_line["published"] / seconds), "gateway_behind": gw_line["behind"], "gateway_dropped": gw_line["dropped"],
             "located_events": sum(h["events"] for h in health),
             "lost_batches": sum(h["lost_batches"] for h in health),
             "positions_per_s": round(sum(h["positions"] for h in health) / seconds),
