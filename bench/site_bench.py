@@ -118,7 +118,8 @@ def _cpu(proc: psutil.Process) -> float:
     return t.user + t.system
 
 
-def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: int, out_rate: float) -> dict:
+def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: int, out_rate: float,
+          flush: float = 0.02, reorder: float = 0.02) -> dict:
     import paho.mqtt.client as mqtt
     from paho.mqtt.enums import CallbackAPIVersion
 
@@ -127,7 +128,7 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
         broker, port = _broker(Path(tmp))
         url = f"mqtt://127.0.0.1:{port}/{partitions}"
         ws = [_cli("locate-worker", name, "--from", url, "--id", f"w{i + 1}", "--rate", str(out_rate),
-                   "--duration", str(seconds + 4)) for i in range(workers)]
+                   "--reorder", str(reorder), "--duration", str(seconds + 4)) for i in range(workers)]
         sample = sc.tags[:: max(1, len(sc.tags) // 20)]
         errs: list[float] = []
 
@@ -146,7 +147,7 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
         time.sleep(2)  # the workers connect and share out the partitions
         t_start = time.time()
         gw = _cli("gateway", "--emulate", name, "--broker", url, "--tag-rate", str(tag_rate),
-                  "--duration", str(seconds))
+                  "--flush", str(flush), "--duration", str(seconds))
         bp, gp = psutil.Process(broker.pid), psutil.Process(gw.pid)
         b0 = _cpu(bp)
         wps = [psutil.Process(w.pid) for w in ws]
@@ -174,7 +175,7 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
     rate = gw_line["events"] / seconds
     per10k = 10_000 / rate
     return {"site": name, "tag_rate_hz": tag_rate, "workers": workers, "seconds": seconds,
-            "partitions": partitions, "output_hz": out_rate,
+            "partitions": partitions, "output_hz": out_rate, "flush_s": flush, "reorder_s": reorder,
             "events_per_s": round(rate), "batches_per_s": round(gw_line["published"] / seconds), "gateway_behind": gw_line["behind"], "gateway_dropped": gw_line["dropped"],
             "located_events": sum(h["events"] for h in health),
             "lost_batches": sum(h["lost_batches"] for h in health),
@@ -196,14 +197,16 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=15.0)
     ap.add_argument("--partitions", type=int, default=8)
     ap.add_argument("--output-hz", type=float, default=20.0)
+    ap.add_argument("--flush", type=float, default=0.02, help="the gateways' batch period (s)")
+    ap.add_argument("--reorder", type=float, default=0.02, help="the workers' wait for late batches (s)")
     ap.add_argument("--skip-chain", action="store_true")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     results: dict[str, object] = {"engine": engine(args.site, 4.0, 50)}
     if not args.skip_chain:
-        runs = [chain(args.site, float(r), 1, args.seconds, args.partitions, args.output_hz)
-                for r in args.rates.split(",")]
-        runs.append(chain(args.site, args.two_workers_rate, 2, args.seconds, args.partitions, args.output_hz))
+        opts = (args.seconds, args.partitions, args.output_hz, args.flush, args.reorder)
+        runs = [chain(args.site, float(r), 1, *opts) for r in args.rates.split(",")]
+        runs.append(chain(args.site, args.two_workers_rate, 2, *opts))
         results["chain"] = runs
     if args.json:
         print(json.dumps(results, indent=1))

@@ -14,7 +14,7 @@ import threading
 import time
 from pathlib import Path
 
-from rfhoming.cli.args import positive_float
+from rfhoming.cli.args import nonnegative_float, positive_float
 from rfhoming.host import site as site_file
 from rfhoming.host.site import Anchor, Site
 from rfhoming.protocol import sitebus
@@ -103,7 +103,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
     site = resolve_site(args.site, args.seed)
     partitions = broker.partitions or sitebus.DEFAULT_PARTITIONS
     worker = Worker(site, broker, worker_id=args.id, partitions=partitions, rate_hz=args.rate,
-                    track=not args.fixes_only, ca_file=args.ca)
+                    reorder_s=args.reorder, track=not args.fixes_only, ca_file=args.ca)
     stop = _stop_on_signals()
     try:
         worker.run(args.duration, stop)
@@ -132,6 +132,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     w.add_argument("--from", dest="source", required=True, metavar="URL", help="mqtt://HOST[:PORT][/PARTITIONS]")
     w.add_argument("--id", default="w1", help="this worker's name among the site's workers (default w1)")
     w.add_argument("--rate", type=positive_float, metavar="HZ", help="output ticks per second (default: the site's)")
+    w.add_argument("--reorder", type=nonnegative_float, default=0.02, metavar="S",
+                   help="seconds a tick waits for late batches (default 0.02)")
     w.add_argument("--fixes-only", action="store_true",
                    help="publish each tick's fixes, without the constant-velocity tracker")
     w.add_argument("--seed", type=int, default=1, help="an emulated site's seed (default 1)")
