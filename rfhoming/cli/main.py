@@ -127,6 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_locate_parsers(sub)
     _add_emulate(sub)
     _add_campaign(sub)
+    _add_site(sub)
     add_export_parser(sub)
     add_serve_parser(sub)
     return parser
@@ -144,6 +145,13 @@ def _add_campaign(sub: argparse._SubParsersAction) -> None:
     from rfhoming.cli.campaign import add_parser
 
     add_parser(sub)
+
+
+def _add_site(sub: argparse._SubParsersAction) -> None:
+    """The site bus's gateway and worker (they wire the emulated site in, as the emulator's command)."""
+    from rfhoming.cli.site import add_parsers
+
+    add_parsers(sub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,319 @@
+"""The site bus over MQTT (paho-mqtt 2.x, MQTT 5): gateways publish angle batches, workers locate.
+
+Topics and payloads are protocol/sitebus.py's (docs/protocol.md, "Site bus (MQTT)"). QoS 0 on
+both: an angle is worth something for one window (0.3 s) and a position until the next tick, so a
+redelivery after a reconnect is useless and QoS 1's PUBACK per message costs broker and link time;
+a loss is still seen, from the per-partition ``seq`` gaps the worker counts.
+
+:class:`Publisher` is the one connection a process keeps: paho's network thread reconnects (0.1 s
+doubling to 5 s), messages published while the broker is away wait in a bounded buffer (the oldest
+dropped and counted when full) and go out in order once it is back.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import ssl
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from urllib.parse import urlsplit
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+from paho.mqtt.properties import Properties
+from paho.mqtt.packettypes import PacketTypes
+
+from rfhoming.host.estimation.batch import BatchLocator
+from rfhoming.host.site import Site
+from rfhoming.protocol import sitebus
+from rfhoming.protocol.errors import Error
+from rfhoming.protocol.uconnect.items import AngleEvent
+
+log = logging.getLogger(__name__)
+
+BUFFER_MESSAGES = 10_000
+"""Messages held while the broker is away (at 20 ms batches x 8 partitions: 1.25 s of a gateway)."""
+
+INBOX_MESSAGES = 100_000
+"""Batches a worker holds between its ticks at most (the oldest are dropped and counted)."""
+
+OFFSET_SAMPLES = 200
+"""Batches per gateway over which the worker takes the minimum delay (its clock-offset estimate)."""
+
+
+class BrokerError(Error):
+    """A broker address that cannot be used."""
+
+
+@dataclass(frozen=True)
+class Broker:
+    """``mqtt://HOST[:PORT][/PARTITIONS]`` or ``mqtts://`` (TLS, port 8883 by default)."""
+
+    host: str
+    port: int
+    tls: bool
+    partitions: int | None
+    username: str | None = None
+    password: str | None = None
+
+    @classmethod
+    def parse(cls, url: str) -> Broker:
+        u = urlsplit(url if "://" in url else f"mqtt://{url}")
+        if u.scheme not in ("mqtt", "mqtts") or not u.hostname:
+            raise BrokerError(f"{url!r}: write mqtt://HOST[:PORT][/PARTITIONS] (or mqtts:// for TLS)")
+        path = u.path.strip("/")
+        if path and not path.isdigit():
+            raise BrokerError(f"{url!r}: the path is the partition count, a whole number")
+        try:
+            port = u.port or (8883 if u.scheme == "mqtts" else 1883)
+        except ValueError:
+            raise BrokerError(f"{url!r}: the port is not a number") from None
+        return cls(u.hostname, port, u.scheme == "mqtts", int(path) if path else None, u.username, u.password)
+
+
+def _client(client_id: str, broker: Broker, ca_file: str | None = None) -> mqtt.Client:
+    c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5)
+    if broker.username is not None:
+        c.username_pw_set(broker.username, broker.password)
+    if broker.tls:
+        c.tls_set(ca_certs=ca_file, cert_reqs=ssl.CERT_REQUIRED)
+    c.reconnect_delay_set(min_delay=0.1, max_delay=5)
+    return c
+
+
+class Publisher:
+    """One MQTT connection that publishes with a bounded buffer across broker outages."""
+
+    def __init__(self, broker: Broker, client_id: str, *, buffer: int = BUFFER_MESSAGES, keepalive: int = 10,
+                 will: tuple[str, bytes] | None = None, ca_file: str | None = None) -> None:
+        self.client = _client(client_id, broker, ca_file)
+        self.client.max_queued_messages_set(buffer)  # paho's own queue (while connected) is bounded too
+        if will is not None:
+            self.client.will_set(will[0], will[1], qos=1, retain=True)
+        self._buffer: collections.deque[tuple[str, bytes, int, bool]] = collections.deque()
+        self._cap = buffer
+        self._lock = threading.Lock()
+        self.connected = threading.Event()
+        self.on_connect: list[Callable[[], None]] = []
+        self.counters = {"published": 0, "buffered": 0, "dropped": 0, "connects": 0, "disconnects": 0}
+        self.client.on_connect = self._connected
+        self.client.on_disconnect = self._disconnected
+        self.client.connect_async(broker.host, broker.port, keepalive=keepalive)
+        self.client.loop_start()
+
+    def _connected(self, client: mqtt.Client, userdata: object, flags: object, reason: object,
+                   props: object) -> None:
+        if getattr(reason, "is_failure", False):
+            log.warning("broker refused the connection: %s", reason)
+            return
+        self.counters["connects"] += 1
+        for hook in self.on_connect:
+            hook()
+        with self._lock:
+            self.connected.set()
+            while self._buffer:
+                topic, payload, qos, retain = self._buffer[0]
+                if client.publish(topic, payload, qos=qos, retain=retain).rc != mqtt.MQTT_ERR_SUCCESS:
+                    break
+                self._buffer.popleft()
+                self.counters["published"] += 1
+
+    def _disconnected(self, client: mqtt.Client, userdata: object, flags: object, reason: object,
+                      props: object) -> None:
+        self.connected.clear()
+        self.counters["disconnects"] += 1
+
+    def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> None:
+        with self._lock:
+            if self.connected.is_set() and not self._buffer:
+                if self.client.publish(topic, payload, qos=qos, retain=retain).rc == mqtt.MQTT_ERR_SUCCESS:
+                    self.counters["published"] += 1
+                    return
+            if len(self._buffer) >= self._cap:
+                self._buffer.popleft()
+                self.counters["dropped"] += 1
+            self._buffer.append((topic, payload, qos, retain))
+            self.counters["buffered"] += 1
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+class Gateway:
+    """A gateway's side: angle events of its anchors, sorted into partitions, sent in batches."""
+
+    def __init__(self, publisher: Publisher, site: str, name: str, partitions: int, offset_s: float = 0.0) -> None:
+        self.publisher, self.site, self.name, self.partitions, self.offset_s = publisher, site, name, partitions, offset_s
+        self._parts: dict[int, list[tuple[float, str, str, float, float]]] = {}
+        self._part_of: dict[str, int] = {}
+        self._seq = [0] * partitions
+        self.events = 0
+
+    def add(self, t_host: float, anchor_id: str, tag: str, azimuth: float, elevation: float) -> None:
+        part = self._part_of.get(tag)
+        if part is None:
+            part = self._part_of[tag] = sitebus.partition(tag, self.partitions)
+            if len(self._part_of) > 1_000_000:  # a bound, not a cache policy: ids are cheap to hash again
+                self._part_of.clear()
+        self._parts.setdefault(part, []).append((t_host, anchor_id, tag, azimuth, elevation))
+        self.events += 1
+
+    def on_item(self, device: str, t: float, item: object) -> None:
+        """A driver listener (host/drivers/common.py): its decoded angle events go on the bus, the
+        rest (drops, other lines) stays with the driver's own counters."""
+        if isinstance(item, AngleEvent):
+            self.add(t, item.anchor_id, item.instance_id, item.azimuth, item.elevation)
+
+    def flush(self, now: float) -> None:
+        """Publish each partition's events since the last flush (``now`` on this gateway's clock)."""
+        for part, rows in self._parts.items():
+            if rows:
+                batch = sitebus.AngleBatch(self.name, self._seq[part], now, self.offset_s, rows)
+                self._seq[part] += 1
+                self.publisher.publish(sitebus.angles_topic(self.site, part), batch.encode())
+        self._parts = {}
+
+
+class Worker:
+    """A locate worker: owns the partitions rendezvous hashing gives it among the live workers,
+    merges its gateways' batches on one clock, fixes every tag per tick and publishes positions."""
+
+    def __init__(self, site: Site, broker: Broker, *, worker_id: str, partitions: int,
+                 rate_hz: float | None = None, reorder_s: float = 0.02, track: bool = True, ca_file: str | None = None,
+                 clock: Callable[[], float] = time.time) -> None:
+        self.site, self.worker_id, self.partitions = site, worker_id, partitions
+        self.period = 1.0 / (rate_hz or site.rate_hz)
+        self.reorder_s = reorder_s
+        self.clock = clock
+        self.engine = BatchLocator(site, track=track)
+        self.live: set[str] = {worker_id}
+        self.owned: set[int] = set()
+        self._inbox: collections.deque[tuple[float, str, bytes]] = collections.deque(maxlen=INBOX_MESSAGES)
+        self._lock = threading.Lock()
+        self._min_delay: dict[str, collections.deque[float]] = {}
+        self._seq: dict[tuple[str, str], int] = {}
+        self.latencies: collections.deque[float] = collections.deque(maxlen=200_000)
+        self.counters = {"batches": 0, "events": 0, "bad_payload": 0, "lost_batches": 0, "inbox_dropped": 0,
+                         "positions": 0, "other_partition": 0, "handovers": 0}
+        self._me = sitebus.workers_topic(site.name, worker_id)
+        self.pub = Publisher(broker, f"rfhoming-worker-{worker_id}", will=(self._me, b"offline"), ca_file=ca_file)
+        self.pub.client.on_message = self._message
+        self.pub.on_connect.append(self._subscribe_all)
+        self._next_tick: int | None = None
+
+    # -- the network thread ------------------------------------------------------------------
+    def _subscribe_all(self) -> None:
+        c = self.pub.client
+        c.subscribe(sitebus.workers_topic(self.site.name, "+"), qos=1)
+        c.publish(self._me, b"online", qos=1, retain=True)
+        with self._lock:
+            self.owned = set()
+        self._assign()
+
+    def _assign(self) -> None:
+        with self._lock:
+            want = {p for p in range(self.partitions) if sitebus.owner(p, self.live) == self.worker_id}
+            gained, lost = want - self.owned, self.owned - want
+            self.owned = want
+        if gained or lost:
+            self.counters["handovers"] += 1
+            log.info("worker %s: partitions %s (gained %s, lost %s)", self.worker_id, sorted(want), sorted(gained),
+                     sorted(lost))
+        c = self.pub.client
+        props = Properties(PacketTypes.SUBSCRIBE)
+        for p in sorted(gained):
+            c.subscribe(sitebus.angles_topic(self.site.name, p), qos=0, properties=props)
+        for p in sorted(lost):
+            c.unsubscribe(sitebus.angles_topic(self.site.name, p))
+
+    def _message(self, client: mqtt.Client, userdata: object, msg: mqtt.MQTTMessage) -> None:
+        now = self.clock()
+        topic = msg.topic
+        if topic.startswith(f"rfhoming/{self.site.name}/workers/"):
+            name = topic.rsplit("/", 1)[1]
+            with self._lock:
+                if msg.payload == b"online":
+                    self.live.add(name)
+                elif name != self.worker_id:
+                    self.live.discard(name)
+            self._assign()
+            return
+        if len(self._inbox) == self._inbox.maxlen:
+            self.counters["inbox_dropped"] += 1
+        self._inbox.append((now, topic, msg.payload))
+
+    # -- the worker's own thread ----------------------------------------------------------------
+    def _drain(self) -> None:
+        engine = self.engine
+        while self._inbox:
+            recv, topic, payload = self._inbox.popleft()
+            try:
+                batch = sitebus.decode_angles(payload)
+            except sitebus.PayloadError as exc:
+                self.counters["bad_payload"] += 1
+                log.debug("dropped a batch on %s: %s", topic, exc)
+                continue
+            self.counters["batches"] += 1
+            key = (batch.gateway, topic)
+            last = self._seq.get(key)
+            if last is not None and batch.seq > last + 1:
+                self.counters["lost_batches"] += batch.seq - last - 1
+            self._seq[key] = batch.seq
+            # clock: worker time = gateway time + the least (receive - sent) seen lately, which is the
+            # true offset plus the least network delay (NTP's minimum filter; docs/protocol.md)
+            delays = self._min_delay.setdefault(batch.gateway, collections.deque(maxlen=OFFSET_SAMPLES))
+            delays.append(recv - (batch.sent - batch.offset_s))
+            shift = min(delays) - batch.offset_s
+            rows = [(t + shift, a, tag, az, el) for t, a, tag, az, el in batch.events]
+            self.counters["events"] += len(rows)
+            engine.feed(rows)
+
+    def step(self) -> float:
+        """Take what arrived, run every tick that is due; seconds until the next one."""
+        self._drain()
+        now = self.clock()
+        if self._next_tick is None:
+            self._next_tick = math.ceil(now / self.period)
+        while self._next_tick * self.period + self.reorder_s <= now:  # tick k at k periods: no drift
+            self._tick(round(self._next_tick * self.period, 9))
+            self._next_tick += 1
+        return max(0.0, self._next_tick * self.period + self.reorder_s - self.clock())
+
+    def _tick(self, t: float) -> None:
+        with self._lock:
+            owned = set(self.owned)
+        site = self.site.name
+        for f in self.engine.tick(t, only_new=True):
+            if not f.new:
+                continue  # nothing new of this tag since its last position: that one stands
+            if sitebus.partition(f.tag, self.partitions) not in owned:
+                self.counters["other_partition"] += 1  # a partition handed away: its tags age out
+                continue
+            now = self.clock()
+            self.latencies.append(now - f.newest)
+            self.pub.publish(sitebus.positions_topic(site, f.tag), sitebus.position_payload(
+                t, f.tag, f.fix.point, f.fix.covariance, list(f.fix.used), list(f.fix.rejected), f.quality,
+                self.worker_id, latency_s=now - f.newest))
+            self.counters["positions"] += 1
+
+    def run(self, duration: float | None = None, stop: threading.Event | None = None) -> None:
+        end = None if duration is None else self.clock() + duration
+        stop = stop or threading.Event()
+        while not stop.is_set() and (end is None or self.clock() < end):
+            stop.wait(min(self.step(), 0.05))
+
+    def close(self) -> None:
+        self.pub.client.publish(self._me, b"offline", qos=1, retain=True)
+        self.pub.close()
+
+    def health(self) -> dict[str, object]:
+        lat = sorted(self.latencies)
+        p = (lambda q: round(lat[min(len(lat) - 1, int(q * len(lat)))], 4)) if lat else (lambda q: None)
+        return {**self.counters, **{f"engine_{k}": v for k, v in self.engine.counters.items()},
+                **{f"mqtt_{k}": v for k, v in self.pub.counters.items()},
+                "partitions": sorted(self.owned), "latency_p50_s": p(0.5), "latency_p99_s": p(0.99)}

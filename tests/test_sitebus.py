@@ -1,0 +1,382 @@
+"""The site bus: payloads, the batched engine against the per-tag reference, and the whole chain
+against a real Mosquitto broker with mosquitto_sub (Debian's mosquitto-clients) as the independent
+reader of what rfhoming publishes."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from rfhoming.emulator.site import SiteScenario, SiteScenarioError
+from rfhoming.host.estimation.anchors3d import Degenerate, locate, make_ray, rotation
+from rfhoming.host.estimation.batch import BatchLocator, fix_batch
+from rfhoming.host.locate import Locator
+from rfhoming.host.site import Anchor, Site
+from rfhoming.protocol import sitebus
+from rfhoming.protocol.uconnect.items import AngleEvent
+
+MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if os.path.exists("/usr/sbin/mosquitto") else None)
+SUB = shutil.which("mosquitto_sub")
+needs_broker = pytest.mark.skipif(not (MOSQUITTO and SUB), reason="mosquitto / mosquitto-clients not installed "
+                                  "(.ci/run installs them)")
+ENV = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+
+
+# -- payloads ---------------------------------------------------------------------------------------
+def test_partition_is_crc32_mod_count() -> None:
+    import zlib
+
+    for tag in ("T00001", "CCF9578E0D8A", "x"):
+        assert sitebus.partition(tag, 16) == zlib.crc32(tag.encode()) % 16
+
+
+row = st.tuples(st.floats(0, 2e9), st.text(min_size=1, max_size=12), st.text(min_size=1, max_size=12),
+                st.integers(-90, 90), st.integers(-90, 90))
+
+
+@given(st.lists(row, max_size=20), st.integers(0, 2**31), st.floats(-1e3, 1e3))
+def test_angle_batch_round_trip(rows: list, seq: int, offset: float) -> None:
+    batch = sitebus.AngleBatch("gw01", seq, 1.7e9, offset, rows)
+    back = sitebus.decode_angles(batch.encode())
+    assert back.gateway == "gw01" and back.seq == seq and back.offset_s == pytest.approx(offset, abs=1e-6)
+    assert [(a, tag, az, el) for _, a, tag, az, el in back.events] == [(a, tag, az, el) for _, a, tag, az, el in rows]
+    assert all(abs(t - r[0]) <= 1e-6 for (t, *_), r in zip(back.events, rows))
+
+
+@given(st.binary(max_size=200))
+def test_garbage_is_a_payload_error(data: bytes) -> None:
+    try:
+        sitebus.decode_angles(data)
+    except sitebus.PayloadError:
+        pass
+
+
+@pytest.mark.parametrize("payload", [b"{}", b'{"v":1}', b'{"v":2,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[]}',
+                                     b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,"a","t",91,0]]}',
+                                     b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,1,"t",0,0]]}',
+                                     b'{"v":1,"gw":"g","seq":0,"sent":"NaN","offset_s":0,"events":[]}'])
+def test_bad_batches_are_refused(payload: bytes) -> None:
+    with pytest.raises(sitebus.PayloadError):
+        sitebus.decode_angles(payload)
+
+
+def test_a_dead_worker_moves_only_its_partitions() -> None:
+    live = {"w1", "w2", "w3"}
+    before = {p: sitebus.owner(p, live) for p in range(64)}
+    assert set(before.values()) == live  # every worker gets some
+    after = {p: sitebus.owner(p, live - {"w2"}) for p in range(64)}
+    assert all(after[p] == before[p] for p in range(64) if before[p] != "w2")
+    assert "w2" not in after.values()
+
+
+def test_site_scenario_names() -> None:
+    sc = SiteScenario.named("site-64x1000")
+    assert len(sc.anchors) == 64 and len(sc.tags) == 1000 and len(sc.gateways) == 16
+    with pytest.raises(SiteScenarioError):
+        SiteScenario.named("site-2x5")
+
+
+# -- the batched engine against the reference ---------------------------------------------------------
+def _random_rays(rng: np.random.Generator, n: int, height: float | None) -> list:
+    tag = rng.uniform([0, 0, 0.5], [20, 20, 2.0])
+    if height is not None:
+        tag[2] = height
+    rays = []
+    for i in range(n):
+        origin = rng.uniform([0, 0, 2.5], [20, 20, 4.0])
+        yaw, pitch = rng.uniform(0, 360), rng.uniform(-80, -20)
+        rot = rotation(yaw, pitch)
+        d = rot.T @ (tag - origin)
+        if d[0] <= 0:  # behind the board: turn the board to face the tag
+            rot = rotation(yaw + 180, pitch)
+            d = rot.T @ (tag - origin)
+        az = -np.degrees(np.arctan2(d[1], d[0])) + rng.normal(0, 3)
+        el = np.degrees(np.arctan2(d[2], np.hypot(d[0], d[1]))) + rng.normal(0, 3)
+        if rng.random() < 0.1:
+            az += 40  # a reflection now and then: the consensus path
+        rays.append(make_ray(f"a{i}", origin, rot, float(np.clip(az, -90, 90)), float(np.clip(el, -90, 90)),
+                             float(rng.uniform(1, 5))))
+    return rays
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_fix_batch_equals_anchors3d_locate(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    sets = []
+    for _ in range(200):
+        height = float(rng.uniform(0.5, 2)) if rng.random() < 0.3 else None
+        sets.append((_random_rays(rng, int(rng.integers(3, 9)), height), height))
+    o = np.array([r.origin for rays, _ in sets for r in rays])
+    u = np.array([r.direction for rays, _ in sets for r in rays])
+    sig = np.array([r.sigma_rad for rays, _ in sets for r in rays])
+    g = np.repeat(np.arange(len(sets)), [len(rays) for rays, _ in sets])
+    heights = np.array([np.nan if h is None else h for _, h in sets])
+    out = fix_batch(o, u, sig, g, heights)
+    compared = 0
+    for k, (rays, height) in enumerate(sets):
+        try:
+            ref = locate(rays, height=height)
+        except Degenerate:
+            assert not out.ok[k]
+            continue
+        if out.suspect[k]:
+            continue  # handed to locate() itself by BatchLocator
+        assert out.ok[k]
+        np.testing.assert_allclose(out.points[k], ref.point, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(out.covariances[k], ref.covariance, rtol=1e-9, atol=1e-12)
+        assert out.chi2[k] == pytest.approx(ref.chi2, rel=1e-9, abs=1e-12)
+        compared += 1
+    assert compared > 100
+
+
+def _site(sc: SiteScenario) -> Site:
+    return Site("w", tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg) for a in sc.anchors),
+                sigma_deg=sc.sigma_deg)
+
+
+def test_batch_locator_equals_the_per_tag_locator() -> None:
+    """The same events into host/locate.py's Locator (fixes, no tracker) and into BatchLocator:
+    the same tags fixed at the same tick, to rounding."""
+    sc = SiteScenario(16, 60, seed=3, clock_spread_s=0.0)
+    site = _site(sc)
+    rows = sorted(r for rs in sc.events(10.0, 12.0).values() for r in rs)
+    loc = Locator(site, track=False, reorder_s=0.0)
+    ref = []
+    for t, a, tag, az, el in rows:
+        ref += loc.feed(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0))
+    ref += loc.flush()
+    batch = BatchLocator(site)
+    batch.feed(rows)
+    t = sorted({p.t for p in ref})[-3]
+    mine = {f.tag: f for f in batch.tick(t)}
+    theirs = {p.tag: p for p in ref if p.t == t}
+    assert set(mine) == set(theirs) and len(mine) == 60
+    for tag, p in theirs.items():
+        np.testing.assert_allclose(mine[tag].fix.point, p.point, atol=1e-9)
+        np.testing.assert_allclose(mine[tag].fix.covariance, p.covariance, atol=1e-12)
+        assert mine[tag].fix.used == p.anchors and mine[tag].fix.rejected == p.rejected
+    truth = sc.truth(t)
+    err = [np.linalg.norm(f.fix.point - truth[int(tag[1:])]) for tag, f in mine.items()]
+    assert np.median(err) < 0.5
+
+
+# -- against a real broker -----------------------------------------------------------------------------
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _start_broker(tmp: Path, port: int) -> subprocess.Popen:
+    conf = tmp / f"mosquitto-{port}.conf"
+    conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+    proc = subprocess.Popen([MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60  # a hang guard
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return proc
+        except OSError:
+            time.sleep(0.05)
+    proc.kill()
+    raise RuntimeError("mosquitto did not start")
+
+
+@pytest.fixture
+def broker(tmp_path: Path):
+    port = _free_port()
+    proc = _start_broker(tmp_path, port)
+    yield port
+    proc.terminate()
+    proc.wait(30)
+
+
+def _sub(port: int, topic: str, count: int, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([SUB, "-h", "127.0.0.1", "-p", str(port), "-t", topic, "-C", str(count), "-v",
+                             "-W", "120", *extra], stdout=subprocess.PIPE, text=True)
+
+
+@needs_broker
+def test_gateway_batches_read_by_mosquitto_sub(broker: int) -> None:
+    from rfhoming.host.sitebus import Broker, Gateway, Publisher
+
+    sub = _sub(broker, "rfhoming/s1/angles/#", 2)
+    time.sleep(0.5)  # mosquitto_sub subscribing; the gateway below repeats until it is heard
+    pub = Publisher(Broker("127.0.0.1", broker, False, 4), "gw-test")
+    assert pub.connected.wait(30)
+    gw = Gateway(pub, "s1", "gw07", 4, offset_s=0.25)
+    deadline = time.monotonic() + 120
+    while sub.poll() is None and time.monotonic() < deadline:
+        gw.add(100.0, "A1", "T00001", -12, 30)
+        gw.flush(100.5)
+        time.sleep(0.1)
+    out, _ = sub.communicate(timeout=60)
+    pub.close()
+    lines = out.splitlines()
+    assert len(lines) == 2
+    topic, payload = lines[0].split(" ", 1)
+    assert topic == f"rfhoming/s1/angles/{sitebus.partition('T00001', 4)}"
+    body = json.loads(payload)
+    assert body["gw"] == "gw07" and body["offset_s"] == 0.25 and body["sent"] == 100.5
+    assert body["events"] == [[100.0, "A1", "T00001", -12, 30]]
+    assert json.loads(lines[1].split(" ", 1)[1])["seq"] == body["seq"] + 1
+
+
+def test_a_driver_listener_feeds_the_gateway() -> None:
+    from rfhoming.host.sitebus import Gateway
+
+    class Sink:
+        def __init__(self) -> None:
+            self.sent: list[tuple[str, bytes]] = []
+
+        def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> None:
+            self.sent.append((topic, payload))
+
+    sink = Sink()
+    gw = Gateway(sink, "s1", "gw00", 8)  # type: ignore[arg-type]
+    gw.on_item("aoa0", 12.5, AngleEvent("T1", -50, 20, -5, 0, 37, "A9", "", 0))
+    gw.on_item("aoa0", 12.6, object())  # not an angle event: not the bus's
+    gw.flush(13.0)
+    (topic, payload), = sink.sent
+    assert topic == f"rfhoming/s1/angles/{sitebus.partition('T1', 8)}"
+    assert sitebus.decode_angles(payload).events == [(12.5, "A9", "T1", 20.0, -5.0)]
+
+
+@needs_broker
+def test_publisher_buffers_boundedly_while_the_broker_is_away(tmp_path: Path) -> None:
+    """No broker: five retained messages into a buffer of three; the broker comes; the newest three
+    reach it in order (mosquitto_sub reads the retained ones), the two oldest were dropped, counted."""
+    from rfhoming.host.sitebus import Broker, Publisher
+
+    port = _free_port()
+    pub = Publisher(Broker("127.0.0.1", port, False, None), "gw-away", buffer=3)
+    for i in range(5):
+        pub.publish(f"t/{i}", f"m{i}".encode(), retain=True)
+    assert pub.counters["dropped"] == 2 and not pub.connected.is_set()
+    proc = _start_broker(tmp_path, port)
+    try:
+        assert pub.connected.wait(120)
+        deadline = time.monotonic() + 60
+        while pub.counters["published"] < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        sub = _sub(port, "t/#", 3)
+        out, _ = sub.communicate(timeout=120)
+        assert sorted(out.splitlines()) == ["t/2 m2", "t/3 m3", "t/4 m4"]
+        assert pub.counters == {**pub.counters, "published": 3, "dropped": 2, "connects": 1}
+    finally:
+        pub.close()
+        proc.terminate()
+        proc.wait(30)
+
+
+def _cli(*args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "rfhoming.cli.main", *args], env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+
+@pytest.mark.slow
+@needs_broker
+def test_two_workers_split_the_site_and_one_takes_over_when_the_other_dies(broker: int) -> None:
+    """Emulated gateways -> Mosquitto -> two locate workers -> mosquitto_sub. Each worker publishes
+    its partitions' tags; after w1 is killed (SIGKILL: its will tells w2), w2 publishes every tag
+    either had located (a tag in a corner that fewer than three anchors see is located by neither)."""
+    url = f"mqtt://127.0.0.1:{broker}/8"
+    site = "site-16x40"
+    w1 = _cli("locate-worker", site, "--from", url, "--id", "w1", "--rate", "20")
+    w2 = _cli("locate-worker", site, "--from", url, "--id", "w2", "--rate", "20", "--duration", "600")
+    sub = subprocess.Popen([SUB, "-h", "127.0.0.1", "-p", str(broker), "-t", f"rfhoming/{site}/positions/#",
+                            "-W", "600"], stdout=subprocess.PIPE, text=True)
+    gw = _cli("gateway", "--emulate", site, "--broker", url, "--duration", "600")
+    tags = set(SiteScenario.named(site).tags)
+    by: dict[str, set[str]] = {"w1": set(), "w2": set()}
+    after_kill: set[str] = set()
+    killed_at_t = None
+    first_w2_of_w1_tags = None
+    w1_tags_last_t = None
+    assert sub.stdout is not None
+    try:
+        for line in sub.stdout:
+            p = json.loads(line)
+            if killed_at_t is None:
+                by[p["worker"]].add(p["tag"])
+                if len(by["w1"]) + len(by["w2"]) >= len(tags) // 2 and by["w1"] and by["w2"]:
+                    w1.send_signal(signal.SIGKILL)
+                    w1.wait(60)
+                    killed_at_t = p["t"]
+                continue
+            if p["worker"] == "w1":
+                w1_tags_last_t = p["t"]  # already on its way when w1 died
+                continue
+            if p["tag"] in by["w1"] and first_w2_of_w1_tags is None:
+                first_w2_of_w1_tags = p["t"]
+            after_kill.add(p["tag"])
+            if after_kill >= by["w1"] | by["w2"]:
+                break
+    finally:
+        for proc in (gw, w2, sub, w1):
+            if proc.poll() is None:
+                proc.terminate()
+        for proc in (gw, w2, sub, w1):
+            proc.wait(60)
+    assert not by["w1"] & by["w2"], "a tag located by both workers: partitions not split"
+    assert after_kill >= by["w1"] | by["w2"] and by["w1"] <= tags
+    last = w1_tags_last_t or killed_at_t
+    print(f"handover: w2's first position of a w1 tag came {first_w2_of_w1_tags - last:.2f} s of site time "
+          f"({(first_w2_of_w1_tags - last) * 20:.0f} ticks at 20 Hz) after w1's last")
+
+
+def test_batch_tracker_equals_the_per_tag_tracker() -> None:
+    """Locator(tracker="cv") and BatchLocator(track=True), tick after tick on the same events."""
+    sc = SiteScenario(16, 40, seed=5, clock_spread_s=0.0)
+    site = _site(sc)
+    rows = sorted(r for rs in sc.events(10.0, 13.0).values() for r in rs)
+    loc = Locator(site, track=True, tracker="cv", reorder_s=0.0)
+    ref = []
+    for t, a, tag, az, el in rows:
+        ref += loc.feed(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0))
+    batch = BatchLocator(site, track=True)
+    ticks = sorted({p.t for p in ref})
+    i = 0
+    compared = 0
+    for t in ticks:
+        j = i
+        while j < len(rows) and rows[j][0] < t:
+            j += 1
+        batch.feed(rows[i:j])
+        i = j
+        mine = {f.tag: f for f in batch.tick(t)}
+        theirs = {p.tag: p for p in ref if p.t == t}
+        assert set(mine) == set(theirs)
+        for tag, p in theirs.items():
+            np.testing.assert_allclose(mine[tag].fix.point, p.point, atol=1e-8)
+            np.testing.assert_allclose(mine[tag].fix.covariance, p.covariance, atol=1e-10)
+            compared += 1
+    assert compared > 40 * 20
+
+
+def test_only_new_fixes_the_tags_that_spoke_with_the_same_answer() -> None:
+    sc = SiteScenario(16, 30, seed=7, clock_spread_s=0.0)
+    rows = sorted(r for rs in sc.events(10.0, 11.0).values() for r in rs)
+    every, new = BatchLocator(_site(sc)), BatchLocator(_site(sc))  # fixes (a tracker fed the same fix twice moves)
+    for k in range(1, 21):  # 20 Hz ticks, 10 Hz tags: each tag is new at about every other tick
+        t = 10.0 + k * 0.05
+        chunk = [r for r in rows if t - 0.05 <= r[0] < t]
+        every.feed(chunk)
+        new.feed(chunk)
+        a = {f.tag: f for f in every.tick(t) if f.new}
+        b = {f.tag: f for f in new.tick(t, only_new=True)}
+        assert set(a) == set(b) and all(f.new for f in b.values())
+        for tag in a:
+            np.testing.assert_allclose(a[tag].fix.point, b[tag].fix.point, atol=1e-6)
