@@ -45,6 +45,8 @@ async def test_a_one_second_tag_does_not_stop_the_robot_between_readings(tmp_pat
 
 
 async def test_the_rule_can_be_switched_off(tmp_path: Path) -> None:
-    outcome, homing, _ = await run_with_tag_interval(tmp_path, 1000.0, LoopSettings(max_time_s=8.0, stale_intervals=0))
+    outcome, homing, log = await run_with_tag_interval(tmp_path, 1000.0, LoopSettings(max_time_s=8.0, stale_intervals=0))
     assert homing.stale_timeout() == homing.config.loop.stale_timeout_s  # the fixed timeout only
-    assert outcome.stale_stops >= 5  # stopped after every reading
+    readings = [r for r in log if r["kind"] == "measurement"]
+    # stopped between every two readings (how many come in 8 s depends on how long the set-up took)
+    assert len(readings) >= 3 and outcome.stale_stops >= len(readings) - 1
