@@ -115,12 +115,16 @@ class Publisher:
             hook()
         with self._lock:
             self.connected.set()
-            while self._buffer:
-                topic, payload, qos, retain = self._buffer[0]
-                if client.publish(topic, payload, qos=qos, retain=retain).rc != mqtt.MQTT_ERR_SUCCESS:
-                    break
-                self._buffer.popleft()
-                self.counters["published"] += 1
+            self._drain()
+
+    def _drain(self) -> None:
+        """Send what was buffered, oldest first, until paho refuses one (the lock is held)."""
+        while self._buffer:
+            topic, payload, qos, retain = self._buffer[0]
+            if self.client.publish(topic, payload, qos=qos, retain=retain).rc != mqtt.MQTT_ERR_SUCCESS:
+                return
+            self._buffer.popleft()
+            self.counters["published"] += 1
 
     def _disconnected(self, client: mqtt.Client, userdata: object, flags: object, reason: object,
                       props: object) -> None:
@@ -129,8 +133,10 @@ class Publisher:
 
     def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> None:
         with self._lock:
-            if self.connected.is_set() and not self._buffer:
-                if self.client.publish(topic, payload, qos=qos, retain=retain).rc == mqtt.MQTT_ERR_SUCCESS:
+            if self.connected.is_set():
+                self._drain()  # after a refusal while connected (paho saw the socket go first), or it would stall
+                if not self._buffer and self.client.publish(topic, payload, qos=qos,
+                                                            retain=retain).rc == mqtt.MQTT_ERR_SUCCESS:
                     self.counters["published"] += 1
                     return
             if len(self._buffer) >= self._cap:
