@@ -51,10 +51,27 @@ def blocks(path: Path) -> list[tuple[str, str, str, int]]:
             for m in FENCE.finditer(text)]
 
 
+KIT = "/tmp/rfhoming-kit"
+"""The link directory the docs' examples and shipped site files name; each example gets its own
+(two test runs at once would otherwise swap each other's emulated boards)."""
+
+
 def scratch(tmp_path: Path) -> Path:
-    for name in ("tests", "bench", "docs"):
+    """A working directory like the repository's top, with its own kit link directory."""
+    for name in ("tests", "bench"):
         (tmp_path / name).symlink_to(ROOT / name)
+    (tmp_path / "docs").mkdir()
+    for entry in (ROOT / "docs").iterdir():
+        if entry.name != "sites":
+            (tmp_path / "docs" / entry.name).symlink_to(entry)
+    (tmp_path / "docs" / "sites").mkdir()
+    for site in (ROOT / "docs" / "sites").iterdir():
+        (tmp_path / "docs" / "sites" / site.name).write_text(site.read_text().replace(KIT, str(tmp_path / "kit")))
     return tmp_path
+
+
+def own_kit(text: str, cwd: Path) -> str:
+    return text.replace(KIT, str(cwd / "kit"))
 
 
 def env() -> dict[str, str]:
@@ -93,7 +110,7 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
             raw = lines[i]
             i += 1
             shown = raw.startswith("$ ")
-            command = strip_comment(raw[2:] if shown else raw)
+            command = own_kit(strip_comment(raw[2:] if shown else raw), cwd)
             expected = []
             if shown:
                 while i < len(lines) and not lines[i].startswith("$ "):
@@ -185,9 +202,10 @@ def test_python_examples_run(doc: Path, tmp_path: Path) -> None:
     for _, mark, _, line in python:
         assert mark != "long-running", f"{doc.name}:{line}: <!-- long-running --> is for ```sh blocks"
     runnable = [b for b in python if skip_reason(b[1]) is None]
-    script = "\n".join(body for _, _, body, _ in runnable)
+    cwd = scratch(tmp_path)
+    script = own_kit("\n".join(body for _, _, body, _ in runnable), cwd)
     started = time.monotonic()
-    done = subprocess.run([sys.executable, "-c", script], cwd=scratch(tmp_path), env=env(), text=True,
+    done = subprocess.run([sys.executable, "-c", script], cwd=cwd, env=env(), text=True,
                           capture_output=True, timeout=TIMEOUT_S)
     assert done.returncode == 0, f"{doc.name}'s examples failed after {time.monotonic() - started:.1f} s:\n{done.stderr[-3000:]}"
 
