@@ -65,13 +65,18 @@ def scratch(tmp_path: Path) -> Path:
         if entry.name != "sites":
             (tmp_path / "docs" / entry.name).symlink_to(entry)
     (tmp_path / "docs" / "sites").mkdir()
+    (tmp_path / "tmp").mkdir()
     for site in (ROOT / "docs" / "sites").iterdir():
         (tmp_path / "docs" / "sites" / site.name).write_text(site.read_text().replace(KIT, str(tmp_path / "kit")))
     return tmp_path
 
 
-def own_kit(text: str, cwd: Path) -> str:
-    return text.replace(KIT, str(cwd / "kit"))
+TMP_PATH = re.compile(r"(?<![\w/.-])/tmp/(rfhoming-kit(?![\w.-]))?")
+
+
+def own_tmp(text: str, cwd: Path) -> str:
+    """The example's /tmp paths (its kit directory among them) moved into its own directory, in one pass."""
+    return TMP_PATH.sub(lambda m: f"{cwd}/kit" if m[1] else f"{cwd}/tmp/", text)
 
 
 def env() -> dict[str, str]:
@@ -110,7 +115,7 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
             raw = lines[i]
             i += 1
             shown = raw.startswith("$ ")
-            command = own_kit(strip_comment(raw[2:] if shown else raw), cwd)
+            command = own_tmp(strip_comment(raw[2:] if shown else raw), cwd)
             expected = []
             if shown:
                 while i < len(lines) and not lines[i].startswith("$ "):
@@ -203,7 +208,7 @@ def test_python_examples_run(doc: Path, tmp_path: Path) -> None:
         assert mark != "long-running", f"{doc.name}:{line}: <!-- long-running --> is for ```sh blocks"
     runnable = [b for b in python if skip_reason(b[1]) is None]
     cwd = scratch(tmp_path)
-    script = own_kit("\n".join(body for _, _, body, _ in runnable), cwd)
+    script = own_tmp("\n".join(body for _, _, body, _ in runnable), cwd)
     started = time.monotonic()
     done = subprocess.run([sys.executable, "-c", script], cwd=cwd, env=env(), text=True,
                           capture_output=True, timeout=TIMEOUT_S)
