@@ -147,8 +147,11 @@ class RawTracker:
 def track(driver: Any) -> RawTracker:
     """Make ``driver`` tell the bytes of each item it emits: its decoder (``decoder``, or an HCI
     driver's H4 ``splitter``) is fed unit by unit; a driver that gets one sample per chunk (a
-    ROS 2 base) has the chunk as its item's bytes."""
-    protocol = devices.kind(driver.kind).protocol
+    ROS 2 base) has the chunk as its item's bytes. A client of ``rfhoming serve`` is no device
+    of the table: its items come as the server's JSON, not the device's bytes (raw b"")."""
+    if not devices.is_kind(driver.kind):
+        return RawTracker()
+    protocol = devices.kind(driver.kind, notice=False).protocol
     for attribute in ("decoder", "splitter"):
         decoder = getattr(driver, attribute, None)
         if decoder is not None and protocol in STREAM_PROTOCOLS:
@@ -181,6 +184,9 @@ def read_function(stream: Any, size: int = READ_SIZE) -> tuple[Callable[[], byte
     if hasattr(stream, "recv"):  # a socket
         return (lambda: stream.recv(size)), True
     if hasattr(stream, "in_waiting"):  # pyserial: take what is waiting, or block for one byte
+        if getattr(stream, "timeout", None) == 0:
+            raise ReaderError(f"{stream_name(stream)} is non-blocking (timeout=0): a Reader would spin on it; "
+                              "open it with timeout=None (block) or a number of seconds")
         return (lambda: stream.read(max(1, min(stream.in_waiting, size)))), False
     read = getattr(stream, "read1", None) or getattr(stream, "read", None)
     if read is None:

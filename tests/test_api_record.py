@@ -209,10 +209,13 @@ def test_reader_over_the_emulators_pty_after_the_callers_own_setup(emulator) -> 
         got = []
         for item in rfhoming.Reader(port, protocol="xplr-aoa"):
             got.append(item)
-            if sum(g.kind == "angle" for g in got) == 20:
+            if item.kind == "startup":  # the board (re)started as the port opened: say it again
+                port.write(b"AT+UDFENABLE=1\r")
+            kinds = [g.kind for g in got]
+            if "final" in kinds and kinds.count("angle") >= 20:
                 break
-    kinds = [g.kind for g in got]
-    assert "final" in kinds[: kinds.index("angle")]  # its answer, which open() would have hidden
+    assert [g.raw for g in got if g.kind == "final"][0] == b"OK\r\n"  # its answer, which open() would hide
+    assert [g.raw for g in got if g.kind == "echo"][0] == b"AT+UDFENABLE=1\r"
     assert all(g.raw.endswith(b"\r\n") or g.raw.endswith(b"\r") for g in got)
     assert all(g.raw.startswith(b"+UUDF:") for g in got if g.kind == "angle")
 
@@ -243,3 +246,20 @@ def test_reader_refuses_what_it_cannot_read(tmp_path: Path) -> None:
         rfhoming.Reader(open(RSS_STREAM, "rb"), protocol="ros2")
     with pytest.raises(rfhoming.Error, match="unknown protocol 'nmea'"):
         rfhoming.Reader(open(RSS_STREAM, "rb"), protocol="nmea")
+    with pytest.raises(ReaderError, match="timeout=0"):
+        rfhoming.Reader(serial.serial_for_url("loop://", timeout=0))
+
+
+def test_items_from_rfhoming_serve_come_without_device_bytes() -> None:
+    """A serve client's items are the server's JSON, not the device's bytes: raw is empty,
+    and tracking it does not fail (serve is no kind of the device table)."""
+    from rfhoming.host.ports import HostPort
+    from rfhoming.host.serve import ServeDriver
+    from rfhoming.reader import track
+
+    driver = ServeDriver(HostPort("socket://127.0.0.1:9", name="serve"))
+    tracker = track(driver)
+    seen = []
+    driver.listeners.append(lambda device, t, item: seen.append((item.kind, tracker.current)))
+    driver.on_chunk(b'{"kind": "final", "device": "aoa", "t": 1.0, "ok": true}\n', 1.0)
+    assert seen == [("final", b"")]

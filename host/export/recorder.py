@@ -195,6 +195,10 @@ class McapRecorder(Sink):
             self._write(t, *rosmsgs.text("/rfhoming/events", record["what"]))
 
     # -- writing -------------------------------------------------------------------------
+    def static_transforms(self) -> list[frames.Transform]:
+        """/tf_static: base_link -> each sensor, map -> each of the site's anchors."""
+        return frames.sensor_mounts(self.mounting) + frames.anchor_mounts(self.site)
+
     def _time(self, t_host: float) -> float | None:
         return t_host if self.clock == "host" else self.robot_time
 
@@ -203,8 +207,7 @@ class McapRecorder(Sink):
             return
         if not self._static_written:
             self._static_written = True
-            self._write(t, *rosmsgs.transforms("/tf_static", t, frames.sensor_mounts(self.mounting)
-                                               + frames.anchor_mounts(self.site)))
+            self._write(t, *rosmsgs.transforms("/tf_static", t, self.static_transforms()))
         schema_id, encode = self._schema(typename)
         channel = self._channels.get((topic, device))
         if channel is None:
