@@ -58,7 +58,7 @@ def anchors_run(tmp: Path) -> Path:
         for _ in range(5):  # four anchors and the base
             json.loads(emulator.stdout.readline())
         run = subprocess.run([sys.executable, "-m", "rfhoming", "run", "--controller", "anchors", "--site", str(site),
-                              "--base", f"base:{links}/base", "--mcap", str(mcap)],
+                              "--base", f"base:{links}/base", "--mcap", str(mcap), "--capture", str(tmp / "run.pcapng")],
                              capture_output=True, text=True, timeout=300)
     finally:
         emulator.send_signal(signal.SIGINT)
@@ -194,3 +194,16 @@ def test_fixed_anchors_hang_from_the_map_at_their_surveyed_pose(recordings) -> N
     messages = rosbags_messages(recordings["anchors"])
     assert {m.header.frame_id for _, m in messages["/rfhoming/aoa/angle"]} <= set(placed)
     assert [tf for _, m in messages["/tf"] for tf in m.transforms if tf.header.frame_id == "map"]  # map -> odom
+
+
+def test_an_export_of_the_capture_alone_places_the_anchors_it_recorded(recordings, tmp_path: Path) -> None:
+    """The run's capture keeps its site file: `rfhoming export CAPTURE` hangs the anchors from
+    map and puts their angles in their frames, with no run log to say whose they are."""
+    exported = tmp_path / "export.mcap"
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "export", str(recordings["anchors"].parent / "run.pcapng"),
+                           "-o", str(exported)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    messages = rosbags_messages(exported)
+    static = {tf.child_frame_id: tf.header.frame_id for _, m in messages["/tf_static"] for tf in m.transforms}
+    assert {f: static.get(f) for f in ANCHORS} == dict.fromkeys(ANCHORS, "map")
+    assert {m.header.frame_id for _, m in messages["/rfhoming/aoa/angle"]} == ANCHORS

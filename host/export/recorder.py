@@ -257,15 +257,22 @@ def export(output: Path | str, *, runlog: Path | str | None = None, capture: Pat
     The capture's inbound bytes go through each device's driver decoding (its ``on_chunk``, as
     live, in recorded global order); commands come from the run log if given, else from the
     frames sent to the base. Run log records are merged in by robot time. ``mounting``: the
-    run's config ``[mounting]``, for the sensor frames (None: every sensor at the robot's centre)."""
+    run's config ``[mounting]``, for the sensor frames (None: every sensor at the robot's centre);
+    the fixed anchors' frames come from the site file a run's capture recorded."""
     if runlog is None and capture is None:
         raise ValueError("nothing to export: give a run log, a capture, or both")
+    from rfhoming.host.homing.assembly import recorded_site  # the run's plan: above the recorder
+
     records = _read_runlog(runlog) if runlog is not None else []
     drivers, packets = _capture_drivers(capture) if capture is not None else ({}, [])
+    site = recorded_site(capture) if capture is not None else None
     has_base = runlog is not None or any(d.kind == "base" for d in drivers.values())
     source = next((r.get("source") for r in records if r.get("kind") == "measurement"), None)
+    if source is None and site is not None:  # only --controller anchors records a site
+        source = "anchors"
     recorder = McapRecorder(output, clock="robot" if has_base else "host",
-                            commands_from="runlog" if runlog is not None else "capture", mounting=mounting, source=source)
+                            commands_from="runlog" if runlog is not None else "capture", mounting=mounting, source=source,
+                            site=site)
     pending = deque(records)
     sent = {name: FrameDecoder() for name, d in drivers.items() if d.kind == "base"}  # the commands
     for driver in drivers.values():
