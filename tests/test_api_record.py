@@ -129,6 +129,19 @@ def test_open_records_what_rfhoming_capture_records(emulator, tmp_path: Path) ->
         assert len(items) - len(ours) < 10
 
 
+def test_leaving_the_loop_early_closes_the_capture(emulator, tmp_path: Path) -> None:
+    """No duration: the stream runs until the program stops reading; a ``break`` out of a
+    ``with`` block ends it and closes the file, whole."""
+    path = tmp_path / "early.pcapng"
+    with rfhoming.open(f"xplr-aoa:{emulator['aoa']}", kinds={"angle"}, capture=path) as devices:
+        for n, _ in enumerate(devices):
+            if n == 10:
+                break
+    assert devices.recording is None
+    interfaces, packets, torn = load_capture(path)
+    assert torn == 0 and len(UConnectDecoder().feed(b"".join(p.data for p in packets[0]))) > 10
+
+
 def test_a_capture_writer_given_is_flushed_and_left_open(emulator, tmp_path: Path) -> None:
     writer = CaptureWriter(tmp_path / "mine.pcapng")
     with rfhoming.open(f"xplr-aoa:{emulator['aoa']}", kinds={"angle"}, duration=1.5, capture=writer) as devices:
