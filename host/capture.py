@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 import time
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from rfhoming.protocol import devices, pcapng
 
@@ -98,6 +98,19 @@ class CaptureWriter:
     def close(self) -> None:
         self.flush()
         self._file.close()
+
+
+async def describe_dialects(drivers: list[Any], capture: CaptureWriter) -> None:
+    """Record each XPLR-AOA's u-connectLocate dialect on its interface once its set-up found it
+    (what ``rfhoming capture`` and the API's ``capture=`` both do); runs until cancelled."""
+    done: set[str] = set()
+    while True:
+        await asyncio.sleep(0.2)
+        for d in drivers:
+            dialect = getattr(d, "dialect", None)
+            if dialect is not None and d.port.name not in done:
+                capture.describe(d.port.name, dialect=dialect.value)
+                done.add(d.port.name)
 
 
 def parse_description(text: str) -> dict[str, str]:

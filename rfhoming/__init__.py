@@ -13,9 +13,11 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # what _API loads on first use, for type checkers (tests/test_typing.py holds them equal)
     from rfhoming.api import Devices as Devices
     from rfhoming.api import Item as Item
+    from rfhoming.api import Reader as Reader
     from rfhoming.api import Received as Received
     from rfhoming.api import open as open  # noqa: A004 - the API's verb
     from rfhoming.api import read as read
+    from rfhoming.host.capture import CaptureWriter as CaptureWriter
     from rfhoming.host.portspec import PortSpec as PortSpec
     from rfhoming.host.portspec import PortSpecError as PortSpecError
     from rfhoming.host.portspec import parse as _parse
@@ -34,7 +36,7 @@ except PackageNotFoundError:  # run from a source tree that was never installed
 
 _API = {  # public name -> the module that holds it
     "open": "rfhoming.api", "read": "rfhoming.api", "Devices": "rfhoming.api", "Received": "rfhoming.api",
-    "Item": "rfhoming.api",
+    "Item": "rfhoming.api", "Reader": "rfhoming.api", "CaptureWriter": "rfhoming.host.capture",
     "parse_spec": "rfhoming.host.portspec:parse", "PortSpec": "rfhoming.host.portspec",
     "PortSpecError": "rfhoming.host.portspec", "PortError": "rfhoming.host.ports",
     "UConnectDecoder": "rfhoming.protocol.uconnect", "FrameDecoder": "rfhoming.protocol.frames",

@@ -3,7 +3,9 @@
 ``rfhoming.open(spec)`` gives a :class:`Devices` handle, ``rfhoming.read(spec)`` iterates its
 items; both work with ``for``/``with`` and with ``async for``/``async with``. A handle owns the
 same drivers as ``rfhoming listen`` (set-up, reconnect, reboot recovery), so a program gets what
-the command line prints. docs/api.md is the guide; every example there runs in the tests.
+the command line prints; ``capture=`` records what ``rfhoming capture`` records. Every item
+carries its wire bytes (``raw``). :class:`Reader` decodes a stream the caller opened.
+docs/api.md is the guide; every example there runs in the tests.
 """
 
 from __future__ import annotations
@@ -13,9 +15,11 @@ import contextlib
 import queue
 import threading
 from collections.abc import AsyncIterator, Collection, Iterable, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, Literal, NamedTuple, Protocol, TypeAlias, TypedDict, TypeVar, Union, Unpack
 from typing import overload as _overload
 
+from rfhoming.host.capture import CaptureWriter, describe_dialects
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.portspec import PortSpec
 from rfhoming.host.session import health, open_drivers
@@ -35,6 +39,7 @@ from rfhoming.protocol.frames.records import (
 )
 from rfhoming.protocol.jsonable import as_dict
 from rfhoming.protocol.uconnect.items import AngleEvent, Echo, FinalCode, InfoLine, Startup, TagData, UnknownLine
+from rfhoming.reader import H4Packet, decode_stream, read_function, stream_protocol, track
 
 if TYPE_CHECKING:  # bumble's, imported only with an hci: port
     from rfhoming.host.drivers.hci import Advertisement, HciPacket
@@ -50,7 +55,7 @@ Item: TypeAlias = Union[
     AngleEvent, TagData, Startup, Echo, InfoLine, FinalCode, UnknownLine,  # XPLR-AOA (u-connectLocate)
     AdvReport, RfFrame, AntennaSet, Status, Odometry, VelocityCommand, RangeScan, RangeScanV2, LogText, NodeCommand,  # framed
     ScanReport, Info, Final, Event,  # ESP-AT
-    "Advertisement", "HciPacket",  # HCI
+    "Advertisement", "HciPacket", H4Packet,  # HCI (H4Packet: a Reader over h4)
     Drop,
 ]
 """Every item a device can yield; narrow it with ``isinstance`` (or ask ``open`` for one kind)."""
@@ -59,18 +64,21 @@ ItemT = TypeVar("ItemT", bound=Item, covariant=True)
 
 
 class Received(NamedTuple, Generic[ItemT]):
-    """One decoded item, with the host time its bytes arrived and the device it came from."""
+    """One decoded item, with the host time its bytes arrived, the device it came from and
+    ``raw``, its exact bytes on the wire (the line with its CR LF, the COBS frame with its
+    zeros, the H4 packet; docs/api.md says what they are for each protocol)."""
 
     t: float
     device: str
     item: ItemT
+    raw: bytes = b""
 
     @property
     def kind(self) -> str:
         return str(self.item.kind)
 
     def to_dict(self) -> dict[str, Any]:
-        """``{"device", "t", "kind", <fields>}``: the form ``rfhoming listen --json`` prints."""
+        """``{"device", "t", "kind", <fields>}``: the form ``rfhoming listen --json`` prints (no raw)."""
         return {"device": self.device, "t": self.t, **as_dict(self.item)}
 
 
@@ -81,16 +89,22 @@ class Devices(Generic[ItemT]):
     ``capture:run.pcapng``, ``auto`` ...). ``kinds`` keeps only those item kinds (``"angle"``,
     ``"rss_report"``, ``"drop"`` ...); by default everything but the AT conversation.
     ``duration`` ends the stream after that many seconds; a capture ends by itself.
+    ``capture``: a pcapng file to record every byte both ways, as ``rfhoming capture -o`` does
+    (a path: created, and closed when the stream ends; a :class:`CaptureWriter`: written to,
+    left open for its owner).
     """
 
     def __init__(self, *specs: str | PortSpec, kinds: Iterable[str] | None = None,
-                 duration: float | None = None, baud: int | None = None, flow: str | None = None) -> None:
+                 duration: float | None = None, baud: int | None = None, flow: str | None = None,
+                 capture: str | Path | CaptureWriter | None = None) -> None:
         if not specs:
             raise ValueError("give at least one port spec, e.g. rfhoming.open('xplr-aoa:/dev/ttyUSB0')")
         self.specs = specs
         self.kinds = frozenset(kinds) if kinds is not None else None
         self.duration = duration
         self.baud, self.flow = baud, flow
+        self.capture = capture
+        self.recording: CaptureWriter | None = None  # the capture being written, while streaming
         self.drivers: list[Driver] = []
         self.dropped = 0
         self._thread: threading.Thread | None = None
@@ -111,17 +125,30 @@ class Devices(Generic[ItemT]):
         say why a device could not be opened."""
         items: asyncio.Queue[Received[ItemT] | None] = asyncio.Queue(QUEUE_SIZE)
 
-        def listener(device: str, t: float, item: Any) -> None:
-            if self.wanted(item.kind):
-                try:
-                    items.put_nowait(Received(t, device, item))
-                except asyncio.QueueFull:
-                    self.dropped += 1
+        def listener_of(driver: Driver) -> Any:
+            tracker = track(driver)
 
-        self.drivers = await open_drivers(list(self.specs), baud=self.baud, flow=self.flow)
+            def listener(device: str, t: float, item: Any) -> None:
+                if self.wanted(item.kind):
+                    try:
+                        items.put_nowait(Received(t, device, item, tracker.current))
+                    except asyncio.QueueFull:
+                        self.dropped += 1
+            return listener
+
+        capture = self.recording = (CaptureWriter(self.capture) if isinstance(self.capture, (str, Path))
+                                    else self.capture)
+        try:
+            self.drivers = await open_drivers(list(self.specs), baud=self.baud, flow=self.flow,
+                                              taps=[capture.tap] if capture else [],
+                                              describe=capture.describe if capture else None)
+        except BaseException:
+            self._end_capture()
+            raise
         for driver in self.drivers:
-            driver.listeners.append(listener)
+            driver.listeners.append(listener_of(driver))
         tasks = [asyncio.create_task(d.run()) for d in self.drivers]
+        dialects = asyncio.create_task(describe_dialects(self.drivers, capture)) if capture else None
         self._stop = stopped = asyncio.Event()
 
         async def watch() -> None:
@@ -150,13 +177,22 @@ class Devices(Generic[ItemT]):
                     raise error
         finally:
             watcher.cancel()
-            for task in tasks:
+            for task in [*tasks, *([dialects] if dialects else [])]:
                 task.cancel()
             for task in tasks:
                 with contextlib.suppress(BaseException):
                     await task
             for driver in self.drivers:
                 await driver.port.close()
+            self._end_capture()
+
+    def _end_capture(self) -> None:
+        """Close a capture this handle opened; flush one it was given."""
+        capture, self.recording = self.recording, None
+        if capture is not None and capture is not self.capture:
+            capture.close()
+        elif capture is not None:
+            capture.flush()
 
     def __aiter__(self) -> AsyncIterator[Received[ItemT]]:
         return self.stream()
@@ -227,6 +263,7 @@ class Options(TypedDict, total=False):
     duration: float | None
     baud: int | None
     flow: str | None
+    capture: str | Path | CaptureWriter | None
 
 
 Spec: TypeAlias = "str | PortSpec"
@@ -293,6 +330,30 @@ def _open(*specs: Spec, **options: Any) -> Devices[Any]:
 def _read(*specs: Spec, **options: Any) -> Devices[Any]:
     """``for item in rfhoming.read(spec)`` / ``async for``: the devices' items as they arrive."""
     return Devices(*specs, **options)
+
+
+class Reader:
+    """Items decoded from a stream the caller opened -- a ``serial.Serial``, a socket, a binary
+    file -- as ``pyubx2.UBXReader(stream)`` does: ``for got in rfhoming.Reader(port,
+    protocol="uconnect")`` yields :class:`Received` items with their ``raw`` bytes.
+
+    ``protocol``: a stream protocol (``uconnect``, ``frames``, ``esp-at``, ``h4``) or a device
+    kind that speaks one (``xplr-aoa``). ``kinds`` keeps those item kinds (default: every item,
+    the AT answers included: a Reader's caller holds the conversation). It reads and decodes
+    only: no set-up, no reconnect. The iteration ends at the end of a file or when a socket's
+    peer closes; a serial port's read timeout is not an end (it reads on). ``name`` is the
+    ``device`` of the items (default: the port or file name)."""
+
+    def __init__(self, stream: Any, protocol: str = "uconnect", *, kinds: Iterable[str] | None = None,
+                 name: str | None = None) -> None:
+        self.stream = stream
+        self.protocol = stream_protocol(protocol)  # an unknown or non-stream protocol fails here
+        read_function(stream)  # so does a stream that cannot be read
+        self.kinds = frozenset(kinds) if kinds is not None else None
+        self.name = name
+
+    def __iter__(self) -> Iterator[Received[Item]]:
+        return decode_stream(self.stream, self.protocol, self.kinds, self.name, Received)
 
 
 _open.__name__ = _open.__qualname__ = "open"  # what help() and tracebacks call them

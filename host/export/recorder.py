@@ -13,10 +13,13 @@ which the mcap library's readers and rosbags read past (docs/usage.md). ``close`
 summary. (A flush is not an fsync: a power cut may lose what the OS had not written yet.)
 
 Frames (REP 105): ``/tf_static`` holds base_link -> each sensor frame (aoa_link, laser,
-rss_link, ble_link) from the config's ``[mounting]``, written with the first message; ``/tf``
-holds odom -> base_link from every odometry record and, when fixed anchors locate the robot
-(S3), map -> odom from each estimate's odometry offset. A sensor message's ``frame_id`` is its
-sensor's frame; the device it came from (its port) is in its channel's metadata ``device``.
+rss_link, ble_link) from the config's ``[mounting]`` and, with a site (``--controller
+anchors``), map -> each fixed anchor's frame (anchor_<id>), written with the first message;
+``/tf`` holds odom -> base_link from every odometry record, map -> odom when fixed anchors locate
+the robot (S3's odometry offset, the anchors controller's alignment) and S1's odom ->
+dock_station as its fit of the station goes (host/export/frames.py). A sensor message's
+``frame_id`` is its sensor's frame; the device it came from (its port) is in its channel's
+metadata ``device``.
 
 Time: with a robot base every message is stamped on the base's own clock, the run log's time
 axis (an item gets the robot time of the latest odometry, as the homing loop does; items before
@@ -72,10 +75,11 @@ class McapRecorder(Sink):
     exports with a run log), "capture" to take them from the bytes sent to the base."""
 
     def __init__(self, output: Path | str | IO[bytes], *, clock: str = "robot", commands_from: str = "runlog",
-                 mounting: Any = None, source: str | None = None) -> None:
+                 mounting: Any = None, source: str | None = None, site: Any = None) -> None:
         """``mounting``: the config's ``[mounting]`` (sensor frames; None: all at the robot's
         centre); ``source``: the controller's measurement source (which AoA board is off the
-        robot). A live run gives both through :meth:`watch`."""
+        robot); ``site``: the fixed anchors' site (their frames). A live run gives them through
+        :meth:`watch`."""
         if clock not in ("robot", "host"):
             raise ValueError(f"clock must be robot or host, not {clock!r}")
         self._file = open(output, "wb") if isinstance(output, (str, Path)) else None
@@ -86,6 +90,7 @@ class McapRecorder(Sink):
         self.commands_from = commands_from
         self.mounting = mounting
         self.source = source
+        self.site = site
         self._schemas: dict[str, tuple[int, Any]] = {}  # type -> (schema id, CDR encoder)
         self._channels: dict[tuple[str, str], int] = {}  # (topic, device) -> channel id
         self._clocks: dict[str, NodeClock] = {}
@@ -101,6 +106,7 @@ class McapRecorder(Sink):
         """The run's loop: its config's sensor mountings and its controller's source."""
         self.mounting = loop.config.mounting
         self.source = getattr(loop, "source", None)
+        self.site = getattr(getattr(loop, "controller", None), "site", None)
 
     def _failed(self, kind: str, exc: Exception) -> None:
         """An item that cannot be written: counted as skipped, logged once per kind."""
@@ -159,11 +165,11 @@ class McapRecorder(Sink):
 
     def _aoa_frame(self, event: Any) -> str:
         """The robot's XPLR-AOA is aoa_link; S1's is on the docking station and a fixed
-        anchor is anchor_<its id>: frames no transform places (their pose is not known)."""
+        anchor is anchor_<its id> (placed by the estimates and the site: frames.py)."""
         if self.source == "dock_aoa":
             return frames.STATION
         if self.source == "anchors":
-            return frames.ANCHOR_PREFIX + event.anchor_id
+            return frames.anchor_frame(event.anchor_id)
         return frames.AOA
 
     def _on_runlog(self, record: dict[str, Any]) -> None:
@@ -175,6 +181,10 @@ class McapRecorder(Sink):
             located = record.get("offset") is not None  # S3: anchors fix the robot in the map
             if located:
                 self._write(t, *rosmsgs.transforms("/tf", t, [frames.map_to_odom(record["offset"])]))
+            if record.get("map_odom") is not None:  # the anchors controller's alignment
+                self._write(t, *rosmsgs.transforms("/tf", t, [frames.map_to_odom(record["map_odom"])]))
+            if record.get("station") is not None:  # S1: the station fitted in the odometry frame
+                self._write(t, *rosmsgs.transforms("/tf", t, [frames.dock_station(record["station"])]))
             if record.get("goal") is not None:
                 self._write(t, *rosmsgs.point("/rfhoming/target", t, record["goal"]))
             if record.get("fix") is not None:  # S3: the robot in the map; S2: one target fix in odom
@@ -185,6 +195,10 @@ class McapRecorder(Sink):
             self._write(t, *rosmsgs.text("/rfhoming/events", record["what"]))
 
     # -- writing -------------------------------------------------------------------------
+    def static_transforms(self) -> list[frames.Transform]:
+        """/tf_static: base_link -> each sensor, map -> each of the site's anchors."""
+        return frames.sensor_mounts(self.mounting) + frames.anchor_mounts(self.site)
+
     def _time(self, t_host: float) -> float | None:
         return t_host if self.clock == "host" else self.robot_time
 
@@ -193,7 +207,7 @@ class McapRecorder(Sink):
             return
         if not self._static_written:
             self._static_written = True
-            self._write(t, *rosmsgs.transforms("/tf_static", t, frames.sensor_mounts(self.mounting)))
+            self._write(t, *rosmsgs.transforms("/tf_static", t, self.static_transforms()))
         schema_id, encode = self._schema(typename)
         channel = self._channels.get((topic, device))
         if channel is None:
@@ -243,15 +257,22 @@ def export(output: Path | str, *, runlog: Path | str | None = None, capture: Pat
     The capture's inbound bytes go through each device's driver decoding (its ``on_chunk``, as
     live, in recorded global order); commands come from the run log if given, else from the
     frames sent to the base. Run log records are merged in by robot time. ``mounting``: the
-    run's config ``[mounting]``, for the sensor frames (None: every sensor at the robot's centre)."""
+    run's config ``[mounting]``, for the sensor frames (None: every sensor at the robot's centre);
+    the fixed anchors' frames come from the site file a run's capture recorded."""
     if runlog is None and capture is None:
         raise ValueError("nothing to export: give a run log, a capture, or both")
+    from rfhoming.host.homing.assembly import recorded_site  # the run's plan: above the recorder
+
     records = _read_runlog(runlog) if runlog is not None else []
     drivers, packets = _capture_drivers(capture) if capture is not None else ({}, [])
+    site = recorded_site(capture) if capture is not None else None
     has_base = runlog is not None or any(d.kind == "base" for d in drivers.values())
     source = next((r.get("source") for r in records if r.get("kind") == "measurement"), None)
+    if source is None and site is not None:  # only --controller anchors records a site
+        source = "anchors"
     recorder = McapRecorder(output, clock="robot" if has_base else "host",
-                            commands_from="runlog" if runlog is not None else "capture", mounting=mounting, source=source)
+                            commands_from="runlog" if runlog is not None else "capture", mounting=mounting, source=source,
+                            site=site)
     pending = deque(records)
     sent = {name: FrameDecoder() for name, d in drivers.items() if d.kind == "base"}  # the commands
     for driver in drivers.values():

@@ -20,7 +20,7 @@ from cyclonedds.util import duration
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
 
-from rfhoming.host.export import frames, rosmsgs
+from rfhoming.host.export import rosmsgs
 from rfhoming.host.export.recorder import McapRecorder
 from rfhoming.protocol import ros2
 from rfhoming.protocol.ros2dds import DEFAULT_QOS, participant
@@ -85,7 +85,7 @@ class Ros2Publisher(McapRecorder):
                  skip: frozenset[str] = frozenset()) -> None:
         """``skip``: topics not to publish (a ROS 2 base's own /odom, /scan, /tf, /cmd_vel on its domain)."""
         # McapRecorder's state, without its file
-        self.clock, self.commands_from, self.mounting, self.source = clock, "runlog", None, None
+        self.clock, self.commands_from, self.mounting, self.source, self.site = clock, "runlog", None, None, None
         self._clocks: dict[str, Any] = {}
         self._static_written = False
         self._last_xy: tuple[float, float] | None = None
@@ -104,7 +104,7 @@ class Ros2Publisher(McapRecorder):
             return
         if not self._static_written:
             self._static_written = True
-            self._write(t, *rosmsgs.transforms("/tf_static", t, frames.sensor_mounts(self.mounting)))
+            self._write(t, *rosmsgs.transforms("/tf_static", t, self.static_transforms()))
         writer = self._writers.get(topic)
         if writer is None:
             qos = STATIC_QOS if topic == "/tf_static" else DEFAULT_QOS

@@ -121,4 +121,6 @@ class AnchorsController(ControllerDefaults):
             return None if v is None else [round(float(x), 3) for x in v]
 
         return {"robot_world": r(self.robot_world), "target_world": r(self.target_world), "goal": r(self.reported),
-                "frame_rotation_deg": None if self.transform is None else round(math.degrees(self.transform[0]), 2)}
+                "frame_rotation_deg": None if self.transform is None else round(math.degrees(self.transform[0]), 2),
+                "map_odom": None if self.transform is None else  # world = R(yaw) odometry + (x, y): map -> odom
+                [*r(self.transform[1]), round(self.transform[0], 5)]}

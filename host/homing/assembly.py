@@ -315,6 +315,17 @@ RECORD_KEYS = {"controller": str, "config": dict, "tags": list, "choose_tag_s": 
                "probe_baud": bool, "devices": list, "site": (str, type(None))}
 
 
+def recorded_site(path: Path | str) -> Site | None:
+    """The site file a run's capture recorded (``--controller anchors``), or None: a capture of
+    another run or of no run. For an export, which places the anchors' frames from it."""
+    _interfaces, _packets, _torn, comments = read_capture(path)
+    try:
+        record = _record(path, comments)
+        return sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record["site"] else None
+    except (CaptureFormatError, tomllib.TOMLDecodeError):
+        return None
+
+
 def _record(path: Path | str, comments: list[str]) -> dict[str, Any]:
     """The capture's run record, checked; CaptureFormatError says what is missing or wrong."""
     text = next((c for c in comments if c.startswith(f'{{"{RUN_RECORD}"')), None)

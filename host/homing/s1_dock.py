@@ -169,16 +169,28 @@ class DockController(ControllerDefaults):
     def approach_heading(self) -> float | None:
         """The heading that faces the station along its axis, in the odometry frame; None when
         the robot has not moved far enough for the fit."""
+        station = self.station_pose()
+        return None if station is None else wrap_rad(station[2] + math.pi)
+
+    def station_pose(self) -> tuple[float, float, float] | None:
+        """The station in the odometry frame, (x, y, boresight heading), from the rigid fit of
+        the readings' station-frame points onto the odometry positions; None before the robot
+        has moved far enough for it (the MCAP's odom -> dock_station)."""
         if len(self._pairs) < 2 * self.params.n:
             return None
         a = np.array(self._pairs)
-        odo, station = a[:, :2] - a[:, :2].mean(axis=0), a[:, 2:] - a[:, 2:].mean(axis=0)
+        mean_odo, mean_station = a[:, :2].mean(axis=0), a[:, 2:].mean(axis=0)
+        odo, station = a[:, :2] - mean_odo, a[:, 2:] - mean_station
         if np.ptp(a[:, 0]) ** 2 + np.ptp(a[:, 1]) ** 2 < self.params.align_min_spread_m ** 2:
             return None
         h = station.T @ odo  # rotation R (station -> odometry) maximises trace(R h)
         psi = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])  # the station's boresight
-        return wrap_rad(psi + math.pi)
+        c, s = math.cos(psi), math.sin(psi)
+        x, y = mean_odo - np.array([[c, -s], [s, c]]) @ mean_station  # where the station's origin lands
+        return float(x), float(y), psi
 
     def estimate(self) -> dict[str, Any]:
+        station = self.station_pose()
         return {"stage": self.stage, "rssi_diff": round(self.rssi_diff, 2), "step": None if self._step is None
-                else [round(v, 3) for v in self._step]}
+                else [round(v, 3) for v in self._step],
+                "station": None if station is None else [round(v, 3) for v in station]}

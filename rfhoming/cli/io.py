@@ -16,8 +16,8 @@ from typing import Any
 from rfhoming.cli.args import nonnegative_float, output_file, positive_float, positive_int
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
 from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.capture import describe_dialects as _describe_dialects  # cli/serve.py uses it too
 from rfhoming.host.discovery import candidates
-from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.ports import PortError
 from rfhoming.host.portspec import PortSpec
@@ -105,16 +105,6 @@ async def _run_until(drivers: list[Driver], duration: float | None, extra: list[
         for d in drivers:
             d.drain()
             await d.port.close()
-
-
-async def _describe_dialects(drivers: list[Driver], capture: CaptureWriter) -> None:
-    done: set[str] = set()
-    while True:
-        await asyncio.sleep(0.2)
-        for d in drivers:
-            if isinstance(d, AoaDriver) and d.dialect is not None and d.port.name not in done:
-                capture.describe(d.port.name, dialect=d.dialect.value)
-                done.add(d.port.name)
 
 
 async def _listen(args: argparse.Namespace, show: bool) -> int:
