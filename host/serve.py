@@ -295,6 +295,8 @@ class ItemServer:
     # -- what goes to a client -----------------------------------------------------------------
     def _offer(self, client: _Client, line: bytes) -> None:
         """Append to the client's queue, or drop and count when it is full."""
+        if client.closed:
+            return
         if len(client.queue) < client.queue_lines and client.queued_bytes + len(line) <= QUEUE_BYTES:
             client.queue.append(line)
             client.queued_bytes += len(line)
@@ -426,6 +428,8 @@ class ItemServer:
             writer.write(_error_line(f"too many clients ({self.max_clients}); try again later"))
             writer.transport.close()
             return
+        for dev in self.devices.values():
+            self._observe(dev)  # the hello tells each device's state as it is now
         client = _Client(writer, self.queue_lines)
         self.clients.add(client)
         self.counters["clients"] += 1

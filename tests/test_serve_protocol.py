@@ -450,6 +450,7 @@ class GpsdStyleClient:
             data = self.sock.recv(65536)
             assert data, "the server closed the connection"
             self.buffer += data
+            assert len(self.buffer) < 1 << 20, f"no CR LF line in {self.buffer[:200]!r}..."
         line, self.buffer = self.buffer.split(b"\r\n", 1)
         return json.loads(line)
 
