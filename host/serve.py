@@ -45,7 +45,7 @@ import socket
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 from rfhoming.host.drivers.aoa import TimedAngle
@@ -372,7 +372,7 @@ class ItemServer:
         now = time.time()
         self._offer(client, _line({
             "kind": "poll", "class": "POLL", "t": round(now, 6),
-            "time": datetime.fromtimestamp(now, timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
+            "time": datetime.fromtimestamp(now, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
             "active": sum(1 for dev in self.devices.values() if dev.state in ("ready", "streaming")),
             "items": sorted(items, key=lambda r: r["n"])}))
 

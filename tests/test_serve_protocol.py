@@ -30,7 +30,6 @@ from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.ports import HostPort
 from rfhoming.host.serve import (
     CHATTER,
-    ERRORS_PENDING,
     MAX_COMMAND,
     NOT_POLLED,
     ItemServer,
@@ -263,11 +262,26 @@ def test_command_lines_are_understood_alike_however_the_bytes_come(lines: list[b
     assert outcome(pieces) == outcome([data])
 
 
-async def wait_for(predicate, what: str) -> None:
-    deadline = time.monotonic() + SAFETY_S
-    while not predicate():
-        assert time.monotonic() < deadline, f"never: {what}"
-        await asyncio.sleep(0.01)
+JSON = st.recursive(st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=8),
+                    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
+                    max_leaves=10)
+WATCH_KEYS = st.sampled_from(["enable", "json", "devices", "device", "kinds", "chatter", "nmea", "raw", "pps", "x"])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.binary(max_size=120),
+                 st.dictionaries(WATCH_KEYS, JSON, max_size=5).map(lambda d: b"?WATCH=" + json.dumps(d).encode() + b";"),
+                 st.dictionaries(WATCH_KEYS, JSON, max_size=5).map(
+                     lambda d: json.dumps({"cmd": "watch", **d}).encode()),
+                 st.text(max_size=60).map(lambda t: ("?" + t).encode())))
+def test_any_command_line_is_carried_out_or_refused_with_one_error_and_nothing_else(line: bytes) -> None:
+    """Whatever a client sends, the server answers or refuses it in words; nothing escapes."""
+    server = ItemServer(drivers=[aoa_driver()])
+    client = _Client(_Writer(), 1000)
+    understood = server._on_command_line(client, line)
+    assert understood == (client.errors == 0) and client.errors <= 1
+    assert all(json.loads(q)["kind"] in ("devices", "watch", "poll", "version") for q in client.queue)
+    assert isinstance(client.watch.enable, bool) and (client.watch.devices is None or client.watch.devices <= {"aoa"})
 
 
 async def test_device_states_follow_the_driver_through_set_up_reboot_and_unplug() -> None:
