@@ -46,12 +46,14 @@ import time
 from collections import deque
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.ports import HostPort
 from rfhoming.host.supervise import ready
+from rfhoming.protocol.errors import Error
 from rfhoming.protocol.jsonable import as_dict, from_dict
 
 log = logging.getLogger(__name__)
@@ -91,9 +93,11 @@ GPSD_REFUSED = frozenset({"nmea", "raw"})
 
 
 def _version_fields() -> dict[str, Any]:
-    from rfhoming import __version__
-
-    return {"server": "rfhoming", "release": __version__, "rev": __version__,
+    try:
+        release = version("rfhoming")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        release = "0+unknown"
+    return {"server": "rfhoming", "release": release, "rev": release,
             "proto": {"major": PROTO_MAJOR, "minor": PROTO_MINOR},
             "proto_major": PROTO_MAJOR, "proto_minor": PROTO_MINOR}
 
@@ -104,7 +108,7 @@ def _line(record: dict[str, Any]) -> bytes:
     return (json.dumps(record) + "\r\n").encode()
 
 
-class CommandError(ValueError):
+class CommandError(Error, ValueError):
     """A command line the server does not understand; the message says why (an error line)."""
 
 
