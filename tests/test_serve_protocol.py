@@ -532,6 +532,8 @@ from gps import gps, WATCH_ENABLE, WATCH_JSON
 session = gps(host="127.0.0.1", port=int(sys.argv[1]), mode=WATCH_ENABLE | WATCH_JSON)
 seen = []
 for report in session:
+    if report is None or session.response == "":  # a part of a line so far: the client reads on
+        continue
     seen.append(report.get("class") or report.get("kind"))
     if report.get("kind") == "angle" and "POLL" not in seen:
         session.send("?POLL;")
