@@ -1,23 +1,35 @@
-"""One owner of the devices, any number of clients: decoded items as JSON lines over TCP.
+"""One owner of the devices, any number of clients: a small versioned JSON-lines protocol over TCP.
 
 In the spirit of gpsd: ``rfhoming serve`` opens the devices (port specs, set-up, reconnect,
-capture) and :class:`ItemServer` fans every decoded item out to whoever connects. A line is
-``{"n": N, "device": ..., "t": ..., "kind": ..., <fields>}`` (the form of ``listen --json``
-plus ``n``, the server's item number, so clients can line their streams up); the first line a
-client gets is ``{"kind": "hello", ...}``.
+capture) and :class:`ItemServer` fans every decoded item out to whoever connects.
+docs/protocol.md, "serve: the JSON-lines protocol", is the reference for what goes over the
+wire; in short:
 
-A slow or dead client never blocks the devices or the other clients: publishing only appends
-to each client's bounded queue (``queue_lines`` lines and ``QUEUE_BYTES`` bytes), and each
-client has its own writer task. When a client's queue is full its newest items are dropped and
-counted; the next line it gets is ``{"kind": "dropped", "count": K, "total": T}``. A client
-that takes nothing while ``max_drops`` items are dropped is disconnected, with a last
-``dropped`` line saying so.
+- the first line a client gets is ``hello`` (the protocol version ``proto``, the release, and
+  each device with its state); the gpsd-named fields (``class``, ``proto_major``, ...) make it
+  a gpsd VERSION object too;
+- then, while it watches (by default: every device, every kind but the devices' set-up
+  chatter), one line per item, ``{"n": N, "device": ..., "t": ..., "kind": ..., <fields>}``
+  (the form of ``listen --json`` plus ``n``, the server's item number), and a ``device`` line
+  whenever a device's state changes (``disconnected``, ``connected``, ``ready``, ``streaming``);
+- a client may send commands, one JSON object a line (``{"cmd": "watch", ...}``, ``poll``,
+  ``devices``, ``version``) or in gpsd's syntax (``?WATCH={...};``, ``?POLL;``, ``?DEVICES;``,
+  ``?VERSION;``); what the server does not understand gets one ``error`` line, and the
+  connection stays up.
 
-What a client sends is read in bounded chunks and discarded (the server takes no input); a
-client that sends more than ``max_input`` bytes in all gets one line ``{"kind": "error", ...}``
-and is disconnected (counted as ``disconnected_input``). Past ``max_clients`` connections a new
-one gets the same kind of line and is closed (``refused``). So no client can make the server
-hold more than its queue, its transport's 16 KiB and a 4 KiB read.
+Bounded everywhere: publishing only appends to each client's bounded queue (``queue_lines``
+lines and ``QUEUE_BYTES`` bytes) and each client has its own writer task, so a slow or dead
+client never blocks the devices or the other clients. When a client's queue is full its newest
+lines are dropped and counted; the next line it gets is ``{"kind": "dropped", "count": K,
+"total": T}``, and a client that takes nothing while ``max_drops`` lines are dropped is
+disconnected. Input is read ``READ_CHUNK`` bytes at a time; a command line longer than
+``MAX_COMMAND`` is an error (its bytes are skipped to the next newline, never held); errors that
+come faster than the client reads them are counted, past ``ERRORS_PENDING``, in the last
+error line (``suppressed``). A client that
+sends more than ``max_input`` bytes the server does not understand, in all, is disconnected
+(``disconnected_input``); past ``max_clients`` connections a new one is refused. So no client
+can make the server hold more than its queue, its transport's 16 KiB, a 4 KiB read and one
+command line.
 
 :class:`ServeDriver` is the other end: a driver whose port is a server's address, so
 ``serve://HOST:PORT`` works wherever a port spec does.
@@ -30,29 +42,140 @@ import contextlib
 import json
 import logging
 import socket
+import time
 from collections import deque
+from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.ports import HostPort
+from rfhoming.host.supervise import ready
+from rfhoming.protocol.errors import Error
 from rfhoming.protocol.jsonable import as_dict, from_dict
 
 log = logging.getLogger(__name__)
+
+PROTO_MAJOR, PROTO_MINOR = 1, 0
+"""The protocol's version: the minor grows with every addition a client may ignore (a field,
+a message kind, a command), the major with every change that could break a client."""
 
 QUEUE_LINES = 1000
 WRITE_BUFFER = 16 * 1024  # bytes the transport may hold for a client before its writer waits
 CLOSE_GRACE_S = 10.0  # a disconnected client has this long to take its last lines
 MAX_LINE = 64 * 1024
 QUEUE_BYTES = 256 * 1024  # encoded lines a client's queue holds at most
-MAX_INPUT = 64 * 1024  # bytes a client may send in all (read and discarded)
+MAX_INPUT = 64 * 1024  # bytes a client may send that the server does not understand, in all
+MAX_COMMAND = 4096  # the longest command line
 READ_CHUNK = 4096
 MAX_CLIENTS = 256
 LINGER_S = 1.0  # a client cut off for its input has this long to read the error line
+ERRORS_PENDING = 8  # error lines a client may have waiting; more are counted in the last one
+STATE_POLL_S = 0.05  # how often the drivers' states are looked at (an item looks at once)
+
+CHATTER = frozenset({"echo", "info", "final", "startup", "unknown", "event", "hci"})
+"""Item kinds of a device's own dialogue with the host -- the XPLR-AOA's and ESP-AT's AT
+commands echoed, their answers and final codes, +STARTUP and lines that are none of these,
+ESP-AT's ``ready``, HCI's command replies: sent only to a client that asks (``chatter``)."""
+NOT_POLLED = CHATTER | {"drop"}  # a poll answers with readings, not the dialogue or decode drops
+
+STATES = ("disconnected", "connected", "ready", "streaming")
+"""A device's states, each a step further: its port is not open (not yet, or no more); open,
+being set up (after an open or a reboot); set up; its first reading since it was set up has come.
+``ended``: a replayed capture that has run out (it does not come back)."""
+
+GPSD_IGNORED = frozenset({"class", "scaled", "split24", "pps", "timing", "remote"})
+"""gpsd WATCH fields that ask for nothing these devices have: accepted and ignored."""
+GPSD_REFUSED = frozenset({"nmea", "raw"})
+"""gpsd WATCH fields for data other than JSON: refused with an error unless false or 0."""
+
+
+def _version_fields() -> dict[str, Any]:
+    try:
+        release = version("rfhoming")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        release = "0+unknown"
+    return {"server": "rfhoming", "release": release, "rev": release,
+            "proto": {"major": PROTO_MAJOR, "minor": PROTO_MINOR},
+            "proto_major": PROTO_MAJOR, "proto_minor": PROTO_MINOR}
+
+
+def _line(record: dict[str, Any]) -> bytes:
+    """One JSON line, ended CR LF as gpsd ends its own (gpsd_json(5), OVERVIEW; its Python
+    client takes a line only so); a JSON-lines reader ignores the CR as white space."""
+    return (json.dumps(record) + "\r\n").encode()
+
+
+class CommandError(Error, ValueError):
+    """A command line the server does not understand; the message says why (an error line)."""
+
+
+@dataclass(frozen=True)
+class Watch:
+    """What one client asked for; the default is what a client that sends nothing gets."""
+
+    enable: bool = True
+    json: bool = True
+    devices: frozenset[str] | None = None  # None: every device
+    kinds: frozenset[str] | None = None  # None: every kind but the chatter
+    chatter: bool = False
+
+    def wants_device(self, device: str) -> bool:
+        return self.enable and (self.devices is None or device in self.devices)
+
+    def wants(self, device: str, kind: str) -> bool:
+        if not (self.json and self.wants_device(device)):
+            return False
+        if kind in CHATTER and self.chatter:
+            return True
+        return kind in self.kinds if self.kinds is not None else kind not in CHATTER
+
+    def as_dict(self) -> dict[str, Any]:
+        """The ``watch`` line: absent ``devices``/``kinds`` mean all (gpsd sends no nulls)."""
+        record = {"kind": "watch", "class": "WATCH", "enable": self.enable, "json": self.json,
+                  "chatter": self.chatter}
+        if self.devices is not None:
+            record["devices"] = sorted(self.devices)
+        if self.kinds is not None:
+            record["kinds"] = sorted(self.kinds)
+        return record
+
+
+@dataclass
+class _Device:
+    """What the server tells of one device: its names, its state and its latest readings."""
+
+    name: str
+    driver: Driver | None = None
+    state: str = "disconnected"
+    reconnects: int = 0
+    latest: dict[str, dict[str, Any]] = field(default_factory=dict)  # kind -> its last item record
+
+    def describe(self) -> dict[str, Any]:
+        record = {"class": "DEVICE", "device": self.name, "driver": self.driver.kind if self.driver else None,
+                  "path": getattr(self.driver.port, "spec", self.name) if self.driver else self.name,
+                  "state": self.state}
+        problem = getattr(self.driver, "problem", None)
+        if problem:
+            record["problem"] = problem
+        return {k: v for k, v in record.items() if v is not None}
+
+
+def _protocol_state(driver: Driver, was: str) -> str:
+    """A driver's state in the protocol's words (``streaming`` is set by the first item)."""
+    if driver.state == "ended":
+        return "ended"
+    if not driver.connected.is_set():
+        return "disconnected"
+    if ready(driver):
+        return "streaming" if was == "streaming" else "ready"
+    return "connected"
 
 
 class _Client:
-    """One connection: its bounded queue of encoded lines and its drop counters."""
+    """One connection: its bounded queue of encoded lines, its watch and its counters."""
 
     def __init__(self, writer: asyncio.StreamWriter, queue_lines: int) -> None:
         self.writer = writer
@@ -60,7 +183,14 @@ class _Client:
         self.queue: deque[bytes] = deque()
         self.queue_lines = queue_lines
         self.queued_bytes = 0
-        self.received = 0  # bytes it sent, all discarded
+        self.watch = Watch()
+        self.unheard = 0  # bytes it sent that were not understood
+        self.partial = b""  # the start of a command line, at most MAX_COMMAND bytes
+        self.skipping = False  # inside a command line that was too long
+        self.errors_pending: list[str] = []  # error lines not sent yet, at most ERRORS_PENDING
+        self.suppressed = 0  # errors past those, told in the last one's "suppressed"
+        self.errors = 0
+        self.commands = 0
         self.ready = asyncio.Event()
         self.dropped = 0  # since the last notice
         self.dropped_total = 0
@@ -70,27 +200,31 @@ class _Client:
 
 
 class ItemServer:
-    """JSON lines of decoded items to any number of TCP clients; :meth:`publish` is a driver
-    listener and never waits."""
+    """The serve protocol to any number of TCP clients; :meth:`publish` is a driver listener
+    and never waits. ``drivers``: the devices it tells of (their states are followed from
+    :meth:`start` on)."""
 
     def __init__(self, *, queue_lines: int = QUEUE_LINES, max_drops: int | None = None,
-                 hello: dict[str, Any] | None = None, max_input: int = MAX_INPUT,
-                 max_clients: int = MAX_CLIENTS) -> None:
+                 max_input: int = MAX_INPUT, max_clients: int = MAX_CLIENTS, drivers: list[Driver] = ()) -> None:
         self.queue_lines = queue_lines
         self.max_drops = queue_lines if max_drops is None else max_drops
         self.max_input = max_input
         self.max_clients = max_clients
-        self.hello = {"kind": "hello", "server": "rfhoming", **(hello or {})}
+        self.drivers = list(drivers)
+        self.devices: dict[str, _Device] = {d.port.name: _Device(d.port.name, d) for d in self.drivers}
         self.clients: set[_Client] = set()
         self.counters = {"items": 0, "clients": 0, "disconnected_slow": 0, "dropped": 0, "disconnected_input": 0,
-                         "refused": 0}
+                         "refused": 0, "commands": 0, "bad_commands": 0, "state_changes": 0}
         self._servers: list[asyncio.Server] = []
         self._tasks: set[asyncio.Task] = set()
+        self._follower: asyncio.Task | None = None
 
     async def start(self, host: str = "127.0.0.1", port: int = 0) -> list[str]:
         """Listen; returns the ``tcp://HOST:PORT`` addresses."""
         server = await asyncio.start_server(self._accept, host, port, limit=MAX_LINE)
         self._servers.append(server)
+        if self._follower is None and self.drivers:
+            self._follower = self._spawn(self._follow())
         return [f"tcp://{_host(s.getsockname()[0])}:{s.getsockname()[1]}" for s in server.sockets]
 
     async def close(self) -> None:
@@ -103,33 +237,189 @@ class ItemServer:
         await asyncio.gather(*self._tasks, return_exceptions=True)
 
     def publish(self, device: str, t: float, item: Any) -> None:
-        """One decoded item to every client (a driver listener)."""
+        """One decoded item to every client that watches it (a driver listener)."""
         self.counters["items"] += 1
         record = {"n": self.counters["items"], "device": device, "t": t, **as_dict(item)}
-        line = (json.dumps(record) + "\n").encode()
+        kind = record["kind"]
+        dev = self.devices.get(device)
+        if dev is None:  # an item of a device it was not told of (a test's): tell of it from now on
+            dev = self.devices[device] = _Device(device, state="streaming")
+        if kind not in NOT_POLLED:
+            dev.latest[kind] = record
+            if dev.state != "streaming":
+                self._observe(dev)  # the set-up may have finished since the last look
+                if dev.state == "ready":
+                    self._set_state(dev, "streaming")
+        line = _line(record)
         for client in list(self.clients):
-            if len(client.queue) < client.queue_lines and client.queued_bytes + len(line) <= QUEUE_BYTES:
-                client.queue.append(line)
-                client.queued_bytes += len(line)
-                client.ready.set()
-                continue
-            client.dropped += 1
-            client.dropped_total += 1
-            client.dropped_in_a_row += 1
-            self.counters["dropped"] += 1
-            if client.dropped_in_a_row >= self.max_drops:
-                self.counters["disconnected_slow"] += 1
-                log.warning("client %s took nothing while %d items were dropped: disconnecting it",
-                            client.peer, client.dropped_in_a_row)
-                self._drop_client(client, {"kind": "dropped", "count": client.dropped, "total": client.dropped_total,
-                                           "disconnected": "too slow: took nothing while its queue overflowed"})
+            if client.watch.wants(device, kind):
+                self._offer(client, line)
 
     def health(self) -> dict[str, Any]:
         return {**self.counters, "connected": len(self.clients),
-                "per_client": {c.peer: {"sent": c.sent, "dropped": c.dropped_total, "queued": len(c.queue)}
-                               for c in self.clients}}
+                "per_client": {c.peer: {"sent": c.sent, "dropped": c.dropped_total, "queued": len(c.queue),
+                                        "commands": c.commands, "errors": c.errors} for c in self.clients}}
+
+    # -- device states -----------------------------------------------------------------------
+    async def _follow(self) -> None:
+        while True:
+            for dev in self.devices.values():
+                self._observe(dev)
+            await asyncio.sleep(STATE_POLL_S)
+
+    def _observe(self, dev: _Device) -> None:
+        """Bring the device's state up to its driver's; a reopen since the last look (an unplug
+        shorter than a look) still tells its clients ``disconnected`` first."""
+        driver = dev.driver
+        if driver is None:
+            return
+        reconnects = driver.counters.get("reconnects", 0)
+        if reconnects != dev.reconnects:
+            dev.reconnects = reconnects
+            if dev.state not in ("disconnected", "ended"):
+                self._set_state(dev, "disconnected")
+        self._set_state(dev, _protocol_state(driver, dev.state))
+
+    def _set_state(self, dev: _Device, state: str) -> None:
+        """Tell the watching clients; a step up of more than one (a port that opened and was
+        set up between two looks) is told step by step, so each state is seen in order."""
+        if state == dev.state:
+            return
+        steps = [state]
+        if dev.state in STATES and state in STATES and STATES.index(state) > STATES.index(dev.state) + 1:
+            steps = list(STATES[STATES.index(dev.state) + 1:STATES.index(state) + 1])
+        for step in steps:
+            dev.state = step
+            self.counters["state_changes"] += 1
+            line = _line({"kind": "device", **dev.describe(), "t": round(time.time(), 6)})
+            for client in list(self.clients):
+                if client.watch.wants_device(dev.name):
+                    self._offer(client, line)
+
+    # -- what goes to a client -----------------------------------------------------------------
+    def _offer(self, client: _Client, line: bytes) -> None:
+        """Append to the client's queue, or drop and count when it is full."""
+        if client.closed:
+            return
+        if len(client.queue) < client.queue_lines and client.queued_bytes + len(line) <= QUEUE_BYTES:
+            client.queue.append(line)
+            client.queued_bytes += len(line)
+            client.ready.set()
+            return
+        client.dropped += 1
+        client.dropped_total += 1
+        client.dropped_in_a_row += 1
+        self.counters["dropped"] += 1
+        if client.dropped_in_a_row >= self.max_drops:
+            self.counters["disconnected_slow"] += 1
+            log.warning("client %s took nothing while %d lines were dropped: disconnecting it",
+                        client.peer, client.dropped_in_a_row)
+            self._drop_client(client, {"kind": "dropped", "count": client.dropped, "total": client.dropped_total,
+                                       "disconnected": "too slow: took nothing while its queue overflowed"})
+
+    def _error(self, client: _Client, message: str) -> None:
+        """One error line; past ERRORS_PENDING not yet sent, only counted (``suppressed``)."""
+        self.counters["bad_commands"] += 1
+        client.errors += 1
+        if len(client.errors_pending) < ERRORS_PENDING:
+            client.errors_pending.append(message)
+        else:
+            client.suppressed += 1
+        client.ready.set()
+
+    def _hello(self) -> dict[str, Any]:
+        return {"kind": "hello", "class": "VERSION", **_version_fields(), "devices": self._device_list(),
+                "watch": Watch().as_dict()}
+
+    def _device_list(self) -> list[dict[str, Any]]:
+        return [dev.describe() for dev in self.devices.values()]
+
+    # -- commands ------------------------------------------------------------------------------
+    def _on_command_line(self, client: _Client, line: bytes) -> bool:
+        """Carry out one line's commands; False (and an error line) when it is not understood."""
+        text = line.strip()
+        if not text:
+            return True
+        try:
+            commands = parse_commands(text)
+            for name, args in commands:  # checked before any is carried out: a line does all or nothing
+                if name == "watch":
+                    self._new_watch(client.watch, args)
+        except CommandError as exc:
+            self._error(client, str(exc))
+            return False
+        for name, args in commands:
+            client.commands += 1
+            self.counters["commands"] += 1
+            getattr(self, f"_cmd_{name}")(client, args)
+        return True
+
+    def _cmd_version(self, client: _Client, args: dict[str, Any]) -> None:
+        self._offer(client, _line({"kind": "version", "class": "VERSION", **_version_fields()}))
+
+    def _cmd_devices(self, client: _Client, args: dict[str, Any]) -> None:
+        self._offer(client, _line({"kind": "devices", "class": "DEVICES", "devices": self._device_list()}))
+
+    def _cmd_watch(self, client: _Client, args: dict[str, Any]) -> None:
+        """As gpsd answers ?WATCH: the device list, then the watch now in force; every line
+        after the watch line follows it."""
+        client.watch = self._new_watch(client.watch, args)
+        self._cmd_devices(client, {})
+        self._offer(client, _line(client.watch.as_dict()))
+
+    def _cmd_poll(self, client: _Client, args: dict[str, Any]) -> None:
+        """The latest reading of each kind of each device the client's watch names (watching
+        enabled or not), as the item lines had them."""
+        watch = replace(client.watch, enable=True, json=True)
+        items = [record for dev in self.devices.values() for kind, record in dev.latest.items()
+                 if watch.wants(dev.name, kind)]
+        now = time.time()
+        self._offer(client, _line({
+            "kind": "poll", "class": "POLL", "t": round(now, 6),
+            "time": datetime.fromtimestamp(now, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
+            "active": sum(1 for dev in self.devices.values() if dev.state in ("ready", "streaming")),
+            "items": sorted(items, key=lambda r: r["n"])}))
+
+    def _new_watch(self, watch: Watch, args: dict[str, Any]) -> Watch:
+        """``watch`` changed by a watch command's fields (those left out stay); CommandError
+        names what is wrong."""
+        changes: dict[str, Any] = {}
+        for key, value in args.items():
+            if key in ("enable", "json", "chatter"):
+                if not isinstance(value, bool):
+                    raise CommandError(f"watch: {key} is true or false, not {json.dumps(value)}")
+                changes[key] = value
+            elif key in ("devices", "kinds"):
+                if value is not None and not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
+                    raise CommandError(f"watch: {key} is a list of names, or null for all")
+                changes[key] = None if value is None else frozenset(value)
+            elif key == "device":  # gpsd's: watch this one device
+                if not isinstance(value, str):
+                    raise CommandError("watch: device is a device's name or path")
+                changes["devices"] = frozenset([value])
+            elif key in GPSD_REFUSED:
+                if value not in (False, 0):
+                    raise CommandError(f"watch: {key} is not offered; this server sends JSON lines only")
+            elif key not in GPSD_IGNORED:
+                raise CommandError(f"watch: unknown field {key!r}; the fields are enable, json, devices, device, "
+                                   "kinds, chatter")
+        if changes.get("devices") is not None:
+            changes["devices"] = frozenset(self._device_name(d) for d in changes["devices"])
+        return replace(watch, **changes)
+
+    def _device_name(self, name: str) -> str:
+        for dev in self.devices.values():
+            if name in (dev.name, dev.describe()["path"]):
+                return dev.name
+        raise CommandError(f"watch: no device {name!r}; the devices are {', '.join(self.devices) or 'none'}")
 
     # -- connections -----------------------------------------------------------------------
+    def _spawn(self, coro: Any) -> asyncio.Task:
+        task = asyncio.create_task(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
     async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         sock = writer.get_extra_info("socket")
         if sock is not None:
@@ -142,36 +432,46 @@ class ItemServer:
             writer.write(_error_line(f"too many clients ({self.max_clients}); try again later"))
             writer.transport.close()
             return
+        for dev in self.devices.values():
+            self._observe(dev)  # the hello tells each device's state as it is now
         client = _Client(writer, self.queue_lines)
         self.clients.add(client)
         self.counters["clients"] += 1
-        client.queue.append((json.dumps(self.hello) + "\n").encode())
+        client.queue.append(_line(self._hello()))
         client.ready.set()
-        task = asyncio.create_task(self._serve(client, reader))
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
+        self._spawn(self._serve(client, reader))
 
     async def _serve(self, client: _Client, reader: asyncio.StreamReader) -> None:
-        """Send the client its queue until it leaves (EOF), is cut off, or sends too much."""
-        eof = asyncio.create_task(self._discard_input(client, reader))
+        """Send the client its lines until it leaves (EOF), is cut off, or sends too much."""
+        eof = asyncio.create_task(self._read_commands(client, reader))
         try:
             while not client.closed:
-                while not client.queue:
+                while not client.queue and not client.errors_pending:
                     client.ready.clear()
                     waiter = asyncio.create_task(client.ready.wait())
                     done, _ = await asyncio.wait({waiter, eof}, return_when=asyncio.FIRST_COMPLETED)
                     if eof in done:
                         waiter.cancel()
                         return
+                if client.closed:
+                    return
+                for k, message in enumerate(client.errors_pending, 1):
+                    record = {"kind": "error", "class": "ERROR", "message": message}
+                    if k == len(client.errors_pending) and client.suppressed:
+                        record["suppressed"] = client.suppressed
+                    client.writer.write(_line(record))
+                client.errors_pending.clear()
+                client.suppressed = 0
                 if client.dropped:
                     notice = {"kind": "dropped", "count": client.dropped, "total": client.dropped_total}
                     client.dropped = 0
-                    client.writer.write((json.dumps(notice) + "\n").encode())
-                line = client.queue.popleft()
-                client.queued_bytes -= len(line)
-                client.writer.write(line)
-                client.sent += 1
-                client.dropped_in_a_row = 0
+                    client.writer.write(_line(notice))
+                if client.queue:
+                    line = client.queue.popleft()
+                    client.queued_bytes -= len(line)
+                    client.writer.write(line)
+                    client.sent += 1
+                    client.dropped_in_a_row = 0
                 await client.writer.drain()
         except (ConnectionError, OSError):
             pass
@@ -179,18 +479,44 @@ class ItemServer:
             eof.cancel()
             self._drop_client(client)
 
-    async def _discard_input(self, client: _Client, reader: asyncio.StreamReader) -> None:
-        """Read what the client sends, READ_CHUNK bytes at a time, and forget it; returns at
-        EOF, or after cutting off a client that sent more than ``max_input`` bytes."""
+    async def _read_commands(self, client: _Client, reader: asyncio.StreamReader) -> None:
+        """Read what the client sends, READ_CHUNK bytes at a time, and carry out its commands;
+        returns at EOF, or after cutting off a client that sent more than ``max_input`` bytes
+        the server did not understand."""
         while data := await _read(reader):
-            client.received += len(data)
-            if client.received > self.max_input:
+            self._feed(client, data)
+            if client.unheard > self.max_input:
                 self.counters["disconnected_input"] += 1
-                log.warning("client %s sent more than %d bytes: disconnecting it", client.peer, self.max_input)
-                self._drop_client(client, {"kind": "error",
-                                           "error": f"sent more than {self.max_input} bytes; this server takes no input"},
-                                  linger=True)
+                log.warning("client %s sent more than %d bytes not understood: disconnecting it",
+                            client.peer, self.max_input)
+                self._drop_client(client, {"kind": "error", "class": "ERROR",
+                                           "message": f"sent more than {self.max_input} bytes this server does not "
+                                                      "understand; disconnecting"}, linger=True)
                 return
+
+    def _feed(self, client: _Client, data: bytes) -> None:
+        """Split what came into command lines and carry each out; a line longer than
+        MAX_COMMAND is an error and is skipped to its end, never held."""
+        *lines, rest = data.split(b"\n")
+        for piece in lines:
+            if client.skipping:
+                client.skipping = False
+                client.unheard += len(piece) + 1
+                continue
+            line, client.partial = client.partial + piece, b""
+            if len(line) > MAX_COMMAND:
+                self._error(client, f"a command line is at most {MAX_COMMAND} bytes; this one had {len(line)}")
+                client.unheard += len(line) + 1
+            elif not self._on_command_line(client, line):
+                client.unheard += len(line) + 1
+        if client.skipping:
+            client.unheard += len(rest)
+            return
+        client.partial += rest
+        if len(client.partial) > MAX_COMMAND:
+            self._error(client, f"a command line is at most {MAX_COMMAND} bytes; this one had more")
+            client.unheard += len(client.partial)
+            client.partial, client.skipping = b"", True
 
     def _drop_client(self, client: _Client, last: dict[str, Any] | None = None, linger: bool = False) -> None:
         """Forget the client and close its connection after what it was sent. ``linger``: it
@@ -205,7 +531,7 @@ class ItemServer:
         self.clients.discard(client)
         transport = client.writer.transport
         if last is not None:
-            transport.write((json.dumps(last) + "\n").encode())  # behind what it has not taken yet
+            transport.write(_line(last))  # behind what it has not taken yet
         loop = asyncio.get_running_loop()
         if linger and transport.can_write_eof():
             transport.write_eof()  # after the buffered lines; its input, meanwhile, fills a bounded buffer
@@ -213,6 +539,61 @@ class ItemServer:
         else:
             transport.close()  # flushes what the client will still take, then closes
         loop.call_later(CLOSE_GRACE_S, transport.abort)
+
+
+def parse_commands(line: bytes) -> list[tuple[str, dict[str, Any]]]:
+    """One command line -> its commands (name, arguments). Either one JSON object with a
+    ``cmd`` (``{"cmd": "watch", "devices": ["aoa"]}``), or gpsd's syntax: ``?NAME;`` or
+    ``?NAME={...};``, several on a line (gpsd_json(5), OVERVIEW). CommandError says what is wrong."""
+    try:
+        text = line.decode()
+    except UnicodeDecodeError:
+        raise CommandError("a command line is UTF-8 text; this one is not") from None
+    if text.startswith("{"):
+        try:
+            record = json.loads(text)
+        except ValueError as exc:
+            raise CommandError(f"not JSON: {exc}") from None
+        if not isinstance(record, dict) or not isinstance(record.get("cmd"), str):
+            raise CommandError('a JSON command is an object with "cmd": "watch", "poll", "devices" or "version"')
+        name = record.pop("cmd")
+        return [(_command_name(name), record)]
+    if not text.startswith("?"):
+        raise CommandError(f"not a command: {text[:40]!r}; send a JSON object with \"cmd\", or ?WATCH; ?POLL; "
+                           "?DEVICES; ?VERSION; as gpsd takes them")
+    commands, i, decoder = [], 0, json.JSONDecoder()
+    while i < len(text):
+        if text[i] in "; \t\r":
+            i += 1
+            continue
+        if text[i] != "?":
+            raise CommandError(f"expected ?COMMAND at {text[i:i + 20]!r}")
+        j = i + 1
+        while j < len(text) and text[j].isalpha():
+            j += 1
+        name, args = text[i + 1:j], {}
+        if j < len(text) and text[j] == "=":
+            try:
+                args, j = decoder.raw_decode(text, j + 1)
+            except ValueError as exc:
+                raise CommandError(f"?{name}= takes a JSON object: {exc}") from None
+            if not isinstance(args, dict):
+                raise CommandError(f"?{name}= takes a JSON object")
+        commands.append((_command_name(name, gpsd=True), args))
+        i = j
+    return commands
+
+
+COMMANDS = ("watch", "poll", "devices", "version")
+
+
+def _command_name(name: str, gpsd: bool = False) -> str:
+    wanted = name.lower() if gpsd else name
+    if wanted not in COMMANDS:
+        shown = f"?{name}" if gpsd else repr(name)
+        raise CommandError(f"unknown command {shown}; the commands are watch, poll, devices, version "
+                           "(or ?WATCH, ?POLL, ?DEVICES, ?VERSION)")
+    return wanted
 
 
 async def _read(reader: asyncio.StreamReader) -> bytes:
@@ -224,7 +605,7 @@ async def _read(reader: asyncio.StreamReader) -> bytes:
 
 
 def _error_line(text: str) -> bytes:
-    return (json.dumps({"kind": "error", "error": text}) + "\n").encode()
+    return _line({"kind": "error", "class": "ERROR", "message": text})
 
 
 def _host(address: str) -> str:
@@ -236,8 +617,10 @@ class ServeDriver(Driver):
 
     Each item is rebuilt from its JSON form and shown to the listeners under its own device's
     name and time; angle events also go to :attr:`out` (as from an AoaDriver). ``device``
-    keeps only one device's items. Bad lines are counted, never fatal; the server's ``dropped``
-    notices add up in ``counters["server_dropped"]``."""
+    keeps only one device's items: the server is asked to send only those (a server before
+    protocol 1 ignores the request; the driver filters them itself too). The server's device
+    states are kept in :attr:`devices`; bad lines are counted, never fatal; the server's
+    ``dropped`` notices add up in ``counters["server_dropped"]``, its errors in ``server_errors``."""
 
     kind = "serve"
 
@@ -245,8 +628,9 @@ class ServeDriver(Driver):
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.device = device
-        self.counters.update(items=0, bad_lines=0, server_dropped=0)
+        self.counters.update(items=0, bad_lines=0, server_dropped=0, server_errors=0)
         self.hello: dict[str, Any] = {}
+        self.devices: dict[str, dict[str, Any]] = {}
         self._partial = b""
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
@@ -265,8 +649,22 @@ class ServeDriver(Driver):
         except (ValueError, KeyError, TypeError):
             self.counters["bad_lines"] += 1
             return
-        if kind == "hello":
-            self.hello = record
+        if kind in ("hello", "devices"):
+            if kind == "hello":
+                self.hello = record
+            for dev in record.get("devices", ()):
+                if isinstance(dev, dict) and "device" in dev:
+                    self.devices[str(dev["device"])] = dev
+            return
+        if kind == "device":
+            self.devices[str(record.get("device"))] = record
+            log.info("%s: %s is %s", self.port.name, record.get("device"), record.get("state"))
+            return
+        if kind in ("watch", "version", "poll"):
+            return
+        if kind == "error":
+            self.counters["server_errors"] += 1
+            log.warning("%s: the server says: %s", self.port.name, record.get("message", record.get("error")))
             return
         if kind == "dropped":
             self.counters["server_dropped"] += int(record.get("count", 0))
@@ -289,4 +687,6 @@ class ServeDriver(Driver):
 
     async def session(self) -> None:
         self._partial = b""
+        if self.device is not None:
+            self.port.write(_line({"cmd": "watch", "devices": [self.device]}))
         await super().session()

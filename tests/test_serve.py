@@ -57,11 +57,17 @@ def serving_emulated_aoa(queue: int) -> Iterator[tuple[int, subprocess.Popen]]:
                     proc.kill()
 
 
-def read_lines(sock: socket.socket, want: int | None) -> list[dict]:
-    """Lines until ``want`` items have come (None: until the server closes)."""
+def read_lines(sock: socket.socket, want: int | None, after: str | None = None) -> list[dict]:
+    """Lines until ``want`` items have come (None: until the server closes); ``after``: items
+    after the first line of that kind."""
     sock.settimeout(SAFETY_S)
     got, partial = [], b""
-    while want is None or sum(1 for r in got if "n" in r) < want:
+
+    def items() -> int:
+        start = next((k for k, r in enumerate(got) if r["kind"] == after), len(got)) if after else 0
+        return sum(1 for r in got[start:] if "n" in r)
+
+    while want is None or items() < want:
         data = sock.recv(65536)
         if not data:
             break
@@ -88,7 +94,8 @@ def test_two_readers_get_identical_streams_while_a_stalled_client_is_dropped() -
                 # reader that keeps reading must not be taken for the stalled one
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
                 sock.connect(("127.0.0.1", port))
-                streams[i] = read_lines(sock, ITEMS)
+                sock.sendall(b'{"cmd": "watch", "chatter": true}\n')  # every item, the set-up dialogue too
+                streams[i] = read_lines(sock, ITEMS, after="watch")
 
         threads = [threading.Thread(target=reader, args=(i,)) for i in range(2)]
         for t in threads:
@@ -100,7 +107,8 @@ def test_two_readers_get_identical_streams_while_a_stalled_client_is_dropped() -
         server.send_signal(signal.SIGINT)
         out, _ = server.communicate(timeout=30)
 
-    items = [[r for r in s if "n" in r] for s in streams]
+    # from the watch reply on, every item (before it, the default watch leaves the chatter out)
+    items = [[r for r in s[next(k for k, r in enumerate(s) if r["kind"] == "watch"):] if "n" in r] for s in streams]
     for stream, its in zip(streams, items):
         assert len(its) >= ITEMS
         assert not [r for r in stream if r["kind"] == "dropped"]
@@ -221,7 +229,8 @@ async def test_a_client_that_sends_too_much_gets_one_error_line_and_is_cut_off()
     finally:
         writer.close()
     assert server.counters["disconnected_input"] == 1 and not server.clients
-    assert [json.loads(line)["kind"] for line in rest.splitlines()] == ["error"]
+    lines = [json.loads(line) for line in rest.splitlines()]  # the over-long line's error, then the cut-off
+    assert {r["kind"] for r in lines} == {"error"} and "disconnecting" in lines[-1]["message"]
     await server.close()
 
 
@@ -253,7 +262,7 @@ async def test_connections_past_max_clients_are_refused_with_a_line() -> None:
     port = int(first.get_extra_info("peername")[1])
     reader, second = await asyncio.open_connection("127.0.0.1", port)
     line = json.loads(await asyncio.wait_for(reader.readline(), 10))
-    assert line["kind"] == "error" and "too many clients" in line["error"]
+    assert line["kind"] == "error" and "too many clients" in line["message"]
     assert server.counters["refused"] == 1 and len(server.clients) == 1
     first.close()
     second.close()

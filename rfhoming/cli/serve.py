@@ -26,10 +26,15 @@ DEFAULT_PORT = 2948  # beside gpsd's 2947
 SERVE_HELP = f"""\
 Own the devices -- set them up, follow reboots, reconnect, capture -- and send every decoded
 item to any number of clients as JSON lines over TCP (the form of `listen --json`, plus "n",
-the item's number). A client that reads too slowly loses items (counted; it is sent a
-"dropped" line) and never holds up the devices or the other clients; one that takes nothing
-while its queue overflows is disconnected. Listens on 127.0.0.1:{DEFAULT_PORT} unless told;
-prints each address it listens on as a JSON line when it starts.
+the item's number), after a "hello" line (protocol version, devices and their states), with a
+"device" line whenever a device's state changes (disconnected, connected, ready, streaming).
+Clients may send commands: {{"cmd": "watch", "devices": [...], "kinds": [...], "chatter": true}},
+{{"cmd": "poll"}} (the latest readings), {{"cmd": "devices"}}, {{"cmd": "version"}}, or gpsd's
+?WATCH={{...}}; ?POLL; ?DEVICES; ?VERSION; (docs/protocol.md, "serve"). The devices' AT set-up
+chatter goes only to clients that ask for it. A client that reads too slowly loses items
+(counted; it is sent a "dropped" line) and never holds up the devices or the other clients; one
+that takes nothing while its queue overflows is disconnected. Listens on 127.0.0.1:{DEFAULT_PORT}
+unless told; prints each address it listens on as a JSON line when it starts.
 
 Clients: `rfhoming listen serve://127.0.0.1:{DEFAULT_PORT}`, the Python API with the same port
 spec, or anything that reads lines from a socket (`nc 127.0.0.1 {DEFAULT_PORT}`).
@@ -51,7 +56,7 @@ async def _serve(args: argparse.Namespace) -> int:
     except (Error, OSError) as exc:
         print(f"rfhoming serve: {exc}", file=sys.stderr)
         return 2
-    server = ItemServer(queue_lines=args.queue, hello={"devices": [d.port.name for d in drivers]})
+    server = ItemServer(queue_lines=args.queue, drivers=drivers)
     try:
         for host in args.bind or ["127.0.0.1"]:
             for address in await server.start(host, args.port):
