@@ -113,6 +113,16 @@ def _cli(*args: str) -> subprocess.Popen:
                             text=True)
 
 
+def _pressure() -> float | None:
+    """The kernel's CPU pressure (share of the last 60 s some task waited for a CPU, %): the
+    other tenants of a shared machine, recorded beside each latency."""
+    try:
+        line = Path("/proc/pressure/cpu").read_text().splitlines()[0]
+    except OSError:
+        return None
+    return float(dict(kv.split("=") for kv in line.split()[1:])["avg60"])
+
+
 def _cpu(proc: psutil.Process) -> float:
     t = proc.cpu_times()
     return t.user + t.system
@@ -148,17 +158,11 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
         t_start = time.time()
         gw = _cli("gateway", "--emulate", name, "--broker", url, "--tag-rate", str(tag_rate),
                   "--flush", str(flush), "--duration", str(seconds))
-        bp, gp = psutil.Process(broker.pid), psutil.Process(gw.pid)
+        bp = psutil.Process(broker.pid)
         b0 = _cpu(bp)
         wps = [psutil.Process(w.pid) for w in ws]
         w0 = [_cpu(p) for p in wps]
-        g_cpu = 0.0
-        while gw.poll() is None:
-            try:
-                g_cpu = _cpu(gp)
-            except psutil.Error:
-                break
-            time.sleep(0.2)
+        gw.wait(seconds + 600)  # a hang guard; the gateway reports its own CPU (its loop's, not its imports')
         b_cpu = _cpu(bp) - b0
         w_cpu = []
         for p, c in zip(wps, w0):
@@ -184,9 +188,10 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
             "latency_p99_s": max(h["latency_p99_s"] or 0 for h in health),
             "partitions_per_worker": [h["partitions"] for h in health],
             "broker_cpu_per_10k": round(b_cpu / seconds * per10k, 3),
-            "gateway_cpu_per_10k": round(g_cpu / seconds * per10k, 3),
+            "gateway_cpu_per_10k": round(gw_line["cpu_s"] / seconds * per10k, 3),
             "worker_cpu_per_10k": round(sum(w_cpu) / seconds * per10k, 3),
-            "sample_median_error_m": round(float(np.median(errs)), 3) if errs else None}
+            "sample_median_error_m": round(float(np.median(errs)), 3) if errs else None,
+            "load_avg_1min": round(os.getloadavg()[0], 2), "cpu_pressure_avg60_pct": _pressure()}
 
 
 def main() -> None:
@@ -221,7 +226,8 @@ def main() -> None:
               f"p50/p99 latency {r['latency_p50_s']}/{r['latency_p99_s']} s, CPU s per 10k events/s: broker "
               f"{r['broker_cpu_per_10k']}, gateways {r['gateway_cpu_per_10k']}, workers {r['worker_cpu_per_10k']}; "
               f"lost batches {r['lost_batches']}, gateway behind {r['gateway_behind']}, "
-              f"median error {r['sample_median_error_m']} m")
+              f"median error {r['sample_median_error_m']} m; load {r['load_avg_1min']}, CPU pressure "
+              f"{r['cpu_pressure_avg60_pct']} %")
 
 
 if __name__ == "__main__":

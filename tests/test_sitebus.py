@@ -50,8 +50,7 @@ row = st.tuples(st.floats(0, 2e9), st.text(min_size=1, max_size=12), st.text(min
 
 @given(st.lists(row, max_size=20), st.integers(0, 2**31), st.floats(-1e3, 1e3))
 def test_angle_batch_round_trip(rows: list, seq: int, offset: float) -> None:
-    batch = sitebus.AngleBatch("gw01", seq, 1.7e9, offset, rows)
-    back = sitebus.decode_angles(batch.encode())
+    back = sitebus.decode_angles(sitebus.encode_angles("gw01", seq, 1.7e9, offset, rows))
     assert back.gateway == "gw01" and back.seq == seq and back.offset_s == pytest.approx(offset, abs=1e-6)
     assert [(a, tag, az, el) for _, a, tag, az, el in back.events] == [(a, tag, az, el) for _, a, tag, az, el in rows]
     assert all(abs(t - r[0]) <= 1e-6 for (t, *_), r in zip(back.events, rows))
@@ -65,10 +64,27 @@ def test_garbage_is_a_payload_error(data: bytes) -> None:
         pass
 
 
-@pytest.mark.parametrize("payload", [b"{}", b'{"v":1}', b'{"v":2,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[]}',
+def test_a_version_1_batch_is_still_read() -> None:
+    """The row form gateways wrote before the columns (docs/protocol.md section 8)."""
+    back = sitebus.decode_angles(b'{"v":1,"gw":"g","seq":4,"sent":10.5,"offset_s":0.1,'
+                                 b'"events":[[10.0,"A1","T1",-12,30],[10.2,"A2","T1",3,4]]}')
+    assert back.seq == 4 and back.events == [(10.0, "A1", "T1", -12.0, 30.0), (10.2, "A2", "T1", 3.0, 4.0)]
+
+
+V2 = '"v":2,"gw":"g","seq":0,"sent":0,"offset_s":0,"anchors":["a"],"tags":["t"],"t0":0,'
+V2_BAD = ['"i":[[0],[0],[0]],"ang":[[91],[0]]', '"i":[[0.5],[0],[0]],"ang":[[1],[0]]', '"i":[[0],[1],[0]],"ang":[[1],[0]]',
+          '"i":[[0],[0],[-1]],"ang":[[1],[0]]', '"i":[[0],[true],[0]],"ang":[[1],[0]]', '"i":[[0,1],[0],[0]],"ang":[[1],[0]]',
+          '"i":[[0],[0],[0]],"ang":[["1"],[0]]', '"i":[[0],[0],[0]],"ang":[[[1]],[0]]', '"i":[[0],[0],[0]],"ang":[[1],[NaN]]',
+          '"i":[[0],[0],[0]],"ang":[[1]]', '"i":[[0],[0]],"ang":[[1],[0]]', '"i":[[0],[0],[0]],"ang":[[1],[true]]']
+
+
+@pytest.mark.parametrize("payload", [b"{}", b'{"v":1}', b'{"v":3,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[]}',
                                      b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,"a","t",91,0]]}',
                                      b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,1,"t",0,0]]}',
-                                     b'{"v":1,"gw":"g","seq":0,"sent":"NaN","offset_s":0,"events":[]}'])
+                                     b'{"v":1,"gw":"g","seq":0,"sent":"NaN","offset_s":0,"events":[]}',
+                                     *(("{" + V2 + bad + "}").encode() for bad in V2_BAD),
+                                     ("{" + V2.replace('"t0":0', '"t0":Infinity') + V2_BAD[1].replace("0.5", "0")
+                                      + "}").encode()])
 def test_bad_batches_are_refused(payload: bytes) -> None:
     with pytest.raises(sitebus.PayloadError):
         sitebus.decode_angles(payload)
@@ -231,8 +247,9 @@ def test_gateway_batches_read_by_mosquitto_sub(broker: int) -> None:
     topic, payload = lines[0].split(" ", 1)
     assert topic == f"rfhoming/s1/angles/{sitebus.partition('T00001', 4)}"
     body = json.loads(payload)
-    assert body["gw"] == "gw07" and body["offset_s"] == 0.25 and body["sent"] == 100.5
-    assert body["events"] == [[100.0, "A1", "T00001", -12, 30]]
+    assert body["v"] == 2 and body["gw"] == "gw07" and body["offset_s"] == 0.25 and body["sent"] == 100.5
+    assert (body["anchors"], body["tags"], body["t0"], body["i"], body["ang"]) == (
+        ["A1"], ["T00001"], 100.0, [[0], [0], [0]], [[-12], [30]])
     assert json.loads(lines[1].split(" ", 1)[1])["seq"] == body["seq"] + 1
 
 
