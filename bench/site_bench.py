@@ -2,7 +2,7 @@
 
 engine: BatchLocator (fix + constant-velocity tracker) on an emulated site, CPU time per angle
     event, beside host/locate.py's per-tag Locator on the same events; accuracy of both vs truth.
-chain: ``rfhoming gateway`` (emulated gateways) -> mosquitto -> 1 or 2 ``rfhoming locate-worker``
+chain: ``rfhoming gateway`` (emulated gateways) -> mosquitto -> 1 or 2 ``rfhoming locate SITE --from mqtt://``
     processes on this machine; per run the events/s offered and located, the workers' p99 latency
     from angle event to published position, and the CPU seconds of broker, gateways and workers
     per 10,000 events/s (psutil). The bench reads a sample of positions itself for accuracy.
@@ -137,7 +137,7 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
     with tempfile.TemporaryDirectory() as tmp:
         broker, port = _broker(Path(tmp))
         url = f"mqtt://127.0.0.1:{port}/{partitions}"
-        ws = [_cli("locate-worker", name, "--from", url, "--id", f"w{i + 1}", "--rate", str(out_rate),
+        ws = [_cli("locate", name, "--from", url, "--id", f"w{i + 1}", "--rate", str(out_rate),
                    "--reorder", str(reorder), "--duration", str(seconds + 4)) for i in range(workers)]
         sample = sc.tags[:: max(1, len(sc.tags) // 20)]
         errs: list[float] = []

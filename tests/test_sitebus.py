@@ -355,8 +355,8 @@ def test_two_workers_split_the_site_and_one_takes_over_when_the_other_dies(broke
     url = f"mqtt://127.0.0.1:{broker}/8"
     site = "site-16x40"
     logs = {name: tmp_path / f"{name}.log" for name in ("w1", "w2", "gw")}
-    w1 = _cli(logs["w1"], "locate-worker", site, "--from", url, "--id", "w1", "--rate", "20")
-    w2 = _cli(logs["w2"], "locate-worker", site, "--from", url, "--id", "w2", "--rate", "20", "--duration", "600")
+    w1 = _cli(logs["w1"], "locate", site, "--from", url, "--id", "w1", "--rate", "20")
+    w2 = _cli(logs["w2"], "locate", site, "--from", url, "--id", "w2", "--rate", "20", "--duration", "600")
     sub = subprocess.Popen([SUB, "-h", "127.0.0.1", "-p", str(broker), "-t", f"rfhoming/{site}/positions/#",
                             "-W", "600"], stdout=subprocess.PIPE, text=True)
     gw = _cli(logs["gw"], "gateway", "--emulate", site, "--broker", url, "--duration", "600")
@@ -469,3 +469,14 @@ def test_only_new_fixes_the_tags_that_spoke_with_the_same_answer() -> None:
         assert set(a) == set(b) and all(f.new for f in b.values())
         for tag in a:
             np.testing.assert_allclose(a[tag].fix.point, b[tag].fix.point, atol=1e-6)
+
+
+@pytest.mark.parametrize("extra", [["--smooth"], ["--tracker", "ekf"], ["--from", "capture:x.pcapng"], ["-o", "x.jsonl"]])
+def test_locate_from_a_broker_refuses_what_a_worker_does_not_do(extra: list[str], tmp_path: Path) -> None:
+    """``locate --from mqtt://`` is the site worker: options of the one-machine locate that it does
+    not honour are a one-line error, exit 2, before any connection."""
+    proc = subprocess.run([sys.executable, "-m", "rfhoming.cli.main", "locate", "site-16x40", "--from",
+                           "mqtt://127.0.0.1:1/8", *extra], env=ENV, cwd=tmp_path, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "site worker" in proc.stderr

@@ -1,8 +1,9 @@
-"""``rfhoming gateway`` and ``rfhoming locate-worker``: a site's angle events over an MQTT broker.
+"""``rfhoming gateway`` and ``rfhoming locate SITE --from mqtt://``: a site's angle events over an MQTT broker.
 
-Separate commands, not ``serve --mqtt`` or ``locate --from``: a site gateway or worker is its own
-process on its own machine with its own lifetime (started per gateway box, several workers per
-broker), and serve/locate stay the one-machine tools they are (docs/usage.md, "Site").
+The gateway is its own command, not ``serve --mqtt``: a gateway box runs nothing else, and serve
+stays the robot's tool. The worker is ``locate`` with a broker for its source (the issue's form):
+the same command whether the angles come from the site's ports, a capture or the site bus, with
+the worker's few options added to it (docs/usage.md, "Site").
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -30,14 +32,15 @@ examples:
 """
 
 WORKER_HELP = """\
-A locate worker: subscribes to the partitions it owns among the live workers (rendezvous
-hashing; a worker that goes, its will tells the others, who take its partitions), measures each
-gateway's clock offset, fixes every tag per tick with the batched engine and publishes each
-position as JSON on rfhoming/SITE/positions/TAG. SITE is a site file or an emulated site name.
+With --from mqtt://BROKER[:PORT][/PARTITIONS] (mqtts:// = TLS, mqtt://user:pw@... a login),
+locate is a site worker: it subscribes to the partitions it owns among the live workers
+(rendezvous hashing; a worker that goes, its will tells the others, who take its partitions),
+measures each gateway's clock offset, fixes every tag per tick with the batched engine and
+publishes each position as JSON on rfhoming/SITE/positions/TAG; on exit it prints one "worker"
+line of counters. SITE is then a site file or an emulated site name (site-64x1000).
 
-examples:
-  rfhoming locate-worker site-64x1000 --from mqtt://127.0.0.1:1883/8 --id w1
-  rfhoming locate-worker docs/sites/kit-room.toml --from mqtts://user:pw@broker.example/8 --ca ca.pem
+  rfhoming locate site-64x1000 --from mqtt://127.0.0.1:1883/8 --id w1
+  rfhoming locate docs/sites/kit-room.toml --from mqtts://user:pw@broker.example/8 --ca ca.pem
 """
 
 
@@ -98,13 +101,31 @@ def cmd_gateway(args: argparse.Namespace) -> int:
     return 0
 
 
+def is_broker(spec: str) -> bool:
+    return spec.startswith(("mqtt://", "mqtts://"))
+
+
+NOT_WITH_A_BROKER = {"capture": "--capture", "smooth": "--smooth", "output": "-o", "height_sigma": "--height-sigma"}
+"""locate's options that a site worker does not take (it publishes to the broker, causally)."""
+
+
 def cmd_worker(args: argparse.Namespace) -> int:
+    """``rfhoming locate SITE --from mqtt://...``."""
     from rfhoming.host.sitebus import Broker, Worker  # paho-mqtt: the "site" extra
-    broker = Broker.parse(args.source)
-    site = resolve_site(args.site, args.seed)
+
+    given = [flag for key, flag in NOT_WITH_A_BROKER.items() if getattr(args, key, None)]
+    if args.tracker != "cv" or args.loss != "huber":
+        given.append(f"--tracker {args.tracker}" if args.tracker != "cv" else f"--loss {args.loss}")
+    if len(args.sources) > 1 or given:
+        print("rfhoming locate: --from mqtt:// is the one source of a site worker, which tracks with the batched "
+              f"cv filter and publishes to the broker; leave out {', '.join(given) or 'the other --from'}",
+              file=sys.stderr)
+        return 2
+    broker = Broker.parse(args.sources[0])
+    site = resolve_site(str(args.site), args.seed)
     partitions = broker.partitions or sitebus.DEFAULT_PARTITIONS
     worker = Worker(site, broker, worker_id=args.id, partitions=partitions, rate_hz=args.rate,
-                    reorder_s=args.reorder, track=not args.fixes_only, ca_file=args.ca)
+                    reorder_s=args.reorder, track=not args.no_track, ca_file=args.ca)
     stop = _stop_on_signals()
     try:
         worker.run(args.duration, stop)
@@ -112,6 +133,16 @@ def cmd_worker(args: argparse.Namespace) -> int:
         worker.close()
         print(json.dumps({"kind": "worker", "id": args.id, **worker.health()}), flush=True)
     return 0
+
+
+def add_worker_arguments(p: argparse.ArgumentParser) -> None:
+    """The worker's options on ``locate`` (used with --from mqtt:// only)."""
+    w = p.add_argument_group("site worker (with --from mqtt://BROKER[/PARTITIONS])", WORKER_HELP)
+    w.add_argument("--id", default="w1", help="this worker's name among the site's workers (default w1)")
+    w.add_argument("--reorder", type=nonnegative_float, default=0.02, metavar="S",
+                   help="seconds a tick waits for late batches (default 0.02)")
+    w.add_argument("--seed", type=int, default=1, help="an emulated site's seed (default 1)")
+    w.add_argument("--ca", metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -127,18 +158,4 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--duration", type=positive_float, help="stop after this many seconds")
     g.add_argument("--ca", metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
     g.set_defaults(func=cmd_gateway)
-    w = sub.add_parser("locate-worker", help="locate tags from a site's MQTT angle events, publish positions",
-                       description=WORKER_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    w.add_argument("site", metavar="SITE", help="site file (.toml) or emulated site name (site-64x1000)")
-    w.add_argument("--from", dest="source", required=True, metavar="URL", help="mqtt://HOST[:PORT][/PARTITIONS]")
-    w.add_argument("--id", default="w1", help="this worker's name among the site's workers (default w1)")
-    w.add_argument("--rate", type=positive_float, metavar="HZ", help="output ticks per second (default: the site's)")
-    w.add_argument("--reorder", type=nonnegative_float, default=0.02, metavar="S",
-                   help="seconds a tick waits for late batches (default 0.02)")
-    w.add_argument("--fixes-only", action="store_true",
-                   help="publish each tick's fixes, without the constant-velocity tracker")
-    w.add_argument("--seed", type=int, default=1, help="an emulated site's seed (default 1)")
-    w.add_argument("--duration", type=positive_float, help="stop after this many seconds")
-    w.add_argument("--ca", metavar="PEM", help="CA certificate for mqtts://")
-    w.set_defaults(func=cmd_worker)
 
