@@ -480,3 +480,44 @@ def test_locate_from_a_broker_refuses_what_a_worker_does_not_do(extra: list[str]
                           timeout=120)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert "site worker" in proc.stderr
+
+
+KIT_ROOM = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-room.toml"
+
+
+@pytest.mark.slow
+@needs_broker
+def test_a_gateway_of_real_anchors_to_a_worker(broker: int, tmp_path: Path) -> None:
+    """Emulated XPLR-AOA anchors behind ptys (``rfhoming emulate kit-room``, as tests/test_locate.py
+    starts them) -> ``rfhoming gateway --site`` (the normal drivers) -> Mosquitto -> ``rfhoming
+    locate --from mqtt://`` -> mosquitto_sub reads positions of the room's tags, inside the room."""
+    links = tmp_path / "links"
+    links.mkdir()
+    site = tmp_path / "site.toml"
+    site.write_text(KIT_ROOM.read_text().replace("/tmp/rfhoming-kit/", f"{links}/"))
+    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming.cli.main", "emulate", "kit-room", "--seed", "1",
+                                 "--link-dir", str(links)], env=ENV, stdout=subprocess.PIPE,
+                                stderr=subprocess.DEVNULL, text=True)
+    url = f"mqtt://127.0.0.1:{broker}/4"
+    procs: dict[str, subprocess.Popen] = {"emulator": emulator}
+    try:
+        assert emulator.stdout is not None
+        for _ in range(4):  # one line per anchor once its link exists
+            json.loads(emulator.stdout.readline())
+        sub = procs["sub"] = _sub(broker, "rfhoming/kit-room/positions/#", 30, "-W", "240")
+        procs["worker"] = _cli(tmp_path / "worker.log", "locate", str(site), "--from", url, "--id", "w1")
+        procs["gateway"] = _cli(tmp_path / "gateway.log", "gateway", "--site", str(site), "--broker", url,
+                                "--name", "gw-kit")
+        out, _ = sub.communicate(timeout=300)
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for proc in procs.values():
+            proc.wait(60)
+    positions = [json.loads(line.split(" ", 1)[1]) for line in out.splitlines()]
+    assert len(positions) == 30, (tmp_path / "gateway.log").read_text()[-2000:]
+    assert {p["tag"] for p in positions} <= {"CCF9578E0D8A", "CCF9578E0D8B", "CCF9578E0D8C"}
+    assert all(0 <= p["x"] <= 12 and 0 <= p["y"] <= 6 and p["worker"] == "w1" for p in positions[10:])
+    gateway = json.loads(procs["gateway"].stdout.read().strip().splitlines()[-1])  # type: ignore[union-attr]
+    assert gateway["kind"] == "gateway" and gateway["name"] == "gw-kit" and gateway["events"] > 0

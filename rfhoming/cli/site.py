@@ -17,18 +17,25 @@ import time
 from pathlib import Path
 
 from rfhoming.cli.args import nonnegative_float, positive_float
+from rfhoming.cli.io import add_port_defaults
 from rfhoming.host import site as site_file
 from rfhoming.host.site import Anchor, Site
 from rfhoming.protocol import sitebus
 
 GATEWAY_HELP = """\
-Emulated gateways of a site scenario (emulator/site.py): N ceiling anchors, four per gateway, M
-moving tags, each gateway with its own clock offset, publishing the angle events its anchors
-hear in real time to the broker as the site bus of docs/protocol.md -- no ptys, no devices.
+A site gateway: the XPLR-AOA anchors on this machine's ports (--device SPEC, repeatable, or the
+ports of a site file's anchors with --site FILE), opened and set up by the normal driver, their
+decoded angle events published to the broker as the site bus of docs/protocol.md (batches every
+--flush seconds, one topic per partition; buffered boundedly while the broker is away). Or
+--emulate site-NxM: every gateway of an emulated site (emulator/site.py: N ceiling anchors, four
+per gateway, M moving tags, each gateway with its own clock offset) -- no ptys, no devices.
+On exit one "gateway" JSON line of counters.
 
 examples:
+  rfhoming gateway --site docs/sites/kit-room.toml --broker mqtt://broker.local/8 --name gw-east
+  rfhoming gateway --device xplr-aoa:/dev/ttyUSB0 --device xplr-aoa:/dev/ttyUSB1 --site-name hall \\
+      --broker mqtts://gw:secret@broker.example/8 --ca ca.pem
   rfhoming gateway --emulate site-64x1000 --broker mqtt://127.0.0.1:1883/8 --duration 60
-  rfhoming gateway --emulate site-16x50 --broker mqtt://127.0.0.1 --tag-rate 5
 """
 
 WORKER_HELP = """\
@@ -65,6 +72,58 @@ def _stop_on_signals() -> threading.Event:
 
 
 def cmd_gateway(args: argparse.Namespace) -> int:
+    if (args.emulate is None) == (args.device is None and args.site is None):
+        print("rfhoming gateway: give the anchors (--device SPEC ... or --site FILE) or --emulate site-NxM",
+              file=sys.stderr)
+        return 2
+    return _emulated_gateways(args) if args.emulate else _device_gateway(args)
+
+
+def _device_gateway(args: argparse.Namespace) -> int:
+    """The anchors of --device/--site through the normal drivers (locate's opening and errors)."""
+    import asyncio
+    import socket
+
+    from rfhoming.cli.locate import _gather
+    from rfhoming.host.sitebus import Broker, Gateway, Publisher
+
+    broker = Broker.parse(args.broker)
+    site = site_file.load(args.site) if args.site else Site(args.site_name or "", ())
+    name = args.site_name or site.name
+    if not name:
+        print("rfhoming gateway: name the site of the topics with --site-name (or give --site FILE)", file=sys.stderr)
+        return 2
+    gw_name = args.name or socket.gethostname()
+    pub = Publisher(broker, f"rfhoming-gw-{name}-{gw_name}", ca_file=args.ca)
+    gw = Gateway(pub, name, gw_name, broker.partitions or sitebus.DEFAULT_PARTITIONS)
+    flushing = False
+
+    def on_angle(t: float, event: object) -> None:
+        nonlocal flushing
+        gw.on_item("", t, event)
+        if not flushing:  # the first event: from now on a batch every --flush seconds
+            flushing = True
+            loop = asyncio.get_running_loop()
+
+            def flush() -> None:
+                gw.flush(time.time())  # the ports' clock (host/ports.py): the events' times are on it
+                loop.call_later(args.flush, flush)
+
+            loop.call_later(args.flush, flush)
+
+    gather = argparse.Namespace(command="gateway", sources=args.device, baud=args.baud, flow=args.flow,
+                                duration=args.duration, capture=None)
+    try:
+        code = asyncio.run(_gather(gather, site, on_angle))
+        gw.flush(time.time())
+    finally:
+        pub.close()
+        print(json.dumps({"kind": "gateway", "name": gw_name, "site": name, "events": gw.events,
+                          **{k: pub.counters[k] for k in ("published", "buffered", "dropped")}}), flush=True)
+    return code
+
+
+def _emulated_gateways(args: argparse.Namespace) -> int:
     from rfhoming.emulator.site import SiteScenario
     from rfhoming.host.sitebus import Broker, Gateway, Publisher
 
@@ -146,16 +205,23 @@ def add_worker_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
-    g = sub.add_parser("gateway", help="emulated site gateways publishing angle events to an MQTT broker",
+    g = sub.add_parser("gateway", help="a site gateway: its anchors' angle events to an MQTT broker",
                        description=GATEWAY_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    g.add_argument("--emulate", required=True, metavar="site-NxM", help="the site scenario (e.g. site-64x1000)")
+    g.add_argument("--device", action="append", metavar="SPEC",
+                   help="an anchor's port, e.g. xplr-aoa:/dev/ttyUSB0 (repeatable; docs/usage.md, port specs)")
+    g.add_argument("--site", type=Path, metavar="FILE", help="a site file: its anchors' ports (unless --device), "
+                   "its name for the topics")
+    g.add_argument("--emulate", metavar="site-NxM", help="every gateway of an emulated site (e.g. site-64x1000)")
     g.add_argument("--broker", required=True, metavar="URL", help="mqtt://HOST[:PORT][/PARTITIONS] (mqtts:// = TLS)")
-    g.add_argument("--site-name", help="the SITE of the topics (default: the scenario name)")
-    g.add_argument("--seed", type=int, default=1, help="the scenario's seed (default 1)")
-    g.add_argument("--tag-rate", type=positive_float, default=10.0, metavar="HZ", help="each tag's rate (default 10)")
+    g.add_argument("--site-name", help="the SITE of the topics (default: the site file's or scenario's name)")
+    g.add_argument("--name", help="this gateway's name on the bus (default: the host name)")
+    g.add_argument("--seed", type=int, default=1, help="--emulate: the scenario's seed (default 1)")
+    g.add_argument("--tag-rate", type=positive_float, default=10.0, metavar="HZ",
+                   help="--emulate: each tag's rate (default 10)")
     g.add_argument("--flush", type=positive_float, default=0.02, metavar="S",
                    help="seconds between a gateway's batches (default 0.02)")
     g.add_argument("--duration", type=positive_float, help="stop after this many seconds")
     g.add_argument("--ca", metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
+    add_port_defaults(g)
     g.set_defaults(func=cmd_gateway)
 
