@@ -16,6 +16,7 @@ import collections
 import itertools
 import logging
 import math
+import select
 import ssl
 import threading
 import time
@@ -139,8 +140,13 @@ class Publisher:
                 self._retry_at, self._delay = now + self._delay, min(RECONNECT_MAX_S, 2 * self._delay)
                 return
         self.client.loop(timeout)
-        if self.client.socket() is not None:  # paho's loop reads one packet; read what else is there
-            self.client.loop_read(READ_BURST)
+        # paho's loop (and loop_read, whatever max_packets says) reads one packet per call: read
+        # what else is waiting now, or a worker falls behind the thousands of batches a second
+        for _ in range(READ_BURST):
+            sock = self.client.socket()
+            if sock is None or not (getattr(sock, "pending", lambda: 0)() or select.select([sock], [], [], 0)[0]):
+                break
+            self.client.loop_read()
 
     def wait_connected(self, timeout: float) -> bool:
         """Wait for the broker (servicing the connection when there is no paho thread)."""
