@@ -6,6 +6,7 @@ chain: ``rfhoming gateway`` (emulated gateways) -> mosquitto -> 1 or 2 ``rfhomin
     processes on this machine; per run the events/s offered and located, the workers' p99 latency
     from angle event to published position, and the CPU seconds of broker, gateways and workers
     per 10,000 events/s (psutil). The bench reads a sample of positions itself for accuracy.
+publish: CPU per MQTT publish through host/sitebus.py's Publisher, threaded and serviced.
 
     python bench/site_bench.py [--json] [--rates 2,5,10] [--seconds 15]
 """
@@ -128,6 +129,30 @@ def _cpu(proc: psutil.Process) -> float:
     return t.user + t.system
 
 
+def publish_cost(n: int = 20_000) -> dict[str, float]:
+    """CPU per publish of a 416-byte batch (site-64x1000's mean) through ``Publisher``, with paho's
+    network thread and with the caller servicing the connection (``threaded=False``)."""
+    from rfhoming.host.sitebus import Broker, Publisher
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        broker, port = _broker(Path(tmp))
+        for threaded in (True, False):
+            pub = Publisher(Broker("127.0.0.1", port, False, None), f"bench-pub-{threaded}", threaded=threaded)
+            pub.wait_connected(30)
+            c0 = time.process_time()
+            for _ in range(n):
+                pub.publish("rfhoming/bench/angles/3", b"x" * 416)
+            if not threaded:
+                pub.service(0.0)
+            time.sleep(0.5)  # paho's thread writes what is left (its CPU is the process's)
+            out["threaded_us" if threaded else "serviced_us"] = round((time.process_time() - c0) / n * 1e6, 2)
+            pub.close()
+        broker.terminate()
+        broker.wait(30)
+    return out
+
+
 def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: int, out_rate: float,
           flush: float = 0.02, reorder: float = 0.02) -> dict:
     import paho.mqtt.client as mqtt
@@ -207,7 +232,7 @@ def main() -> None:
     ap.add_argument("--skip-chain", action="store_true")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
-    results: dict[str, object] = {"engine": engine(args.site, 4.0, 50)}
+    results: dict[str, object] = {"engine": engine(args.site, 4.0, 50), "publish": publish_cost()}
     if not args.skip_chain:
         opts = (args.seconds, args.partitions, args.output_hz, args.flush, args.reorder)
         runs = [chain(args.site, float(r), 1, *opts) for r in args.rates.split(",")]
@@ -221,6 +246,9 @@ def main() -> None:
           f"{e['batch_events_per_s_per_core']:,} events/s per core (median error {e['batch_median_error_m']} m); "
           f"per-tag Locator {e['per_tag_us_per_event']} us/event; on its {e['per_tag_tags']} tags median error "
           f"{e['per_tag_median_error_m']} m per-tag, {e['batch_median_error_m_same_tags']} m batched")
+    pc = results["publish"]
+    print(f"publish (416 B, Mosquitto on loopback): {pc['threaded_us']} us CPU with paho's thread, "
+          f"{pc['serviced_us']} us serviced by the caller")
     for r in results.get("chain", []):
         print(f"chain {r['site']} {r['tag_rate_hz']} Hz, {r['workers']} worker(s): {r['events_per_s']:,} events/s, "
               f"p50/p99 latency {r['latency_p50_s']}/{r['latency_p99_s']} s, CPU s per 10k events/s: broker "

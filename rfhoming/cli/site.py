@@ -33,8 +33,7 @@ On exit one "gateway" JSON line of counters.
 
 examples:
   rfhoming gateway --site docs/sites/kit-room.toml --broker mqtt://broker.local/8 --name gw-east
-  rfhoming gateway --device xplr-aoa:/dev/ttyUSB0 --device xplr-aoa:/dev/ttyUSB1 --site-name hall \\
-      --broker mqtts://gw:secret@broker.example/8 --ca ca.pem
+  rfhoming gateway --device xplr-aoa:/dev/ttyUSB0 --device xplr-aoa:/dev/ttyUSB1 --site-name hall --broker mqtt://broker.local/8
   rfhoming gateway --emulate site-64x1000 --broker mqtt://127.0.0.1:1883/8 --duration 60
 """
 
@@ -144,7 +143,7 @@ def _emulated_gateways(args: argparse.Namespace) -> int:
         while not stop.is_set() and (args.duration is None or t0 < start + args.duration):
             while (left := t0 + args.flush - time.time()) > 0 and not stop.is_set():
                 pub.service(left)
-            t1 = time.time()
+            t1 = time.time() if args.duration is None else min(time.time(), start + args.duration)
             for g, (t, a, k, az, el) in sc.columns(t0, t1).items():
                 gw = gws[g]
                 gw.add_columns(t, sc.anchor_ids, a, sc.tags, k, az, el)
