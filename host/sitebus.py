@@ -53,6 +53,11 @@ RECONNECT_MIN_S, RECONNECT_MAX_S = 0.1, 5.0
 """Seconds between tries to reach a lost broker: the first, doubling up to the last."""
 
 
+SERVICE_EVERY = 200
+"""Positions a worker publishes between reads of its socket during a tick (Mosquitto's per-client
+queue, max_queued_messages, is 1,000 by default: a worker that stops reading for long loses batches)."""
+
+
 class BrokerError(Error):
     """A broker address that cannot be used."""
 
@@ -382,7 +387,11 @@ class Worker:
         with self._lock:
             owned = set(self.owned)
         site = self.site.name
-        for f in self.engine.tick(t, only_new=True):
+        fixes = self.engine.tick(t, only_new=True)
+        self.pub.service(0.0)  # read what came meanwhile: the broker drops what queues past its limit
+        for k, f in enumerate(fixes):
+            if k % SERVICE_EVERY == SERVICE_EVERY - 1:
+                self.pub.service(0.0)
             if not f.new:
                 continue  # nothing new of this tag since its last position: that one stands
             if sitebus.partition(f.tag, self.partitions) not in owned:
