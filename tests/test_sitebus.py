@@ -301,6 +301,35 @@ def test_publisher_buffers_boundedly_while_the_broker_is_away(tmp_path: Path) ->
 
 
 @needs_broker
+def test_a_serviced_publisher_reconnects_and_sends_what_it_buffered(tmp_path: Path) -> None:
+    """threaded=False (a worker's, the emulated gateways'): no broker, three retained messages
+    buffered; the owner's loop keeps calling service(), which tries the broker again with back-off;
+    the broker comes, the connection is made and the three go out in order (mosquitto_sub reads them)."""
+    from rfhoming.host.sitebus import Broker, Publisher
+
+    port = _free_port()
+    pub = Publisher(Broker("127.0.0.1", port, False, None), "gw-serviced", threaded=False)
+    for i in range(3):
+        pub.publish(f"s/{i}", f"m{i}".encode(), retain=True)
+    for _ in range(3):
+        pub.service(0.05)  # refused: nothing listens
+    assert not pub.connected.is_set() and pub.counters["buffered"] == 3
+    proc = _start_broker(tmp_path, port)
+    try:
+        assert pub.wait_connected(120)
+        deadline = time.monotonic() + 60  # a hang guard
+        while (pub.counters["published"] < 3 or pub.client.want_write()) and time.monotonic() < deadline:
+            pub.service(0.05)
+        out, _ = _sub(port, "s/#", 3).communicate(timeout=120)
+        assert sorted(out.splitlines()) == ["s/0 m0", "s/1 m1", "s/2 m2"]
+        assert pub.counters["connects"] == 1 and pub.counters["dropped"] == 0
+    finally:
+        pub.close()
+        proc.terminate()
+        proc.wait(30)
+
+
+@needs_broker
 def test_a_refusal_while_connected_does_not_stall_the_publisher(broker: int) -> None:
     """paho refuses a publish when it has seen the socket go before on_disconnect ran: the message
     is buffered, and the next publish sends it first (it used to wait for a reconnect that need not
