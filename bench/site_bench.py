@@ -211,6 +211,7 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
             "positions_per_s": round(sum(h["positions"] for h in health) / seconds),
             "latency_p50_s": max(h["latency_p50_s"] or 0 for h in health),
             "latency_p99_s": max(h["latency_p99_s"] or 0 for h in health),
+            "tick_late_p99_s": max(h["tick_late_p99_s"] or 0 for h in health),
             "partitions_per_worker": [h["partitions"] for h in health],
             "broker_cpu_per_10k": round(b_cpu / seconds * per10k, 3),
             "gateway_cpu_per_10k": round(gw_line["cpu_s"] / seconds * per10k, 3),
@@ -254,6 +255,7 @@ def main() -> None:
               f"p50/p99 latency {r['latency_p50_s']}/{r['latency_p99_s']} s, CPU s per 10k events/s: broker "
               f"{r['broker_cpu_per_10k']}, gateways {r['gateway_cpu_per_10k']}, workers {r['worker_cpu_per_10k']}; "
               f"lost batches {r['lost_batches']}, gateway behind {r['gateway_behind']}, "
+              f"ticks late p99 {r['tick_late_p99_s']} s, "
               f"median error {r['sample_median_error_m']} m; load {r['load_avg_1min']}, CPU pressure "
               f"{r['cpu_pressure_avg60_pct']} %")
 

@@ -279,6 +279,7 @@ class Worker:
         self._min_delay: dict[str, collections.deque[float]] = {}
         self._seq: dict[tuple[str, str], int] = {}
         self.latencies: collections.deque[float] = collections.deque(maxlen=200_000)
+        self.tick_late: collections.deque[float] = collections.deque(maxlen=200_000)
         self.counters = {"batches": 0, "events": 0, "bad_payload": 0, "lost_batches": 0, "inbox_dropped": 0,
                          "positions": 0, "other_partition": 0, "handovers": 0}
         self._me = sitebus.workers_topic(site.name, worker_id)
@@ -377,7 +378,8 @@ class Worker:
         now = self.clock()
         if self._next_tick is None:
             self._next_tick = math.ceil(now / self.period)
-        while self._next_tick * self.period + self.reorder_s <= now:  # tick k at k periods: no drift
+        while (due := self._next_tick * self.period + self.reorder_s) <= now:  # tick k at k periods: no drift
+            self.tick_late.append(self.clock() - due)  # > a period: this worker does not keep up
             self._drain()
             self._tick(round(self._next_tick * self.period, 9))
             self._next_tick += 1
@@ -418,8 +420,12 @@ class Worker:
         self.pub.close()
 
     def health(self) -> dict[str, object]:
-        lat = sorted(self.latencies)
-        p = (lambda q: round(lat[min(len(lat) - 1, int(q * len(lat)))], 4)) if lat else (lambda q: None)
+        def quantile(values: collections.deque[float], q: float) -> float | None:
+            v = sorted(values)
+            return round(v[min(len(v) - 1, int(q * len(v)))], 4) if v else None
+
         return {**self.counters, **{f"engine_{k}": v for k, v in self.engine.counters.items()},
                 **{f"mqtt_{k}": v for k, v in self.pub.counters.items()},
-                "partitions": sorted(self.owned), "latency_p50_s": p(0.5), "latency_p99_s": p(0.99)}
+                "partitions": sorted(self.owned), "latency_p50_s": quantile(self.latencies, 0.5),
+                "latency_p99_s": quantile(self.latencies, 0.99), "tick_late_p50_s": quantile(self.tick_late, 0.5),
+                "tick_late_p99_s": quantile(self.tick_late, 0.99)}
