@@ -106,9 +106,9 @@ class Publisher:
 
     ``threaded`` (the default): paho's own network thread reads, writes and reconnects. Without it
     the owner calls :meth:`service` from its loop: a process that publishes thousands of messages a
-    second (a worker, the emulated gateways) then spends a third to a half less CPU per message
-    (bench/site_bench.py "publish": 11 against 15 us, 9 against 20 on a quieter machine), with no
-    thread to wake per publish and no GIL handed back and forth."""
+    second (a worker, the emulated gateways) then spends up to a third less CPU per message
+    (bench/site_bench.py "publish": 8-11 against 10-14 us in four runs, once the same), with no
+    thread to wake per publish and no GIL handed back and forth; its reads also wait for its loop."""
 
     def __init__(self, broker: Broker, client_id: str, *, buffer: int = BUFFER_MESSAGES, keepalive: int = 10,
                  will: tuple[str, bytes] | None = None, ca_file: str | None = None, threaded: bool = True) -> None:
