@@ -2,10 +2,11 @@
 
 engine: BatchLocator (fix + constant-velocity tracker) on an emulated site, CPU time per angle
     event, beside host/locate.py's per-tag Locator on the same events; accuracy of both vs truth.
-chain: ``rfhoming gateway`` (emulated gateways) -> mosquitto -> 1 or 2 ``rfhoming locate-worker``
+chain: ``rfhoming gateway`` (emulated gateways) -> mosquitto -> 1 or 2 ``rfhoming locate SITE --from mqtt://``
     processes on this machine; per run the events/s offered and located, the workers' p99 latency
     from angle event to published position, and the CPU seconds of broker, gateways and workers
     per 10,000 events/s (psutil). The bench reads a sample of positions itself for accuracy.
+publish: CPU per MQTT publish through host/sitebus.py's Publisher, threaded and serviced.
 
     python bench/site_bench.py [--json] [--rates 2,5,10] [--seconds 15]
 """
@@ -113,9 +114,43 @@ def _cli(*args: str) -> subprocess.Popen:
                             text=True)
 
 
+def _pressure() -> float | None:
+    """The kernel's CPU pressure (share of the last 60 s some task waited for a CPU, %): the
+    other tenants of a shared machine, recorded beside each latency."""
+    try:
+        line = Path("/proc/pressure/cpu").read_text().splitlines()[0]
+    except OSError:
+        return None
+    return float(dict(kv.split("=") for kv in line.split()[1:])["avg60"])
+
+
 def _cpu(proc: psutil.Process) -> float:
     t = proc.cpu_times()
     return t.user + t.system
+
+
+def publish_cost(n: int = 20_000) -> dict[str, float]:
+    """CPU per publish of a 416-byte batch (site-64x1000's mean) through ``Publisher``, with paho's
+    network thread and with the caller servicing the connection (``threaded=False``)."""
+    from rfhoming.host.sitebus import Broker, Publisher
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        broker, port = _broker(Path(tmp))
+        for threaded in (True, False):
+            pub = Publisher(Broker("127.0.0.1", port, False, None), f"bench-pub-{threaded}", threaded=threaded)
+            pub.wait_connected(30)
+            c0 = time.process_time()
+            for _ in range(n):
+                pub.publish("rfhoming/bench/angles/3", b"x" * 416)
+            if not threaded:
+                pub.service(0.0)
+            time.sleep(0.5)  # paho's thread writes what is left (its CPU is the process's)
+            out["threaded_us" if threaded else "serviced_us"] = round((time.process_time() - c0) / n * 1e6, 2)
+            pub.close()
+        broker.terminate()
+        broker.wait(30)
+    return out
 
 
 def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: int, out_rate: float,
@@ -127,7 +162,7 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
     with tempfile.TemporaryDirectory() as tmp:
         broker, port = _broker(Path(tmp))
         url = f"mqtt://127.0.0.1:{port}/{partitions}"
-        ws = [_cli("locate-worker", name, "--from", url, "--id", f"w{i + 1}", "--rate", str(out_rate),
+        ws = [_cli("locate", name, "--from", url, "--id", f"w{i + 1}", "--rate", str(out_rate),
                    "--reorder", str(reorder), "--duration", str(seconds + 4)) for i in range(workers)]
         sample = sc.tags[:: max(1, len(sc.tags) // 20)]
         errs: list[float] = []
@@ -148,17 +183,11 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
         t_start = time.time()
         gw = _cli("gateway", "--emulate", name, "--broker", url, "--tag-rate", str(tag_rate),
                   "--flush", str(flush), "--duration", str(seconds))
-        bp, gp = psutil.Process(broker.pid), psutil.Process(gw.pid)
+        bp = psutil.Process(broker.pid)
         b0 = _cpu(bp)
         wps = [psutil.Process(w.pid) for w in ws]
         w0 = [_cpu(p) for p in wps]
-        g_cpu = 0.0
-        while gw.poll() is None:
-            try:
-                g_cpu = _cpu(gp)
-            except psutil.Error:
-                break
-            time.sleep(0.2)
+        gw.wait(seconds + 600)  # a hang guard; the gateway reports its own CPU (its loop's, not its imports')
         b_cpu = _cpu(bp) - b0
         w_cpu = []
         for p, c in zip(wps, w0):
@@ -182,11 +211,13 @@ def chain(name: str, tag_rate: float, workers: int, seconds: float, partitions: 
             "positions_per_s": round(sum(h["positions"] for h in health) / seconds),
             "latency_p50_s": max(h["latency_p50_s"] or 0 for h in health),
             "latency_p99_s": max(h["latency_p99_s"] or 0 for h in health),
+            "tick_late_p99_s": max(h["tick_late_p99_s"] or 0 for h in health),
             "partitions_per_worker": [h["partitions"] for h in health],
             "broker_cpu_per_10k": round(b_cpu / seconds * per10k, 3),
-            "gateway_cpu_per_10k": round(g_cpu / seconds * per10k, 3),
+            "gateway_cpu_per_10k": round(gw_line["cpu_s"] / seconds * per10k, 3),
             "worker_cpu_per_10k": round(sum(w_cpu) / seconds * per10k, 3),
-            "sample_median_error_m": round(float(np.median(errs)), 3) if errs else None}
+            "sample_median_error_m": round(float(np.median(errs)), 3) if errs else None,
+            "load_avg_1min": round(os.getloadavg()[0], 2), "cpu_pressure_avg60_pct": _pressure()}
 
 
 def main() -> None:
@@ -202,7 +233,7 @@ def main() -> None:
     ap.add_argument("--skip-chain", action="store_true")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
-    results: dict[str, object] = {"engine": engine(args.site, 4.0, 50)}
+    results: dict[str, object] = {"engine": engine(args.site, 4.0, 50), "publish": publish_cost()}
     if not args.skip_chain:
         opts = (args.seconds, args.partitions, args.output_hz, args.flush, args.reorder)
         runs = [chain(args.site, float(r), 1, *opts) for r in args.rates.split(",")]
@@ -216,12 +247,17 @@ def main() -> None:
           f"{e['batch_events_per_s_per_core']:,} events/s per core (median error {e['batch_median_error_m']} m); "
           f"per-tag Locator {e['per_tag_us_per_event']} us/event; on its {e['per_tag_tags']} tags median error "
           f"{e['per_tag_median_error_m']} m per-tag, {e['batch_median_error_m_same_tags']} m batched")
+    pc = results["publish"]
+    print(f"publish (416 B, Mosquitto on loopback): {pc['threaded_us']} us CPU with paho's thread, "
+          f"{pc['serviced_us']} us serviced by the caller")
     for r in results.get("chain", []):
         print(f"chain {r['site']} {r['tag_rate_hz']} Hz, {r['workers']} worker(s): {r['events_per_s']:,} events/s, "
               f"p50/p99 latency {r['latency_p50_s']}/{r['latency_p99_s']} s, CPU s per 10k events/s: broker "
               f"{r['broker_cpu_per_10k']}, gateways {r['gateway_cpu_per_10k']}, workers {r['worker_cpu_per_10k']}; "
               f"lost batches {r['lost_batches']}, gateway behind {r['gateway_behind']}, "
-              f"median error {r['sample_median_error_m']} m")
+              f"ticks late p99 {r['tick_late_p99_s']} s, "
+              f"median error {r['sample_median_error_m']} m; load {r['load_avg_1min']}, CPU pressure "
+              f"{r['cpu_pressure_avg60_pct']} %")
 
 
 if __name__ == "__main__":

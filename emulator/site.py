@@ -57,6 +57,7 @@ class SiteScenario:
         self.anchors = [SiteAnchor(f"a{i:03d}", f"A{i:05d}", f"gw{i // anchors_per_gateway:02d}",
                                    ((i % cols + 0.5) * spacing_m, (i // cols + 0.5) * spacing_m, ceiling_m), -90.0)
                         for i in range(anchors)]
+        self.anchor_ids = [a.id for a in self.anchors]
         self.gateways = sorted({a.gateway for a in self.anchors})
         self.clock_offsets = {g: float(rng.uniform(-clock_spread_s, clock_spread_s)) for g in self.gateways}
         self.tags = [f"T{i:05d}" for i in range(tags)]
@@ -94,15 +95,17 @@ class SiteScenario:
         xy = np.where(raw > size, 2 * size - raw, raw)
         return np.concatenate([xy, np.full((len(xy), 1), self.tag_height_m)], axis=1)
 
-    def events(self, t0: float, t1: float) -> dict[str, list[tuple[float, str, str, float, float]]]:
-        """Every angle event of site time [t0, t1), per gateway, stamped with that gateway's clock."""
+    def columns(self, t0: float, t1: float) -> dict[str, tuple[np.ndarray, ...]]:
+        """Every angle event of site time [t0, t1) per gateway as columns (time on that gateway's
+        clock, anchor row of :attr:`anchor_ids`, tag row of :attr:`tags`, azimuth, elevation), in
+        time order."""
         period = 1 / self.tag_rate_hz
         k0 = np.ceil((t0 - self._phase) / period)
         k1 = np.ceil((t1 - self._phase) / period)
-        out: dict[str, list[tuple[float, str, str, float, float]]] = {g: [] for g in self.gateways}
         reps = (k1 - k0).astype(int)
+        empty = (np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
         if reps.sum() == 0:
-            return out
+            return {g: empty for g in self.gateways}
         who = np.repeat(np.arange(len(self.tags)), reps)
         first = np.repeat(k0, reps)
         step = np.arange(len(who)) - np.repeat(np.cumsum(reps) - reps, reps)
@@ -117,12 +120,19 @@ class SiteScenario:
         az = -np.degrees(np.arctan2(b[:, 1], b[:, 0]))
         el = np.degrees(np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1])))
         noise = self._rng.normal(0.0, self.sigma_deg, (len(az), 2))
-        ang = np.clip(np.rint(np.stack([az, el], 1) + self._bias[a_idx] + noise), -90, 90).astype(int)
+        ang = np.clip(np.rint(np.stack([az, el], 1) + self._bias[a_idx] + noise), -90, 90)
         gw = self._gw_of[a_idx]
         offsets = np.array([self.clock_offsets[g] for g in self.gateways])
         stamp = times[e_idx] + offsets[gw]
         order = np.argsort(times[e_idx], kind="stable")
-        for i in order.tolist():
-            out[self.gateways[gw[i]]].append((float(stamp[i]), self.anchors[a_idx[i]].id, self.tags[who[e_idx[i]]],
-                                              int(ang[i, 0]), int(ang[i, 1])))
+        e_idx, a_idx, gw, stamp, ang = e_idx[order], a_idx[order], gw[order], stamp[order], ang[order]
+        out = {}
+        for i, g in enumerate(self.gateways):
+            k = gw == i
+            out[g] = (stamp[k], a_idx[k], who[e_idx[k]], ang[k, 0], ang[k, 1])
         return out
+
+    def events(self, t0: float, t1: float) -> dict[str, list[tuple[float, str, str, float, float]]]:
+        """:meth:`columns` as rows (time, anchor id, tag id, azimuth, elevation) per gateway."""
+        return {g: [(t, self.anchor_ids[a], self.tags[k], int(az), int(el)) for t, a, k, az, el in
+                    zip(*(c.tolist() for c in cols))] for g, cols in self.columns(t0, t1).items()}

@@ -13,8 +13,10 @@ dropped and counted when full) and go out in order once it is back.
 from __future__ import annotations
 
 import collections
+import itertools
 import logging
 import math
+import select
 import ssl
 import threading
 import time
@@ -22,10 +24,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from urllib.parse import urlsplit
 
+import numpy as np
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
-from paho.mqtt.properties import Properties
-from paho.mqtt.packettypes import PacketTypes
 
 from rfhoming.host.estimation.batch import BatchLocator
 from rfhoming.host.site import Site
@@ -43,6 +44,18 @@ INBOX_MESSAGES = 100_000
 
 OFFSET_SAMPLES = 200
 """Batches per gateway over which the worker takes the minimum delay (its clock-offset estimate)."""
+
+
+READ_BURST = 1000
+"""Packets :meth:`Publisher.service` reads at most per call (paho's own loop reads one)."""
+
+RECONNECT_MIN_S, RECONNECT_MAX_S = 0.1, 5.0
+"""Seconds between tries to reach a lost broker: the first, doubling up to the last."""
+
+
+SERVICE_EVERY = 200
+"""Positions a worker publishes between reads of its socket during a tick (Mosquitto's per-client
+queue, max_queued_messages, is 1,000 by default: a worker that stops reading for long loses batches)."""
 
 
 class BrokerError(Error):
@@ -76,20 +89,29 @@ class Broker:
 
 
 def _client(client_id: str, broker: Broker, ca_file: str | None = None) -> mqtt.Client:
-    c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5)
+    # MQTT 3.1.1: the bus needs nothing of 5 (wills, retained messages and QoS are 3.1.1's; shared
+    # subscriptions were tried and rejected, docs/protocol.md), and paho unpacks 5's properties of
+    # every message in Python: a fifth of a worker's CPU per received batch, measured
+    c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv311)
     if broker.username is not None:
         c.username_pw_set(broker.username, broker.password)
     if broker.tls:
         c.tls_set(ca_certs=ca_file, cert_reqs=ssl.CERT_REQUIRED)
-    c.reconnect_delay_set(min_delay=0.1, max_delay=5)
+    c.reconnect_delay_set(min_delay=RECONNECT_MIN_S, max_delay=RECONNECT_MAX_S)
     return c
 
 
 class Publisher:
-    """One MQTT connection that publishes with a bounded buffer across broker outages."""
+    """One MQTT connection that publishes with a bounded buffer across broker outages.
+
+    ``threaded`` (the default): paho's own network thread reads, writes and reconnects. Without it
+    the owner calls :meth:`service` from its loop: a process that publishes thousands of messages a
+    second (a worker, the emulated gateways) then spends up to a third less CPU per message
+    (bench/site_bench.py "publish": 8-11 against 10-14 us in four runs, once the same), with no
+    thread to wake per publish and no GIL handed back and forth; its reads also wait for its loop."""
 
     def __init__(self, broker: Broker, client_id: str, *, buffer: int = BUFFER_MESSAGES, keepalive: int = 10,
-                 will: tuple[str, bytes] | None = None, ca_file: str | None = None) -> None:
+                 will: tuple[str, bytes] | None = None, ca_file: str | None = None, threaded: bool = True) -> None:
         self.client = _client(client_id, broker, ca_file)
         self.client.max_queued_messages_set(buffer)  # paho's own queue (while connected) is bounded too
         if will is not None:
@@ -103,7 +125,44 @@ class Publisher:
         self.client.on_connect = self._connected
         self.client.on_disconnect = self._disconnected
         self.client.connect_async(broker.host, broker.port, keepalive=keepalive)
-        self.client.loop_start()
+        self._retry_at, self._delay = 0.0, RECONNECT_MIN_S
+        if threaded:
+            self.client.loop_start()
+
+    def service(self, timeout: float) -> None:
+        """Run the network loop in the caller's thread for up to ``timeout`` s (threaded=False):
+        what arrived is read (callbacks run here), what waits is written, and a lost broker is
+        tried again 0.1 s doubling to 5 s later, as paho's thread would."""
+        if self.client.socket() is None:
+            now = time.monotonic()
+            if now < self._retry_at:
+                time.sleep(min(timeout, self._retry_at - now))
+                return
+            try:
+                self.client.reconnect()
+                self._delay = RECONNECT_MIN_S
+            except OSError as exc:
+                log.debug("broker not reachable (%s): again in %.1f s", exc, self._delay)
+                self._retry_at, self._delay = now + self._delay, min(RECONNECT_MAX_S, 2 * self._delay)
+                return
+        self.client.loop(timeout)
+        # paho's loop (and loop_read, whatever max_packets says) reads one packet per call: read
+        # what else is waiting now, or a worker falls behind the thousands of batches a second
+        for _ in range(READ_BURST):
+            sock = self.client.socket()
+            if sock is None or not (getattr(sock, "pending", lambda: 0)() or select.select([sock], [], [], 0)[0]):
+                break
+            self.client.loop_read()
+
+    def wait_connected(self, timeout: float) -> bool:
+        """Wait for the broker (servicing the connection when there is no paho thread)."""
+        end = time.monotonic() + timeout
+        while not self.connected.is_set() and time.monotonic() < end:
+            if self.client._thread is None:  # noqa: SLF001 (paho has no public "is threaded")
+                self.service(0.05)
+            else:
+                self.connected.wait(0.05)
+        return self.connected.is_set()
 
     def _connected(self, client: mqtt.Client, userdata: object, flags: object, reason: object,
                    props: object) -> None:
@@ -146,6 +205,9 @@ class Publisher:
             self.counters["buffered"] += 1
 
     def close(self) -> None:
+        end = time.monotonic() + 2.0  # without paho's thread, what paho holds is written first (a bound)
+        while self.client._thread is None and self.client.want_write() and time.monotonic() < end:  # noqa: SLF001
+            self.service(0.05)
         self.client.disconnect()
         self.client.loop_stop()
 
@@ -155,19 +217,32 @@ class Gateway:
 
     def __init__(self, publisher: Publisher, site: str, name: str, partitions: int, offset_s: float = 0.0) -> None:
         self.publisher, self.site, self.name, self.partitions, self.offset_s = publisher, site, name, partitions, offset_s
-        self._parts: dict[int, list[tuple[float, str, str, float, float]]] = {}
+        self._rows: dict[int, list[sitebus.Row]] = {}
         self._part_of: dict[str, int] = {}
         self._seq = [0] * partitions
         self.events = 0
 
-    def add(self, t_host: float, anchor_id: str, tag: str, azimuth: float, elevation: float) -> None:
+    def _partition(self, tag: str) -> int:
         part = self._part_of.get(tag)
         if part is None:
-            part = self._part_of[tag] = sitebus.partition(tag, self.partitions)
-            if len(self._part_of) > 1_000_000:  # a bound, not a cache policy: ids are cheap to hash again
+            if len(self._part_of) >= 1_000_000:  # a bound, not a cache policy: ids are cheap to hash again
                 self._part_of.clear()
-        self._parts.setdefault(part, []).append((t_host, anchor_id, tag, azimuth, elevation))
+            part = self._part_of[tag] = sitebus.partition(tag, self.partitions)
+        return part
+
+    def add(self, t_host: float, anchor_id: str, tag: str, azimuth: float, elevation: float) -> None:
+        self._rows.setdefault(self._partition(tag), []).append((t_host, anchor_id, tag, azimuth, elevation))
         self.events += 1
+
+    def add_columns(self, t: np.ndarray, anchors: list[str], a: np.ndarray, tags: list[str], g: np.ndarray,
+                    az: np.ndarray, el: np.ndarray) -> None:
+        """Events as columns (event k: anchor ``anchors[a[k]]``, tag ``tags[g[k]]``; an emulated
+        site's tens of thousands a second), without a Python call per event."""
+        part_of = self._partition
+        for row in zip(t.tolist(), map(anchors.__getitem__, a.tolist()), map(tags.__getitem__, g.tolist()),
+                       az.tolist(), el.tolist()):
+            self._rows.setdefault(part_of(row[2]), []).append(row)
+        self.events += len(t)
 
     def on_item(self, device: str, t: float, item: object) -> None:
         """A driver listener (host/drivers/common.py): its decoded angle events go on the bus, the
@@ -177,12 +252,12 @@ class Gateway:
 
     def flush(self, now: float) -> None:
         """Publish each partition's events since the last flush (``now`` on this gateway's clock)."""
-        for part, rows in self._parts.items():
+        for part, rows in self._rows.items():
             if rows:
-                batch = sitebus.AngleBatch(self.name, self._seq[part], now, self.offset_s, rows)
+                payload = sitebus.encode_angles(self.name, self._seq[part], now, self.offset_s, rows)
                 self._seq[part] += 1
-                self.publisher.publish(sitebus.angles_topic(self.site, part), batch.encode())
-        self._parts = {}
+                self.publisher.publish(sitebus.angles_topic(self.site, part), payload)
+        self._rows = {}
 
 
 class Worker:
@@ -204,10 +279,12 @@ class Worker:
         self._min_delay: dict[str, collections.deque[float]] = {}
         self._seq: dict[tuple[str, str], int] = {}
         self.latencies: collections.deque[float] = collections.deque(maxlen=200_000)
+        self.tick_late: collections.deque[float] = collections.deque(maxlen=200_000)
         self.counters = {"batches": 0, "events": 0, "bad_payload": 0, "lost_batches": 0, "inbox_dropped": 0,
                          "positions": 0, "other_partition": 0, "handovers": 0}
         self._me = sitebus.workers_topic(site.name, worker_id)
-        self.pub = Publisher(broker, f"rfhoming-worker-{worker_id}", will=(self._me, b"offline"), ca_file=ca_file)
+        self.pub = Publisher(broker, f"rfhoming-worker-{worker_id}", will=(self._me, b"offline"), ca_file=ca_file,
+                             threaded=False)
         self.pub.client.on_message = self._message
         self.pub.on_connect.append(self._subscribe_all)
         self._next_tick: int | None = None
@@ -231,9 +308,8 @@ class Worker:
             log.info("worker %s: partitions %s (gained %s, lost %s)", self.worker_id, sorted(want), sorted(gained),
                      sorted(lost))
         c = self.pub.client
-        props = Properties(PacketTypes.SUBSCRIBE)
         for p in sorted(gained):
-            c.subscribe(sitebus.angles_topic(self.site.name, p), qos=0, properties=props)
+            c.subscribe(sitebus.angles_topic(self.site.name, p), qos=0)
         for p in sorted(lost):
             c.unsubscribe(sitebus.angles_topic(self.site.name, p))
 
@@ -255,7 +331,9 @@ class Worker:
 
     # -- the worker's own thread ----------------------------------------------------------------
     def _drain(self) -> None:
-        engine = self.engine
+        """Decode what arrived and feed it to the engine as one set of arrays (numpy's cost per
+        call, not per batch: a site's gateways send thousands of small batches a second)."""
+        batches, bases = [], []
         while self._inbox:
             recv, topic, payload = self._inbox.popleft()
             try:
@@ -274,18 +352,35 @@ class Worker:
             # true offset plus the least network delay (NTP's minimum filter; docs/protocol.md)
             delays = self._min_delay.setdefault(batch.gateway, collections.deque(maxlen=OFFSET_SAMPLES))
             delays.append(recv - (batch.sent - batch.offset_s))
-            shift = min(delays) - batch.offset_s
-            rows = [(t + shift, a, tag, az, el) for t, a, tag, az, el in batch.events]
-            self.counters["events"] += len(rows)
-            engine.feed(rows)
+            batches.append(batch)
+            bases.append(batch.t0 + min(delays) - batch.offset_s)
+        if not batches:
+            return
+        sizes = np.array([len(b.dt_us) for b in batches])
+        n = int(sizes.sum())
+        chain = itertools.chain.from_iterable
+
+        def column(name: str, dtype: type) -> np.ndarray:
+            return np.fromiter(chain(getattr(b, name) for b in batches), dtype, n)
+
+        a_off = np.repeat(np.cumsum([0] + [len(b.anchors) for b in batches[:-1]]), sizes)
+        g_off = np.repeat(np.cumsum([0] + [len(b.tags) for b in batches[:-1]]), sizes)
+        t = np.repeat(np.array(bases), sizes) + column("dt_us", np.int64) * 1e-6
+        self.counters["events"] += n
+        self.engine.feed_columns(t, list(chain(b.anchors for b in batches)), column("a", np.int64) + a_off,
+                                 list(chain(b.tags for b in batches)), column("g", np.int64) + g_off,
+                                 column("az", float), column("el", float))
 
     def step(self) -> float:
-        """Take what arrived, run every tick that is due; seconds until the next one."""
-        self._drain()
+        """Run every tick that is due, on what arrived before it; seconds until the next one.
+        What arrives between ticks waits in the inbox (it is stamped on arrival, for the clock
+        offsets): one feed per tick, not one per message."""
         now = self.clock()
         if self._next_tick is None:
             self._next_tick = math.ceil(now / self.period)
-        while self._next_tick * self.period + self.reorder_s <= now:  # tick k at k periods: no drift
+        while (due := self._next_tick * self.period + self.reorder_s) <= now:  # tick k at k periods: no drift
+            self.tick_late.append(self.clock() - due)  # > a period: this worker does not keep up
+            self._drain()
             self._tick(round(self._next_tick * self.period, 9))
             self._next_tick += 1
         return max(0.0, self._next_tick * self.period + self.reorder_s - self.clock())
@@ -294,7 +389,11 @@ class Worker:
         with self._lock:
             owned = set(self.owned)
         site = self.site.name
-        for f in self.engine.tick(t, only_new=True):
+        fixes = self.engine.tick(t, only_new=True)
+        self.pub.service(0.0)  # read what came meanwhile: the broker drops what queues past its limit
+        for k, f in enumerate(fixes):
+            if k % SERVICE_EVERY == SERVICE_EVERY - 1:
+                self.pub.service(0.0)
             if not f.new:
                 continue  # nothing new of this tag since its last position: that one stands
             if sitebus.partition(f.tag, self.partitions) not in owned:
@@ -311,15 +410,22 @@ class Worker:
         end = None if duration is None else self.clock() + duration
         stop = stop or threading.Event()
         while not stop.is_set() and (end is None or self.clock() < end):
-            stop.wait(min(self.step(), 0.05))
+            self.pub.service(min(self.step(), 0.05))
 
     def close(self) -> None:
-        self.pub.client.publish(self._me, b"offline", qos=1, retain=True)
+        info = self.pub.client.publish(self._me, b"offline", qos=1, retain=True)
+        end = time.monotonic() + 2.0  # a bound: a broker that is away hears the will instead
+        while not info.is_published() and self.pub.client.is_connected() and time.monotonic() < end:
+            self.pub.service(0.05)
         self.pub.close()
 
     def health(self) -> dict[str, object]:
-        lat = sorted(self.latencies)
-        p = (lambda q: round(lat[min(len(lat) - 1, int(q * len(lat)))], 4)) if lat else (lambda q: None)
+        def quantile(values: collections.deque[float], q: float) -> float | None:
+            v = sorted(values)
+            return round(v[min(len(v) - 1, int(q * len(v)))], 4) if v else None
+
         return {**self.counters, **{f"engine_{k}": v for k, v in self.engine.counters.items()},
                 **{f"mqtt_{k}": v for k, v in self.pub.counters.items()},
-                "partitions": sorted(self.owned), "latency_p50_s": p(0.5), "latency_p99_s": p(0.99)}
+                "partitions": sorted(self.owned), "latency_p50_s": quantile(self.latencies, 0.5),
+                "latency_p99_s": quantile(self.latencies, 0.99), "tick_late_p50_s": quantile(self.tick_late, 0.5),
+                "tick_late_p99_s": quantile(self.tick_late, 0.99)}

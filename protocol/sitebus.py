@@ -22,10 +22,16 @@ import zlib
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from rfhoming.protocol.errors import Error
 
-VERSION = 1
-"""Payload version; a worker drops (and counts) a batch of another version."""
+VERSION = 2
+"""Angle-batch payload version written: 2 is columnar; version 1 (one list per event) is still
+read, for gateways not yet upgraded. A worker drops (and counts) a batch of any other version."""
+
+POSITION_VERSION = 1
+"""Position payload version."""
 
 DEFAULT_PARTITIONS = 8
 
@@ -60,63 +66,135 @@ def owner(part: int, workers: list[str] | set[str]) -> str | None:
     return max(workers, key=lambda w: hashlib.blake2b(f"{w}/{part}".encode(), digest_size=8).digest())
 
 
+Row = tuple[float, str, str, float, float]
+"""One angle event: (host receive time s, anchor id, tag id, azimuth deg, elevation deg)."""
+
+
+def encode_angles(gateway: str, seq: int, sent: float, offset_s: float, rows: list[Row]) -> bytes:
+    """A version-2 angle batch: columns, each tag and anchor id once. Times are whole
+    microseconds after ``t0`` (integers parse fastest), angles integers when whole (the firmware
+    reports whole degrees), else to 0.001 degree. ``offset_s`` is the gateway's own estimate of its
+    clock minus site time (0 when it has none: the worker measures the rest, docs/protocol.md),
+    ``sent`` its clock at publishing, ``seq`` counts its batches on this partition (a gap is a loss)."""
+    anchors: dict[str, int] = {}
+    tags: dict[str, int] = {}
+    t0 = min(r[0] for r in rows) if rows else 0.0
+    cols = ([round((r[0] - t0) * 1e6) for r in rows], [anchors.setdefault(r[1], len(anchors)) for r in rows],
+            [tags.setdefault(r[2], len(tags)) for r in rows])
+    ang = ([_number(r[3]) for r in rows], [_number(r[4]) for r in rows])
+    return json.dumps({"v": VERSION, "gw": gateway, "seq": seq, "sent": round(sent, 6), "offset_s": round(offset_s, 6),
+                       "anchors": list(anchors), "tags": list(tags), "t0": t0, "i": cols, "ang": ang},
+                      separators=(",", ":")).encode()
+
+
+def _number(x: float) -> float | int:
+    return int(x) if x == int(x) else round(float(x), 3)
+
+
 @dataclass(frozen=True)
 class AngleBatch:
-    """One gateway's angle events for one partition since its last flush.
-
-    ``events`` rows: (host receive time s, anchor id, tag id, azimuth deg, elevation deg), times on
-    the gateway's clock; ``offset_s`` is the gateway's own estimate of its clock minus site time (0
-    when it has none: the worker measures the rest, docs/protocol.md); ``sent`` is the gateway's
-    clock at publishing; ``seq`` counts the gateway's batches on this partition, so a gap is a loss."""
+    """A decoded angle batch, as columns of plain lists: event k at ``t0 + dt_us[k] * 1e-6`` s
+    (the gateway's clock) from anchor ``anchors[a[k]]`` of tag ``tags[g[k]]``, azimuth ``az[k]``,
+    elevation ``el[k]`` degrees. Lists, not arrays: a batch holds tens of events, and a worker
+    joins thousands of batches into one set of arrays per tick (numpy's cost per call, not per batch)."""
 
     gateway: str
     seq: int
     sent: float
     offset_s: float
-    events: list[tuple[float, str, str, float, float]]
+    anchors: list[str]
+    tags: list[str]
+    t0: float
+    dt_us: list[int]
+    a: list[int]
+    g: list[int]
+    az: list[float]
+    el: list[float]
 
-    def encode(self) -> bytes:
-        return json.dumps({"v": VERSION, "gw": self.gateway, "seq": self.seq, "sent": round(self.sent, 6),
-                           "offset_s": round(self.offset_s, 6),
-                           "events": [[round(t, 6), a, tag, az, el] for t, a, tag, az, el in self.events]},
-                          separators=(",", ":")).encode()
+    @property
+    def events(self) -> list[Row]:
+        """The rows again (tests and debugging; the worker takes the columns)."""
+        return [(self.t0 + d * 1e-6, self.anchors[a], self.tags[g], az, el)
+                for d, a, g, az, el in zip(self.dt_us, self.a, self.g, self.az, self.el)]
+
+
+_NUMBER = (int, float)
+
+
+def _whole(col: object, n: int | None, what: str, below: int | None = None) -> list[int]:
+    if not isinstance(col, list) or (n is not None and len(col) != n) or not all(type(x) is int for x in col):
+        raise PayloadError(f"{what} is not a column of whole numbers of the batch's length")
+    if below is not None and col and not (min(col) >= 0 and max(col) < below):
+        raise PayloadError(f"{what}: an index is outside its table")
+    return col
+
+
+def _angles(col: object, n: int, what: str) -> list[float]:
+    if not isinstance(col, list) or len(col) != n or not all(
+            type(x) in _NUMBER and -90.0 <= x <= 90.0 for x in col):  # NaN fails the comparison
+        raise PayloadError(f"{what} is not a column of angles within -90..90 degrees of the batch's length")
+    return col
+
+
+def _names(raw: dict, key: str) -> list[str]:
+    v = raw[key]
+    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+        raise PayloadError(f"{key} is not a list of ids")
+    return v
+
+
+def _decode_v2(raw: dict) -> AngleBatch:
+    anchors, tags = _names(raw, "anchors"), _names(raw, "tags")
+    i, ang = raw["i"], raw["ang"]
+    if not (isinstance(i, list) and len(i) == 3 and isinstance(ang, list) and len(ang) == 2):
+        raise PayloadError("i is not [dt_us, anchor, tag] or ang not [azimuth, elevation]")
+    dt = _whole(i[0], None, "dt_us")
+    n = len(dt)
+    a, g = _whole(i[1], n, "anchor", len(anchors)), _whole(i[2], n, "tag", len(tags))
+    return AngleBatch(str(raw["gw"]), int(raw["seq"]), float(raw["sent"]), float(raw["offset_s"]), anchors, tags,
+                      float(raw["t0"]), dt, a, g, _angles(ang[0], n, "azimuth"), _angles(ang[1], n, "elevation"))
+
+
+def _decode_v1(raw: dict) -> AngleBatch:
+    events = raw["events"]
+    if not isinstance(events, list):
+        raise PayloadError("events is not a list")
+    rows = []
+    for t, a, tag, az, el in events:
+        t, az, el = float(t), float(az), float(el)
+        if not (isinstance(a, str) and isinstance(tag, str) and math.isfinite(t)
+                and -90.0 <= az <= 90.0 and -90.0 <= el <= 90.0):
+            raise PayloadError("an event row is not [time, anchor, tag, azimuth, elevation]")
+        rows.append((t, a, tag, az, el))
+    return _decode_v2(json.loads(encode_angles(str(raw["gw"]), int(raw["seq"]), float(raw["sent"]),
+                                               float(raw["offset_s"]), rows)))
 
 
 def decode_angles(payload: bytes) -> AngleBatch:
-    """An angle batch from its JSON; PayloadError for anything else."""
+    """An angle batch from its JSON (version 2, or the older version 1); PayloadError for anything else."""
     try:
         raw = json.loads(payload)
-        if not isinstance(raw, dict) or raw.get("v") != VERSION:
-            raise PayloadError(f"not a version-{VERSION} angle batch")
-        events = raw["events"]
-        if not isinstance(events, list):
-            raise PayloadError("events is not a list")
-        rows = []
-        for t, a, tag, az, el in events:
-            t, az, el = float(t), float(az), float(el)
-            if not (isinstance(a, str) and isinstance(tag, str) and math.isfinite(t)
-                    and -90.0 <= az <= 90.0 and -90.0 <= el <= 90.0):
-                raise PayloadError("an event row is not [time, anchor, tag, azimuth, elevation]")
-            rows.append((t, a, tag, az, el))
-        batch = AngleBatch(str(raw["gw"]), int(raw["seq"]), float(raw["sent"]), float(raw["offset_s"]), rows)
+        if not isinstance(raw, dict) or raw.get("v") not in (1, 2):
+            raise PayloadError("not a version-1 or version-2 angle batch")
+        batch = _decode_v2(raw) if raw["v"] == 2 else _decode_v1(raw)
     except PayloadError:
         raise
-    except (ValueError, TypeError, KeyError) as exc:
+    except (ValueError, TypeError, KeyError, OverflowError) as exc:
         raise PayloadError(f"malformed angle batch ({type(exc).__name__}: {exc})") from None
-    if not (math.isfinite(batch.sent) and math.isfinite(batch.offset_s)):
-        raise PayloadError("sent or offset_s is not a finite number")
+    if not all(math.isfinite(x) for x in (batch.sent, batch.offset_s, batch.t0)):
+        raise PayloadError("sent, offset_s or t0 is not a finite number")
     return batch
 
 
-def position_payload(t: float, tag: str, point: Any, covariance: Any, anchors: list[str], rejected: list[str],
+def position_payload(t: float, tag: str, point: np.ndarray, covariance: np.ndarray, anchors: list[str], rejected: list[str],
                      quality: float, worker: str, latency_s: float | None = None) -> bytes:
     """A position as JSON: metres, site frame (REP 103: x, y on the floor, z up), covariance m^2,
     ``quality`` = chi-square of the rays about the fix per degree of freedom (about 1 = as expected),
     ``worker`` the worker that made it, ``latency_s`` its age: publishing time minus the newest angle's."""
+    x, y, z = (round(v, 3) for v in point.tolist())
     body: dict[str, Any] = {
-        "v": VERSION, "t": round(t, 6), "tag": tag,
-        "x": round(float(point[0]), 3), "y": round(float(point[1]), 3), "z": round(float(point[2]), 3),
-        "cov": [[round(float(v), 5) for v in row] for row in covariance],
+        "v": POSITION_VERSION, "t": round(t, 6), "tag": tag, "x": x, "y": y, "z": z,
+        "cov": covariance.round(5).tolist(),
         "anchors": anchors, "rejected": rejected, "quality": round(quality, 3), "worker": worker}
     if latency_s is not None:
         body["latency_s"] = round(latency_s, 4)

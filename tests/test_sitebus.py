@@ -50,8 +50,7 @@ row = st.tuples(st.floats(0, 2e9), st.text(min_size=1, max_size=12), st.text(min
 
 @given(st.lists(row, max_size=20), st.integers(0, 2**31), st.floats(-1e3, 1e3))
 def test_angle_batch_round_trip(rows: list, seq: int, offset: float) -> None:
-    batch = sitebus.AngleBatch("gw01", seq, 1.7e9, offset, rows)
-    back = sitebus.decode_angles(batch.encode())
+    back = sitebus.decode_angles(sitebus.encode_angles("gw01", seq, 1.7e9, offset, rows))
     assert back.gateway == "gw01" and back.seq == seq and back.offset_s == pytest.approx(offset, abs=1e-6)
     assert [(a, tag, az, el) for _, a, tag, az, el in back.events] == [(a, tag, az, el) for _, a, tag, az, el in rows]
     assert all(abs(t - r[0]) <= 1e-6 for (t, *_), r in zip(back.events, rows))
@@ -65,10 +64,27 @@ def test_garbage_is_a_payload_error(data: bytes) -> None:
         pass
 
 
-@pytest.mark.parametrize("payload", [b"{}", b'{"v":1}', b'{"v":2,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[]}',
+def test_a_version_1_batch_is_still_read() -> None:
+    """The row form gateways wrote before the columns (docs/protocol.md section 8)."""
+    back = sitebus.decode_angles(b'{"v":1,"gw":"g","seq":4,"sent":10.5,"offset_s":0.1,'
+                                 b'"events":[[10.0,"A1","T1",-12,30],[10.2,"A2","T1",3,4]]}')
+    assert back.seq == 4 and back.events == [(10.0, "A1", "T1", -12.0, 30.0), (10.2, "A2", "T1", 3.0, 4.0)]
+
+
+V2 = '"v":2,"gw":"g","seq":0,"sent":0,"offset_s":0,"anchors":["a"],"tags":["t"],"t0":0,'
+V2_BAD = ['"i":[[0],[0],[0]],"ang":[[91],[0]]', '"i":[[0.5],[0],[0]],"ang":[[1],[0]]', '"i":[[0],[1],[0]],"ang":[[1],[0]]',
+          '"i":[[0],[0],[-1]],"ang":[[1],[0]]', '"i":[[0],[true],[0]],"ang":[[1],[0]]', '"i":[[0,1],[0],[0]],"ang":[[1],[0]]',
+          '"i":[[0],[0],[0]],"ang":[["1"],[0]]', '"i":[[0],[0],[0]],"ang":[[[1]],[0]]', '"i":[[0],[0],[0]],"ang":[[1],[NaN]]',
+          '"i":[[0],[0],[0]],"ang":[[1]]', '"i":[[0],[0]],"ang":[[1],[0]]', '"i":[[0],[0],[0]],"ang":[[1],[true]]']
+
+
+@pytest.mark.parametrize("payload", [b"{}", b'{"v":1}', b'{"v":3,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[]}',
                                      b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,"a","t",91,0]]}',
                                      b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,1,"t",0,0]]}',
-                                     b'{"v":1,"gw":"g","seq":0,"sent":"NaN","offset_s":0,"events":[]}'])
+                                     b'{"v":1,"gw":"g","seq":0,"sent":"NaN","offset_s":0,"events":[]}',
+                                     *(("{" + V2 + bad + "}").encode() for bad in V2_BAD),
+                                     ("{" + V2.replace('"t0":0', '"t0":Infinity') + V2_BAD[1].replace("0.5", "0")
+                                      + "}").encode()])
 def test_bad_batches_are_refused(payload: bytes) -> None:
     with pytest.raises(sitebus.PayloadError):
         sitebus.decode_angles(payload)
@@ -231,8 +247,9 @@ def test_gateway_batches_read_by_mosquitto_sub(broker: int) -> None:
     topic, payload = lines[0].split(" ", 1)
     assert topic == f"rfhoming/s1/angles/{sitebus.partition('T00001', 4)}"
     body = json.loads(payload)
-    assert body["gw"] == "gw07" and body["offset_s"] == 0.25 and body["sent"] == 100.5
-    assert body["events"] == [[100.0, "A1", "T00001", -12, 30]]
+    assert body["v"] == 2 and body["gw"] == "gw07" and body["offset_s"] == 0.25 and body["sent"] == 100.5
+    assert (body["anchors"], body["tags"], body["t0"], body["i"], body["ang"]) == (
+        ["A1"], ["T00001"], 100.0, [[0], [0], [0]], [[-12], [30]])
     assert json.loads(lines[1].split(" ", 1)[1])["seq"] == body["seq"] + 1
 
 
@@ -277,6 +294,35 @@ def test_publisher_buffers_boundedly_while_the_broker_is_away(tmp_path: Path) ->
         out, _ = sub.communicate(timeout=120)
         assert sorted(out.splitlines()) == ["t/2 m2", "t/3 m3", "t/4 m4"]
         assert pub.counters == {**pub.counters, "published": 3, "dropped": 2, "connects": 1}
+    finally:
+        pub.close()
+        proc.terminate()
+        proc.wait(30)
+
+
+@needs_broker
+def test_a_serviced_publisher_reconnects_and_sends_what_it_buffered(tmp_path: Path) -> None:
+    """threaded=False (a worker's, the emulated gateways'): no broker, three retained messages
+    buffered; the owner's loop keeps calling service(), which tries the broker again with back-off;
+    the broker comes, the connection is made and the three go out in order (mosquitto_sub reads them)."""
+    from rfhoming.host.sitebus import Broker, Publisher
+
+    port = _free_port()
+    pub = Publisher(Broker("127.0.0.1", port, False, None), "gw-serviced", threaded=False)
+    for i in range(3):
+        pub.publish(f"s/{i}", f"m{i}".encode(), retain=True)
+    for _ in range(3):
+        pub.service(0.05)  # refused: nothing listens
+    assert not pub.connected.is_set() and pub.counters["buffered"] == 3
+    proc = _start_broker(tmp_path, port)
+    try:
+        assert pub.wait_connected(120)
+        deadline = time.monotonic() + 60  # a hang guard
+        while (pub.counters["published"] < 3 or pub.client.want_write()) and time.monotonic() < deadline:
+            pub.service(0.05)
+        out, _ = _sub(port, "s/#", 3).communicate(timeout=120)
+        assert sorted(out.splitlines()) == ["s/0 m0", "s/1 m1", "s/2 m2"]
+        assert pub.counters["connects"] == 1 and pub.counters["dropped"] == 0
     finally:
         pub.close()
         proc.terminate()
@@ -338,8 +384,8 @@ def test_two_workers_split_the_site_and_one_takes_over_when_the_other_dies(broke
     url = f"mqtt://127.0.0.1:{broker}/8"
     site = "site-16x40"
     logs = {name: tmp_path / f"{name}.log" for name in ("w1", "w2", "gw")}
-    w1 = _cli(logs["w1"], "locate-worker", site, "--from", url, "--id", "w1", "--rate", "20")
-    w2 = _cli(logs["w2"], "locate-worker", site, "--from", url, "--id", "w2", "--rate", "20", "--duration", "600")
+    w1 = _cli(logs["w1"], "locate", site, "--from", url, "--id", "w1", "--rate", "20")
+    w2 = _cli(logs["w2"], "locate", site, "--from", url, "--id", "w2", "--rate", "20", "--duration", "600")
     sub = subprocess.Popen([SUB, "-h", "127.0.0.1", "-p", str(broker), "-t", f"rfhoming/{site}/positions/#",
                             "-W", "600"], stdout=subprocess.PIPE, text=True)
     gw = _cli(logs["gw"], "gateway", "--emulate", site, "--broker", url, "--duration", "600")
@@ -452,3 +498,55 @@ def test_only_new_fixes_the_tags_that_spoke_with_the_same_answer() -> None:
         assert set(a) == set(b) and all(f.new for f in b.values())
         for tag in a:
             np.testing.assert_allclose(a[tag].fix.point, b[tag].fix.point, atol=1e-6)
+
+
+@pytest.mark.parametrize("extra", [["--smooth"], ["--tracker", "ekf"], ["--from", "capture:x.pcapng"], ["-o", "x.jsonl"]])
+def test_locate_from_a_broker_refuses_what_a_worker_does_not_do(extra: list[str], tmp_path: Path) -> None:
+    """``locate --from mqtt://`` is the site worker: options of the one-machine locate that it does
+    not honour are a one-line error, exit 2, before any connection."""
+    proc = subprocess.run([sys.executable, "-m", "rfhoming.cli.main", "locate", "site-16x40", "--from",
+                           "mqtt://127.0.0.1:1/8", *extra], env=ENV, cwd=tmp_path, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "site worker" in proc.stderr
+
+
+KIT_ROOM = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-room.toml"
+
+
+@pytest.mark.slow
+@needs_broker
+def test_a_gateway_of_real_anchors_to_a_worker(broker: int, tmp_path: Path) -> None:
+    """Emulated XPLR-AOA anchors behind ptys (``rfhoming emulate kit-room``, as tests/test_locate.py
+    starts them) -> ``rfhoming gateway --site`` (the normal drivers) -> Mosquitto -> ``rfhoming
+    locate --from mqtt://`` -> mosquitto_sub reads positions of the room's tags, inside the room."""
+    links = tmp_path / "links"
+    links.mkdir()
+    site = tmp_path / "site.toml"
+    site.write_text(KIT_ROOM.read_text().replace("/tmp/rfhoming-kit/", f"{links}/"))
+    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming.cli.main", "emulate", "kit-room", "--seed", "1",
+                                 "--link-dir", str(links)], env=ENV, stdout=subprocess.PIPE,
+                                stderr=subprocess.DEVNULL, text=True)
+    url = f"mqtt://127.0.0.1:{broker}/4"
+    procs: dict[str, subprocess.Popen] = {"emulator": emulator}
+    try:
+        assert emulator.stdout is not None
+        for _ in range(4):  # one line per anchor once its link exists
+            json.loads(emulator.stdout.readline())
+        sub = procs["sub"] = _sub(broker, "rfhoming/kit-room/positions/#", 30, "-W", "240")
+        procs["worker"] = _cli(tmp_path / "worker.log", "locate", str(site), "--from", url, "--id", "w1")
+        procs["gateway"] = _cli(tmp_path / "gateway.log", "gateway", "--site", str(site), "--broker", url,
+                                "--name", "gw-kit")
+        out, _ = sub.communicate(timeout=300)
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for proc in procs.values():
+            proc.wait(60)
+    positions = [json.loads(line.split(" ", 1)[1]) for line in out.splitlines()]
+    assert len(positions) == 30, (tmp_path / "gateway.log").read_text()[-2000:]
+    assert {p["tag"] for p in positions} <= {"CCF9578E0D8A", "CCF9578E0D8B", "CCF9578E0D8C"}
+    assert all(0 <= p["x"] <= 12 and 0 <= p["y"] <= 6 and p["worker"] == "w1" for p in positions[10:])
+    gateway = json.loads(procs["gateway"].stdout.read().strip().splitlines()[-1])  # type: ignore[union-attr]
+    assert gateway["kind"] == "gateway" and gateway["name"] == "gw-kit" and gateway["events"] > 0

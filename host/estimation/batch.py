@@ -179,7 +179,9 @@ class BatchLocator:
         self.tags: list[str] = []
         self._heights: list[float] = []
         self._reported: list[float] = []  # per tag the newest angle time a tick has used
-        self._pairs: dict[tuple[str, str], int] = {}
+        self._n = 0  # (tag, anchor) pairs so far
+        self._keys = np.zeros(0, np.int64)  # tag row * anchors + anchor index, sorted ...
+        self._key_pair = np.zeros(0, np.int64)  # ... and the pair of each
         cap = 1024
         self._t = np.full((cap, SLOTS), -np.inf)
         self._ang = np.zeros((cap, SLOTS, 2))
@@ -202,44 +204,69 @@ class BatchLocator:
             self._heights.append(info.height if info is not None and info.height is not None else math.nan)
         return i
 
-    def _pair(self, tag: str, anchor: str) -> int | None:
-        n = len(self._pairs)
-        if n >= MAX_PAIRS:
-            return None
-        ai = self.anchor_index.get(anchor)
-        if ai is None:
-            return None
-        if n == len(self._pos):
+    def _new_pairs(self, keys: np.ndarray) -> None:
+        """Pairs for these new (sorted, unique) keys, as many as MAX_PAIRS leaves room for."""
+        keys = keys[:max(0, MAX_PAIRS - self._n)]
+        n, m = self._n, len(keys)
+        while n + m > len(self._pos):
             self._t = np.concatenate([self._t, np.full_like(self._t, -np.inf)])
             self._ang = np.concatenate([self._ang, np.zeros_like(self._ang)])
             self._pos, self._ptag, self._panchor = (np.concatenate([x, np.zeros_like(x)])
                                                     for x in (self._pos, self._ptag, self._panchor))
-        self._pairs[(tag, anchor)] = n
-        self._ptag[n] = self._tag(tag)
-        self._panchor[n] = ai
-        return n
+        ids = np.arange(n, n + m)
+        self._ptag[ids], self._panchor[ids] = np.divmod(keys, len(self._anchors))
+        keys_all, pairs_all = np.r_[self._keys, keys], np.r_[self._key_pair, ids]
+        order = np.argsort(keys_all, kind="stable")
+        self._keys, self._key_pair = keys_all[order], pairs_all[order]
+        self._n = n + m
+
+    def _lookup(self, keys: np.ndarray) -> np.ndarray:
+        """The pair of each key, -1 where there is none."""
+        if not len(self._keys):
+            return np.full(len(keys), -1, np.int64)
+        at = np.minimum(np.searchsorted(self._keys, keys), len(self._keys) - 1)
+        return np.where(self._keys[at] == keys, self._key_pair[at], -1)
 
     def feed(self, rows: list[tuple[float, str, str, float, float]]) -> None:
         """Take angle events (site time, anchor id, tag id, azimuth deg, elevation deg)."""
-        pairs = self._pairs
-        ids, times, angs = [], [], []
-        for t, anchor, tag, az, el in rows:
-            p = pairs.get((tag, anchor))
-            if p is None:
-                p = self._pair(tag, anchor)
-                if p is None:
-                    self.counters["unknown_anchor" if anchor not in self.anchor_index else "overflow"] += 1
-                    continue
-            ids.append(p)
-            times.append(t)
-            angs.append((az, el))
-        if not ids:
+        if not rows:
             return
-        self.counters["events"] += len(ids)
-        pid = np.array(ids)
-        ang = np.array(angs, float)
+        anchors: dict[str, int] = {}
+        tags: dict[str, int] = {}
+        a = [anchors.setdefault(r[1], len(anchors)) for r in rows]
+        g = [tags.setdefault(r[2], len(tags)) for r in rows]
+        self.feed_columns(np.array([r[0] for r in rows], float), list(anchors), np.array(a), list(tags), np.array(g),
+                          np.array([r[3] for r in rows], float), np.array([r[4] for r in rows], float))
+
+    def feed_columns(self, t: np.ndarray, anchors: list[str], a: np.ndarray, tags: list[str], g: np.ndarray,
+                     az: np.ndarray, el: np.ndarray) -> None:
+        """Take angle events as columns: event k at site time ``t[k]`` from anchor ``anchors[a[k]]``
+        of tag ``tags[g[k]]`` (a site-bus batch as it is decoded); no Python per event."""
+        if not len(t):
+            return
+        anc = np.array([self.anchor_index.get(x, -1) for x in anchors], np.int64)[a]
+        known = anc >= 0
+        self.counters["unknown_anchor"] += int((~known).sum())
+        if not known.all():
+            t, anc, g, az, el = t[known], anc[known], g[known], az[known], el[known]
+            if not len(t):
+                return
+        used, g = np.unique(g, return_inverse=True)  # only tags heard by a known anchor become rows
+        rows = np.array([self._tag(tags[i]) for i in used.tolist()], np.int64)[g]
+        keys = rows * len(self._anchors) + anc
+        pid = self._lookup(keys)
+        if (pid < 0).any():
+            self._new_pairs(np.unique(keys[pid < 0]))
+            pid = self._lookup(keys)
+            kept = pid >= 0
+            self.counters["overflow"] += int((~kept).sum())
+            if not kept.all():
+                pid, t, az, el = pid[kept], t[kept], az[kept], el[kept]
+                if not len(pid):
+                    return
+        self.counters["events"] += len(pid)
         ai = self._panchor[pid]
-        ang = (ang - self._bias[ai]) / self._scale[ai]
+        ang = (np.stack([az, el], 1) - self._bias[ai]) / self._scale[ai]
         # the slot of each event: its pair's next, plus its rank among the batch's events of that pair
         order = np.argsort(pid, kind="stable")
         sp = pid[order]
@@ -247,7 +274,7 @@ class BatchLocator:
         counts = np.diff(np.r_[first, len(sp)])
         rank = np.arange(len(sp)) - np.repeat(first, counts)
         slot = (self._pos[sp] + rank) % SLOTS
-        self._t[sp, slot] = np.asarray(times, float)[order]
+        self._t[sp, slot] = np.asarray(t, float)[order]
         self._ang[sp, slot] = ang[order]
         self._pos[sp[first]] += counts
 
@@ -255,7 +282,7 @@ class BatchLocator:
         """Every tag with enough fresh anchors fixed at site time ``t``; with ``only_new`` only the
         tags with an angle no earlier tick used (a worker ticking faster than its tags talk)."""
         site = self.site
-        n = len(self._pairs)
+        n = self._n
         if n == 0:
             return []
         times = self._t[:n]

@@ -44,6 +44,7 @@ examples:
   rfhoming locate site.toml --duration 30 --capture run.pcapng
   rfhoming locate site.toml --from capture:run.pcapng      # the same positions, from the capture
   rfhoming locate site.toml --from capture:run.pcapng --smooth --loss cauchy   # after the fact
+  rfhoming locate site-64x1000 --from mqtt://127.0.0.1:1883/8 --id w1      # a site worker (below)
 
 the kit room of docs/sites, emulated (its first line printed, every link exists):
   mkdir -p /tmp/rfhoming-kit
@@ -157,6 +158,10 @@ async def _discard(stream: BoundedStream) -> None:
 
 
 def cmd_locate(args: argparse.Namespace) -> int:
+    from rfhoming.cli import site as site_bus
+
+    if args.sources and any(site_bus.is_broker(s) for s in args.sources):
+        return site_bus.cmd_worker(args)
     site = _load_site(args.site, "locate")
     if site is None:
         return 2
@@ -356,6 +361,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                 "(every anchor kept, each down-weighted by its miss)")
             p.add_argument("--height-sigma", type=positive_float, metavar="M",
                            help="a tag's known height is a prior of this sigma (m), not a constraint")
+            from rfhoming.cli.site import add_worker_arguments
+
+            add_worker_arguments(p)
             p.set_defaults(func=cmd_locate)
         else:
             p.add_argument("--points", type=Path, help="TOML: [points] TAGID = [x, y, z] and/or [[dwell]] tables")
