@@ -15,8 +15,7 @@ from typing import Any
 
 from rfhoming.cli.args import nonnegative_float, output_file, positive_float, positive_int
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
-from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.capture import describe_dialects as _describe_dialects  # cli/serve.py uses it too
+from rfhoming.host.capture import CaptureWriter, describe_dialects
 from rfhoming.host.discovery import candidates
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.ports import PortError
@@ -122,7 +121,7 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     if view is not None:
         for d in drivers:
             d.listeners.append(view.on_item)
-    extra = [asyncio.create_task(_describe_dialects(drivers, capture))] if capture else []
+    extra = [asyncio.create_task(describe_dialects(drivers, capture))] if capture else []
     try:
         await _run_until(drivers, args.duration, extra)
     except (PortError, DeviceNotReady) as exc:

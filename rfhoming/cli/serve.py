@@ -10,12 +10,11 @@ import sys
 from rfhoming.cli.args import output_file, positive_float, positive_int
 from rfhoming.cli.io import (
     ENDPOINT_HELP,
-    _describe_dialects,
     _run_until,
     add_port_defaults,
 )
 from rfhoming.cli.live import add_foxglove_option, start_foxglove
-from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.capture import CaptureWriter, describe_dialects
 from rfhoming.host.ports import PortError
 from rfhoming.host.serve import QUEUE_LINES, ItemServer
 from rfhoming.host.session import health, open_drivers
@@ -68,7 +67,7 @@ async def _serve(args: argparse.Namespace) -> int:
     view = start_foxglove(args, "serve", out=sys.stdout, host=(args.bind or ["127.0.0.1"])[0])
     for d in drivers:
         d.listeners += [server.publish, *([view.on_item] if view else [])]
-    extra = [asyncio.create_task(_describe_dialects(drivers, capture))] if capture else []
+    extra = [asyncio.create_task(describe_dialects(drivers, capture))] if capture else []
     try:
         await _run_until(drivers, args.duration, extra)
     except PortError as exc:
