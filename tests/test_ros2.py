@@ -28,8 +28,9 @@ stamp = st.builds(ros2.Stamp, st.integers(-2**31, 2**31 - 1), st.integers(0, 999
 
 
 def random_domain() -> int:
-    """1-76 here; tests/test_fastdds.py draws from 77-153 and tests/test_ros2_emulated.py from
-    154-230, so files running side by side (pytest-xdist) never share a domain."""
+    """1-76 here; tests/test_fastdds.py draws from 77-153, tests/test_ros2_emulated.py from
+    154-191 and tests/test_ros2_live.py from 192-229, so files running side by side
+    (pytest-xdist) never share a domain."""
     return random.SystemRandom().randint(1, 76)
 
 

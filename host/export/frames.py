@@ -26,12 +26,15 @@ class Transform(NamedTuple):
     xyz: tuple[float, float, float]
     yaw: float  # radians, about z
     roll: float = 0.0  # radians, about x (a board mounted upside down)
+    pitch: float = 0.0  # radians, about y (REP 103: positive tips x down toward -z)
 
     def quaternion(self) -> dict[str, float]:
-        """z-y-x (yaw, then roll) as a unit quaternion."""
+        """z-y-x (yaw, then pitch, then roll) as a unit quaternion."""
         cy, sy = math.cos(self.yaw / 2), math.sin(self.yaw / 2)
+        cp, sp = math.cos(self.pitch / 2), math.sin(self.pitch / 2)
         cr, sr = math.cos(self.roll / 2), math.sin(self.roll / 2)
-        return {"x": cy * sr, "y": sy * sr, "z": sy * cr, "w": cy * cr}
+        return {"x": sr * cp * cy - cr * sp * sy, "y": cr * sp * cy + sr * cp * sy,
+                "z": cr * cp * sy - sr * sp * cy, "w": cr * cp * cy + sr * sp * sy}
 
 
 def sensor_mounts(mounting: Any) -> list[Transform]:
@@ -45,6 +48,15 @@ def sensor_mounts(mounting: Any) -> list[Transform]:
         Transform(BASE, RSS, tuple(mounting.rss_xyz_m), 0.0),
         Transform(BASE, BLE, tuple(mounting.ble_xyz_m), 0.0),
     ]
+
+
+def anchor_mounts(anchors: Any) -> list[Transform]:
+    """map -> anchor_<id> of a site's fixed anchors (host/site.py ``Anchor``: surveyed position,
+    yaw with its calibrated offset, pitch lifting the boresight up, roll), the frames their angle
+    events are in."""
+    return [Transform(MAP, ANCHOR_PREFIX + a.id, tuple(a.position),
+                      math.radians(a.yaw_deg + a.calibration.yaw_offset_deg), math.radians(a.roll_deg),
+                      -math.radians(a.pitch_deg)) for a in anchors]
 
 
 def item_frame(kind: str, source: str | None) -> str:

@@ -82,10 +82,14 @@ class Ros2Publisher(McapRecorder):
     """The MCAP recorder's messages, published on a DDS domain instead of written."""
 
     def __init__(self, domain: int = 0, discovery: str = "localhost", *, clock: str = "robot",
-                 skip: frozenset[str] = frozenset()) -> None:
-        """``skip``: topics not to publish (a ROS 2 base's own /odom, /scan, /tf, /cmd_vel on its domain)."""
+                 skip: frozenset[str] = frozenset(), source: str | None = None,
+                 static: list[frames.Transform] | None = None) -> None:
+        """``skip``: topics not to publish (a ROS 2 base's own /odom, /scan, /tf, /cmd_vel on its
+        domain); ``source``: as the recorder's (``anchors``: angles in anchor_<id>); ``static``:
+        the /tf_static transforms (default: base_link -> each sensor, from the mounting)."""
         # McapRecorder's state, without its file
-        self.clock, self.commands_from, self.mounting, self.source = clock, "runlog", None, None
+        self.clock, self.commands_from, self.mounting, self.source = clock, "runlog", None, source
+        self.static = static
         self._clocks: dict[str, Any] = {}
         self._static_written = False
         self._last_xy: tuple[float, float] | None = None
@@ -104,7 +108,8 @@ class Ros2Publisher(McapRecorder):
             return
         if not self._static_written:
             self._static_written = True
-            self._write(t, *rosmsgs.transforms("/tf_static", t, frames.sensor_mounts(self.mounting)))
+            static = self.static if self.static is not None else frames.sensor_mounts(self.mounting)
+            self._write(t, *rosmsgs.transforms("/tf_static", t, static))
         writer = self._writers.get(topic)
         if writer is None:
             qos = STATIC_QOS if topic == "/tf_static" else DEFAULT_QOS
@@ -112,6 +117,15 @@ class Ros2Publisher(McapRecorder):
                 self._participant, ros2.dds_topic(topic), idl_type(typename)), qos=qos)
         writer.write(sample(typename, message))
         self.counts[topic] += 1
+
+    def on_position(self, position: Any) -> None:
+        """A located tag (host/locate.py ``Position``, host time) as its pose and point in
+        ``map``; never raises (a sink's rule)."""
+        try:
+            self._write(position.t, *rosmsgs.tag_pose(position.t, position.tag, position.point, position.covariance))
+            self._write(position.t, *rosmsgs.tag_point(position.t, position.tag, position.point))
+        except Exception as exc:  # noqa: BLE001 - a watcher must not stop the locator
+            self._failed("position", exc)
 
     def flush(self) -> None:
         """Nothing is held: every message is published as it is made."""
