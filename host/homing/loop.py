@@ -10,12 +10,12 @@ Fail-safes, each logged:
   the stale timeout, with the base in brake mode (it sheds speed at its emergency deceleration);
   older than the stale timeout (robot time) -> stop in brake mode, resume when fresh. Together
   they bound the distance driven on stale data (docs/BENCHMARKS.md, bench/stopping_bench.py).
-  A base with no brake mode (the device table's ``brakes``: a ROS 2 base) sheds speed at its
-  normal deceleration at best, so for it the loop bounds the speed: no faster than lets it stop
-  within ``stop_within_m`` of where the data ended (:meth:`HomingLoop.stopping_speed`);
   The timeout is ``stale_timeout_s``, or ``stale_intervals`` times the stream's median interval
   between readings when that is longer: a tag advertising every second (u-connectLocate 2.x
   allows 1000 ms) must not stop the robot between its readings;
+- a base with no brake mode (the device table's ``brakes``: a ROS 2 base) sheds speed at its
+  normal deceleration at best, so for it the loop bounds the speed: no faster than lets it stop
+  within ``stop_within_m`` of where the data ended (:meth:`HomingLoop.stopping_speed`);
 - the base itself silent for ``stale_timeout_s`` of wall time -> stop commands (its watchdog
   stops it anyway);
 - the base's clock going backwards (an MCU reset restarts ``t_us`` at 0) -> robot time is
