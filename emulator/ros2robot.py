@@ -5,7 +5,8 @@ on /odom, the odom -> base_link transform on /tf and sensor_msgs/LaserScan on /s
 geometry_msgs/Twist on /cmd_vel reaches the firmware as its velocity command, with the
 firmware's command watchdog (COMMAND_TIMEOUT_MS) standing for a ROS 2 base's cmd_vel timeout.
 Odometry and /tf go out with the sensor-data QoS as robot drivers do (the Create 3's odometry
-is best effort); /cmd_vel is read with ROS 2's default QoS.
+is best effort); /cmd_vel is read with ROS 2's default QoS, as geometry_msgs/Twist or, with
+``stamped``, TwistStamped (Jazzy-era Nav2's ``enable_stamped_cmd_vel``: one type per topic).
 """
 
 import asyncio
@@ -27,9 +28,9 @@ def _stamp(t_us: int) -> dds.Time:
 class Ros2Link(Link):
     """A base's link that is a ROS 2 robot on ``domain`` under namespace ``ns``."""
 
-    def __init__(self, domain: int = 0, ns: str = "", discovery: str = "localhost") -> None:
+    def __init__(self, domain: int = 0, ns: str = "", discovery: str = "localhost", stamped: bool = False) -> None:
         super().__init__()
-        self.domain, self.ns, self.discovery = domain, ns, discovery
+        self.domain, self.ns, self.discovery, self.stamped = domain, ns, discovery, stamped
         self.decoder = FrameDecoder()
         self.counters.update(published=0, commands=0)
         self._seq = 0
@@ -50,11 +51,13 @@ class Ros2Link(Link):
         self._odom = dds.writer(dp, self._name("odom"), ros2.ODOMETRY, dds.SENSOR_QOS)
         self._scan = dds.writer(dp, self._name("scan"), ros2.LASER_SCAN, dds.SENSOR_QOS)
         self._tf = dds.writer(dp, self._name("tf"), dds.TF, dds.DEFAULT_QOS)
-        self._cmd = dds.reader(dp, self._name("cmd_vel"), ros2.TWIST, self._from_dds, dds.DEFAULT_QOS)
+        self._cmd = dds.reader(dp, self._name("cmd_vel"), ros2.TWIST_STAMPED if self.stamped else ros2.TWIST,
+                               self._from_dds, dds.DEFAULT_QOS)
         self._entities = [self._odom, self._scan, self._tf, self._cmd]
         self.plugged = True
 
-    def _from_dds(self, twist: dds.Twist) -> None:
+    def _from_dds(self, command: dds.Twist | dds.TwistStamped) -> None:
+        twist = command.twist if isinstance(command, dds.TwistStamped) else command
         loop = self._loop
         if loop is not None and not loop.is_closed():
             loop.call_soon_threadsafe(self._command, twist.linear.x, twist.angular.z)

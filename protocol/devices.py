@@ -99,6 +99,8 @@ class DeviceKind:
     aliases: tuple[str, ...] = ()
     emulated_as: str | None = None  # how the emulator serves a kind that is no board of a scenario
     default_where: str | None = None  # a kind reached by settings, not a path: WHERE when none is given
+    brakes: bool = False  # a base with a brake mode (emergency deceleration) the loop can switch on; a base
+    # without one sheds speed at its normal deceleration, so the loop bounds its speed (host/homing/loop.py)
 
     @property
     def wire(self) -> WireProtocol:
@@ -129,7 +131,7 @@ KINDS: dict[str, DeviceKind] = {k.name: k for k in (
     DeviceKind("base", "rfhoming robot base (velocity commands, odometry, range scans)", "frames", SERIAL,
                "rfhoming.host.drivers.robot_base:BaseDriver",
                (Board("base", "rfhoming.firmware.robot_base:RobotBaseFirmware"),), ("base",), 5.0, "stm32",
-               ("/odom", "/scan", "/cmd_vel"), commanded=True, aliases=("robot-base",)),
+               ("/odom", "/scan", "/cmd_vel"), commanded=True, aliases=("robot-base",), brakes=True),
     DeviceKind("ros2", "a ROS 2 robot base over DDS (nav_msgs/Odometry, sensor_msgs/LaserScan in; "
                "geometry_msgs/Twist out); WHERE is its namespace", "ros2",
                ("name", "timeout", "domain", "ns", "cmd_vel", "odom", "scan", "stamped", "discovery"),

@@ -1,11 +1,13 @@
 """A second reader of ROS 2 topics, written with nothing but the cyclonedds binding: its own
 IDL types (from ros2/common_interfaces' .msg files, ROS 2's DDS names) and its own loopback
 configuration. Reads rt/cmd_vel, rt/odom, rt/scan, rt/tf,
-rt/rfhoming/target and rt/rfhoming/events on a domain and prints one JSON line
-per sample; ends after SECONDS, or once its standard input closes and then 3 s pass with
+rt/rfhoming/target and rt/rfhoming/events on a domain, and any of EXTRA -- rfhoming/aoa/angle
+(rfhoming_msgs/AoaAngle, transcribed here from its .msg), tf_static (reliable, transient local,
+as tf2 reads it), rfhoming/tag_<ID>/pose and rfhoming/tag_<ID>/point -- and prints one JSON
+line per sample; ends after SECONDS, or once its standard input closes and then 3 s pass with
 no command on rt/cmd_vel (what was still on its way is read).
 
-    python tests/ros2_listener.py DOMAIN SECONDS
+    python tests/ros2_listener.py DOMAIN SECONDS [EXTRA ...]
 """
 
 import json
@@ -17,7 +19,7 @@ from dataclasses import dataclass
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint32
+from cyclonedds.idl.types import array, float32, float64, int8, int16, int32, sequence, uint8, uint32
 from cyclonedds.sub import DataReader, InvalidSample
 from cyclonedds.topic import Topic
 
@@ -131,6 +133,64 @@ class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
     transforms: sequence[TransformStamped]
 
 
+@dataclass
+class PoseWithCovarianceStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovarianceStamped_"):
+    header: Header
+    pose: PoseWithCovariance
+
+
+@dataclass
+class AoaAngle(IdlStruct, typename="rfhoming_msgs::msg::dds_::AoaAngle_"):
+    header: Header
+    instance_id: str
+    anchor_id: str
+    azimuth_deg: int16
+    elevation_deg: int16
+    rssi1_dbm: int8
+    reserved: int8
+    channel: uint8
+    timestamp_ms: uint32
+    seq: int32
+
+
+def extra_reader(name: str) -> tuple[type, Qos | None]:
+    """The type of an EXTRA topic, and its QoS when not best effort."""
+    if name == "tf_static":
+        return TFMessage, Qos(Policy.Reliability.Reliable(100_000_000), Policy.Durability.TransientLocal,
+                              Policy.History.KeepLast(1))
+    if name == "rfhoming/aoa/angle":
+        return AoaAngle, None
+    if name.startswith("rfhoming/tag_") and name.endswith("/pose"):
+        return PoseWithCovarianceStamped, None
+    if name.startswith("rfhoming/tag_") and name.endswith("/point"):
+        return PointStamped, None
+    raise SystemExit(f"no reader for {name!r}")
+
+
+def describe(name: str, s: object) -> dict:
+    if name == "cmd_vel":
+        return {"v": s.linear.x, "w": s.angular.z}
+    if name == "odom":
+        return {"x": s.pose.pose.position.x, "frame": s.header.frame_id, "child": s.child_frame_id}
+    if name == "scan":
+        return {"beams": len(s.ranges), "frame": s.header.frame_id, "range_max": s.range_max}
+    if name == "rfhoming/target" or name.endswith("/point"):
+        return {"frame": s.header.frame_id, "xy": [s.point.x, s.point.y], "z": s.point.z}
+    if name == "rfhoming/events":
+        return {"what": s.data}
+    if name == "rfhoming/aoa/angle":
+        return {"frame": s.header.frame_id, "tag": s.instance_id, "anchor": s.anchor_id, "azimuth": s.azimuth_deg,
+                "elevation": s.elevation_deg, "rssi": s.rssi1_dbm, "channel": s.channel, "stamp": s.header.stamp.sec}
+    if name.endswith("/pose"):
+        p = s.pose.pose
+        return {"frame": s.header.frame_id, "xyz": [p.position.x, p.position.y, p.position.z],
+                "orientation": [p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w],
+                "covariance": list(s.pose.covariance)}
+    return {"frames": [[t.header.frame_id, t.child_frame_id] for t in s.transforms],
+            "transforms": [[*(getattr(t.transform.translation, k) for k in "xyz"),
+                            *(getattr(t.transform.rotation, k) for k in "xyzw")] for t in s.transforms]}
+
+
 def main() -> None:
     domain, seconds = int(sys.argv[1]), float(sys.argv[2])
     config = (f'<CycloneDDS><Domain id="{domain}"><General><Interfaces><NetworkInterface address="127.0.0.1"/>'
@@ -143,6 +203,9 @@ def main() -> None:
     readers = {name: DataReader(dp, Topic(dp, "rt/" + name, kind), qos=best_effort)
                for name, kind in (("cmd_vel", Twist), ("odom", Odometry), ("scan", LaserScan), ("tf", TFMessage),
                                   ("rfhoming/target", PointStamped), ("rfhoming/events", String))}
+    for name in sys.argv[3:]:
+        kind, qos = extra_reader(name)
+        readers[name] = DataReader(dp, Topic(dp, "rt/" + name, kind), qos=qos or best_effort)
     print(json.dumps({"ready": domain}), flush=True)
     end = time.monotonic() + seconds
     closing = False
@@ -155,19 +218,7 @@ def main() -> None:
                     continue
                 if closing and name == "cmd_vel":
                     end = time.monotonic() + 3.0
-                if name == "cmd_vel":
-                    out = {"v": s.linear.x, "w": s.angular.z}
-                elif name == "odom":
-                    out = {"x": s.pose.pose.position.x, "frame": s.header.frame_id, "child": s.child_frame_id}
-                elif name == "scan":
-                    out = {"beams": len(s.ranges), "frame": s.header.frame_id, "range_max": s.range_max}
-                elif name == "rfhoming/target":
-                    out = {"frame": s.header.frame_id, "xy": [s.point.x, s.point.y]}
-                elif name == "rfhoming/events":
-                    out = {"what": s.data}
-                else:
-                    out = {"frames": [[t.header.frame_id, t.child_frame_id] for t in s.transforms]}
-                print(json.dumps({"topic": name, **out}), flush=True)
+                print(json.dumps({"topic": name, **describe(name, s)}), flush=True)
         time.sleep(0.01)
 
 

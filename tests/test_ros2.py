@@ -28,8 +28,9 @@ stamp = st.builds(ros2.Stamp, st.integers(-2**31, 2**31 - 1), st.integers(0, 999
 
 
 def random_domain() -> int:
-    """1-76 here; tests/test_fastdds.py draws from 77-153 and tests/test_ros2_emulated.py from
-    154-230, so files running side by side (pytest-xdist) never share a domain."""
+    """1-76 here; tests/test_fastdds.py draws from 77-153, tests/test_ros2_emulated.py from
+    154-191 and tests/test_ros2_live.py from 192-229, so files running side by side
+    (pytest-xdist) never share a domain."""
     return random.SystemRandom().randint(1, 76)
 
 
@@ -223,3 +224,43 @@ def test_live_ros2_messages_are_the_mcap_recordings_cdr() -> None:
     for _topic, typename, message in messages:
         mcap = serialize_dynamic(typename, rosmsgs.msgdef(typename))[typename](message)
         assert ros2live.sample(typename, message).serialize() == mcap, typename
+
+
+@pytest.mark.parametrize("stamped", [False, True])
+async def test_the_emulated_robot_takes_the_command_type_it_is_told(stamped: bool) -> None:
+    """``emulate --robot ros2:stamped=1`` reads TwistStamped on cmd_vel (Jazzy-era Nav2), else
+    Twist; the host's base with the same stamped= drives it, odometry first as a robot's."""
+    from rfhoming.emulator.ros2robot import Ros2Link
+    from rfhoming.protocol.frames import FrameDecoder, Odometry, VelocityCommand, encode_frame
+
+    domain = random_domain()
+    link = Ros2Link(domain, stamped=stamped)
+    received: list[object] = []
+    decoder = FrameDecoder()
+    link.on_receive = lambda data: received.extend(decoder.feed(data))
+    await link.start()
+    driver = Ros2BaseDriver.from_spec(parse(f"ros2:domain={domain},stamped={int(stamped)}"), [])
+    task = asyncio.create_task(driver.run())
+    try:
+        t_us = 0
+
+        async def odometry() -> None:
+            nonlocal t_us
+            while True:
+                t_us += 20_000
+                link.send(encode_frame(Odometry(0, t_us // 20_000, t_us, 1500, -250, 100_000, 300, 0, 0)))
+                await asyncio.sleep(0.02)
+
+        feeder = asyncio.create_task(odometry())
+        await until(lambda: driver.latest is not None, "odometry at the host")
+        async with asyncio.timeout(60):  # hang guard only: commands until the robot has one
+            while not any(isinstance(r, VelocityCommand) for r in received):
+                driver.send_velocity(0.25, -0.5)
+                await asyncio.sleep(0.05)
+        feeder.cancel()
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await link.close()
+    command = next(r for r in received if isinstance(r, VelocityCommand))
+    assert (command.v_mm_s, command.w_mrad_s) == (250, -500) and link.counters["commands"] >= 1

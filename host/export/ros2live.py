@@ -20,7 +20,7 @@ from cyclonedds.util import duration
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
 
-from rfhoming.host.export import rosmsgs
+from rfhoming.host.export import frames, rosmsgs
 from rfhoming.host.export.recorder import McapRecorder
 from rfhoming.protocol import ros2
 from rfhoming.protocol.ros2dds import DEFAULT_QOS, participant
@@ -82,10 +82,15 @@ class Ros2Publisher(McapRecorder):
     """The MCAP recorder's messages, published on a DDS domain instead of written."""
 
     def __init__(self, domain: int = 0, discovery: str = "localhost", *, clock: str = "robot",
-                 skip: frozenset[str] = frozenset()) -> None:
-        """``skip``: topics not to publish (a ROS 2 base's own /odom, /scan, /tf, /cmd_vel on its domain)."""
+                 skip: frozenset[str] = frozenset(), source: str | None = None, site: Any = None,
+                 robot: bool = True) -> None:
+        """``skip``: topics not to publish (a ROS 2 base's own /odom, /scan, /tf, /cmd_vel on its
+        domain); ``source`` and ``site``: as the recorder's (``anchors``: angles in anchor_<id>,
+        placed in map from the site on /tf_static); ``robot=False``: no robot (``locate``), so no
+        base_link -> sensor frames."""
         # McapRecorder's state, without its file
-        self.clock, self.commands_from, self.mounting, self.source, self.site = clock, "runlog", None, None, None
+        self.clock, self.commands_from, self.mounting, self.source, self.site = clock, "runlog", None, source, site
+        self.robot = robot
         self._clocks: dict[str, Any] = {}
         self._static_written = False
         self._last_xy: tuple[float, float] | None = None
@@ -98,6 +103,9 @@ class Ros2Publisher(McapRecorder):
         self._participant = participant(domain, discovery)
         self._writers: dict[str, DataWriter] = {}
         self.skip = skip
+
+    def static_transforms(self) -> list[frames.Transform]:
+        return super().static_transforms() if self.robot else frames.anchor_mounts(self.site)
 
     def _write(self, t: float, topic: str, typename: str, message: dict[str, Any], device: str = "") -> None:
         if self._closed or topic in self.skip:
@@ -112,6 +120,15 @@ class Ros2Publisher(McapRecorder):
                 self._participant, ros2.dds_topic(topic), idl_type(typename)), qos=qos)
         writer.write(sample(typename, message))
         self.counts[topic] += 1
+
+    def on_position(self, position: Any) -> None:
+        """A located tag (host/locate.py ``Position``, host time) as its pose and point in
+        ``map``; never raises (a sink's rule)."""
+        try:
+            self._write(position.t, *rosmsgs.tag_pose(position.t, position.tag, position.point, position.covariance))
+            self._write(position.t, *rosmsgs.tag_point(position.t, position.tag, position.point))
+        except Exception as exc:  # noqa: BLE001 - a watcher must not stop the locator
+            self._failed("position", exc)
 
     def flush(self) -> None:
         """Nothing is held: every message is published as it is made."""

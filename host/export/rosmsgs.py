@@ -28,6 +28,7 @@ ODOM = "nav_msgs/msg/Odometry"
 SCAN = "sensor_msgs/msg/LaserScan"
 TWIST = "geometry_msgs/msg/Twist"
 POINT = "geometry_msgs/msg/PointStamped"
+POSE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 STRING = "std_msgs/msg/String"
 TF = "tf2_msgs/msg/TFMessage"
 AOA = "rfhoming_msgs/msg/AoaAngle"
@@ -75,6 +76,10 @@ def pose_covariance(path_m: float) -> list[float]:
     syaw = max(YAW_SIGMA_MIN, YAW_SIGMA_PER_M * path_m)
     return _diagonal(sxy**2, sxy**2, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, syaw**2)
 
+
+UNKNOWN_VAR = 1e6
+"""*assumed*: the variance of what a message has a field for but rfhoming does not know (a tag
+fix's orientation), far beyond any angle's; ROS 2 marks no field unknown."""
 
 TWIST_COVARIANCE = _diagonal(V_SIGMA**2, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, KNOWN_ZERO_VAR, W_SIGMA**2)
 
@@ -149,6 +154,31 @@ def twist(v: float, w: float) -> tuple[str, str, dict]:
 
 def point(topic: str, t: float, xy: list[float], frame: str = ODOM_FRAME) -> tuple[str, str, dict]:
     return topic, POINT, {"header": header(t, frame), "point": {"x": float(xy[0]), "y": float(xy[1]), "z": 0.0}}
+
+
+def tag_topic(tag: str, what: str) -> str:
+    """A located tag's topic: ``/rfhoming/tag_<ID>/pose`` or ``/point`` (a ROS name token may
+    not start with a digit, a tag id may)."""
+    return f"/rfhoming/tag_{tag}/{what}"
+
+
+def tag_pose(t: float, tag: str, xyz: Any, covariance: Any) -> tuple[str, str, dict]:
+    """A tag's fix in ``map`` with its 3×3 position covariance (m²); it has no orientation:
+    identity, with UNKNOWN_VAR rotation variances."""
+    cov = [0.0] * 36
+    for i in range(3):
+        for j in range(3):
+            cov[6 * i + j] = float(covariance[i][j])
+        cov[7 * (i + 3)] = UNKNOWN_VAR
+    return tag_topic(tag, "pose"), POSE, {
+        "header": header(t, frames.MAP),
+        "pose": {"pose": {"position": dict(zip("xyz", map(float, xyz))),
+                          "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}, "covariance": cov}}
+
+
+def tag_point(t: float, tag: str, xyz: Any) -> tuple[str, str, dict]:
+    """A tag's fix in ``map`` as a point (what a viewer draws without a covariance)."""
+    return tag_topic(tag, "point"), POINT, {"header": header(t, frames.MAP), "point": dict(zip("xyz", map(float, xyz)))}
 
 
 def text(topic: str, value: str) -> tuple[str, str, dict]:

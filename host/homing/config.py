@@ -73,6 +73,10 @@ class LoopSettings:
     control_period_s: float = setting(0.1, low=0, above=True, high=10, unit=S)
     max_time_s: float = setting(180.0, low=0, above=True, high=math.inf, inf=True, unit=S)  # robot time
     command_timeout_ms: int = setting(300, low=10, high=60000, unit="ms")  # the base stops if no command follows
+    # a base with no brake mode (a ROS 2 base) drives no faster than lets it stop within this
+    # after its data ends, shedding speed at brakeless_decel_m_s2 (host/homing/loop.py)
+    stop_within_m: float = setting(0.25, low=0, above=True, high=100, unit=M)
+    brakeless_decel_m_s2: float = setting(1.0, low=0, above=True, high=50, unit="m/s²")
 
 
 @dataclass(frozen=True)
@@ -215,6 +219,8 @@ odometry_wall_timeout_s = 0.5  # stop when the base is silent this long, in wall
 control_period_s = 0.1
 max_time_s = 180.0       # give up after this long
 command_timeout_ms = 300 # the base stops by itself if no newer command arrives
+stop_within_m = 0.25     # a base with no brake mode (ROS 2) drives no faster than lets it stop this soon
+brakeless_decel_m_s2 = 1.0  # ... at its own deceleration (Create 3: 0.9; Nav2's velocity smoother: 2.5)
 
 [s0]                     # AoA homing (S0): the paper's values, and what it left open
 k = 0.3                  # parallax (Kohonen) gain per reading (paper 0.8 per 0.1 s)

@@ -13,6 +13,9 @@ Fail-safes, each logged:
   The timeout is ``stale_timeout_s``, or ``stale_intervals`` times the stream's median interval
   between readings when that is longer: a tag advertising every second (u-connectLocate 2.x
   allows 1000 ms) must not stop the robot between its readings;
+- a base with no brake mode (the device table's ``brakes``: a ROS 2 base) sheds speed at its
+  normal deceleration at best, so for it the loop bounds the speed: no faster than lets it stop
+  within ``stop_within_m`` of where the data ended (:meth:`HomingLoop.stopping_speed`);
 - the base itself silent for ``stale_timeout_s`` of wall time -> stop commands (its watchdog
   stops it anyway);
 - the base's clock going backwards (an MCU reset restarts ``t_us`` at 0) -> robot time is
@@ -29,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import statistics
 import time
 from collections import deque
@@ -45,6 +49,7 @@ from rfhoming.host.homing.grid import OccupancyGrid, lookahead
 from rfhoming.host.homing.s0_aoa import S0Homing
 from rfhoming.host.homing.types import Controller, ControllerDefaults, Decision, Pose
 from rfhoming.host.ports import PortError
+from rfhoming.protocol import devices
 
 log = logging.getLogger(__name__)
 
@@ -153,6 +158,8 @@ class HomingLoop:
         self._brake_logged = False  # brake mode as the run log last said
         self.clock_resets = 0
         self._tasks: list[asyncio.Task[None]] = []
+        self.brakes = devices.kind(base.kind, notice=False).brakes
+        self.speed_limit = self.stopping_speed()  # m/s; inf for a base with a brake mode
         # the loop's state, on robot time
         self.t = 0.0
         self.t0: float | None = None
@@ -164,6 +171,24 @@ class HomingLoop:
         self.last_odometry_wall = time.monotonic()
         self.odometry_stale = False
         self._read_while_odometry_stale = False
+        if self.speed_limit < math.inf:
+            cfg = self.config.loop
+            self.log.write("event", 0.0, what="no brake mode: speed bounded", v_max=round(self.speed_limit, 4),
+                           stop_within_m=cfg.stop_within_m, decel_m_s2=cfg.brakeless_decel_m_s2)
+
+    def stopping_speed(self) -> float:
+        """The fastest a base without a brake mode may drive and still stop within
+        ``stop_within_m`` of where its data ended, at the configured stale timeout. It drives on
+        until the loop's first slowed command (``slow_after_s`` plus up to one control period),
+        then follows the ramp to 0 at the stale timeout, or its own deceleration a if that is
+        gentler: v·lag + v²/(2a) and v·lag + v·ramp/2 must both fit. inf for a base with a brake
+        mode (it stops at its emergency deceleration: the serial base's distance)."""
+        if self.brakes:
+            return math.inf
+        cfg = self.config.loop
+        a, lag = cfg.brakeless_decel_m_s2, cfg.slow_after_s + cfg.control_period_s
+        ramp = cfg.stale_timeout_s - cfg.slow_after_s
+        return min(a * (math.sqrt(lag * lag + 2 * cfg.stop_within_m / a) - lag), cfg.stop_within_m / (lag + ramp / 2))
 
     async def run(self) -> Outcome:
         tasks = [asyncio.create_task(self.base.run())] + [asyncio.create_task(s.run()) for s in self.sensors]
@@ -315,6 +340,9 @@ class HomingLoop:
             decision = self.avoidance.adjust(decision, t, emergency_only=waypoint is not None)
         self.log.write("estimate", t, **self.controller.estimate(), phase=self.controller.phase,
                        pose=[round(v, 4) for v in pose])
+        if abs(decision.v) > self.speed_limit:  # along the same arc (v and ω scaled alike)
+            scale = self.speed_limit / abs(decision.v)
+            decision = decision._replace(v=decision.v * scale, w=decision.w * scale)
         slow = self._age_factor(t - self.last_reading)
         self._brake(slow < 1.0, t)
         if slow < 1.0:

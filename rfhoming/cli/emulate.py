@@ -58,7 +58,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
     p.add_argument("--truth", type=output_file, help="write the true robot pose and target positions as JSON lines")
     p.add_argument("--duration", type=positive_float, help="stop after this many simulated seconds")
-    p.add_argument("--robot", type=ros2_robot, metavar="ros2[:domain=N,ns=NS,discovery=subnet]",
+    p.add_argument("--robot", type=ros2_robot, metavar="ros2[:domain=N,ns=NS,discovery=subnet,stamped=1]",
                    help="the robot base as a ROS 2 robot over DDS (/odom, /scan, /tf out, /cmd_vel in), not a "
                         "serial port; this machine only unless discovery=subnet (docs/hardware.md, Robots)")
     p.add_argument("--link-dir", type=Path, help="directory for the pty symlinks (default: a new temp dir)")
@@ -66,7 +66,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def ros2_robot(text: str) -> dict[str, Any]:
-    """``ros2[:domain=N,ns=NS,discovery=localhost|subnet]`` -> Ros2Link's arguments."""
+    """``ros2[:domain=N,ns=NS,discovery=localhost|subnet,stamped=0|1]`` -> Ros2Link's arguments."""
     kind, _, rest = text.partition(":")
     if kind != "ros2":
         raise argparse.ArgumentTypeError(f"{text!r}: the robot can be ros2[:domain=N,ns=NS]")
@@ -74,10 +74,11 @@ def ros2_robot(text: str) -> dict[str, Any]:
         spec = portspec.parse("ros2:" + rest)
     except portspec.PortSpecError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-    if set(spec.settings) - {"domain", "ns", "discovery"}:
-        raise argparse.ArgumentTypeError(f"{text!r}: --robot ros2 takes domain=, ns= and discovery=")
+    if set(spec.settings) - {"domain", "ns", "discovery", "stamped"}:
+        raise argparse.ArgumentTypeError(f"{text!r}: --robot ros2 takes domain=, ns=, discovery= and stamped=")
     return {"domain": spec.settings.get("domain", 0), "ns": str(spec.settings.get("ns", spec.where)).strip("/"),
-            "discovery": spec.settings.get("discovery", "localhost")}
+            "discovery": spec.settings.get("discovery", "localhost"),
+            "stamped": spec.settings.get("stamped", False) in (True, "1")}
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:

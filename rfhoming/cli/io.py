@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from rfhoming.cli.args import nonnegative_float, output_file, positive_float, positive_int
-from rfhoming.cli.live import add_foxglove_option, start_foxglove
+from rfhoming.cli.live import add_foxglove_option, add_ros2_option, start_foxglove, start_ros2
 from rfhoming.host.capture import CaptureWriter, describe_dialects
 from rfhoming.host.discovery import candidates
 from rfhoming.host.drivers.common import Driver
@@ -121,6 +121,7 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     if view is not None:
         for d in drivers:
             d.listeners.append(view.on_item)
+    ros2 = start_ros2(args, drivers)
     extra = [asyncio.create_task(describe_dialects(drivers, capture))] if capture else []
     try:
         await _run_until(drivers, args.duration, extra)
@@ -130,6 +131,8 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     finally:
         if view is not None:
             view.close()
+        if ros2 is not None:
+            ros2.close()
         for h in health(drivers):
             print(json.dumps({"kind": "counters", **h}), file=sys.stdout if show else sys.stderr)
         if capture is not None:
@@ -245,6 +248,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         add_port_defaults(p)
         p.add_argument("--duration", type=positive_float, help="stop after this many seconds")
         p.add_argument("--json", action="store_true", help="one JSON object per item")
+        add_ros2_option(p, "the decoded readings")
         if name == "capture":
             p.add_argument("-o", "--output", type=output_file, required=True, help="pcapng file to write")
             p.add_argument("--show", action="store_true", help="also print the decoded items")

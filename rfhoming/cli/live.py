@@ -1,4 +1,6 @@
-"""``--foxglove[=PORT]``: the live Foxglove view, as the run/demo/listen/serve commands offer it."""
+"""What the commands offer someone watching live: ``--foxglove[=PORT]``, the Foxglove view
+(run, demo, listen, serve), and ``--ros2``, the MCAP recording's topics published on ROS 2
+(run, listen, locate, serve)."""
 
 from __future__ import annotations
 
@@ -7,9 +9,15 @@ import json
 import math
 import sys
 import time
+from collections.abc import Iterable
 from typing import Any, TextIO
 
 from rfhoming.cli.args import nonnegative_float
+from rfhoming.host.drivers.robot_base import BaseDriver
+from rfhoming.host.portspec import PortSpecError
+from rfhoming.host.portspec import parse as parse_spec
+from rfhoming.host.sink import Sink
+from rfhoming.protocol.errors import Error
 
 DEFAULT_PORT = 8765  # Foxglove's own default (rfhoming.host.foxglove_view.DEFAULT_PORT)
 SUBPROTOCOL = "foxglove.sdk.v1"  # rfhoming.host.foxglove_view.SUBPROTOCOL, without importing the SDK
@@ -75,3 +83,50 @@ def start_foxglove(args: argparse.Namespace, command: str, out: TextIO = sys.std
         raise SystemExit(2) from None
     print(json.dumps({"kind": "listening", "address": view.address, "protocol": SUBPROTOCOL}), file=out, flush=True)
     return view
+
+
+class ExtraMissing(Error):
+    """An option needs a pip extra that is not installed; the message names it."""
+
+
+BASE_TOPICS = frozenset({"/odom", "/scan", "/tf", "/cmd_vel"})
+"""What a ROS 2 base publishes itself (and rfhoming's /cmd_vel): not published again by --ros2."""
+
+
+def add_ros2_option(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--ros2", nargs="?", const="", metavar="domain=N[,discovery=subnet]",
+                   help=f"publish {what} live on ROS 2 domain N (default 0): the MCAP recording's topics and "
+                        "types, REP 105 frames; this machine only unless discovery=subnet; needs the ros and "
+                        "ros2 extras")
+
+
+def ros2_publisher(text: str, ros2_bases: Iterable[int] = (), *, clock: str = "robot", source: str | None = None,
+                   site: Any = None, robot: bool = True) -> Sink:
+    """``--ros2 [domain=N][,discovery=subnet]``: a sink publishing on that domain. ``ros2_bases``:
+    the domains of the command's ROS 2 bases, whose own topics it leaves to them; the rest go to
+    host/export/ros2live.py ``Ros2Publisher``."""
+    try:
+        from rfhoming.host.export.ros2live import Ros2Publisher
+    except ImportError as exc:
+        raise ExtraMissing(f"--ros2 needs the ros2 and ros extras ({exc.name} is missing): "
+                           "pip install 'rfhoming[ros,ros2]'") from None
+    spec = parse_spec("ros2:" + text)
+    if set(spec.settings) - {"domain", "discovery"}:
+        raise PortSpecError(f"--ros2 {text}: takes domain=N and discovery=localhost|subnet")
+    domain = spec.settings.get("domain", 0)
+    return Ros2Publisher(domain, spec.settings.get("discovery", "localhost"), clock=clock, source=source,
+                         site=site, robot=robot, skip=BASE_TOPICS if domain in set(ros2_bases) else frozenset())
+
+
+def start_ros2(args: argparse.Namespace, drivers: list[Any]) -> Sink | None:
+    """``--ros2`` for commands that show devices (listen, capture, serve): None without it, else a
+    sink for the drivers' items -- on the base's clock when a base is among them (as a run's
+    recording), else on the host's. An Error (one line, exit 2) when it cannot start."""
+    if getattr(args, "ros2", None) is None:
+        return None
+    bases = [d for d in drivers if isinstance(d, BaseDriver)]
+    sink = ros2_publisher(args.ros2, [d.topics.domain for d in bases if hasattr(d, "topics")],
+                          clock="robot" if bases else "host")
+    for d in drivers:
+        d.listeners.append(sink.on_item)
+    return sink

@@ -16,6 +16,7 @@ import numpy as np
 
 from rfhoming.cli.args import output_file, positive_float
 from rfhoming.cli.io import _run_until, add_port_defaults
+from rfhoming.cli.live import add_ros2_option, ros2_publisher
 from rfhoming.host import site as sites
 from rfhoming.host.calibration import CalibrationError, Point, assign_dwells, calibrate, self_calibrate
 from rfhoming.host.capture import CaptureWriter
@@ -174,6 +175,9 @@ def cmd_locate(args: argparse.Namespace) -> int:
         return 2
     locator = Locator(site, track=not (args.no_track or args.smooth), tracker=args.tracker,
                       accel_psd=args.accel_psd, loss=args.loss, height_sigma=args.height_sigma)
+    # --ros2: the anchors' angles (in anchor_<id>, placed in map by /tf_static) and the fixes
+    ros2 = (ros2_publisher(args.ros2, clock="host", source="anchors", site=site, robot=False)
+            if args.ros2 is not None else None)
     out = args.output.open("w") if args.output else sys.stdout
     per_tag: dict[str, list[float]] = {}
     fixes: list[Position] = []
@@ -185,17 +189,26 @@ def cmd_locate(args: argparse.Namespace) -> int:
         for p in positions:
             per_tag.setdefault(p.tag, []).append(float(np.trace(p.covariance)))
             out.write(json.dumps({"kind": "position", **p.as_dict()}) + "\n")
+            if ros2 is not None:
+                ros2.on_position(p)
         if positions:
             out.flush()
 
+    def feed(t: float, event: Any) -> None:
+        if ros2 is not None:
+            ros2.on_item("", t, event)
+        show(locator.feed(t, event))
+
     smoothed = args.smooth
-    code = asyncio.run(_gather(args, site, lambda t, event: show(locator.feed(t, event)), locator.disconnected))
+    code = asyncio.run(_gather(args, site, feed, locator.disconnected))
     if code:
         return code
     show(locator.flush())
     if args.smooth:
         args.smooth = False
         show(smooth(fixes, args.accel_psd))
+    if ros2 is not None:
+        ros2.close()
     names = {a.id: a.name for a in site.anchors}
     summary = {"kind": "summary", "site": site.name,
                "estimate": "smoothed (RTS over the whole recording)" if smoothed else
@@ -364,6 +377,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             from rfhoming.cli.site import add_worker_arguments
 
             add_worker_arguments(p)
+            add_ros2_option(p, "the anchors' angles and each tag's position (PoseWithCovarianceStamped and "
+                               "PointStamped on /rfhoming/tag_<ID>/pose and /point, in map)")
             p.set_defaults(func=cmd_locate)
         else:
             p.add_argument("--points", type=Path, help="TOML: [points] TAGID = [x, y, z] and/or [[dwell]] tables")

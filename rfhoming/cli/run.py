@@ -8,11 +8,19 @@ import asyncio
 import json
 import sys
 from pathlib import Path
-from typing import Any
 
 from rfhoming.cli.args import nonnegative_float, output_file, xy
 from rfhoming.cli.io import add_port_defaults
-from rfhoming.cli.live import add_foxglove_option, add_watch_options, linger, start_foxglove, wait_for_viewer
+from rfhoming.cli.live import (
+    ExtraMissing,
+    add_foxglove_option,
+    add_ros2_option,
+    add_watch_options,
+    linger,
+    ros2_publisher,
+    start_foxglove,
+    wait_for_viewer,
+)
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing import assembly
@@ -23,13 +31,8 @@ from rfhoming.host.portspec import SETTINGS, PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.sink import Sink
 from rfhoming.host.site import Site
-from rfhoming.protocol.errors import Error
 
 CONTROLLERS = tuple(METHODS)
-
-
-class ExtraMissing(Error):
-    """An option needs a pip extra that is not installed; the message names it."""
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -86,7 +89,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.mcap:
             sinks.append(opened.enter_context(contextlib.closing(mcap_recorder(args.mcap))))
         if args.ros2 is not None:
-            sinks.append(opened.enter_context(contextlib.closing(ros2_publisher(args.ros2, devices))))
+            bases = [parse_spec(d.spec) for d in devices if d.role == "base" and d.spec is not None]
+            sinks.append(opened.enter_context(contextlib.closing(ros2_publisher(
+                args.ros2, [b.settings.get("domain", 0) for b in bases if b.kind == "ros2"]))))
         view = start_foxglove(args, "run")
         if view is not None:
             sinks.append(opened.enter_context(contextlib.closing(view)))
@@ -135,26 +140,6 @@ def mcap_recorder(path: Path) -> Sink:
     except ImportError as exc:
         raise ExtraMissing(f"--mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'") from None
     return McapRecorder(path)
-
-
-BASE_TOPICS = frozenset({"/odom", "/scan", "/tf", "/cmd_vel"})
-"""What a ROS 2 base publishes itself (and rfhoming's /cmd_vel): not published again by --ros2."""
-
-
-def ros2_publisher(text: str, devices: list[Any]) -> Sink:
-    """``--ros2 [domain=N][,discovery=subnet]``: the recording's topics, live on that domain."""
-    try:
-        from rfhoming.host.export.ros2live import Ros2Publisher
-    except ImportError as exc:
-        raise ExtraMissing(f"--ros2 needs the ros2 and ros extras ({exc.name} is missing): "
-                           "pip install 'rfhoming[ros,ros2]'") from None
-    spec = parse_spec("ros2:" + text)
-    if set(spec.settings) - {"domain", "discovery"}:
-        raise PortSpecError(f"--ros2 {text}: takes domain=N and discovery=localhost|subnet")
-    domain = spec.settings.get("domain", 0)
-    ros2_bases = [d for d in devices if d.role == "base" and d.spec is not None and parse_spec(d.spec).kind == "ros2"]
-    same = any(parse_spec(d.spec).settings.get("domain", 0) == domain for d in ros2_bases)
-    return Ros2Publisher(domain, spec.settings.get("discovery", "localhost"), skip=BASE_TOPICS if same else frozenset())
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -300,10 +285,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command")
     p.add_argument("--capture", type=output_file, help="pcapng capture of every byte")
     p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
-    p.add_argument("--ros2", nargs="?", const="", metavar="domain=N[,discovery=subnet]",
-                   help="publish what the run senses live on ROS 2 (the MCAP recording's topics and types; "
-                        "a ROS 2 base's own /odom, /scan, /tf and /cmd_vel are left to it); this machine only "
-                        "unless discovery=subnet")
+    add_ros2_option(p, "what the run senses (a ROS 2 base's own /odom, /scan, /tf and /cmd_vel are left to it)")
     add_foxglove_option(p)
     p.set_defaults(func=cmd_run)
 

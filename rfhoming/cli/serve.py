@@ -13,7 +13,7 @@ from rfhoming.cli.io import (
     _run_until,
     add_port_defaults,
 )
-from rfhoming.cli.live import add_foxglove_option, start_foxglove
+from rfhoming.cli.live import add_foxglove_option, add_ros2_option, start_foxglove, start_ros2
 from rfhoming.host.capture import CaptureWriter, describe_dialects
 from rfhoming.host.ports import PortError
 from rfhoming.host.serve import QUEUE_LINES, ItemServer
@@ -67,6 +67,7 @@ async def _serve(args: argparse.Namespace) -> int:
     view = start_foxglove(args, "serve", out=sys.stdout, host=(args.bind or ["127.0.0.1"])[0])
     for d in drivers:
         d.listeners += [server.publish, *([view.on_item] if view else [])]
+    ros2 = start_ros2(args, drivers)
     extra = [asyncio.create_task(describe_dialects(drivers, capture))] if capture else []
     try:
         await _run_until(drivers, args.duration, extra)
@@ -77,6 +78,8 @@ async def _serve(args: argparse.Namespace) -> int:
         await server.close()
         if view is not None:
             view.close()
+        if ros2 is not None:
+            ros2.close()
         for h in health(drivers):
             print(json.dumps({"kind": "counters", **h}), flush=True)
         print(json.dumps({"kind": "server", **server.health()}), flush=True)
@@ -102,4 +105,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=output_file, help="also capture every byte of the devices to this pcapng file")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds")
     add_foxglove_option(p)
+    add_ros2_option(p, "the devices' readings")
     p.set_defaults(func=cmd_serve)

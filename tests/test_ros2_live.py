@@ -1,0 +1,121 @@
+"""``--ros2`` on listen, serve and locate: what each command senses arrives on ROS 2 and
+decodes in a second reader written with plain cyclonedds and its own types
+(tests/ros2_listener.py): raw readings as rfhoming_msgs/AoaAngle, the base's /odom and /tf,
+/tf_static with the REP 105 frames, and locate's fixes as PoseWithCovarianceStamped and
+PointStamped in ``map``. Each command runs in its own process on emulated devices."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("cyclonedds")
+
+ROOT = Path(__file__).resolve().parent.parent
+LISTENER = Path(__file__).with_name("ros2_listener.py")
+RFHOMING = [sys.executable, "-m", "rfhoming"]
+
+
+def random_domain() -> int:
+    return random.SystemRandom().randint(192, 229)  # tests/test_ros2.py random_domain says why
+
+
+def heard_while(domain: int, extra: list[str], command: list[str]) -> list[dict]:
+    """Run ``command`` (an rfhoming command line) while the second reader listens on ``domain``
+    for its usual topics and ``extra``; what it heard, one dict per sample."""
+    listener = subprocess.Popen([sys.executable, str(LISTENER), str(domain), "120", *extra], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True)
+    try:
+        assert json.loads(listener.stdout.readline()) == {"ready": domain}
+        done = subprocess.run([*RFHOMING, *command], capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        out, _ = listener.communicate(timeout=60)  # stdin closed: it reads what is on its way, then ends
+    finally:
+        if listener.poll() is None:
+            listener.kill()
+    return [json.loads(line) for line in out.splitlines()]
+
+
+def emulate(scenario: str, link_dir: Path, endpoints: int) -> tuple[subprocess.Popen, list[dict]]:
+    emulator = subprocess.Popen([*RFHOMING, "emulate", scenario, "--seed", "1", "--link-dir", str(link_dir)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return emulator, [json.loads(emulator.stdout.readline()) for _ in range(endpoints)]
+
+
+def stop(emulator: subprocess.Popen) -> None:
+    emulator.send_signal(signal.SIGINT)
+    emulator.wait(timeout=30)
+
+
+def check_angles(heard: list[dict], frame: str) -> None:
+    angles = [h for h in heard if h["topic"] == "rfhoming/aoa/angle"]
+    assert len(angles) > 20, {h["topic"] for h in heard}
+    assert all(h["frame"] == frame and len(h["tag"]) == 12 and -90 <= h["azimuth"] <= 90 and 37 <= h["channel"] <= 39
+               for h in angles)
+
+
+@pytest.mark.slow
+def test_listen_and_serve_publish_the_readings_and_the_base(tmp_path: Path) -> None:
+    emulator, endpoints = emulate("s0-open", tmp_path, 2)
+    try:
+        aoa, base = (next(e["path"] for e in endpoints if e["device"] == d) for d in ("aoa", "base"))
+        domain = random_domain()
+        listened = heard_while(domain, ["rfhoming/aoa/angle", "tf_static"],
+                               ["listen", aoa, f"base:{base}", "--duration", "4", "--ros2", f"domain={domain}"])
+        served = heard_while(domain, ["rfhoming/aoa/angle", "tf_static"],
+                             ["serve", aoa, "--port", "0", "--duration", "4", "--ros2", f"domain={domain}"])
+    finally:
+        stop(emulator)
+    # listen with a base: every reading on the base's clock, its odometry as /odom and /tf
+    check_angles(listened, "aoa_link")
+    assert {"odom", "tf", "tf_static", "rfhoming/aoa/angle"} <= {h["topic"] for h in listened}
+    assert all(h["frame"] == "odom" and h["child"] == "base_link" for h in listened if h["topic"] == "odom")
+    static = next(h for h in listened if h["topic"] == "tf_static")
+    assert ["base_link", "aoa_link"] in static["frames"] and ["base_link", "laser"] in static["frames"]
+    # serve without a base: the angles on the host's clock (seconds since 1970)
+    check_angles(served, "aoa_link")
+    assert "odom" not in {h["topic"] for h in served}
+    assert all(h["stamp"] > 1.7e9 for h in served if h["topic"] == "rfhoming/aoa/angle")
+
+
+@pytest.mark.slow
+def test_locate_publishes_each_tags_fix_in_map_and_the_anchors_in_tf_static(tmp_path: Path) -> None:
+    link_dir = tmp_path / "links"
+    link_dir.mkdir()
+    site = tmp_path / "site.toml"
+    site.write_text((ROOT / "docs" / "sites" / "kit-room.toml").read_text().replace("/tmp/rfhoming-kit", str(link_dir)))
+    tags = ("CCF9578E0D8A", "CCF9578E0D8B", "CCF9578E0D8C")
+    emulator, _ = emulate("kit-room", link_dir, 4)
+    try:
+        domain = random_domain()
+        extra = ["rfhoming/aoa/angle", "tf_static", *(f"rfhoming/tag_{t}/{w}" for t in tags for w in ("pose", "point"))]
+        heard = heard_while(domain, extra, ["locate", str(site), "--duration", "5", "--ros2", f"domain={domain}"])
+    finally:
+        stop(emulator)
+    anchors = {"CCF9578E0A01": (0.0, 3.0, 2.2), "CCF9578E0A02": (12.0, 3.0, 2.2), "CCF9578E0A03": (6.0, 0.0, 2.2)}
+    angles = [h for h in heard if h["topic"] == "rfhoming/aoa/angle"]
+    assert {h["frame"] for h in angles} >= {f"anchor_{a}" for a in anchors}
+    assert all(h["frame"] == f"anchor_{h['anchor']}" for h in angles)
+    static = next(h for h in heard if h["topic"] == "tf_static")
+    placed = dict(zip((child for _, child in static["frames"]), static["transforms"]))
+    assert all(parent == "map" for parent, _ in static["frames"])
+    for anchor, xyz in anchors.items():  # the site's surveyed positions; a unit quaternion
+        assert placed[f"anchor_{anchor}"][:3] == list(xyz)
+        assert math.isclose(sum(q * q for q in placed[f"anchor_{anchor}"][3:]), 1.0)
+    for tag in tags:
+        poses = [h for h in heard if h["topic"] == f"rfhoming/tag_{tag}/pose"]
+        points = [h for h in heard if h["topic"] == f"rfhoming/tag_{tag}/point"]
+        assert len(poses) > 10 and len(points) > 10, tag
+        assert all(h["frame"] == "map" for h in poses + points)
+        last = poses[-1]
+        assert 0 <= last["xyz"][0] <= 12 and 0 <= last["xyz"][1] <= 6
+        cov = last["covariance"]
+        assert all(cov[7 * i] > 0 for i in range(3)) and cov[21] == cov[28] == cov[35] == 1e6  # no orientation
+        assert last["orientation"] == [0.0, 0.0, 0.0, 1.0]
