@@ -234,7 +234,9 @@ class PortSpec:
 
 
 def _text(value: Any) -> str:
-    return "+".join(value) if isinstance(value, tuple) else str(value)
+    """A setting as the spec text writes it; a list's items are joined whatever their type
+    (a config's ``baud = [1, 2]`` is then refused by the setting's own check, not a TypeError)."""
+    return "+".join(map(str, value)) if isinstance(value, tuple) else str(value)
 
 
 def parse(text: str | PortSpec) -> PortSpec:

@@ -12,13 +12,29 @@ the header gives (Bluetooth Core Specification v5.4, Vol 4, Part A, sections 2 a
 | 0x04 | event | event code (1), length (1) | u8 |
 | 0x05 | ISO data | handle + flags (2), length (2) | low 14 bits LE |
 
-H4 has no resynchronisation of its own (neither has bumble's ``transport/common.py`` parser:
-it trusts every length). A byte that starts no packet -- no indicator, or an indicator whose
-header no valid packet has -- is dropped (counted) and the splitter tries the next byte, so a
-stream joined mid-packet recovers at the first packet that starts on a plausible header. A
-header that passes those checks is trusted, and since its length is bounded (an event holds
-at most 258 bytes, a data packet at most ``max_data`` + 5), junk that looks like a header
-costs at most that many bytes of what follows.
+H4 has no resynchronisation marker (neither has bumble's ``transport/common.py`` parser: it
+trusts every length). The Core Specification's recovery is a reset: on a bad indicator or an
+out-of-range length the host sends HCI_Reset and resynchronises on that command's Command
+Complete event, and the controller resynchronises on the HCI_Reset command itself (Vol 4
+Part A, "Error recovery"). The driver resets on every open; the splitter takes both packets
+at once (:func:`resync_point`), and otherwise resynchronises on its own:
+
+- A byte that starts no packet -- no indicator, or an indicator whose header no valid packet
+  has -- is dropped (counted) and the splitter tries the next byte ("hunting").
+- While hunting, a plausible header is trusted only when the bytes just after the packet it
+  claims begin a plausible header too. A lone plausible header inside junk or inside another
+  packet's payload (advertising reports are full of bytes 0x01-0x05) would otherwise be
+  trusted, and the bytes it claims land the splitter inside the next packet, where the same
+  can happen again: a misframing that can run on far past the junk.
+- Once a packet is taken, headers are trusted as a host trusts them, until one is implausible.
+
+Cost: while hunting, a packet waits for the next one's header (after a resynchronisation
+point or one confirmed packet, packets come out as soon as they are whole). Held at most: one
+claimed packet (``max_hold`` bytes), the next header (5) and ``MAX_JUNK`` - 1 junk bytes. Loss
+is bounded in bytes, not in packets: any payload may hold a chain of plausible headers, so no
+H4 parser can promise the first real packet after junk. What is promised, and what
+bench/fuzz.py's ``h4`` target checks: a packet comes out when these rules take it from every
+state the splitter can be in as it leaves the junk.
 """
 
 from __future__ import annotations
@@ -56,6 +72,19 @@ def _length(kind: int, header: bytes) -> int:
     return value & 0x3FFF if kind == ISO else value
 
 
+def max_hold(max_data: int = MAX_DATA) -> int:
+    """The most bytes one plausible header can claim: an event (258) or a data packet."""
+    return max(1 + 2 + 255, 1 + 4 + max_data)
+
+
+def resync_point(buf: bytes | bytearray, i: int) -> bool:
+    """Whether the packet at ``i`` is one the spec resynchronises on, taken while hunting
+    without waiting for the next header: the HCI_Reset command (opcode 0x0C03, Vol 4 Part E
+    7.3.2), for a controller, and its Command Complete event (7.7.14), for a host."""
+    return (buf[i : i + 4] == b"\x01\x03\x0c\x00"
+            or (buf[i : i + 3] == b"\x04\x0e\x04" and buf[i + 4 : i + 6] == b"\x03\x0c"))
+
+
 def plausible(kind: int, header: bytes, max_data: int = MAX_DATA) -> bool:
     """Whether ``header`` (the bytes after the indicator) can begin a valid packet."""
     if kind == EVENT:
@@ -84,35 +113,56 @@ class H4Splitter:
         self.max_data = max_data
         self._buf = bytearray()
         self._junk = bytearray()
+        self._hunting = False  # a fresh stream is taken as in step (the driver resets the controller first)
         self.counters: Counter[str] = Counter()
 
     @property
     def pending(self) -> int:
-        """Bytes held: at most one unfinished packet and ``MAX_JUNK`` - 1 junk bytes."""
+        """Bytes held: at most one unfinished packet, the next header while hunting, and
+        ``MAX_JUNK`` - 1 junk bytes."""
         return len(self._buf) + len(self._junk)
+
+    def _header_at(self, buf: bytearray, i: int, n: int) -> bool | None:
+        """Whether a plausible header starts at ``i``; None: not all of it is here yet."""
+        kind = buf[i]
+        size = HEADERS[kind][0] if kind in self.types else 0
+        if not size:
+            return False
+        if n - i < 1 + size:
+            return None
+        return plausible(kind, bytes(buf[i + 1 : i + 1 + size]), self.max_data)
 
     def feed(self, data: bytes) -> list[bytes | Drop]:
         self._buf += data
         out: list[bytes | Drop] = []
         buf, i, n = self._buf, 0, len(self._buf)
         while i < n:
-            kind = buf[i]
-            size = HEADERS[kind][0] if kind in self.types else 0
-            if size and n - i < 1 + size:
+            ok = self._header_at(buf, i, n)
+            if ok is None:
                 break  # the header is not all here yet
-            if not size or not plausible(kind, bytes(buf[i + 1 : i + 1 + size]), self.max_data):
-                self._junk.append(kind)
+            if ok:
+                kind = buf[i]
+                total = 1 + HEADERS[kind][0] + _length(kind, bytes(buf[i + 1 : i + 1 + HEADERS[kind][0]]))
+                if n - i < total:
+                    break
+                if self._hunting and not resync_point(buf, i):
+                    if i + total >= n:
+                        break  # the next header decides
+                    ok = self._header_at(buf, i + total, n)
+                    if ok is None:
+                        break
+            if not ok:
+                self._hunting = True
+                self._junk.append(buf[i])
                 i += 1
                 if len(self._junk) == MAX_JUNK:
                     out.append(self._flush_junk())
                 continue
             if self._junk:
                 out.append(self._flush_junk())
-            total = 1 + size + _length(kind, bytes(buf[i + 1 : i + 1 + size]))
-            if n - i < total:
-                break
             out.append(bytes(buf[i : i + total]))
             i += total
+            self._hunting = False
             self.counters["packet"] += 1
         del buf[:i]
         return out

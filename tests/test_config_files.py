@@ -101,6 +101,8 @@ BAD_CONFIGS = [
     ("[loop]\ncommand_timeout_ms = 1e3\n", "[loop] command_timeout_ms = 1000.0: expected a whole number"),
     ("[loop\n", "is not valid TOML"),
     ("devices = 3\n", "devices must be tables"),
+    # a list of numbers in a device setting was a TypeError (found by bench/fuzz.py's config target)
+    ('[devices.aoa]\nport = "xplr-aoa:/dev/ttyUSB0"\nbaud = [1, 2]\n', "[devices.aoa]: bad baud='1+2'"),
 ]
 
 

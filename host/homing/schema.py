@@ -6,6 +6,7 @@ the key, what is allowed (with the unit) and the default.
 
 from __future__ import annotations
 
+import functools
 import math
 import types
 from dataclasses import MISSING, Field, field, fields, is_dataclass
@@ -33,6 +34,13 @@ def setting(default: Any = MISSING, *, low: float = -math.inf, high: float = mat
     return field(default=default, metadata=meta)
 
 
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    """A settings class's resolved annotations, once: resolving them costs more than checking
+    a whole table (a config load built nine every time)."""
+    return get_type_hints(cls)
+
+
 def build(cls: type, table: Any, where: str, source: Any) -> Any:
     """``cls`` from a TOML table: unknown keys, wrong types and out-of-range values raise
     :class:`ConfigError`; keys left out keep their defaults."""
@@ -42,14 +50,14 @@ def build(cls: type, table: Any, where: str, source: Any) -> Any:
     unknown = sorted(set(table) - set(known))
     if unknown:
         raise ConfigError(f"{source}: [{where}] has unknown keys {unknown}; known: {sorted(known)}")
-    hints = get_type_hints(cls)
+    hints = _hints(cls)
     return cls(**{name: check(hints[name], value, known[name], where, source) for name, value in table.items()})
 
 
 def defaults_problems(cls: type, where: str) -> list[str]:
     """Each default of ``cls`` (and its nested settings) that its own range refuses."""
     problems = []
-    hints = get_type_hints(cls)
+    hints = _hints(cls)
     for f in fields(cls):
         value = f.default_factory() if f.default is MISSING else f.default  # type: ignore[misc]
         if is_dataclass(hints[f.name]):
