@@ -283,7 +283,10 @@ def run_record(plan: Homing, site_text: str | None = None) -> str:
 def replay_plan(path: Path | str, *, controller: str | None = None, config: Config | None = None) -> Homing:
     """The homing run a capture recorded, on its bytes: every device's inbound chunks in their
     recorded global order, the loop's writes matched against the recorded ones. ``controller``
-    and ``config`` replace the recorded ones (the replay then reports where it diverged)."""
+    and ``config`` replace the recorded ones (the replay then reports where it diverged). A replay
+    runs on the recorded bytes, not the wall clock, so the wall-clock odometry watchdog is off
+    (``Config.for_lockstep``): a loaded machine must not change it. A live run whose watchdog
+    fired replays with a divergence from that point: the capture holds the bytes, not their silence."""
     interfaces, packets, _torn, comments = read_capture(path)
     record = _record(path, comments)
     specs: dict[str, list[str | None]] = {}
@@ -306,7 +309,8 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
     except tomllib.TOMLDecodeError as exc:
         raise CaptureFormatError(0, f"{path}: its run record's site file is not TOML ({exc})") from None
     return Homing(controller or record["controller"], roles,
-                  config if config is not None else from_tables(record["config"], f"{path}: the recorded config"),
+                  (config if config is not None else from_tables(record["config"], f"{path}: the recorded config"))
+                  .for_lockstep(),
                   site=site, tags=tuple(record["tags"]), choose_tag_s=record["choose_tag_s"],
                   probe_baud=record["probe_baud"])
 
