@@ -19,17 +19,22 @@ wire; in short:
 
 Bounded everywhere: publishing only appends to each client's bounded queue (``queue_lines``
 lines and ``QUEUE_BYTES`` bytes) and each client has its own writer task, so a slow or dead
-client never blocks the devices or the other clients. When a client's queue is full its newest
-lines are dropped and counted; the next line it gets is ``{"kind": "dropped", "count": K,
-"total": T}``, and a client that takes nothing while ``max_drops`` lines are dropped is
-disconnected. Input is read ``READ_CHUNK`` bytes at a time; a command line longer than
-``MAX_COMMAND`` is an error (its bytes are skipped to the next newline, never held); errors that
-come faster than the client reads them are counted, past ``ERRORS_PENDING``, in the last
-error line (``suppressed``). A client that
-sends more than ``max_input`` bytes the server does not understand, in all, is disconnected
-(``disconnected_input``); past ``max_clients`` connections a new one is refused. So no client
-can make the server hold more than its queue, its transport's 16 KiB, a 4 KiB read and one
-command line.
+client never blocks the devices or the other clients. Everything a client gets -- replies, error
+lines, items, notices -- goes through that one queue, in order. When a client's queue is full
+its newest lines are dropped and counted (a reply is not even built); the next line it gets is
+``{"kind": "dropped", "count": K, "total": T}``, and a client that takes nothing while
+``max_drops`` lines are dropped is disconnected. Input is read ``READ_CHUNK`` bytes at a time,
+and the loop is let go between reads; a client's commands are carried out only while its queue
+holds at most ``BACKLOG_LINES`` lines and ``BACKLOG_BYTES`` bytes (back-pressure: what it sends
+meanwhile waits in the kernel's buffers), so a client that sends commands faster than it takes
+the replies holds only itself up. A command line longer than ``MAX_COMMAND`` bytes, or with more
+than ``MAX_LINE_COMMANDS`` commands, is an error (an over-long line's bytes are skipped to the
+next newline, never held); at most ``ERRORS_PENDING`` error lines wait in a client's queue, the
+errors past those are counted in the last one (``suppressed``). A client that sends more than
+``max_input`` bytes the server does not understand, in all, is disconnected
+(``disconnected_input``); past ``max_clients`` connections a new one is refused. A client that
+half-closes (EOF) is sent what its queue holds, then closed. So no client can make the server
+hold more than its queue, its transport's 16 KiB, a 4 KiB read and one command line.
 
 :class:`ServeDriver` is the other end: a driver whose port is a server's address, so
 ``serve://HOST:PORT`` works wherever a port spec does.
@@ -44,8 +49,10 @@ import logging
 import socket
 import time
 from collections import deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
+from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
@@ -69,7 +76,10 @@ MAX_LINE = 64 * 1024
 QUEUE_BYTES = 256 * 1024  # encoded lines a client's queue holds at most
 MAX_INPUT = 64 * 1024  # bytes a client may send that the server does not understand, in all
 MAX_COMMAND = 4096  # the longest command line
+MAX_LINE_COMMANDS = 16  # commands on one line (gpsd's clients send one or two)
 READ_CHUNK = 4096
+BACKLOG_LINES = 64  # a client's commands wait while its queue holds more lines than this ...
+BACKLOG_BYTES = 64 * 1024  # ... or more bytes than this (or more than half of queue_lines)
 MAX_CLIENTS = 256
 LINGER_S = 1.0  # a client cut off for its input has this long to read the error line
 ERRORS_PENDING = 8  # error lines a client may have waiting; more are counted in the last one
@@ -92,6 +102,7 @@ GPSD_REFUSED = frozenset({"nmea", "raw"})
 """gpsd WATCH fields for data other than JSON: refused with an error unless false or 0."""
 
 
+@cache  # the package metadata is read from disk: once, not per ?VERSION;
 def _version_fields() -> dict[str, Any]:
     try:
         release = version("rfhoming")
@@ -110,6 +121,28 @@ def _line(record: dict[str, Any]) -> bytes:
 
 class CommandError(Error, ValueError):
     """A command line the server does not understand; the message says why (an error line)."""
+
+
+class _ErrorLine:
+    """An error line in a client's queue, encoded when it is taken: until then the errors
+    after it that were only counted (past ERRORS_PENDING waiting) add to its ``suppressed``.
+    Its length, for the queue's byte count, is its encoding's when it was queued."""
+
+    __slots__ = ("message", "suppressed", "size")
+
+    def __init__(self, message: str) -> None:
+        self.message = message
+        self.suppressed = 0
+        self.size = len(bytes(self))
+
+    def __bytes__(self) -> bytes:
+        record: dict[str, Any] = {"kind": "error", "class": "ERROR", "message": self.message}
+        if self.suppressed:
+            record["suppressed"] = self.suppressed
+        return _line(record)
+
+    def __len__(self) -> int:
+        return self.size
 
 
 @dataclass(frozen=True)
@@ -180,18 +213,19 @@ class _Client:
     def __init__(self, writer: asyncio.StreamWriter, queue_lines: int) -> None:
         self.writer = writer
         self.peer = "%s:%s" % writer.get_extra_info("peername")[:2]
-        self.queue: deque[bytes] = deque()
+        self.queue: deque[bytes | _ErrorLine] = deque()
         self.queue_lines = queue_lines
         self.queued_bytes = 0
         self.watch = Watch()
         self.unheard = 0  # bytes it sent that were not understood
         self.partial = b""  # the start of a command line, at most MAX_COMMAND bytes
         self.skipping = False  # inside a command line that was too long
-        self.errors_pending: list[str] = []  # error lines not sent yet, at most ERRORS_PENDING
-        self.suppressed = 0  # errors past those, told in the last one's "suppressed"
+        self.errors_waiting = 0  # error lines in its queue, at most ERRORS_PENDING
+        self.last_error: _ErrorLine | None = None  # the newest of them: it counts the errors past those
         self.errors = 0
         self.commands = 0
-        self.ready = asyncio.Event()
+        self.ready = asyncio.Event()  # set when a line is queued (or it is dropped)
+        self.taken = asyncio.Event()  # set when it takes a line (or it is dropped): room for replies
         self.dropped = 0  # since the last notice
         self.dropped_total = 0
         self.dropped_in_a_row = 0  # since it last took a line
@@ -297,15 +331,27 @@ class ItemServer:
                     self._offer(client, line)
 
     # -- what goes to a client -----------------------------------------------------------------
-    def _offer(self, client: _Client, line: bytes) -> None:
-        """Append to the client's queue, or drop and count when it is full."""
+    def _offer(self, client: _Client, line: bytes | _ErrorLine) -> bool:
+        """Append to the client's queue (True), or drop and count when it is full."""
         if client.closed:
-            return
+            return False
         if len(client.queue) < client.queue_lines and client.queued_bytes + len(line) <= QUEUE_BYTES:
             client.queue.append(line)
             client.queued_bytes += len(line)
             client.ready.set()
-            return
+            return True
+        self._drop(client)
+        return False
+
+    def _reply(self, client: _Client, build: Callable[[], dict[str, Any]]) -> None:
+        """A reply to a command, built only if the client's queue has room for a line."""
+        if len(client.queue) < client.queue_lines and client.queued_bytes < QUEUE_BYTES:
+            self._offer(client, _line(build()))
+        elif not client.closed:
+            self._drop(client)
+
+    def _drop(self, client: _Client) -> None:
+        """Count a line the client's queue had no room for; cut off a client that takes nothing."""
         client.dropped += 1
         client.dropped_total += 1
         client.dropped_in_a_row += 1
@@ -318,14 +364,43 @@ class ItemServer:
                                        "disconnected": "too slow: took nothing while its queue overflowed"})
 
     def _error(self, client: _Client, message: str) -> None:
-        """One error line; past ERRORS_PENDING not yet sent, only counted (``suppressed``)."""
+        """One error line, queued behind the replies before it; past ERRORS_PENDING waiting,
+        only counted in the newest waiting one (``suppressed``)."""
         self.counters["bad_commands"] += 1
         client.errors += 1
-        if len(client.errors_pending) < ERRORS_PENDING:
-            client.errors_pending.append(message)
-        else:
-            client.suppressed += 1
-        client.ready.set()
+        if client.errors_waiting >= ERRORS_PENDING and client.last_error is not None:
+            client.last_error.suppressed += 1
+            return
+        error = _ErrorLine(message)
+        if self._offer(client, error):
+            client.errors_waiting += 1
+            client.last_error = error
+
+    def _take(self, client: _Client) -> bytes | None:
+        """The next line the client is sent: a dropped notice if lines were dropped since the
+        last, else the head of its queue; None when there is nothing."""
+        if client.dropped:
+            notice = {"kind": "dropped", "count": client.dropped, "total": client.dropped_total}
+            client.dropped = 0
+            return _line(notice)
+        if not client.queue:
+            return None
+        entry = client.queue.popleft()
+        client.queued_bytes -= len(entry)
+        if isinstance(entry, _ErrorLine):
+            client.errors_waiting -= 1
+            if entry is client.last_error:
+                client.last_error = None
+        client.sent += 1
+        client.dropped_in_a_row = 0
+        client.taken.set()
+        return bytes(entry)
+
+    def _busy(self, client: _Client) -> bool:
+        """Its commands wait: its queue holds more than BACKLOG_LINES (or half its length) or
+        BACKLOG_BYTES. Never while the queue is empty, so a client that reads is never stuck."""
+        return bool(client.queue) and (len(client.queue) > min(BACKLOG_LINES, client.queue_lines // 2)
+                                       or client.queued_bytes > BACKLOG_BYTES)
 
     def _hello(self) -> dict[str, Any]:
         return {"kind": "hello", "class": "VERSION", **_version_fields(), "devices": self._device_list(),
@@ -355,30 +430,33 @@ class ItemServer:
         return True
 
     def _cmd_version(self, client: _Client, args: dict[str, Any]) -> None:
-        self._offer(client, _line({"kind": "version", "class": "VERSION", **_version_fields()}))
+        self._reply(client, lambda: {"kind": "version", "class": "VERSION", **_version_fields()})
 
     def _cmd_devices(self, client: _Client, args: dict[str, Any]) -> None:
-        self._offer(client, _line({"kind": "devices", "class": "DEVICES", "devices": self._device_list()}))
+        self._reply(client, lambda: {"kind": "devices", "class": "DEVICES", "devices": self._device_list()})
 
     def _cmd_watch(self, client: _Client, args: dict[str, Any]) -> None:
         """As gpsd answers ?WATCH: the device list, then the watch now in force; every line
         after the watch line follows it."""
         client.watch = self._new_watch(client.watch, args)
         self._cmd_devices(client, {})
-        self._offer(client, _line(client.watch.as_dict()))
+        self._reply(client, client.watch.as_dict)
 
     def _cmd_poll(self, client: _Client, args: dict[str, Any]) -> None:
         """The latest reading of each kind of each device the client's watch names (watching
         enabled or not), as the item lines had them."""
         watch = replace(client.watch, enable=True, json=True)
-        items = [record for dev in self.devices.values() for kind, record in dev.latest.items()
-                 if watch.wants(dev.name, kind)]
-        now = time.time()
-        self._offer(client, _line({
-            "kind": "poll", "class": "POLL", "t": round(now, 6),
-            "time": datetime.fromtimestamp(now, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
-            "active": sum(1 for dev in self.devices.values() if dev.state in ("ready", "streaming")),
-            "items": sorted(items, key=lambda r: r["n"])}))
+
+        def build() -> dict[str, Any]:
+            items = [record for dev in self.devices.values() for kind, record in dev.latest.items()
+                     if watch.wants(dev.name, kind)]
+            now = time.time()
+            return {"kind": "poll", "class": "POLL", "t": round(now, 6),
+                    "time": datetime.fromtimestamp(now, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
+                    "active": sum(1 for dev in self.devices.values() if dev.state in ("ready", "streaming")),
+                    "items": sorted(items, key=lambda r: r["n"])}
+
+        self._reply(client, build)
 
     def _new_watch(self, watch: Watch, args: dict[str, Any]) -> Watch:
         """``watch`` changed by a watch command's fields (those left out stay); CommandError
@@ -387,7 +465,7 @@ class ItemServer:
         for key, value in args.items():
             if key in ("enable", "json", "chatter"):
                 if not isinstance(value, bool):
-                    raise CommandError(f"watch: {key} is true or false, not {json.dumps(value)}")
+                    raise CommandError(f"watch: {key} is true or false, not {json.dumps(value)[:40]}")
                 changes[key] = value
             elif key in ("devices", "kinds"):
                 if value is not None and not (isinstance(value, list) and all(isinstance(v, str) for v in value)):
@@ -437,66 +515,61 @@ class ItemServer:
         client = _Client(writer, self.queue_lines)
         self.clients.add(client)
         self.counters["clients"] += 1
-        client.queue.append(_line(self._hello()))
-        client.ready.set()
+        self._offer(client, _line(self._hello()))
         self._spawn(self._serve(client, reader))
 
     async def _serve(self, client: _Client, reader: asyncio.StreamReader) -> None:
-        """Send the client its lines until it leaves (EOF), is cut off, or sends too much."""
-        eof = asyncio.create_task(self._read_commands(client, reader))
+        """Send the client its lines, in order, until it is dropped (the reader drops it at EOF,
+        after what it has queued) or its connection breaks."""
+        commands = self._spawn(self._read_commands(client, reader))
         try:
             while not client.closed:
-                while not client.queue and not client.errors_pending:
+                line = self._take(client)
+                if line is None:
                     client.ready.clear()
-                    waiter = asyncio.create_task(client.ready.wait())
-                    done, _ = await asyncio.wait({waiter, eof}, return_when=asyncio.FIRST_COMPLETED)
-                    if eof in done:
-                        waiter.cancel()
-                        return
-                if client.closed:
-                    return
-                for k, message in enumerate(client.errors_pending, 1):
-                    record = {"kind": "error", "class": "ERROR", "message": message}
-                    if k == len(client.errors_pending) and client.suppressed:
-                        record["suppressed"] = client.suppressed
-                    client.writer.write(_line(record))
-                client.errors_pending.clear()
-                client.suppressed = 0
-                if client.dropped:
-                    notice = {"kind": "dropped", "count": client.dropped, "total": client.dropped_total}
-                    client.dropped = 0
-                    client.writer.write(_line(notice))
-                if client.queue:
-                    line = client.queue.popleft()
-                    client.queued_bytes -= len(line)
-                    client.writer.write(line)
-                    client.sent += 1
-                    client.dropped_in_a_row = 0
+                    await client.ready.wait()
+                    continue
+                client.writer.write(line)
                 await client.writer.drain()
         except (ConnectionError, OSError):
             pass
         finally:
-            eof.cancel()
+            commands.cancel()
             self._drop_client(client)
 
     async def _read_commands(self, client: _Client, reader: asyncio.StreamReader) -> None:
-        """Read what the client sends, READ_CHUNK bytes at a time, and carry out its commands;
-        returns at EOF, or after cutting off a client that sent more than ``max_input`` bytes
-        the server did not understand."""
-        while data := await _read(reader):
-            self._feed(client, data)
+        """Read what the client sends, READ_CHUNK bytes at a time, letting the loop go between
+        reads, and carry out its command lines while its queue has room for their replies. At
+        EOF (the client may only have half-closed) its queue is sent and its connection closed;
+        a client that sent more than ``max_input`` bytes the server did not understand is cut off."""
+        while not client.closed and (data := await _read(reader)):
+            for line in self._lines(client, data):
+                while self._busy(client) and not client.closed:
+                    client.taken.clear()
+                    await client.taken.wait()
+                if client.closed:
+                    return
+                self._carry_out(client, line)
             if client.unheard > self.max_input:
                 self.counters["disconnected_input"] += 1
                 log.warning("client %s sent more than %d bytes not understood: disconnecting it",
                             client.peer, self.max_input)
                 self._drop_client(client, {"kind": "error", "class": "ERROR",
                                            "message": f"sent more than {self.max_input} bytes this server does not "
-                                                      "understand; disconnecting"}, linger=True)
+                                                      "understand; disconnecting"}, linger=True, flush=True)
                 return
+            await asyncio.sleep(0)  # read() does not yield while the reader holds data: the devices go first
+        self._drop_client(client, flush=True)
 
     def _feed(self, client: _Client, data: bytes) -> None:
-        """Split what came into command lines and carry each out; a line longer than
-        MAX_COMMAND is an error and is skipped to its end, never held."""
+        """Carry out every command line in ``data`` at once (no back-pressure)."""
+        for line in self._lines(client, data):
+            self._carry_out(client, line)
+
+    def _lines(self, client: _Client, data: bytes) -> Iterator[bytes]:
+        """The command lines ``data`` ends, after what came before; a line longer than
+        MAX_COMMAND is an error, in its place among the lines, and is skipped to its end,
+        never held."""
         *lines, rest = data.split(b"\n")
         for piece in lines:
             if client.skipping:
@@ -507,8 +580,8 @@ class ItemServer:
             if len(line) > MAX_COMMAND:
                 self._error(client, f"a command line is at most {MAX_COMMAND} bytes; this one had {len(line)}")
                 client.unheard += len(line) + 1
-            elif not self._on_command_line(client, line):
-                client.unheard += len(line) + 1
+            else:
+                yield line
         if client.skipping:
             client.unheard += len(rest)
             return
@@ -518,18 +591,32 @@ class ItemServer:
             client.unheard += len(client.partial)
             client.partial, client.skipping = b"", True
 
-    def _drop_client(self, client: _Client, last: dict[str, Any] | None = None, linger: bool = False) -> None:
-        """Forget the client and close its connection after what it was sent. ``linger``: it
-        may still be sending, so end our side first and close LINGER_S later; closing with its
-        bytes unread would reset the connection and could lose the last line."""
+    def _carry_out(self, client: _Client, line: bytes) -> None:
+        if not self._on_command_line(client, line):
+            client.unheard += len(line) + 1
+
+    def _drop_client(self, client: _Client, last: dict[str, Any] | None = None, linger: bool = False,
+                     flush: bool = False) -> None:
+        """Forget the client and close its connection after what it was sent. ``flush``: what
+        its queue holds (at most QUEUE_BYTES) is sent first, else it is thrown away (a client
+        that does not read would never take it). ``linger``: it may still be sending, so end
+        our side first and close LINGER_S later; closing with its bytes unread would reset the
+        connection and could lose the last line. Either way it is cut off CLOSE_GRACE_S later."""
         if client.closed:
             return
         client.closed = True
         client.ready.set()
-        client.queue.clear()  # what it will never take is not held for the close grace
-        client.queued_bytes = 0
+        client.taken.set()
         self.clients.discard(client)
         transport = client.writer.transport
+        if flush:
+            lines = []
+            while (line := self._take(client)) is not None:
+                lines.append(line)
+            if lines:
+                transport.write(b"".join(lines))
+        client.queue.clear()  # unflushed: what it will never take is not held for the close grace
+        client.queued_bytes = 0
         if last is not None:
             transport.write(_line(last))  # behind what it has not taken yet
         loop = asyncio.get_running_loop()
@@ -552,7 +639,7 @@ def parse_commands(line: bytes) -> list[tuple[str, dict[str, Any]]]:
     if text.startswith("{"):
         try:
             record = json.loads(text)
-        except ValueError as exc:
+        except (ValueError, RecursionError) as exc:  # RecursionError: nested deeper than json goes
             raise CommandError(f"not JSON: {exc}") from None
         if not isinstance(record, dict) or not isinstance(record.get("cmd"), str):
             raise CommandError('a JSON command is an object with "cmd": "watch", "poll", "devices" or "version"')
@@ -575,10 +662,12 @@ def parse_commands(line: bytes) -> list[tuple[str, dict[str, Any]]]:
         if j < len(text) and text[j] == "=":
             try:
                 args, j = decoder.raw_decode(text, j + 1)
-            except ValueError as exc:
+            except (ValueError, RecursionError) as exc:
                 raise CommandError(f"?{name}= takes a JSON object: {exc}") from None
             if not isinstance(args, dict):
                 raise CommandError(f"?{name}= takes a JSON object")
+        if len(commands) == MAX_LINE_COMMANDS:
+            raise CommandError(f"at most {MAX_LINE_COMMANDS} commands a line")
         commands.append((_command_name(name, gpsd=True), args))
         i = j
     return commands
@@ -628,7 +717,7 @@ class ServeDriver(Driver):
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.device = device
-        self.counters.update(items=0, bad_lines=0, server_dropped=0, server_errors=0)
+        self.counters.update(items=0, bad_lines=0, server_dropped=0, server_errors=0)  # bad_lines: logged once
         self.hello: dict[str, Any] = {}
         self.devices: dict[str, dict[str, Any]] = {}
         self._partial = b""
@@ -637,22 +726,32 @@ class ServeDriver(Driver):
         lines = (self._partial + data).split(b"\n")
         self._partial = lines.pop()
         if len(self._partial) > MAX_LINE:
-            self.counters["bad_lines"] += 1
+            self._bad_line(f"a line longer than {MAX_LINE} bytes")
             self._partial = b""
         for line in lines:
             self._on_line(line)
+
+    def _bad_line(self, why: str) -> None:
+        """Count a line that is dropped; the first is logged as a warning, the rest at debug."""
+        self.counters["bad_lines"] += 1
+        level = logging.WARNING if self.counters["bad_lines"] == 1 else logging.DEBUG
+        log.log(level, "%s: a line from the server dropped (%s)", self.port.name, why)
 
     def _on_line(self, line: bytes) -> None:
         try:
             record = json.loads(line)
             kind = record["kind"]
-        except (ValueError, KeyError, TypeError):
-            self.counters["bad_lines"] += 1
+        except (ValueError, KeyError, TypeError, RecursionError):
+            self._bad_line("not a JSON object with a kind")
             return
         if kind in ("hello", "devices"):
+            devices = record.get("devices", [])
+            if not isinstance(devices, list):
+                self._bad_line(f"a {kind} line whose devices is not a list")
+                return
             if kind == "hello":
                 self.hello = record
-            for dev in record.get("devices", ()):
+            for dev in devices:
                 if isinstance(dev, dict) and "device" in dev:
                     self.devices[str(dev["device"])] = dev
             return
@@ -667,7 +766,11 @@ class ServeDriver(Driver):
             log.warning("%s: the server says: %s", self.port.name, record.get("message", record.get("error")))
             return
         if kind == "dropped":
-            self.counters["server_dropped"] += int(record.get("count", 0))
+            count = record.get("count", 0)
+            if not isinstance(count, int):
+                self._bad_line("a dropped line whose count is not a number")
+                return
+            self.counters["server_dropped"] += count
             log.warning("%s: the server dropped %s items for this client (it read too slowly)",
                         self.port.name, record.get("count"))
             return
@@ -677,7 +780,7 @@ class ServeDriver(Driver):
             item = from_dict(record)
             device, t = str(record["device"]), float(record["t"])
         except (ValueError, KeyError, TypeError):
-            self.counters["bad_lines"] += 1
+            self._bad_line("an item line that is not an item")
             return
         self.counters["items"] += 1
         for listener in self.listeners:

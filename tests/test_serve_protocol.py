@@ -29,9 +29,12 @@ from hypothesis import strategies as st
 from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.ports import HostPort
 from rfhoming.host.serve import (
+    BACKLOG_LINES,
     CHATTER,
     MAX_COMMAND,
+    MAX_LINE_COMMANDS,
     NOT_POLLED,
+    READ_CHUNK,
     ItemServer,
     ServeDriver,
     _Client,
@@ -194,6 +197,9 @@ BAD = [
     (b'{"cmd": "watch", "colour": "red"}', "unknown field 'colour'"),
     (b"\xff\xfe?POLL;", "UTF-8"),
     (b"?" + b"W" * (MAX_COMMAND + 10), f"at most {MAX_COMMAND} bytes"),
+    (b'{"cmd": "watch", "enable": ' + b"[" * 2000, "not JSON"),  # deeper than json's recursion limit
+    (b"?WATCH=" + b"[" * 2000 + b";", "takes a JSON object"),
+    (b"?POLL;" * (MAX_LINE_COMMANDS + 1), f"at most {MAX_LINE_COMMANDS} commands"),
 ]
 
 
@@ -228,7 +234,7 @@ async def test_ten_kilobytes_of_garbage_get_a_bounded_number_of_error_lines() ->
     assert errors and len(errors) <= bad_lines
     assert len(errors) + sum(e.get("suppressed", 0) for e in errors) == server.counters["bad_commands"]
     (client,) = server.clients
-    assert client.partial == b"" and not client.errors_pending and len(client.queue) == 0
+    assert client.partial == b"" and client.errors_waiting == 0 and len(client.queue) == 0
     assert client.unheard == sum(len(line) + 1 for line in garbage.split(b"\n")[:-1] if line.strip())
     assert not client.closed
     peer.close()
@@ -255,7 +261,7 @@ def test_command_lines_are_understood_alike_however_the_bytes_come(lines: list[b
         for chunk in chunks:
             server._feed(client, chunk)
             assert len(client.partial) <= MAX_COMMAND
-        return client.commands, client.errors, client.unheard, [json.loads(q)["kind"] for q in client.queue]
+        return client.commands, client.errors, client.unheard, [json.loads(bytes(q))["kind"] for q in client.queue]
 
     points = sorted({c % (len(data) + 1) for c in cuts})
     pieces = [data[a:b] for a, b in zip([0, *points], [*points, len(data)])]
@@ -280,7 +286,8 @@ def test_any_command_line_is_carried_out_or_refused_with_one_error_and_nothing_e
     client = _Client(_Writer(), 1000)
     understood = server._on_command_line(client, line)
     assert understood == (client.errors == 0) and client.errors <= 1
-    assert all(json.loads(q)["kind"] in ("devices", "watch", "poll", "version") for q in client.queue)
+    kinds = [json.loads(bytes(q))["kind"] for q in client.queue]
+    assert kinds == ["error"] if client.errors else set(kinds) <= {"devices", "watch", "poll", "version"}
     assert isinstance(client.watch.enable, bool) and (client.watch.devices is None or client.watch.devices <= {"aoa"})
 
 
@@ -388,6 +395,150 @@ async def test_serve_driver_asks_for_its_device_and_takes_protocol_lines_as_such
     assert driver.counters["bad_lines"] == 0 and driver.counters["server_errors"] == 1
     assert driver.devices["aoa"]["state"] == "ready" and driver.hello["proto_major"] == 1
     assert seen == [ANGLES[0]]
+
+
+async def test_error_lines_come_in_order_with_replies_and_items() -> None:
+    """Before: waiting error lines were written ahead of the queue (version after the error)."""
+    server = ItemServer(drivers=[aoa_driver()])
+    peer = await Peer.connect(server)
+    await peer.line()
+    server.publish("aoa", 1.0, ANGLES[0])
+    await peer.send("?VERSION;\n?NOPE;\n?DEVICES;\nhello?\n")
+    got = [await peer.line() for _ in range(5)]
+    assert [r["kind"] for r in got] == ["angle", "version", "error", "devices", "error"]
+    assert "?NOPE" in got[2]["message"] and "not a command" in got[4]["message"]
+    peer.close()
+    await server.close()
+
+
+async def test_a_client_that_half_closes_after_its_commands_gets_their_replies() -> None:
+    """As ncat, ``nc -N`` and socat do: the commands, then shutdown(SHUT_WR). Before: the
+    EOF dropped the client with its replies unsent."""
+    server = ItemServer(drivers=[aoa_driver()])
+    (address,) = await server.start("127.0.0.1", 0)
+    loop = asyncio.get_running_loop()
+    with socket.socket() as sock:
+        sock.setblocking(False)
+        await loop.sock_connect(sock, ("127.0.0.1", int(address.rsplit(":", 1)[1])))
+        await loop.sock_sendall(sock, b"?VERSION;?DEVICES;\nnonsense\n")
+        sock.shutdown(socket.SHUT_WR)
+        data = b""
+        while chunk := await asyncio.wait_for(loop.sock_recv(sock, 65536), SAFETY_S):
+            data += chunk
+    assert [json.loads(line)["kind"] for line in data.splitlines()] == ["hello", "version", "devices", "error"]
+    assert not server.clients
+    await server.close()
+
+
+@pytest.mark.skipif(shutil.which("socat") is None, reason="needs socat (Debian's socat)")
+async def test_socat_sending_its_input_then_eof_gets_the_replies() -> None:
+    """The same with a client rfhoming did not write: socat ends its side after stdin's end."""
+    server = ItemServer(drivers=[aoa_driver()])
+    (address,) = await server.start("127.0.0.1", 0)
+    socat = await asyncio.create_subprocess_exec("socat", "-", "TCP:" + address.removeprefix("tcp://"),
+                                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    out, _ = await asyncio.wait_for(socat.communicate(b"?VERSION;?DEVICES;\n"), SAFETY_S)
+    assert [json.loads(line)["kind"] for line in out.splitlines()] == ["hello", "version", "devices"]
+    await server.close()
+
+
+async def test_the_hello_is_counted_in_the_queue() -> None:
+    """Before: the hello went round the queue's count, which sat at minus its length after."""
+    server = ItemServer(drivers=[aoa_driver()])
+    peer = await Peer.connect(server)
+    await peer.line()
+    (client,) = server.clients
+    assert client.queued_bytes == 0 and not client.queue and client.sent == 1
+    peer.close()
+    await server.close()
+
+
+class _CountingReader(asyncio.StreamReader):
+    """A StreamReader that notes, at each read, how often another task has run."""
+
+    def __init__(self, ticks: list[int]) -> None:
+        super().__init__()
+        self.ticks, self.at = ticks, []
+
+    async def read(self, n: int = -1) -> bytes:
+        self.at.append(self.ticks[0])
+        return await super().read(n)
+
+
+async def test_a_read_of_many_commands_lets_other_tasks_run_between_chunks() -> None:
+    """StreamReader.read returns without yielding while its buffer holds data; before, a client
+    that sent a lot held the loop (and so the devices) for all of it. Counted, not timed."""
+    server = ItemServer(drivers=[aoa_driver()])
+    client = _Client(_Writer(), 1000)
+    ticks = [0]
+    reader = _CountingReader(ticks)
+    reader.feed_data(b"\n" * (8 * READ_CHUNK))  # blank lines: understood, and no replies to wait for
+    task = asyncio.create_task(server._read_commands(client, reader))
+    for _ in range(10_000):  # turns of the loop, a hang guard
+        if len(reader.at) > 8:  # the ninth read waits for more
+            break
+        ticks[0] += 1
+        await asyncio.sleep(0)
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    assert len(reader.at) == 9 and all(b > a for a, b in zip(reader.at, reader.at[1:])), reader.at
+
+
+async def test_commands_wait_while_the_clients_queue_is_full_of_replies() -> None:
+    """Back-pressure: a client's commands are carried out only while its queue is short, so its
+    replies come no faster than it takes them. Before: every command read was carried out at once."""
+    server = ItemServer(drivers=[aoa_driver()])
+    server.publish("aoa", 1.0, ANGLES[0])  # a reading for the polls to carry
+    client = _Client(_Writer(), 1000)
+    reader = asyncio.StreamReader()
+    polls = 2000
+    reader.feed_data(b"?POLL;\n" * polls)
+    task = asyncio.create_task(server._read_commands(client, reader))
+    for _ in range(100):  # turns of the loop: no I/O here, so far more than it takes to stop
+        await asyncio.sleep(0)
+    assert client.commands == len(client.queue) == BACKLOG_LINES + 1  # then it waits
+    longest = 0
+    for _ in range(100 * polls):  # the client takes its lines; the rest of its commands follow
+        if client.commands == polls:
+            break
+        longest = max(longest, len(client.queue))
+        if client.queue:
+            server._take(client)
+        await asyncio.sleep(0)
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    assert client.commands == polls and longest <= BACKLOG_LINES + 1 and client.dropped_total == 0
+
+
+async def test_a_reply_is_not_built_when_the_queue_has_no_room(monkeypatch) -> None:
+    """Before: each poll's reply was encoded, then found not to fit and dropped."""
+    from rfhoming.host import serve
+
+    server = ItemServer(queue_lines=10, drivers=[aoa_driver()])
+    server.publish("aoa", 1.0, ANGLES[0])
+    client = _Client(_Writer(), 10)
+    for _ in range(10):
+        server._on_command_line(client, b"?VERSION;")
+    built = []
+    monkeypatch.setattr(serve, "_line", lambda record: built.append(record) or b"x\r\n")
+    assert server._on_command_line(client, b"?POLL;?POLL;?DEVICES;")
+    assert built == [] and client.dropped == 3 and client.commands == 13
+    server._take(client)  # the dropped notice
+    server._take(client)  # a line: room for one
+    built.clear()
+    server._on_command_line(client, b"?POLL;")
+    assert [r["kind"] for r in built] == ["poll"]
+
+
+def test_serve_driver_counts_a_device_list_that_is_no_list_as_a_bad_line() -> None:
+    """Before: TypeError out of on_chunk for a hello or devices line whose devices is a number."""
+    driver = ServeDriver(_Port())
+    lines = [{"kind": "hello", "devices": 5}, {"kind": "devices", "devices": {"aoa": 1}},
+             {"kind": "devices", "devices": "aoa"}, {"kind": "dropped", "count": "many"},
+             {"kind": "dropped", "count": [1]}, {"kind": "devices", "devices": [{"device": "aoa", "state": "ready"}]}]
+    driver.on_chunk(b"".join((json.dumps(r) + "\r\n").encode() for r in lines), 0.0)
+    assert driver.counters["bad_lines"] == 5 and driver.counters["server_dropped"] == 0
+    assert driver.devices == {"aoa": {"device": "aoa", "state": "ready"}} and driver.hello == {}
 
 
 # -- against `rfhoming serve`, with clients rfhoming did not write the protocol for -----------------
