@@ -1,4 +1,4 @@
-"""The site bus over MQTT (paho-mqtt 2.x, MQTT 5): gateways publish angle batches, workers locate.
+"""The site bus over MQTT (paho-mqtt 2.x, MQTT 3.1.1): gateways publish angle batches, workers locate.
 
 Topics and payloads are protocol/sitebus.py's (docs/protocol.md, "Site bus (MQTT)"). QoS 0 on
 both: an angle is worth something for one window (0.3 s) and a position until the next tick, so a
@@ -6,8 +6,9 @@ redelivery after a reconnect is useless and QoS 1's PUBACK per message costs bro
 a loss is still seen, from the per-partition ``seq`` gaps the worker counts.
 
 :class:`Publisher` is the one connection a process keeps: paho's network thread reconnects (0.1 s
-doubling to 5 s), messages published while the broker is away wait in a bounded buffer (the oldest
-dropped and counted when full) and go out in order once it is back.
+doubling to 5 s), messages published while the broker is away, or while paho already holds a
+buffer's worth unsent for a slow one, wait in a bounded buffer (the oldest dropped and counted when
+full) and go out in order once there is room.
 """
 
 from __future__ import annotations
@@ -52,6 +53,9 @@ READ_BURST = 1000
 RECONNECT_MIN_S, RECONNECT_MAX_S = 0.1, 5.0
 """Seconds between tries to reach a lost broker: the first, doubling up to the last."""
 
+
+_FEED_ERRORS = (ArithmeticError, LookupError, TypeError, ValueError)
+"""What a decoded batch that is still unusable raises in numpy or the engine (Worker._drain)."""
 
 SERVICE_EVERY = 200
 """Positions a worker publishes between reads of its socket during a tick (Mosquitto's per-client
@@ -111,9 +115,10 @@ class Publisher:
     thread to wake per publish and no GIL handed back and forth; its reads also wait for its loop."""
 
     def __init__(self, broker: Broker, client_id: str, *, buffer: int = BUFFER_MESSAGES, keepalive: int = 10,
-                 will: tuple[str, bytes] | None = None, ca_file: str | None = None, threaded: bool = True) -> None:
+                 will: tuple[str, bytes] | None = None, ca_file: str | None = None, threaded: bool = True,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.client = _client(client_id, broker, ca_file)
-        self.client.max_queued_messages_set(buffer)  # paho's own queue (while connected) is bounded too
+        self.client.max_queued_messages_set(buffer)  # QoS 1 messages (a worker's entry); QoS 0: _room()
         if will is not None:
             self.client.will_set(will[0], will[1], qos=1, retain=True)
         self._buffer: collections.deque[tuple[str, bytes, int, bool]] = collections.deque()
@@ -121,31 +126,37 @@ class Publisher:
         self._lock = threading.Lock()
         self.connected = threading.Event()
         self.on_connect: list[Callable[[], None]] = []
-        self.counters = {"published": 0, "buffered": 0, "dropped": 0, "connects": 0, "disconnects": 0}
+        self.counters = {"published": 0, "buffered": 0, "dropped": 0, "connects": 0, "disconnects": 0, "refused": 0}
+        self._refusals = 0  # in the current streak: the first is logged, the rest counted
         self.client.on_connect = self._connected
         self.client.on_disconnect = self._disconnected
         self.client.connect_async(broker.host, broker.port, keepalive=keepalive)
-        self._retry_at, self._delay = 0.0, RECONNECT_MIN_S
+        self._clock = clock
+        self._retry_at, self._delay = -math.inf, RECONNECT_MIN_S
         if threaded:
             self.client.loop_start()
 
     def service(self, timeout: float) -> None:
         """Run the network loop in the caller's thread for up to ``timeout`` s (threaded=False):
         what arrived is read (callbacks run here), what waits is written, and a lost broker is
-        tried again 0.1 s doubling to 5 s later, as paho's thread would."""
+        tried again 0.1 s doubling to 5 s later, as paho's thread would. An attempt counts from
+        its start: a broker that takes the TCP connection and refuses the login (a wrong password)
+        is tried no more often than one that is away; only a login it accepts resets the delay."""
         if self.client.socket() is None:
-            now = time.monotonic()
+            now = self._clock()
             if now < self._retry_at:
                 time.sleep(min(timeout, self._retry_at - now))
                 return
+            self._retry_at, self._delay = now + self._delay, min(RECONNECT_MAX_S, 2 * self._delay)
             try:
                 self.client.reconnect()
-                self._delay = RECONNECT_MIN_S
             except OSError as exc:
-                log.debug("broker not reachable (%s): again in %.1f s", exc, self._delay)
-                self._retry_at, self._delay = now + self._delay, min(RECONNECT_MAX_S, 2 * self._delay)
+                log.debug("broker not reachable (%s): again in %.1f s", exc, self._retry_at - now)
                 return
         self.client.loop(timeout)
+        if self._buffer and self.connected.is_set():
+            with self._lock:
+                self._drain()  # what waited for paho's queue to shrink (_room)
         # paho's loop (and loop_read, whatever max_packets says) reads one packet per call: read
         # what else is waiting now, or a worker falls behind the thousands of batches a second
         for _ in range(READ_BURST):
@@ -167,8 +178,12 @@ class Publisher:
     def _connected(self, client: mqtt.Client, userdata: object, flags: object, reason: object,
                    props: object) -> None:
         if getattr(reason, "is_failure", False):
-            log.warning("broker refused the connection: %s", reason)
+            self.counters["refused"] += 1
+            self._refusals += 1
+            (log.warning if self._refusals == 1 else log.debug)(
+                "broker refused the connection: %s (tried again with back-off; further refusals are counted)", reason)
             return
+        self._refusals, self._delay = 0, RECONNECT_MIN_S
         self.counters["connects"] += 1
         for hook in self.on_connect:
             hook()
@@ -176,9 +191,16 @@ class Publisher:
             self.connected.set()
             self._drain()
 
+    def _room(self) -> bool:
+        """Whether paho may take another message. paho bounds its queue (max_queued_messages) for
+        QoS > 0 only; every QoS 0 packet (each batch and position) goes to its deque ``_out_packet``
+        (private, paho-mqtt 2.2 Client._packet_queue), unbounded, while a slow broker reads less
+        than is published. Its length is the only measure paho gives of what waits."""
+        return len(self.client._out_packet) < self._cap  # noqa: SLF001
+
     def _drain(self) -> None:
-        """Send what was buffered, oldest first, until paho refuses one (the lock is held)."""
-        while self._buffer:
+        """Send what was buffered, oldest first, while paho has room and takes it (the lock is held)."""
+        while self._buffer and self._room():
             topic, payload, qos, retain = self._buffer[0]
             if self.client.publish(topic, payload, qos=qos, retain=retain).rc != mqtt.MQTT_ERR_SUCCESS:
                 return
@@ -194,8 +216,8 @@ class Publisher:
         with self._lock:
             if self.connected.is_set():
                 self._drain()  # after a refusal while connected (paho saw the socket go first), or it would stall
-                if not self._buffer and self.client.publish(topic, payload, qos=qos,
-                                                            retain=retain).rc == mqtt.MQTT_ERR_SUCCESS:
+                if not self._buffer and self._room() and self.client.publish(
+                        topic, payload, qos=qos, retain=retain).rc == mqtt.MQTT_ERR_SUCCESS:
                     self.counters["published"] += 1
                     return
             if len(self._buffer) >= self._cap:
@@ -206,7 +228,8 @@ class Publisher:
 
     def close(self) -> None:
         end = time.monotonic() + 2.0  # without paho's thread, what paho holds is written first (a bound)
-        while self.client._thread is None and self.client.want_write() and time.monotonic() < end:  # noqa: SLF001
+        while self.client._thread is None and time.monotonic() < end and (  # noqa: SLF001
+                self.client.want_write() or (self._buffer and self.connected.is_set())):
             self.service(0.05)
         self.client.disconnect()
         self.client.loop_stop()
@@ -280,8 +303,8 @@ class Worker:
         self._seq: dict[tuple[str, str], int] = {}
         self.latencies: collections.deque[float] = collections.deque(maxlen=200_000)
         self.tick_late: collections.deque[float] = collections.deque(maxlen=200_000)
-        self.counters = {"batches": 0, "events": 0, "bad_payload": 0, "lost_batches": 0, "inbox_dropped": 0,
-                         "positions": 0, "other_partition": 0, "handovers": 0}
+        self.counters = {"batches": 0, "events": 0, "bad_payload": 0, "unfed": 0, "lost_batches": 0,
+                         "inbox_dropped": 0, "positions": 0, "other_partition": 0, "handovers": 0}
         self._me = sitebus.workers_topic(site.name, worker_id)
         self.pub = Publisher(broker, f"rfhoming-worker-{worker_id}", will=(self._me, b"offline"), ca_file=ca_file,
                              threaded=False)
@@ -356,6 +379,22 @@ class Worker:
             bases.append(batch.t0 + min(delays) - batch.offset_s)
         if not batches:
             return
+        try:
+            self._feed(batches, bases)
+        except _FEED_ERRORS:
+            # defence in depth (the decoder bounds every field): a batch it let through that numpy
+            # or the engine cannot take costs only itself, not the others of this drain
+            for batch, base in zip(batches, bases):
+                try:
+                    self._feed([batch], [base])
+                except _FEED_ERRORS as exc:
+                    self.counters["bad_payload"] += 1
+                    (log.warning if self.counters["unfed"] == 0 else log.debug)(
+                        "dropped a batch of %s the decoder passed (%s: %s); further ones are counted", batch.gateway,
+                        type(exc).__name__, exc)
+                    self.counters["unfed"] += 1
+
+    def _feed(self, batches: list[sitebus.AngleBatch], bases: list[float]) -> None:
         sizes = np.array([len(b.dt_us) for b in batches])
         n = int(sizes.sum())
         chain = itertools.chain.from_iterable
@@ -366,10 +405,10 @@ class Worker:
         a_off = np.repeat(np.cumsum([0] + [len(b.anchors) for b in batches[:-1]]), sizes)
         g_off = np.repeat(np.cumsum([0] + [len(b.tags) for b in batches[:-1]]), sizes)
         t = np.repeat(np.array(bases), sizes) + column("dt_us", np.int64) * 1e-6
-        self.counters["events"] += n
         self.engine.feed_columns(t, list(chain(b.anchors for b in batches)), column("a", np.int64) + a_off,
                                  list(chain(b.tags for b in batches)), column("g", np.int64) + g_off,
                                  column("az", float), column("el", float))
+        self.counters["events"] += n
 
     def step(self) -> float:
         """Run every tick that is due, on what arrived before it; seconds until the next one.

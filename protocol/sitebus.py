@@ -35,6 +35,17 @@ POSITION_VERSION = 1
 
 DEFAULT_PARTITIONS = 8
 
+MAX_SPAN_US = 3_600_000_000
+"""A batch's events lie within an hour of its ``t0`` (a flush spans 20 ms): a larger ``dt_us`` is
+refused, so every time the worker builds fits int64 and stays finite."""
+
+MAX_SECONDS = 1e10
+"""``sent``, ``offset_s`` and ``t0`` are refused beyond +-1e10 s (year 2286 as a Unix time), so the
+worker's sums of them stay finite."""
+
+MAX_SEQ = 2**63
+"""``seq`` is a whole number in 0..2^63-1 (an int64)."""
+
 
 class PayloadError(Error, ValueError):
     """A site-bus message that is not what docs/protocol.md describes (dropped and counted)."""
@@ -121,12 +132,28 @@ class AngleBatch:
 _NUMBER = (int, float)
 
 
-def _whole(col: object, n: int | None, what: str, below: int | None = None) -> list[int]:
+def _whole(col: object, n: int | None, what: str, below: int) -> list[int]:
+    """A column of whole numbers in 0..below-1: an index within its table, a time within the batch's
+    span. Unbounded, JSON's integers reach numpy as OverflowError (10**23 is valid JSON)."""
     if not isinstance(col, list) or (n is not None and len(col) != n) or not all(type(x) is int for x in col):
         raise PayloadError(f"{what} is not a column of whole numbers of the batch's length")
-    if below is not None and col and not (min(col) >= 0 and max(col) < below):
-        raise PayloadError(f"{what}: an index is outside its table")
+    if col and not (min(col) >= 0 and max(col) < below):
+        raise PayloadError(f"{what}: a value is outside 0..{below - 1}")
     return col
+
+
+def _seconds(raw: dict, key: str) -> float:
+    x = float(raw[key])
+    if not abs(x) <= MAX_SECONDS:  # NaN fails it too
+        raise PayloadError(f"{key} is not a number of seconds within +-{MAX_SECONDS:g}")
+    return x
+
+
+def _seq(raw: dict) -> int:
+    x = raw["seq"]
+    if type(x) is not int or not 0 <= x < MAX_SEQ:
+        raise PayloadError(f"seq is not a whole number in 0..{MAX_SEQ - 1}")
+    return x
 
 
 def _angles(col: object, n: int, what: str) -> list[float]:
@@ -148,11 +175,11 @@ def _decode_v2(raw: dict) -> AngleBatch:
     i, ang = raw["i"], raw["ang"]
     if not (isinstance(i, list) and len(i) == 3 and isinstance(ang, list) and len(ang) == 2):
         raise PayloadError("i is not [dt_us, anchor, tag] or ang not [azimuth, elevation]")
-    dt = _whole(i[0], None, "dt_us")
+    dt = _whole(i[0], None, "dt_us", MAX_SPAN_US)
     n = len(dt)
     a, g = _whole(i[1], n, "anchor", len(anchors)), _whole(i[2], n, "tag", len(tags))
-    return AngleBatch(str(raw["gw"]), int(raw["seq"]), float(raw["sent"]), float(raw["offset_s"]), anchors, tags,
-                      float(raw["t0"]), dt, a, g, _angles(ang[0], n, "azimuth"), _angles(ang[1], n, "elevation"))
+    return AngleBatch(str(raw["gw"]), _seq(raw), _seconds(raw, "sent"), _seconds(raw, "offset_s"), anchors, tags,
+                      _seconds(raw, "t0"), dt, a, g, _angles(ang[0], n, "azimuth"), _angles(ang[1], n, "elevation"))
 
 
 def _decode_v1(raw: dict) -> AngleBatch:
@@ -166,8 +193,8 @@ def _decode_v1(raw: dict) -> AngleBatch:
                 and -90.0 <= az <= 90.0 and -90.0 <= el <= 90.0):
             raise PayloadError("an event row is not [time, anchor, tag, azimuth, elevation]")
         rows.append((t, a, tag, az, el))
-    return _decode_v2(json.loads(encode_angles(str(raw["gw"]), int(raw["seq"]), float(raw["sent"]),
-                                               float(raw["offset_s"]), rows)))
+    return _decode_v2(json.loads(encode_angles(str(raw["gw"]), _seq(raw), _seconds(raw, "sent"),
+                                               _seconds(raw, "offset_s"), rows)))
 
 
 def decode_angles(payload: bytes) -> AngleBatch:
@@ -181,8 +208,6 @@ def decode_angles(payload: bytes) -> AngleBatch:
         raise
     except (ValueError, TypeError, KeyError, OverflowError) as exc:
         raise PayloadError(f"malformed angle batch ({type(exc).__name__}: {exc})") from None
-    if not all(math.isfinite(x) for x in (batch.sent, batch.offset_s, batch.t0)):
-        raise PayloadError("sent, offset_s or t0 is not a finite number")
     return batch
 
 

@@ -4,6 +4,7 @@ reader of what rfhoming publishes."""
 
 from __future__ import annotations
 
+import getpass
 import json
 import os
 import queue
@@ -31,6 +32,7 @@ from rfhoming.protocol.uconnect.items import AngleEvent
 
 MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if os.path.exists("/usr/sbin/mosquitto") else None)
 SUB = shutil.which("mosquitto_sub")
+PASSWD = shutil.which("mosquitto_passwd")  # Debian's mosquitto package, beside the broker
 needs_broker = pytest.mark.skipif(not (MOSQUITTO and SUB), reason="mosquitto / mosquitto-clients not installed "
                                   "(.ci/run installs them)")
 ENV = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
@@ -44,12 +46,14 @@ def test_partition_is_crc32_mod_count() -> None:
         assert sitebus.partition(tag, 16) == zlib.crc32(tag.encode()) % 16
 
 
-row = st.tuples(st.floats(0, 2e9), st.text(min_size=1, max_size=12), st.text(min_size=1, max_size=12),
+row = st.tuples(st.floats(0, 3000), st.text(min_size=1, max_size=12), st.text(min_size=1, max_size=12),
                 st.integers(-90, 90), st.integers(-90, 90))
 
 
-@given(st.lists(row, max_size=20), st.integers(0, 2**31), st.floats(-1e3, 1e3))
-def test_angle_batch_round_trip(rows: list, seq: int, offset: float) -> None:
+@given(st.lists(row, max_size=20), st.integers(0, 2**31), st.floats(-1e3, 1e3), st.floats(0, 2e9))
+def test_angle_batch_round_trip(rows: list, seq: int, offset: float, base: float) -> None:
+    """Any batch within the hour a batch may span (sitebus.MAX_SPAN_US), at any epoch time."""
+    rows = [(base + t, *rest) for t, *rest in rows]
     back = sitebus.decode_angles(sitebus.encode_angles("gw01", seq, 1.7e9, offset, rows))
     assert back.gateway == "gw01" and back.seq == seq and back.offset_s == pytest.approx(offset, abs=1e-6)
     assert [(a, tag, az, el) for _, a, tag, az, el in back.events] == [(a, tag, az, el) for _, a, tag, az, el in rows]
@@ -75,7 +79,15 @@ V2 = '"v":2,"gw":"g","seq":0,"sent":0,"offset_s":0,"anchors":["a"],"tags":["t"],
 V2_BAD = ['"i":[[0],[0],[0]],"ang":[[91],[0]]', '"i":[[0.5],[0],[0]],"ang":[[1],[0]]', '"i":[[0],[1],[0]],"ang":[[1],[0]]',
           '"i":[[0],[0],[-1]],"ang":[[1],[0]]', '"i":[[0],[true],[0]],"ang":[[1],[0]]', '"i":[[0,1],[0],[0]],"ang":[[1],[0]]',
           '"i":[[0],[0],[0]],"ang":[["1"],[0]]', '"i":[[0],[0],[0]],"ang":[[[1]],[0]]', '"i":[[0],[0],[0]],"ang":[[1],[NaN]]',
-          '"i":[[0],[0],[0]],"ang":[[1]]', '"i":[[0],[0]],"ang":[[1],[0]]', '"i":[[0],[0],[0]],"ang":[[1],[true]]']
+          '"i":[[0],[0],[0]],"ang":[[1]]', '"i":[[0],[0]],"ang":[[1],[0]]', '"i":[[0],[0],[0]],"ang":[[1],[true]]',
+          # integers JSON allows and numpy (int64) or the worker's sums do not: each field bounded
+          '"i":[[100000000000000000000000],[0],[0]],"ang":[[1],[0]]', '"i":[[-1],[0],[0]],"ang":[[1],[0]]',
+          '"i":[[3600000000],[0],[0]],"ang":[[1],[0]]', '"i":[[0],[100000000000000000000000],[0]],"ang":[[1],[0]]',
+          '"i":[[0],[0],[-100000000000000000000000]],"ang":[[1],[0]]']
+V2_BAD_HEAD = [V2.replace('"seq":0', '"seq":9223372036854775808'), V2.replace('"seq":0', '"seq":-1'),
+               V2.replace('"seq":0', '"seq":1.5'), V2.replace('"seq":0', '"seq":"1"'),
+               V2.replace('"sent":0', '"sent":1e300'), V2.replace('"offset_s":0', '"offset_s":-1e11'),
+               V2.replace('"t0":0', '"t0":1e300'), V2.replace('"sent":0', f'"sent":{"9" * 400}')]
 
 
 @pytest.mark.parametrize("payload", [b"{}", b'{"v":1}', b'{"v":3,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[]}',
@@ -83,6 +95,10 @@ V2_BAD = ['"i":[[0],[0],[0]],"ang":[[91],[0]]', '"i":[[0.5],[0],[0]],"ang":[[1],
                                      b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,1,"t",0,0]]}',
                                      b'{"v":1,"gw":"g","seq":0,"sent":"NaN","offset_s":0,"events":[]}',
                                      *(("{" + V2 + bad + "}").encode() for bad in V2_BAD),
+                                     *(("{" + head + V2_BAD[1].replace("0.5", "0") + "}").encode()
+                                       for head in V2_BAD_HEAD),
+                                     b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,"a","t",0,0],'
+                                     b'[1e300,"a","t",0,0]]}',
                                      ("{" + V2.replace('"t0":0', '"t0":Infinity') + V2_BAD[1].replace("0.5", "0")
                                       + "}").encode()])
 def test_bad_batches_are_refused(payload: bytes) -> None:
@@ -197,9 +213,9 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _start_broker(tmp: Path, port: int) -> subprocess.Popen:
+def _start_broker(tmp: Path, port: int, auth: str = "allow_anonymous true\n") -> subprocess.Popen:
     conf = tmp / f"mosquitto-{port}.conf"
-    conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+    conf.write_text(f"listener {port} 127.0.0.1\n{auth}persistence false\n")
     proc = subprocess.Popen([MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60  # a hang guard
     while time.monotonic() < deadline:
@@ -550,3 +566,153 @@ def test_a_gateway_of_real_anchors_to_a_worker(broker: int, tmp_path: Path) -> N
     assert all(0 <= p["x"] <= 12 and 0 <= p["y"] <= 6 and p["worker"] == "w1" for p in positions[10:])
     gateway = json.loads(procs["gateway"].stdout.read().strip().splitlines()[-1])  # type: ignore[union-attr]
     assert gateway["kind"] == "gateway" and gateway["name"] == "gw-kit" and gateway["events"] > 0
+
+
+# -- bounds: bad batches, a refused login, a slow broker, a full engine ----------------------------------
+def _worker(sc: SiteScenario):
+    from rfhoming.host.sitebus import Broker, Worker
+
+    # not connected: nothing is sent until service() (threaded=False), _drain is all that runs here
+    return Worker(_site(sc), Broker("127.0.0.1", 1, False, None), worker_id="w", partitions=1)
+
+
+def _batches(sc: SiteScenario, dt_us: int) -> list[bytes]:
+    """Two good batches of two events each and, between them, one whose second time is ``dt_us``."""
+    a = sc.anchors[0].id
+    good = [(10.0, a, "T1", 5, 5), (10.01, a, "T2", 5, 5)]
+    bad = json.loads(sitebus.encode_angles("g", 1, 10.0, 0.0, good))
+    bad["i"][0][1] = dt_us
+    return [sitebus.encode_angles("g", 0, 10.0, 0.0, good), json.dumps(bad).encode(),
+            sitebus.encode_angles("g", 2, 10.0, 0.0, good)]
+
+
+def test_a_bad_batch_costs_the_worker_only_itself() -> None:
+    """dt_us = 10**23 is valid JSON: the decoder refuses it (it used to pass it, and np.fromiter's
+    OverflowError killed the worker with every batch of that drain)."""
+    sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
+    worker = _worker(sc)
+    worker._inbox.extend((10.0, "rfhoming/w/angles/0", p) for p in _batches(sc, 10**23))
+    worker._drain()
+    assert worker.counters["bad_payload"] == 1 and worker.counters["batches"] == 2
+    assert worker.counters["events"] == 4 and worker.engine.counters["events"] == 4
+
+
+def test_a_batch_the_decoder_passes_but_numpy_refuses_is_counted_not_raised(monkeypatch) -> None:
+    """Defence in depth: with the decoder's bound lifted, 10**23 reaches the drain's np.fromiter;
+    the drain feeds the batches one by one and drops only the one that fails."""
+    monkeypatch.setattr(sitebus, "MAX_SPAN_US", 10**30, raising=False)
+    sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
+    worker = _worker(sc)
+    worker._inbox.extend((10.0, "rfhoming/w/angles/0", p) for p in _batches(sc, 10**23))
+    worker._drain()
+    assert worker.counters["batches"] == 3 and worker.counters["bad_payload"] == 1
+    assert worker.counters["unfed"] == 1 and worker.engine.counters["events"] == 4
+
+
+@pytest.mark.skipif(not PASSWD, reason="mosquitto_passwd not installed (Debian's mosquitto package)")
+@needs_broker
+def test_a_refused_login_is_tried_again_with_back_off(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A wrong password: Mosquitto takes the TCP connection and refuses the login (CONNACK 5). A
+    serviced publisher on a clock that stands still tries once, however often it is serviced,
+    and again only when the clock reaches 0.1 s doubling to 5 s after the last try (it used to
+    reset the delay on each TCP connect and try at every service(): thousands of logins a second).
+    The first refusal is logged, the rest counted."""
+    from rfhoming.host.sitebus import RECONNECT_MAX_S, RECONNECT_MIN_S, Broker, Publisher
+
+    passwd = tmp_path / "passwd"
+    subprocess.run([PASSWD, "-c", "-b", str(passwd), "gw", "right"], check=True, timeout=60, capture_output=True)
+    port = _free_port()
+    # run as ourselves: started as root, Mosquitto reads the file as user "mosquitto", which
+    # pytest's tmp_path (mode 0700) shuts out; as anyone else the option is ignored
+    proc = _start_broker(tmp_path, port, f"allow_anonymous false\npassword_file {passwd}\nuser {getpass.getuser()}\n")
+    now = [0.0]
+    pub = Publisher(Broker("127.0.0.1", port, False, None, "gw", "wrong"), "gw-wrong-password", threaded=False,
+                    clock=lambda: now[0])
+    attempts: list[float] = []
+    reconnect = pub.client.reconnect
+
+    def counted() -> object:
+        attempts.append(now[0])
+        return reconnect()
+
+    pub.client.reconnect = counted  # type: ignore[method-assign]
+    caplog.set_level("DEBUG", logger="rfhoming.host.sitebus")
+    try:
+        due, delay = 0.0, RECONNECT_MIN_S
+        for k in range(8):
+            deadline = time.monotonic() + 60  # a hang guard: the broker's answer to try k
+            while pub.counters["refused"] <= k and time.monotonic() < deadline:
+                pub.service(0.01)
+            assert pub.counters["refused"] == k + 1 and len(attempts) == k + 1 and attempts[-1] == due
+            for stand in (due, due + delay * 0.99):  # the clock stands, then almost reaches the next try
+                now[0] = stand
+                for _ in range(20):
+                    pub.service(0.0)
+                assert len(attempts) == k + 1
+            due += delay
+            now[0] = due
+            delay = min(RECONNECT_MAX_S, 2 * delay)
+        gaps = [round(b - a, 6) for a, b in zip(attempts, attempts[1:])]
+        assert gaps == [0.1, 0.2, 0.4, 0.8, 1.6, 3.2, 5.0]
+        assert pub.counters["connects"] == 0 and not pub.connected.is_set()
+        warned = [r for r in caplog.records if r.levelname == "WARNING" and "refused" in r.getMessage()]
+        assert len(warned) == 1
+    finally:
+        pub.close()
+        proc.terminate()
+        proc.wait(30)
+
+
+@needs_broker
+def test_paho_holds_no_more_than_the_buffer_for_a_slow_broker(tmp_path: Path) -> None:
+    """paho bounds only QoS > 0 (max_queued_messages); its QoS 0 packets wait in Client._out_packet
+    without a bound while a broker reads slower than we publish. Mosquitto stopped (SIGSTOP) after
+    the connection: the kernel's socket buffers fill, then paho holds at most ``buffer`` packets, the
+    publisher's own buffer the next ``buffer`` (the oldest dropped, counted); Mosquitto continued,
+    everything not dropped reaches it (mosquitto_sub reads the retained topics)."""
+    from rfhoming.host.sitebus import Broker, Publisher
+
+    port = _free_port()
+    proc = _start_broker(tmp_path, port)
+    pub = Publisher(Broker("127.0.0.1", port, False, None), "gw-slow", buffer=4, threaded=False)
+    payload = b"x" * 500_000
+    try:
+        assert pub.wait_connected(120)
+        proc.send_signal(signal.SIGSTOP)
+        sent = 0
+        while pub.counters["dropped"] < 2 and sent < 80:  # the kernel takes a few MB first
+            pub.publish(f"big/{sent}", payload, retain=True)
+            sent += 1
+            assert len(pub.client._out_packet) <= 4
+        assert pub.counters["dropped"] == 2 and pub.counters["buffered"] == 6
+        proc.send_signal(signal.SIGCONT)
+        deadline = time.monotonic() + 120  # a hang guard
+        while (pub.counters["published"] < sent - 2 or pub.client.want_write()) and time.monotonic() < deadline:
+            pub.service(0.05)
+        assert pub.counters["published"] == sent - 2
+        out, _ = _sub(port, "big/#", sent - 2, "-F", "%t").communicate(timeout=120)
+        got = set(out.split())
+        assert len(got) == sent - 2 and f"big/{sent - 1}" in got and "big/0" in got
+    finally:
+        proc.send_signal(signal.SIGCONT)
+        pub.close()
+        proc.terminate()
+        proc.wait(30)
+
+
+def test_tags_are_bounded_once_the_pairs_are_full(monkeypatch) -> None:
+    """MAX_PAIRS bounds the tags too: a new tag becomes a row only with a pair (one the pair limit
+    refuses used to become a row anyway, its height, report time and tracker row with it)."""
+    from rfhoming.host.estimation import batch
+
+    monkeypatch.setattr(batch, "MAX_PAIRS", 3)
+    sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
+    loc = BatchLocator(_site(sc), track=True)
+    a0, a1 = sc.anchors[0].id, sc.anchors[1].id
+    loc.feed([(10.0, a, f"T{k}", 5, 5) for k in range(6) for a in (a0, a1)])  # T0 both, T1 one of its two
+    assert loc.tags == ["T0", "T1"] and len(loc._heights) == len(loc._reported) == 2
+    assert loc.counters["overflow"] == 9 and loc.counters["events"] == 3
+    loc.feed([(10.1, a0, "T9", 5, 5), (10.1, a0, "T0", 6, 6), (10.1, a0, "T0", 7, 7)])  # full: old pairs only
+    assert loc.tags == ["T0", "T1"] and len(loc.tracker.t) <= 2 and loc.counters["overflow"] == 10
+    assert loc.counters["events"] == 5
+    loc.tick(10.2)  # the rows and the pairs agree

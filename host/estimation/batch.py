@@ -36,7 +36,8 @@ SLOTS = 8
 """Angles kept per (tag, anchor): the median is over the newest of them inside the window."""
 
 MAX_PAIRS = 4_000_000
-"""(tag, anchor) pairs tracked at most; events of a new pair beyond it are dropped and counted."""
+"""(tag, anchor) pairs tracked at most; events of a new pair beyond it are dropped and counted
+(``overflow``). A tag becomes a row only with a pair, so this bounds the tags too."""
 
 
 @dataclass(frozen=True)
@@ -251,12 +252,21 @@ class BatchLocator:
             t, anc, g, az, el = t[known], anc[known], g[known], az[known], el[known]
             if not len(t):
                 return
-        used, g = np.unique(g, return_inverse=True)  # only tags heard by a known anchor become rows
-        rows = np.array([self._tag(tags[i]) for i in used.tolist()], np.int64)[g]
-        keys = rows * len(self._anchors) + anc
+        used, g = np.unique(g, return_inverse=True)
+        index, n_tags = self.tag_index, len(self.tags)
+        new: dict[str, int] = {}  # the rows new tags will have if they get a pair (an id may come twice)
+        rows = np.array([index[x] if x in index else new.setdefault(x, n_tags + len(new))
+                         for x in map(tags.__getitem__, used.tolist())], np.int64)
+        keys = rows[g] * len(self._anchors) + anc
         pid = self._lookup(keys)
         if (pid < 0).any():
+            before = self._n
             self._new_pairs(np.unique(keys[pid < 0]))
+            # only a tag with a pair becomes a row (heard by a known anchor, within MAX_PAIRS): the
+            # pairs made are the lowest keys, so those tags are the first of the new ones
+            made = self._ptag[before:self._n]
+            for name in list(new)[:max(0, int(made.max()) + 1 - n_tags) if len(made) else 0]:
+                self._tag(name)
             pid = self._lookup(keys)
             kept = pid >= 0
             self.counters["overflow"] += int((~kept).sum())
