@@ -84,6 +84,7 @@ def in_order(raws: list[bytes], stream: bytes, shared: int = 0) -> bool:
 
 # -- 1. recording -------------------------------------------------------------------------
 @pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark is not installed (apt-get install tshark)")
+@pytest.mark.slow
 def test_open_records_what_rfhoming_capture_records(emulator, tmp_path: Path) -> None:
     api_file, cli_file = tmp_path / "api.pcapng", tmp_path / "cli.pcapng"
     with rfhoming.open(f"xplr-aoa:{emulator['aoa']}", f"base:{emulator['base']}", duration=3.0,
@@ -153,6 +154,7 @@ def test_a_capture_writer_given_is_flushed_and_left_open(emulator, tmp_path: Pat
 
 
 # -- 2. raw bytes on every item --------------------------------------------------------------
+@pytest.mark.slow
 def test_every_item_carries_its_wire_bytes(emulator) -> None:
     from rfhoming.protocol.uconnect.encoder import Dialect, encode_angle_event
 

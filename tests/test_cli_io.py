@@ -58,6 +58,7 @@ def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None
     assert tshark_like.returncode == 2 and "cannot read" in tshark_like.stderr
 
 
+@pytest.mark.slow
 def test_replay_serves_a_capture_on_ptys(tmp_path: Path) -> None:
     from rfhoming.protocol import pcapng
 

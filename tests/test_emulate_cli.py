@@ -58,6 +58,7 @@ def wake(port: serial.Serial) -> None:
         assert time.monotonic() < end, "the board never answered AT"
 
 
+@pytest.mark.slow
 def test_plain_pyserial_at_session_and_angles_match_truth(tmp_path: Path) -> None:
     truth_file = tmp_path / "truth.jsonl"
     proc, endpoints = emulate("s0-open", "--pty", "--seed", "5", "--target", "3,2",

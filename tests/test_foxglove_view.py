@@ -94,6 +94,7 @@ def watched_demo(out: Path, *args: str) -> tuple[dict[str, list], list[dict]]:
     return got, [json.loads(line) for line in (out / "run.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_a_websocket_client_receives_the_scene_during_demo(tmp_path: Path) -> None:
     got, runlog = watched_demo(tmp_path)
 
@@ -168,6 +169,7 @@ def distance_to_segment(p, a, b) -> float:
     return float(np.hypot(*(p - (a + u * ab))))
 
 
+@pytest.mark.slow
 def test_the_anchors_of_s3_are_drawn(tmp_path: Path) -> None:
     got, _ = watched_demo(tmp_path, "--scenario", "s3-arena", "--speed", "0")
     header = json.loads((tmp_path / "truth.jsonl").read_text().splitlines()[0])

@@ -263,6 +263,7 @@ async def test_in_process_lockstep_result_does_not_depend_on_the_hosts_awaits(mo
 
 
 # -- the commands ---------------------------------------------------------------------------
+@pytest.mark.slow
 def test_demo_command_succeeds_and_writes_its_files(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--json", "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=120)
@@ -279,6 +280,7 @@ def test_config_command() -> None:
     assert done.returncode == 0 and done.stdout == DEFAULT_TOML
 
 
+@pytest.mark.slow
 async def test_dead_odometry_is_noticed_and_a_stop_sent(tmp_path: Path) -> None:
     scenario = load("s0-open", seed=5, target=(9.0, 0.0))
     em = Emulator(scenario, transport="pty", seed=5, speed=4.0, link_dir=tmp_path,

@@ -422,6 +422,7 @@ async def test_replay_matches_writes_in_a_row_one_for_one() -> None:
     assert port.counters["diverged"] == 2
 
 
+@pytest.mark.slow
 async def test_capture_then_replay_gives_identical_records(tmp_path: Path) -> None:
     path, live = await record(tmp_path, 6.0, faults=["unplug@aoa:at=2,for=1", "reboot@aoa:at=4.5"])
     replayed = await replay(path)

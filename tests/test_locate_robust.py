@@ -388,6 +388,7 @@ def test_calibrate_cli_takes_dwells_of_one_carried_tag(tmp_path):
     assert bad.returncode == 2 and "from_s and to_s must both be given" in bad.stderr
 
 
+@pytest.mark.slow
 def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path):
     import json
     import subprocess

@@ -131,6 +131,7 @@ def test_a_run_takes_its_devices_from_a_capture_by_role(tmp_path: Path) -> None:
     assert swapped.returncode == 2 and "cannot be" in swapped.stderr and swapped.stderr.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_a_run_with_spec_settings_replays_to_the_same_run_log(tmp_path: Path) -> None:
     """The run record keeps each device's spec: tags= (and scan settings) reach the replayed drivers."""
     demo = rfhoming("demo", "--in-process", "--json", "--out", str(tmp_path))

@@ -153,6 +153,7 @@ def test_a_controller_the_config_cannot_make_is_a_one_line_error(tmp_path: Path)
     assert done.returncode == 2 and "[trilat.anchors]" in done.stderr and "Traceback" not in done.stderr
 
 
+@pytest.mark.slow
 def test_a_board_that_never_answers_fails_by_its_timeout_with_a_hint() -> None:
     """Both ports open (plain ptys nobody serves), the board never answers AT: the AoA spec's
     timeout= bounds the wait and the message names the port and says what to check."""

@@ -69,6 +69,7 @@ def test_ublox_bring_up_with_plain_pyserial(tmp_path: Path) -> None:
         proc.wait(timeout=10)
 
 
+@pytest.mark.slow
 def test_espressif_ble_scan_example_with_plain_pyserial(tmp_path: Path) -> None:
     """The "Bluetooth LE AT Examples" scan: init the client role, set the example's scan
     parameters, scan 3 s, read the reports and +BLESCANDONE (the emulated board is ESP-AT 3.2)."""
