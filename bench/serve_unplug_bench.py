@@ -20,7 +20,6 @@ Runs against any version of the server (it reads LF or CR LF lines).
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import signal
 import socket
@@ -31,47 +30,8 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 SAFETY_S = 60.0  # a hang guard on each wait
-
-
-class World:
-    """The emulator on its own event loop, in a thread."""
-
-    def __init__(self, link_dir: Path) -> None:
-        from rfhoming.emulator.runtime import Emulator
-        from rfhoming.emulator.scenario import load
-
-        self.loop = asyncio.new_event_loop()
-        self.emulator = Emulator(load("s0-open", seed=3, target=(3.0, 2.0)), transport="pty", seed=3, speed=1.0,
-                                 link_dir=link_dir)
-        started = threading.Event()
-
-        def main() -> None:
-            asyncio.set_event_loop(self.loop)
-            self.endpoints = {e["device"]: e for e in self.loop.run_until_complete(self.emulator.start())}
-            self.task = self.loop.create_task(self.emulator.run())
-            started.set()
-            self.loop.run_forever()
-
-        self.thread = threading.Thread(target=main, daemon=True)
-        self.thread.start()
-        if not started.wait(SAFETY_S):
-            raise RuntimeError("the emulator did not start")
-
-    def call(self, coro: Any) -> None:
-        asyncio.run_coroutine_threadsafe(coro, self.loop).result(SAFETY_S)
-
-    def close(self) -> None:
-        async def stop() -> None:
-            self.task.cancel()
-            await asyncio.gather(self.task, return_exceptions=True)
-            await self.emulator.close()
-
-        self.call(stop())
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(SAFETY_S)
 
 
 class Reader:
@@ -123,7 +83,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
 
-    world = World(Path(tempfile.mkdtemp()))
+    from rfhoming.emulator.runtime import Emulator
+    from rfhoming.emulator.scenario import load
+    from rfhoming.emulator.threaded import EmulatorThread
+
+    world = EmulatorThread(Emulator(load("s0-open", seed=3, target=(3.0, 2.0)), transport="pty", seed=3, speed=1.0,
+                                    link_dir=Path(tempfile.mkdtemp())), SAFETY_S)
     server = subprocess.Popen([sys.executable, "-m", "rfhoming", "serve",
                                f"xplr-aoa:{world.endpoints['aoa']['path']},name=aoa",
                                f"base:{world.endpoints['base']['path']},name=base", "--port", "0"],

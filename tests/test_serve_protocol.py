@@ -17,7 +17,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,6 +25,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import load
+from rfhoming.emulator.threaded import EmulatorThread
 from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.ports import HostPort
 from rfhoming.host.serve import (
@@ -542,49 +544,11 @@ def test_serve_driver_counts_a_device_list_that_is_no_list_as_a_bad_line() -> No
 
 
 # -- against `rfhoming serve`, with clients rfhoming did not write the protocol for -----------------
-class EmulatorThread:
-    """An emulated s0-open world (XPLR-AOA and base on ptys) in a thread of its own, so that
-    the test can unplug a link exactly when it wants -- the emulator's own unplug, not a timer."""
-
-    def __init__(self, link_dir: Path) -> None:
-        from rfhoming.emulator.runtime import Emulator
-        from rfhoming.emulator.scenario import load
-
-        self.loop = asyncio.new_event_loop()
-        self.emulator = Emulator(load("s0-open", seed=3, target=(3.0, 2.0)), transport="pty", seed=3, speed=2.0,
-                                 link_dir=link_dir)
-        self.endpoints: dict[str, dict] = {}
-        started = threading.Event()
-
-        def main() -> None:
-            asyncio.set_event_loop(self.loop)
-            self.endpoints = {e["device"]: e for e in self.loop.run_until_complete(self.emulator.start())}
-            self.task = self.loop.create_task(self.emulator.run())
-            started.set()
-            self.loop.run_forever()
-
-        self.thread = threading.Thread(target=main, daemon=True)
-        self.thread.start()
-        assert started.wait(SAFETY_S)
-
-    def call(self, coro) -> None:
-        asyncio.run_coroutine_threadsafe(coro, self.loop).result(SAFETY_S)
-
-    def close(self) -> None:
-        async def stop() -> None:
-            self.task.cancel()
-            await asyncio.gather(self.task, return_exceptions=True)
-            await self.emulator.close()
-
-        self.call(stop())
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(SAFETY_S)
-
-
 @pytest.fixture(scope="module")
 def served(tmp_path_factory) -> Iterator[tuple[int, EmulatorThread]]:
     """``rfhoming serve`` on the emulated XPLR-AOA (named aoa) and base; its TCP port."""
-    world = EmulatorThread(tmp_path_factory.mktemp("kit"))
+    world = EmulatorThread(Emulator(load("s0-open", seed=3, target=(3.0, 2.0)), transport="pty", seed=3, speed=2.0,
+                                    link_dir=tmp_path_factory.mktemp("kit")), SAFETY_S)
     server = subprocess.Popen([sys.executable, "-m", "rfhoming", "serve", f"xplr-aoa:{world.endpoints['aoa']['path']},name=aoa",
                                f"base:{world.endpoints['base']['path']},name=base", "--port", "0"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
