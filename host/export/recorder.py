@@ -9,8 +9,8 @@ Order: messages are written in log-time order, within and across chunks, so a li
 (the mcap library's ``NonSeekingReader``, what reads a crashed file) sees them in time order. The
 run log's records come after the odometry they were decided on, by up to 0.2 s in the demos: a
 message is held up to :data:`REORDER_S` of message time and written once nothing earlier can
-come; one later still (a stall) is written at once with its log time raised to the last one
-written -- its header stamp and publish time keep its own time -- and counted.
+come; one later still (a stall) goes out next with its log time raised to the last one
+written -- its header stamp and publish time keep its own time -- and is counted (``late``).
 
 Crash safety: messages go into chunks of at most :data:`CHUNK_BYTES`, and every
 :data:`FLUSH_S` -- of message time (robot or host clock) or of host time, whichever comes first --
