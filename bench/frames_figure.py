@@ -156,12 +156,11 @@ def path_of(rec: Recording, every: float = 0.1) -> np.ndarray:
     return np.array(points)
 
 
-def ray(ax: plt.Axes, rec: Recording, frame: str, t: float, azimuth_deg: float, length: float, color: str) -> None:
-    """A board's bearing (board sign: positive azimuth is to the board's right) from its frame."""
+def ray(ax: plt.Axes, rec: Recording, frame: str, t: float, a: float, length: float, color: str) -> None:
+    """A board's bearing (an AoaAngle's azimuth_rad: REP 103, about its frame's z) from its frame."""
     pose = rec.at(frame, t)
     if pose is None:
         return
-    a = math.radians(-azimuth_deg)
     tip = pose[0] + pose[1].apply([length * math.cos(a), length * math.sin(a), 0.0])
     ax.plot([pose[0][0], tip[0]], [pose[0][1], tip[1]], color=color, lw=0.6, alpha=0.5)
 
@@ -185,7 +184,7 @@ def draw_s1(ax: plt.Axes, rec: Recording) -> None:
         robot = rec.at("base_link", t)
         station = rec.at("dock_station", t)
         if robot is not None and station is not None:
-            ray(ax, rec, "dock_station", t, msg.azimuth_deg, float(np.linalg.norm(robot[0][:2] - station[0][:2])),
+            ray(ax, rec, "dock_station", t, msg.azimuth_rad, float(np.linalg.norm(robot[0][:2] - station[0][:2])),
                 "tab:orange")
     end = max(t for t, _, _ in rec.tf[("odom", "dock_station")])
     axes_of(ax, rec, "dock_station", end, "dock_station (last fit)")
@@ -211,7 +210,7 @@ def draw_anchors(ax: plt.Axes, rec: Recording) -> None:
         axes_of(ax, rec, frame, snapshot, frame.removeprefix("anchor_")[-4:])
     latest = {(m.header.frame_id, m.instance_id): (t, m) for t, m in angles if snapshot - 0.5 <= t <= snapshot}
     for t, msg in latest.values():  # one instant: each anchor's latest bearing to each tag
-        ray(ax, rec, msg.header.frame_id, t, msg.azimuth_deg, 14.0, "tab:orange")
+        ray(ax, rec, msg.header.frame_id, t, msg.azimuth_rad, 14.0, "tab:orange")
     if robot is not None:
         ax.plot(*robot[0][:2], "o", color="tab:blue", ms=6)
     ax.plot([], [], color="tab:orange", lw=0.6, label=f"bearings at t = {snapshot:.1f} s, in anchor_<id>")

@@ -131,12 +131,12 @@ KINDS: dict[str, DeviceKind] = {k.name: k for k in (
     DeviceKind("base", "rfhoming robot base (velocity commands, odometry, range scans)", "frames", SERIAL,
                "rfhoming.host.drivers.robot_base:BaseDriver",
                (Board("base", "rfhoming.firmware.robot_base:RobotBaseFirmware"),), ("base",), 5.0, "stm32",
-               ("/odom", "/scan", "/cmd_vel"), commanded=True, aliases=("robot-base",), brakes=True),
+               ("/odom", "/scan", "/rfhoming/cmd_vel"), commanded=True, aliases=("robot-base",), brakes=True),
     DeviceKind("ros2", "a ROS 2 robot base over DDS (nav_msgs/Odometry, sensor_msgs/LaserScan in; "
                "geometry_msgs/Twist out); WHERE is its namespace", "ros2",
                ("name", "timeout", "domain", "ns", "cmd_vel", "odom", "scan", "stamped", "discovery"),
                "rfhoming.host.drivers.ros2_base:Ros2BaseDriver", (), ("base",), 10.0, None,
-               ("/odom", "/scan", "/cmd_vel"), commanded=True, extra="ros2",
+               ("/odom", "/scan", "/rfhoming/cmd_vel"), commanded=True, extra="ros2",
                emulated_as="rfhoming emulate SCENARIO --robot ros2", default_where="/"),
 )}
 

@@ -1,11 +1,13 @@
 """A second reader of ROS 2 topics, written with nothing but the cyclonedds binding: its own
 IDL types (from ros2/common_interfaces' .msg files, ROS 2's DDS names) and its own loopback
-configuration. Reads rt/cmd_vel, rt/odom, rt/scan, rt/tf,
+configuration. Reads rt/cmd_vel, rt/rfhoming/cmd_vel, rt/odom, rt/scan, rt/tf,
 rt/rfhoming/target and rt/rfhoming/events on a domain, and any of EXTRA -- rfhoming/aoa/angle
 (rfhoming_msgs/AoaAngle, transcribed here from its .msg), tf_static (reliable, transient local,
 as tf2 reads it), rfhoming/tag_<ID>/pose and rfhoming/tag_<ID>/point -- and prints one JSON
 line per sample; ends after SECONDS, or once its standard input closes and then 3 s pass with
-no command on rt/cmd_vel (what was still on its way is read).
+no command on rt/cmd_vel (what was still on its way is read). EXTRA ``publications`` also
+prints every writer the domain's discovery announces (DDS's built-in DCPSPublication topic:
+its topic and type name), whether or not anything here reads that topic.
 
     python tests/ros2_listener.py DOMAIN SECONDS [EXTRA ...]
 """
@@ -16,6 +18,7 @@ import sys
 import time
 from dataclasses import dataclass
 
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
@@ -144,8 +147,10 @@ class AoaAngle(IdlStruct, typename="rfhoming_msgs::msg::dds_::AoaAngle_"):
     header: Header
     instance_id: str
     anchor_id: str
-    azimuth_deg: int16
-    elevation_deg: int16
+    azimuth_rad: float32
+    elevation_rad: float32
+    board_azimuth_deg: int16
+    board_elevation_deg: int16
     rssi1_dbm: int8
     reserved: int8
     channel: uint8
@@ -167,11 +172,16 @@ def extra_reader(name: str) -> tuple[type, Qos | None]:
     raise SystemExit(f"no reader for {name!r}")
 
 
+def seconds(stamp: Time) -> float:
+    return stamp.sec + stamp.nanosec / 1e9
+
+
 def describe(name: str, s: object) -> dict:
-    if name == "cmd_vel":
+    if name.endswith("cmd_vel"):
         return {"v": s.linear.x, "w": s.angular.z}
     if name == "odom":
-        return {"x": s.pose.pose.position.x, "frame": s.header.frame_id, "child": s.child_frame_id}
+        return {"x": s.pose.pose.position.x, "frame": s.header.frame_id, "child": s.child_frame_id,
+                "stamp": seconds(s.header.stamp)}
     if name == "scan":
         return {"beams": len(s.ranges), "frame": s.header.frame_id, "range_max": s.range_max}
     if name == "rfhoming/target" or name.endswith("/point"):
@@ -179,14 +189,16 @@ def describe(name: str, s: object) -> dict:
     if name == "rfhoming/events":
         return {"what": s.data}
     if name == "rfhoming/aoa/angle":
-        return {"frame": s.header.frame_id, "tag": s.instance_id, "anchor": s.anchor_id, "azimuth": s.azimuth_deg,
-                "elevation": s.elevation_deg, "rssi": s.rssi1_dbm, "channel": s.channel, "stamp": s.header.stamp.sec}
+        return {"frame": s.header.frame_id, "tag": s.instance_id, "anchor": s.anchor_id, "azimuth": s.azimuth_rad,
+                "elevation": s.elevation_rad, "board_azimuth": s.board_azimuth_deg, "rssi": s.rssi1_dbm,
+                "channel": s.channel, "stamp": seconds(s.header.stamp)}
     if name.endswith("/pose"):
         p = s.pose.pose
         return {"frame": s.header.frame_id, "xyz": [p.position.x, p.position.y, p.position.z],
                 "orientation": [p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w],
                 "covariance": list(s.pose.covariance)}
     return {"frames": [[t.header.frame_id, t.child_frame_id] for t in s.transforms],
+            "stamps": [seconds(t.header.stamp) for t in s.transforms],
             "transforms": [[*(getattr(t.transform.translation, k) for k in "xyz"),
                             *(getattr(t.transform.rotation, k) for k in "xyzw")] for t in s.transforms]}
 
@@ -201,9 +213,12 @@ def main() -> None:
     dp = DomainParticipant(domain)
     best_effort = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(50))
     readers = {name: DataReader(dp, Topic(dp, "rt/" + name, kind), qos=best_effort)
-               for name, kind in (("cmd_vel", Twist), ("odom", Odometry), ("scan", LaserScan), ("tf", TFMessage),
-                                  ("rfhoming/target", PointStamped), ("rfhoming/events", String))}
-    for name in sys.argv[3:]:
+               for name, kind in (("cmd_vel", Twist), ("rfhoming/cmd_vel", Twist), ("odom", Odometry),
+                                  ("scan", LaserScan), ("tf", TFMessage), ("rfhoming/target", PointStamped),
+                                  ("rfhoming/events", String))}
+    extra = sys.argv[3:]
+    publications = BuiltinDataReader(dp, BuiltinTopicDcpsPublication) if "publications" in extra else None
+    for name in (e for e in extra if e != "publications"):
         kind, qos = extra_reader(name)
         readers[name] = DataReader(dp, Topic(dp, "rt/" + name, kind), qos=qos or best_effort)
     print(json.dumps({"ready": domain}), flush=True)
@@ -219,6 +234,10 @@ def main() -> None:
                 if closing and name == "cmd_vel":
                     end = time.monotonic() + 3.0
                 print(json.dumps({"topic": name, **describe(name, s)}), flush=True)
+        for p in publications.take(50) if publications is not None else ():
+            if isinstance(p, InvalidSample):  # a writer gone
+                continue
+            print(json.dumps({"topic": "DCPSPublication", "name": p.topic_name, "type": p.type_name}), flush=True)
         time.sleep(0.01)
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import os
 import random
 import shutil
@@ -107,7 +108,7 @@ def test_a_fast_dds_node_decodes_what_ros2_publishes_of_a_fix_and_an_angle(built
     fix = Position(1.5, tag, np.array([3.25, -1.5, 0.75]), cov, ("west", "east"), (), True)
     angle = AngleEvent(tag, -47, 31, -12, 6, 38, "CCF9578E0A01", "", 123456, seq=42)
     reader = subprocess.Popen([str(built / "reader"), str(domain), tag, "60"], stdout=subprocess.PIPE, text=True)
-    publisher = Ros2Publisher(domain, clock="host", source="anchors")
+    publisher = Ros2Publisher(domain, source="anchors")
     try:
         assert json.loads(reader.stdout.readline()) == {"ready": domain}
         end = time.monotonic() + 60  # hang guard: best effort, volatile -- published until the reader has one of each
@@ -123,9 +124,13 @@ def test_a_fast_dds_node_decodes_what_ros2_publishes_of_a_fix_and_an_angle(built
     lines = [json.loads(line) for line in out.splitlines()]
     assert lines[-1]["done"][0] > 0 and lines[-1]["done"][1] > 0 and lines[-1]["done"][2] > 0, lines[-1]
     got = {line["topic"]: line for line in lines if "topic" in line}
-    assert got["angle"] == {"topic": "angle", "frame": "anchor_CCF9578E0A01", "stamp": [1, 500_000_000], "tag": tag,
-                            "anchor": "CCF9578E0A01", "azimuth": 31, "elevation": -12, "rssi": -47, "reserved": 6,
-                            "channel": 38, "timestamp_ms": 123456, "seq": 42}
+    angle_read = got["angle"]
+    # REP 103 in the anchor's frame: the board's 31 (to its right) is -31 degrees about z
+    assert (angle_read.pop("azimuth"), angle_read.pop("elevation")) == pytest.approx(
+        (math.radians(-31), math.radians(-12)), abs=1e-6)
+    assert angle_read == {"topic": "angle", "frame": "anchor_CCF9578E0A01", "stamp": [1, 500_000_000], "tag": tag,
+                          "anchor": "CCF9578E0A01", "board_azimuth": 31, "board_elevation": -12, "rssi": -47,
+                          "reserved": 6, "channel": 38, "timestamp_ms": 123456, "seq": 42}
     assert got["pose"]["frame"] == "map" and got["pose"]["xyz"] == [3.25, -1.5, 0.75]
     assert got["pose"]["orientation"] == [0, 0, 0, 1]
     covariance = np.array(got["pose"]["covariance"]).reshape(6, 6)

@@ -51,7 +51,7 @@ def demo_run(tmp_path_factory) -> dict:
 
 def test_live_recording_holds_the_run_logs_commands(demo_run) -> None:
     commands = [r for r in demo_run["runlog"] if r["kind"] == "command"]
-    got = demo_run["live"]["/cmd_vel"]
+    got = demo_run["live"]["/rfhoming/cmd_vel"]
     assert len(commands) > 20 and len(got) == len(commands)
     for record, (t, msg) in zip(commands, got):
         assert t == round(record["t"] * 1e9)
@@ -82,10 +82,10 @@ def test_live_recording_holds_the_estimates_and_bearings(demo_run) -> None:
     bearings = demo_run["live"]["/rfhoming/bearing"]
     assert len(bearings) == len(measurements) > 50
     for record, (_, msg) in zip(measurements, bearings):
-        assert (msg.source, msg.bearing_rad, msg.range_m, msg.azimuth_deg) == (
+        assert (msg.source, msg.bearing_rad, msg.range_m, msg.board_azimuth_deg) == (
             "aoa", record["theta_s"], record["distance"], record["azimuth"])
     # every reading the loop used is one of the board's angle events, as the board gave it
-    angles = Counter((m.azimuth_deg, m.rssi1_dbm) for _, m in demo_run["live"]["/rfhoming/aoa/angle"])
+    angles = Counter((m.board_azimuth_deg, m.rssi1_dbm) for _, m in demo_run["live"]["/rfhoming/aoa/angle"])
     used = Counter((r["azimuth"], r["rssi"]) for r in measurements)
     assert not used - angles
 
@@ -96,7 +96,7 @@ def test_export_of_run_log_and_capture_equals_the_live_recording(demo_run, tmp_p
     assert done.returncode == 0, done.stderr
     counts = json.loads(done.stdout)["topics"]
     exported = read_back(tmp_path / "x.mcap")
-    for topic in ("/cmd_vel", "/rfhoming/target", "/rfhoming/bearing"):  # from the run log: all of it
+    for topic in ("/rfhoming/cmd_vel", "/rfhoming/target", "/rfhoming/bearing"):  # from the run log: all of it
         assert counts[topic] == len(exported[topic]) == len(demo_run["live"][topic]), topic
         assert [repr(m) for _, m in exported[topic]] == [repr(m) for _, m in demo_run["live"][topic]], topic
     end = round(demo_run["runlog"][-1]["t"] * 1e9)
@@ -113,7 +113,7 @@ def test_export_of_a_capture_alone_takes_commands_from_the_bytes_sent(demo_run, 
     assert done.returncode == 0, done.stderr
     exported = read_back(tmp_path / "c.mcap")
     commands = [r for r in demo_run["runlog"] if r["kind"] == "command"]
-    sent = [(m.linear.x, m.angular.z) for _, m in exported["/cmd_vel"]]
+    sent = [(m.linear.x, m.angular.z) for _, m in exported["/rfhoming/cmd_vel"]]
     logged = [(r["v"], r["w"]) for r in commands]
 
     def same(k: int) -> bool:  # millimetre and mrad on the wire

@@ -75,8 +75,9 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
         emulator.wait(timeout=30)
     # the second reader (plain cyclonedds, its own types) heard the emulated robot and rfhoming
     topics = {h["topic"] for h in heard}
-    # s0-open's base has no scanner; --ros2 adds the run's target and events, not a second /odom
-    assert topics == {"cmd_vel", "odom", "tf", "rfhoming/target", "rfhoming/events"}, topics
+    # s0-open's base has no scanner; --ros2 adds the run's target, events and the commands' mirror, not a
+    # second /odom; /cmd_vel is the driver's, to this robot
+    assert topics == {"cmd_vel", "rfhoming/cmd_vel", "odom", "tf", "rfhoming/target", "rfhoming/events"}, topics
     assert next(h for h in heard if h["topic"] == "rfhoming/target")["frame"] == "odom"
     assert {"topic": "rfhoming/events", "what": "arrived"} in heard
     assert all(h["child"] == "base_link" and h["frame"] == "odom" for h in heard if h["topic"] == "odom")
@@ -91,7 +92,7 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
     assert math.dist((last["robot"]["x"], last["robot"]["y"]), (target["x"], target["y"])) < 1.0
     with (tmp_path / "run.mcap").open("rb") as f:  # the MCAP recording has the ROS 2 base's odometry
         topics_recorded = Counter(channel.topic for _, channel, _ in make_reader(f).iter_messages())
-    assert topics_recorded["/odom"] > 100 and topics_recorded["/tf"] > 100 and topics_recorded["/cmd_vel"] > 10
+    assert topics_recorded["/odom"] > 100 and topics_recorded["/tf"] > 100 and topics_recorded["/rfhoming/cmd_vel"] > 10
     replay_log = tmp_path / "replayed.jsonl"
     done = rfhoming("replay", str(tmp_path / "run.pcapng"), "--run", "--log", str(replay_log))
     assert done.returncode == 0, done.stderr

@@ -12,6 +12,7 @@ import random
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -57,8 +58,10 @@ def stop(emulator: subprocess.Popen) -> None:
 def check_angles(heard: list[dict], frame: str) -> None:
     angles = [h for h in heard if h["topic"] == "rfhoming/aoa/angle"]
     assert len(angles) > 20, {h["topic"] for h in heard}
-    assert all(h["frame"] == frame and len(h["tag"]) == 12 and -90 <= h["azimuth"] <= 90 and 37 <= h["channel"] <= 39
+    assert all(h["frame"] == frame and len(h["tag"]) == 12 and -90 <= h["board_azimuth"] <= 90 and 37 <= h["channel"] <= 39
                for h in angles)
+    # REP 103 in the board's frame: the board's sign turned (a tag on its left is + here, - as printed)
+    assert all(h["azimuth"] == pytest.approx(-math.radians(h["board_azimuth"]), abs=1e-6) for h in angles)
 
 
 @pytest.mark.slow
@@ -73,13 +76,14 @@ def test_listen_and_serve_publish_the_readings_and_the_base(tmp_path: Path) -> N
                              ["serve", aoa, "--port", "0", "--duration", "4", "--ros2", f"domain={domain}"])
     finally:
         stop(emulator)
-    # listen with a base: every reading on the base's clock, its odometry as /odom and /tf
+    # listen with a base: its odometry as /odom and /tf; every stamp the host's clock (s since 1970)
     check_angles(listened, "aoa_link")
     assert {"odom", "tf", "tf_static", "rfhoming/aoa/angle"} <= {h["topic"] for h in listened}
     assert all(h["frame"] == "odom" and h["child"] == "base_link" for h in listened if h["topic"] == "odom")
     static = next(h for h in listened if h["topic"] == "tf_static")
     assert ["base_link", "aoa_link"] in static["frames"] and ["base_link", "laser"] in static["frames"]
-    # serve without a base: the angles on the host's clock (seconds since 1970)
+    assert all(h["stamp"] > 1.7e9 for h in listened if h["topic"] in ("rfhoming/aoa/angle", "odom"))
+    # serve without a base: the angles on the host's clock too
     check_angles(served, "aoa_link")
     assert "odom" not in {h["topic"] for h in served}
     assert all(h["stamp"] > 1.7e9 for h in served if h["topic"] == "rfhoming/aoa/angle")
@@ -119,3 +123,30 @@ def test_locate_publishes_each_tags_fix_in_map_and_the_anchors_in_tf_static(tmp_
         cov = last["covariance"]
         assert all(cov[7 * i] > 0 for i in range(3)) and cov[21] == cov[28] == cov[35] == 1e6  # no orientation
         assert last["orientation"] == [0.0, 0.0, 0.0, 1.0]
+
+
+@pytest.mark.slow
+def test_a_run_with_a_serial_base_publishes_no_cmd_vel_and_stamps_on_the_hosts_clock(tmp_path: Path) -> None:
+    """``run --ros2`` with rfhoming's serial base: what the domain's discovery announces (DDS's
+    DCPSPublication, read by the plain cyclonedds listener) holds no writer of rt/cmd_vel -- a
+    ROS 2 base on the domain would drive on it -- but the mirror rt/rfhoming/cmd_vel; every
+    stamp is the host's wall clock during the run, not the base's (1970)."""
+    emulator, endpoints = emulate("s0-open", tmp_path, 2)
+    try:
+        aoa, base = (next(e["path"] for e in endpoints if e["device"] == d) for d in ("aoa", "base"))
+        domain = random_domain()
+        began = time.time()
+        heard = heard_while(domain, ["publications", "rfhoming/aoa/angle"],
+                            ["run", "--aoa", aoa, "--base", base, "--ros2", f"domain={domain}"])
+        ended = time.time()
+    finally:
+        stop(emulator)
+    published = {h["name"] for h in heard if h["topic"] == "DCPSPublication"}
+    assert {"rt/rfhoming/cmd_vel", "rt/odom", "rt/tf", "rt/rfhoming/aoa/angle"} <= published, published
+    assert "rt/cmd_vel" not in published
+    assert not [h for h in heard if h["topic"] == "cmd_vel"]
+    mirrored = [h for h in heard if h["topic"] == "rfhoming/cmd_vel"]
+    assert any(h["v"] > 0.1 for h in mirrored)
+    stamps = [h["stamp"] for h in heard if h["topic"] in ("odom", "rfhoming/aoa/angle")]
+    stamps += [t for h in heard if h["topic"] == "tf" for t in h["stamps"]]
+    assert len(stamps) > 100 and all(began <= t <= ended for t in stamps), (min(stamps), max(stamps), began, ended)

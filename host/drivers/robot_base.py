@@ -41,6 +41,9 @@ class Pose2D(NamedTuple):
 
 
 SCAN_V1_RANGE_MAX = 65.535  # a version-1 scan does not say its sensor's range: the record's largest
+SCAN_RANGE_MIN = 0.001  # the records' shortest range: 1 mm (0 mm means no return; docs/protocol.md, 0x22/0x23)
+SCAN_PERIOD_S = 0.1  # the emulated scanner's period (emulator BaseRunner.SCAN_PERIOD_S); *assumed* for a real base
+SCAN_TIME_INCREMENT_S = 0.0  # beams taken at one instant, as the emulated scanner casts them; *assumed* for a real one
 
 
 class Scan(NamedTuple):
@@ -49,6 +52,9 @@ class Scan(NamedTuple):
     angle_increment: float
     ranges: tuple[float | None, ...]  # metres, None = no return
     range_max: float = SCAN_V1_RANGE_MAX  # metres, the sensor's
+    range_min: float = SCAN_RANGE_MIN  # metres: a beam below it is no return
+    scan_time: float = SCAN_PERIOD_S  # seconds from one scan to the next
+    time_increment: float = SCAN_TIME_INCREMENT_S  # seconds from one beam to the next
 
     @property
     def angle_max(self) -> float:

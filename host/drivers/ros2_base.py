@@ -60,7 +60,8 @@ def scan_of(msg: ros2.LaserScan, t_host: float) -> Scan:
     """A LaserScan in the loop's terms: a beam outside [range_min, range_max] (inf, NaN, 0) is no return."""
     ranges = tuple(r if math.isfinite(r) and r > 0 and msg.range_min <= r <= msg.range_max else None
                    for r in msg.ranges)
-    return Scan(t_host, msg.angle_min, msg.angle_increment, ranges, msg.range_max)
+    return Scan(t_host, msg.angle_min, msg.angle_increment, ranges, msg.range_max, msg.range_min, msg.scan_time,
+                msg.time_increment)
 
 
 class Ros2BaseDriver(BaseDriver):

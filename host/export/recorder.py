@@ -5,12 +5,23 @@ driver listener, ``(device, t_host, item)``) and the run log's records (a RunLog
 writer is the mcap library's ROS 2 support (CDR, schema ``ros2msg``); ``rosbags`` or Foxglove
 read the file without rfhoming.
 
+Order: messages are written in log-time order, within and across chunks, so a linear reader
+(the mcap library's ``NonSeekingReader``, what reads a crashed file) sees them in time order. The
+run log's records come after the odometry they were decided on, by up to 0.2 s in the demos: a
+message is held up to :data:`REORDER_S` of message time and written once nothing earlier can
+come; one later still (a stall) goes out next with its log time raised to the last one
+written -- its header stamp and publish time keep its own time -- and is counted (``late``).
+
 Crash safety: messages go into chunks of at most :data:`CHUNK_BYTES`, and every
 :data:`FLUSH_S` -- of message time (robot or host clock) or of host time, whichever comes first --
 the open chunk is finished and the file flushed to the operating system, so a killed process
-(``kill -9``, a crash) loses at most the last second; the file then has no summary at its end,
-which the mcap library's readers and rosbags read past (docs/usage.md). ``close`` writes the
-summary. (A flush is not an fsync: a power cut may lose what the OS had not written yet.)
+(``kill -9``, a crash) loses at most the last FLUSH_S + REORDER_S; the file then has no summary
+at its end, which the mcap library's readers and rosbags read past (docs/usage.md). ``close``
+writes the held messages and the summary. (A flush is not an fsync: a power cut may lose what the
+OS had not written yet.)
+
+Channels carry ``offered_qos_profiles`` as ``ros2 bag record`` writes it (rosmsgs.py), so
+``ros2 bag play`` latches /tf_static.
 
 Frames (REP 105): ``/tf_static`` holds base_link -> each sensor frame (aoa_link, laser,
 rss_link, ble_link) from the config's ``[mounting]`` and, with a site (``--controller
@@ -32,6 +43,7 @@ inbound bytes go through the same decoders as live.
 
 from __future__ import annotations
 
+import heapq
 import json
 import logging
 import math
@@ -62,6 +74,12 @@ FLUSH_S = 1.0
 
 CHUNK_BYTES = 256 * 1024
 """A chunk is also finished at this size (a fast stream within one second)."""
+
+REORDER_S = 0.5
+"""A message is held this long (message time) so that later-made, earlier-stamped ones go first."""
+
+MAX_HELD = 50_000
+"""At most this many messages held for ordering; beyond, the earliest is written at once."""
 
 
 class RunLogError(Error, ValueError):
@@ -100,6 +118,10 @@ class McapRecorder(Sink):
         self.robot_time: float | None = None  # of the latest odometry
         self.counts: Counter[str] = Counter()  # messages per topic
         self.skipped: Counter[str] = Counter()  # items not written, per reason
+        self.late = 0  # messages later than REORDER_S: written with their log time raised
+        self._held: list[tuple[int, int, int, int, int, bytes]] = []  # (log ns, n, channel, publish ns, seq, data)
+        self._held_n = 0
+        self._written_ns = 0  # log time of the last message written
         self._closed = False
 
     def watch(self, loop: Any) -> None:
@@ -138,7 +160,8 @@ class McapRecorder(Sink):
         elif kind in ("range_scan", "range_scan_v2"):
             self._write(t, *rosmsgs.laser_scan(t, scan_of(item)), device=device)
         elif kind == "angle":
-            self._write(t, *rosmsgs.aoa_angle(t, self._aoa_frame(item), item), device=device)
+            self._write(t, *rosmsgs.aoa_angle(t, self._aoa_frame(item), item, *self._aoa_geometry(item)),
+                        device=device)
         elif kind == "adv_report":
             self._write(t, *rosmsgs.rssi_reading(t, item), device=device)
         elif kind == "antenna_set":
@@ -171,6 +194,16 @@ class McapRecorder(Sink):
         if self.source == "anchors":
             return frames.anchor_frame(event.anchor_id)
         return frames.AOA
+
+    def _aoa_geometry(self, event: Any) -> tuple[int, str]:
+        """The board's azimuth sign and angle model: the robot's board as ``[mounting]`` says,
+        a fixed anchor as its site says, S1's station board the XPLR-AOA's own."""
+        if self.source == "anchors" and self.site is not None:
+            anchor = next((a for a in self.site.anchors if a.id == event.anchor_id), None)
+            return -1, anchor.angle_model if anchor is not None else "spherical"
+        if self.source not in ("dock_aoa", "anchors") and self.mounting is not None:
+            return int(self.mounting.azimuth_sign), "spherical"
+        return -1, "spherical"
 
     def _on_runlog(self, record: dict[str, Any]) -> None:
         t = float(record["t"])
@@ -211,18 +244,31 @@ class McapRecorder(Sink):
         schema_id, encode = self._schema(typename)
         channel = self._channels.get((topic, device))
         if channel is None:
-            metadata = {"device": device} if device else {}
+            metadata = {"offered_qos_profiles": rosmsgs.offered_qos_profiles(topic)}
+            if device:
+                metadata["device"] = device
             channel = self._channels[(topic, device)] = self.writer.register_channel(topic, "cdr", schema_id, metadata)
         ns = max(0, round(t * 1e9))
-        self.writer.add_message(channel, log_time=ns, publish_time=ns, sequence=self.counts[topic],
-                                data=encode(message))
+        heapq.heappush(self._held, (ns, self._held_n, channel, ns, self.counts[topic], encode(message)))
+        self._held_n += 1
         self.counts[topic] += 1
+        self._release(ns - round(REORDER_S * 1e9))
         now = time.monotonic()
         if self._flushed_at is None:
             self._flushed_at = (t, now)
         elif t - self._flushed_at[0] >= FLUSH_S or now - self._flushed_at[1] >= FLUSH_S:
             self.flush()
             self._flushed_at = (t, now)
+
+    def _release(self, horizon_ns: float) -> None:
+        """Write the held messages up to ``horizon_ns`` (and beyond MAX_HELD), in log-time order."""
+        while self._held and (self._held[0][0] <= horizon_ns or len(self._held) > MAX_HELD):
+            ns, _, channel, publish_ns, sequence, data = heapq.heappop(self._held)
+            if ns < self._written_ns:
+                self.late += 1
+                ns = self._written_ns
+            self._written_ns = ns
+            self.writer.add_message(channel, log_time=ns, publish_time=publish_ns, sequence=sequence, data=data)
 
     def _schema(self, typename: str) -> tuple[int, Any]:
         """The schema of a type (written once, ROS 2 message definition) and its CDR encoder."""
@@ -241,13 +287,14 @@ class McapRecorder(Sink):
         if self._closed:
             return
         self._closed = True
+        self._release(math.inf)
         self.writer.finish()
         if self._file is not None:
             self._file.close()
 
     def summary(self) -> dict[str, Any]:
         return {"messages": sum(self.counts.values()), "topics": dict(sorted(self.counts.items())),
-                "skipped": dict(self.skipped)}
+                "skipped": dict(self.skipped), "late": self.late}
 
 
 def export(output: Path | str, *, runlog: Path | str | None = None, capture: Path | str | None = None,

@@ -4,9 +4,20 @@ them over DDS instead of writing them). The IDL types are made from the same mes
 definitions the MCAP schemas carry (rosbags' ROS 2 Humble store plus rfhoming_msgs), under
 ROS 2's DDS names. QoS: /tf_static reliable and transient-local (as tf2's static broadcaster),
 everything else ROS 2's default profile. Loopback only unless ``discovery=subnet``.
+
+Time: every message is stamped on the host's wall clock (seconds since 1970), whatever the
+recording would use: a base's clock (a microcontroller's time since boot) would put the stamps
+in 1970 and tf2 on every other node, on wall time, would find no transform at "now". Publishing
+``/clock`` from the base's time instead would make every node on the domain run on it
+(``use_sim_time``), the robot's own too. A reading is stamped when it arrived; a run log record
+(command, estimate, event) when it is published, as it is made.
+
+The loop's commands are mirrored on ``/rfhoming/cmd_vel`` (rosmsgs.COMMANDS): ``/cmd_vel`` is
+published only by a ``ros2:`` base's own driver, to that robot.
 """
 
 # no `from __future__ import annotations`: cyclonedds reads the generated fields at run time
+import time
 from collections import Counter
 from functools import cache
 from typing import Any
@@ -81,15 +92,14 @@ def sample(ros_type: str, message: dict[str, Any]) -> IdlStruct:
 class Ros2Publisher(McapRecorder):
     """The MCAP recorder's messages, published on a DDS domain instead of written."""
 
-    def __init__(self, domain: int = 0, discovery: str = "localhost", *, clock: str = "robot",
-                 skip: frozenset[str] = frozenset(), source: str | None = None, site: Any = None,
-                 robot: bool = True) -> None:
+    def __init__(self, domain: int = 0, discovery: str = "localhost", *, skip: frozenset[str] = frozenset(),
+                 source: str | None = None, site: Any = None, robot: bool = True) -> None:
         """``skip``: topics not to publish (a ROS 2 base's own /odom, /scan, /tf, /cmd_vel on its
         domain); ``source`` and ``site``: as the recorder's (``anchors``: angles in anchor_<id>,
         placed in map from the site on /tf_static); ``robot=False``: no robot (``locate``), so no
         base_link -> sensor frames."""
         # McapRecorder's state, without its file
-        self.clock, self.commands_from, self.mounting, self.source, self.site = clock, "runlog", None, source, site
+        self.clock, self.commands_from, self.mounting, self.source, self.site = "host", "runlog", None, source, site
         self.robot = robot
         self._clocks: dict[str, Any] = {}
         self._static_written = False
@@ -106,6 +116,10 @@ class Ros2Publisher(McapRecorder):
 
     def static_transforms(self) -> list[frames.Transform]:
         return super().static_transforms() if self.robot else frames.anchor_mounts(self.site)
+
+    def _on_runlog(self, record: dict[str, Any]) -> None:
+        """A run log record, stamped now on the host's clock (its ``t`` is robot time)."""
+        super()._on_runlog({**record, "t": time.time()})
 
     def _write(self, t: float, topic: str, typename: str, message: dict[str, Any], device: str = "") -> None:
         if self._closed or topic in self.skip:

@@ -18,6 +18,7 @@ from typing import Any
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from rfhoming.host.estimation.anchors3d import board_direction
 from rfhoming.host.export import frames
 from rfhoming.host.export.frames import Transform
 
@@ -36,12 +37,17 @@ RSSI = "rfhoming_msgs/msg/RssiReading"
 ANTENNAS = "rfhoming_msgs/msg/AntennaSet"
 BEARING = "rfhoming_msgs/msg/Bearing"
 
+COMMANDS = "/rfhoming/cmd_vel"
+"""The loop's velocity commands as rfhoming logs and mirrors them: never ``/cmd_vel``, which
+any ROS 2 base on the domain would drive on (or ``ros2 bag play`` of the log). The only
+``/cmd_vel`` rfhoming publishes is a ``ros2:`` base's own command topic, by its driver."""
+
 TOPICS = {  # topic -> type: the whole vocabulary of an rfhoming log
     "/tf": TF,
     "/tf_static": TF,
     "/odom": ODOM,
     "/scan": SCAN,
-    "/cmd_vel": TWIST,
+    COMMANDS: TWIST,
     "/rfhoming/target": POINT,
     "/rfhoming/fix": POINT,
     "/rfhoming/bearing": BEARING,
@@ -52,6 +58,25 @@ TOPICS = {  # topic -> type: the whole vocabulary of an rfhoming log
 }
 
 ODOM_FRAME, BASE_FRAME = frames.ODOM, frames.BASE
+
+
+def offered_qos_profiles(topic: str) -> str:
+    """The channel metadata ``offered_qos_profiles`` as ``ros2 bag record`` writes it, so that
+    ``ros2 bag play`` offers what rfhoming's ``--ros2`` publishers do: reliable, transient-local
+    (latched, as tf2's static broadcaster) for /tf_static, volatile elsewhere.
+
+    The form is rosbag2_storage's (github.com/ros2/rosbag2 ``rosbag2_storage/src/rosbag2_storage/
+    qos.cpp``, ``convert<Rosbag2QoS>::encode``; the MCAP plugin stores it per channel,
+    ``rosbag2_storage_mcap/src/mcap_storage.cpp`` ``create_topic``): a YAML list of one profile,
+    the policies as rmw's enum numbers (history 3 unknown with depth 0, as the graph reports an
+    offer; reliability 1 reliable; durability 1 transient local, 2 volatile; liveliness 1
+    automatic) and infinite durations as ``RMW_DURATION_INFINITE``. Numbers, not names: an MCAP
+    without rosbag2's own metadata record is read as metadata version 8, which takes numbers."""
+    durability = 1 if topic == "/tf_static" else 2
+    infinite = "\n    sec: 9223372036\n    nsec: 854775807"
+    return (f"- history: 3\n  depth: 0\n  reliability: 1\n  durability: {durability}\n  deadline:{infinite}\n"
+            f"  lifespan:{infinite}\n  liveliness: 1\n  liveliness_lease_duration:{infinite}\n"
+            "  avoid_ros_namespace_conventions: false")
 
 # Odometry covariance (*assumed*: the base reports none). A planar differential drive: z, roll,
 # pitch and the sideways/vertical/roll/pitch rates are known to be zero (tiny variance). The
@@ -137,19 +162,28 @@ def odom_transform(t: float, x: float, y: float, theta: float) -> tuple[str, str
 
 
 def laser_scan(t: float, scan: Any) -> tuple[str, str, dict]:
-    """A range scan (:class:`~rfhoming.host.drivers.robot_base.Scan`) in the ``laser`` frame;
-    no return -> +inf (REP 117); range_max is the sensor's."""
+    """A range scan (:class:`~rfhoming.host.drivers.robot_base.Scan`) in the ``laser`` frame,
+    REP 117: every range within [range_min, range_max], no return or beyond range_max +inf,
+    below range_min -inf; range_min, range_max, scan_time and time_increment are the sensor's."""
     return "/scan", SCAN, {
         "header": header(t, frames.LASER), "angle_min": scan.angle_min,
         "angle_max": scan.angle_max, "angle_increment": scan.angle_increment,
-        "time_increment": 0.0, "scan_time": 0.0, "range_min": 0.0, "range_max": scan.range_max,
-        "ranges": [math.inf if r is None else r for r in scan.ranges], "intensities": [],
+        "time_increment": scan.time_increment, "scan_time": scan.scan_time, "range_min": scan.range_min,
+        "range_max": scan.range_max, "ranges": [rep117(r, scan.range_min, scan.range_max) for r in scan.ranges],
+        "intensities": [],
     }
 
 
+def rep117(r: float | None, range_min: float, range_max: float) -> float:
+    """A range as REP 117 has it: +inf for no return or beyond range_max, -inf below range_min."""
+    if r is None or r > range_max:
+        return math.inf
+    return -math.inf if r < range_min else r
+
+
 def twist(v: float, w: float) -> tuple[str, str, dict]:
-    """A velocity command (Twist has no header: the log time is its time)."""
-    return "/cmd_vel", TWIST, {"linear": {"x": v, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": w}}
+    """A velocity command (Twist has no header: the log time is its time), on :data:`COMMANDS`."""
+    return COMMANDS, TWIST, {"linear": {"x": v, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": w}}
 
 
 def point(topic: str, t: float, xy: list[float], frame: str = ODOM_FRAME) -> tuple[str, str, dict]:
@@ -185,12 +219,21 @@ def text(topic: str, value: str) -> tuple[str, str, dict]:
     return topic, STRING, {"data": value}
 
 
-def aoa_angle(t: float, frame: str, e: Any) -> tuple[str, str, dict]:
-    """A u-connectLocate AngleEvent."""
+def aoa_angle(t: float, frame: str, e: Any, board_sign: int = -1, model: str = "spherical") -> tuple[str, str, dict]:
+    """A u-connectLocate AngleEvent in its board's frame, REP 103 signs (x the boresight, z up).
+
+    The board's own sign (negative = tag to its left) is turned into the direction in the
+    board's frame by the locator's conversion (host/estimation/anchors3d.py ``board_direction``,
+    ``model`` the site's angle model), so a bearing drawn from the message points where the
+    locator's ray does. ``board_sign``: the config's ``[mounting] azimuth_sign`` for the robot's
+    board (-1: the XPLR-AOA's convention; +1 a board reporting counter-clockwise)."""
+    x, y, z = board_direction(-board_sign * e.azimuth, e.elevation, model)
     return "/rfhoming/aoa/angle", AOA, {
         "header": header(t, frame), "instance_id": e.instance_id, "anchor_id": e.anchor_id,
-        "azimuth_deg": e.azimuth, "elevation_deg": e.elevation, "rssi1_dbm": e.rssi1, "reserved": e.reserved,
-        "channel": e.channel, "timestamp_ms": e.timestamp_ms & 0xFFFFFFFF, "seq": -1 if e.seq is None else e.seq,
+        "azimuth_rad": math.atan2(y, x), "elevation_rad": math.atan2(z, math.hypot(x, y)),
+        "board_azimuth_deg": e.azimuth, "board_elevation_deg": e.elevation, "rssi1_dbm": e.rssi1,
+        "reserved": e.reserved, "channel": e.channel, "timestamp_ms": e.timestamp_ms & 0xFFFFFFFF,
+        "seq": -1 if e.seq is None else e.seq,
     }
 
 
@@ -222,5 +265,5 @@ def bearing(t: float, fields: dict[str, Any]) -> tuple[str, str, dict]:
     return "/rfhoming/bearing", BEARING, {
         "header": header(t, BASE_FRAME), "source": str(fields.get("source", "")),
         "bearing_rad": pick("theta_s", "theta"), "range_m": pick("distance", "range"),
-        "azimuth_deg": pick("azimuth"), "rssi_dbm": pick("rssi"),
+        "board_azimuth_deg": pick("azimuth"), "rssi_dbm": pick("rssi"),
     }

@@ -15,8 +15,9 @@ PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
 EXPORT_HELP = """\
 Write a run as ROS 2 messages in an MCAP file that Foxglove, rosbags and `ros2 bag` read:
 /tf and /tf_static (REP 105 frames: map, odom, base_link, and the sensors' frames from the
---config's [mounting]), /odom (nav_msgs/Odometry), /scan (sensor_msgs/LaserScan), /cmd_vel (geometry_msgs/Twist),
-/rfhoming/target (geometry_msgs/PointStamped), and rfhoming_msgs' AoaAngle, RssiReading,
+--config's [mounting]), /odom (nav_msgs/Odometry), /scan (sensor_msgs/LaserScan), the loop's
+commands on /rfhoming/cmd_vel (geometry_msgs/Twist; not /cmd_vel, which a played log would drive a
+robot with), /rfhoming/target (geometry_msgs/PointStamped), and rfhoming_msgs' AoaAngle, RssiReading,
 AntennaSet and Bearing (their .msg files ship in rfhoming/host/export/rfhoming_msgs). Give the
 run log and its capture for everything; a capture alone gives the devices' own streams and the
 commands sent to the base; a run log alone gives commands, estimates and bearings.

@@ -89,19 +89,19 @@ class ExtraMissing(Error):
     """An option needs a pip extra that is not installed; the message names it."""
 
 
-BASE_TOPICS = frozenset({"/odom", "/scan", "/tf", "/cmd_vel"})
-"""What a ROS 2 base publishes itself (and rfhoming's /cmd_vel): not published again by --ros2."""
+BASE_TOPICS = frozenset({"/odom", "/scan", "/tf"})
+"""What a ROS 2 base publishes itself: not published again by --ros2 on its domain."""
 
 
 def add_ros2_option(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--ros2", nargs="?", const="", metavar="domain=N[,discovery=subnet]",
                    help=f"publish {what} live on ROS 2 domain N (default 0): the MCAP recording's topics and "
-                        "types, REP 105 frames; this machine only unless discovery=subnet; needs the ros and "
-                        "ros2 extras")
+                        "types, REP 105 frames, stamped on this host's clock; the loop's commands on "
+                        "/rfhoming/cmd_vel; this machine only unless discovery=subnet; needs the ros and ros2 extras")
 
 
-def ros2_publisher(text: str, ros2_bases: Iterable[int] = (), *, clock: str = "robot", source: str | None = None,
-                   site: Any = None, robot: bool = True) -> Sink:
+def ros2_publisher(text: str, ros2_bases: Iterable[int] = (), *, source: str | None = None, site: Any = None,
+                   robot: bool = True) -> Sink:
     """``--ros2 [domain=N][,discovery=subnet]``: a sink publishing on that domain. ``ros2_bases``:
     the domains of the command's ROS 2 bases, whose own topics it leaves to them; the rest go to
     host/export/ros2live.py ``Ros2Publisher``."""
@@ -114,19 +114,18 @@ def ros2_publisher(text: str, ros2_bases: Iterable[int] = (), *, clock: str = "r
     if set(spec.settings) - {"domain", "discovery"}:
         raise PortSpecError(f"--ros2 {text}: takes domain=N and discovery=localhost|subnet")
     domain = spec.settings.get("domain", 0)
-    return Ros2Publisher(domain, spec.settings.get("discovery", "localhost"), clock=clock, source=source,
-                         site=site, robot=robot, skip=BASE_TOPICS if domain in set(ros2_bases) else frozenset())
+    return Ros2Publisher(domain, spec.settings.get("discovery", "localhost"), source=source, site=site, robot=robot,
+                         skip=BASE_TOPICS if domain in set(ros2_bases) else frozenset())
 
 
 def start_ros2(args: argparse.Namespace, drivers: list[Any]) -> Sink | None:
     """``--ros2`` for commands that show devices (listen, capture, serve): None without it, else a
-    sink for the drivers' items -- on the base's clock when a base is among them (as a run's
-    recording), else on the host's. An Error (one line, exit 2) when it cannot start."""
+    sink for the drivers' items (stamped on the host's clock). An Error (one line, exit 2) when it
+    cannot start."""
     if getattr(args, "ros2", None) is None:
         return None
     bases = [d for d in drivers if isinstance(d, BaseDriver)]
-    sink = ros2_publisher(args.ros2, [d.topics.domain for d in bases if hasattr(d, "topics")],
-                          clock="robot" if bases else "host")
+    sink = ros2_publisher(args.ros2, [d.topics.domain for d in bases if hasattr(d, "topics")])
     for d in drivers:
         d.listeners.append(sink.on_item)
     return sink

@@ -176,7 +176,7 @@ def cmd_locate(args: argparse.Namespace) -> int:
     locator = Locator(site, track=not (args.no_track or args.smooth), tracker=args.tracker,
                       accel_psd=args.accel_psd, loss=args.loss, height_sigma=args.height_sigma)
     # --ros2: the anchors' angles (in anchor_<id>, placed in map by /tf_static) and the fixes
-    ros2 = (ros2_publisher(args.ros2, clock="host", source="anchors", site=site, robot=False)
+    ros2 = (ros2_publisher(args.ros2, source="anchors", site=site, robot=False)
             if args.ros2 is not None else None)
     out = args.output.open("w") if args.output else sys.stdout
     per_tag: dict[str, list[float]] = {}

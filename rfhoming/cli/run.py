@@ -285,7 +285,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command")
     p.add_argument("--capture", type=output_file, help="pcapng capture of every byte")
     p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
-    add_ros2_option(p, "what the run senses (a ROS 2 base's own /odom, /scan, /tf and /cmd_vel are left to it)")
+    add_ros2_option(p, "what the run senses (a ROS 2 base's own /odom, /scan and /tf are left to it)")
     add_foxglove_option(p)
     p.set_defaults(func=cmd_run)
 

@@ -44,9 +44,11 @@ struct AngleListener : DataReaderListener {
             if (!info.valid_data) continue;
             std::printf("{\"topic\": \"angle\", ");
             print_header(a.header());
-            std::printf(", \"tag\": \"%s\", \"anchor\": \"%s\", \"azimuth\": %d, \"elevation\": %d, \"rssi\": %d, "
+            std::printf(", \"tag\": \"%s\", \"anchor\": \"%s\", \"azimuth\": %.6f, \"elevation\": %.6f, "
+                        "\"board_azimuth\": %d, \"board_elevation\": %d, \"rssi\": %d, "
                         "\"reserved\": %d, \"channel\": %u, \"timestamp_ms\": %u, \"seq\": %d}\n",
-                        a.instance_id().c_str(), a.anchor_id().c_str(), a.azimuth_deg(), a.elevation_deg(),
+                        a.instance_id().c_str(), a.anchor_id().c_str(), a.azimuth_rad(), a.elevation_rad(),
+                        a.board_azimuth_deg(), a.board_elevation_deg(),
                         a.rssi1_dbm(), a.reserved(), a.channel(), a.timestamp_ms(), a.seq());
             std::fflush(stdout);
             ++angles;
