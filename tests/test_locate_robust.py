@@ -5,6 +5,7 @@ point to point calibrates, the cone angle model, robust fits, self-calibration."
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -195,11 +196,12 @@ def test_self_calibration_recovers_the_emulated_boards_hidden_errors():
     tells the host nothing; the walk of three tags over the room gives them back, up to the
     gauge (the scales' geometric mean)."""
     from rfhoming.campaigns.kit import record
-    from rfhoming.host.calibration import self_calibrate
+    from rfhoming.host.self_calibration import self_calibrate
 
     site = sites.load(SITE)
     rec = record(seed=4, duration=30.0)
     result = self_calibrate(site, [rec.events])
+    assert result.write and result.held_out.miss_after_m < result.held_out.miss_before_m
     truth = {t["device"]: t for t in rec.anchors_truth}
     gauge = math.exp(np.mean([math.log(t["az_scale"]) for t in truth.values()]))
     assert result.rms_after_deg < 0.5 * result.rms_before_deg
@@ -213,13 +215,48 @@ def test_self_calibration_recovers_the_emulated_boards_hidden_errors():
 
 def test_self_calibration_refuses_tags_that_did_not_cover_the_room():
     from rfhoming.campaigns.kit import record
-    from rfhoming.host.calibration import CalibrationError, self_calibrate
+    from rfhoming.host.calibration import CalibrationError
+    from rfhoming.host.self_calibration import self_calibrate
 
     site = sites.load(SITE)
     still = [(t, e) for t, e in record(seed=4, duration=30.0, calibration=True).events
              if e.instance_id == "CCF9578E0C02"]  # one tag standing in the middle
     with pytest.raises(CalibrationError, match="did not cover the room"):
         self_calibrate(site, [still])
+
+
+def test_self_calibration_holds_elevation_that_the_data_cannot_determine():
+    """High wall anchors over tags all carried at one height nobody gave: the height and the
+    elevation bias trade off, so elevation is held, with the reason; the same walk with the
+    height given (--height) fits it."""
+    from rfhoming.campaigns.kit import WALL_ROOM, record
+    from rfhoming.host.self_calibration import self_calibrate
+
+    site = sites.load(SITE)
+    site = replace(site, anchors=tuple(replace(a, position=(*a.position[:2], 2.3)) for a in site.anchors),
+                   tags=tuple(replace(t, height=None) for t in site.tags))
+    rec = record(seed=5, duration=40.0, room=WALL_ROOM)
+    unknown = self_calibrate(site, [rec.events])
+    for f in unknown.fits:
+        assert "not observable" in f.held["el_scale"] and "el_scale" not in f.sigma
+        assert f.calibration.el_scale == 1.0 and f.calibration.el_bias_deg == 0.0
+    given_height = self_calibrate(site, [rec.events], height=WALL_ROOM["tag_height_m"])
+    assert any("el_bias_deg" in f.sigma for f in given_height.fits)
+
+
+def test_self_calibration_that_cannot_help_writes_nothing(tmp_path):
+    """Boards with no hidden error: the site file is already right, so no fit beats it on
+    held-out epochs by the margin, and nothing is written (one line says why)."""
+    from rfhoming.campaigns.kit import record
+    from rfhoming.host.self_calibration import self_calibrate
+
+    site = sites.load(SITE)
+    perfect = {"mount_error_deg": 0.0, "scale_error": 0.0, "bias_deg": 0.0, "reflection": 0.0}
+    rec = record(seed=6, duration=30.0, boards=perfect)
+    result = self_calibrate(site, [rec.events])
+    assert not result.write
+    assert result.verdict.startswith("not written: on held-out epochs")
+    assert result.held_out.az_rms_after_deg > (1 - 0.02) * result.held_out.az_rms_before_deg
 
 
 from hypothesis import given, settings  # noqa: E402
