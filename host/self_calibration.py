@@ -36,7 +36,7 @@ import numpy as np
 
 from rfhoming.host.calibration import AnchorFit, CalibrationError
 from rfhoming.host.estimation.anchors3d import Degenerate, locate, make_ray
-from rfhoming.host.site import CALIBRATION_LIMITS, Calibration, Site
+from rfhoming.host.site import CALIBRATION_LIMITS, Anchor, Calibration, Site
 from rfhoming.protocol.uconnect import AngleEvent
 
 SELF_EPOCH_S = 0.5
@@ -427,6 +427,66 @@ def _jackknife(folds: list[np.ndarray]) -> np.ndarray:
     return np.sqrt((len(f) - 1) / len(f) * ((f - f.mean(axis=0)) ** 2).sum(axis=0))
 
 
+def _check_coverage(ep: _Epochs, anchors: Sequence[Anchor]) -> None:
+    """CalibrationError unless the tags covered the room and each anchor saw a span of azimuth."""
+    origins = np.array([a.position for a in anchors], float)
+    extent = float(min(np.ptp(origins[:, 0]), np.ptp(origins[:, 1])) or max(np.ptp(origins[:, :2], axis=0)))
+    narrowest = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(ep.start[:, :2].T))[0], 0.0)))
+    if narrowest < SELF_MIN_SPREAD * extent:
+        raise CalibrationError(
+            f"the tags did not cover the room: their positions spread {narrowest:.2f} m across their narrowest "
+            f"direction, {SELF_MIN_SPREAD * extent:.2f} m needed ({SELF_MIN_SPREAD:g} of the anchors' extent); "
+            "a dwell at one point cannot tell an anchor's scale from the tag's position: walk the tags over the "
+            "whole room, or calibrate on known points (--points)")
+    for k, a in enumerate(anchors):
+        seen = ep.az[ep.row_a == k]
+        span = float(np.percentile(seen, 95) - np.percentile(seen, 5)) if len(seen) else 0.0
+        if span < SELF_MIN_AZ_SPAN_DEG:
+            raise CalibrationError(f"anchor {a.name} saw the tags over {span:.0f} deg of azimuth, "
+                                   f"{SELF_MIN_AZ_SPAN_DEG:g}+ needed to tell its scale: walk the tags across its view")
+
+
+def _observable(ep: _Epochs, n_a: int) -> tuple[np.ndarray, list[dict[str, str]]]:
+    """(A, 5) which parameters the geometry lets a fit determine, and why the rest are held."""
+    held: list[dict[str, str]] = [{"yaw_offset_deg": "moves a near-level board's azimuths like its bias: fitted "
+                                                     "as the bias"} for _ in range(n_a)]
+    base_free = np.zeros((n_a, 5), bool)
+    base_free[:, :2] = True
+    known = ~np.isnan(ep.height)
+    for k in range(n_a):
+        el_seen = ep.el[(ep.row_a == k) & known[ep.row_e]]
+        el_span = float(np.percentile(el_seen, 95) - np.percentile(el_seen, 5)) if len(el_seen) >= SELF_MIN_EPOCHS else 0.0
+        if el_span >= MIN_EL_SPAN_DEG:
+            base_free[k, 3:] = True
+        else:
+            held[k]["el_scale"] = held[k]["el_bias_deg"] = (
+                f"not observable: {len(el_seen)} angles of tags with a known height spanning {el_span:.0f} deg of "
+                f"elevation ({MIN_EL_SPAN_DEG:g}+ over {SELF_MIN_EPOCHS}+ needed; give the tags' heights in the site "
+                "file or --height)")
+    return base_free, held
+
+
+def _hold_undetermined(cv: _CrossValidated, free: np.ndarray, held: list[dict[str, str]]) -> bool:
+    """Hold (in ``free`` and ``held``) every parameter a fold ran to its bound or the folds
+    disagree on; True when any was."""
+    sd = _jackknife(cv.folds)
+    newly = False
+    for k, j in zip(*np.nonzero(free)):
+        lo, hi = LIMITS[j]
+        values = np.array([f[k, j] for f in cv.folds])
+        value = float(values[np.argmin(np.minimum(values - lo, hi - values))])  # the nearest a bound
+        if min(value - lo, hi - value) < 0.01 * (hi - lo):
+            why = f"ran to its bound ({_show(j, value)}): the data do not determine it"
+        elif sd[k, j] > DETERMINED[j]:
+            why = f"flat: the held-out folds' fits spread +-{_show_sd(j, sd[k, j])} (> {_show_sd(j, DETERMINED[j])})"
+        else:
+            continue
+        free[k, j] = False
+        held[k][NAMES[j]] = why
+        newly = True
+    return newly
+
+
 def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *,
                    height: float | None = None, models: str = "auto",
                    progress: Callable[[str], None] = lambda _: None) -> SelfCalibration:
@@ -443,36 +503,8 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
     if n_e < SELF_MIN_EPOCHS:
         raise CalibrationError(f"self-calibration needs {SELF_MIN_EPOCHS}+ epochs (a tag heard by 3+ anchors, one "
                                f"per {SELF_EPOCH_S:g} s); the recordings give {n_e}: record longer")
-    origins = np.array([a.position for a in anchors], float)
-    extent = float(min(np.ptp(origins[:, 0]), np.ptp(origins[:, 1])) or max(np.ptp(origins[:, :2], axis=0)))
-    narrowest = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(ep.start[:, :2].T))[0], 0.0)))
-    if narrowest < SELF_MIN_SPREAD * extent:
-        raise CalibrationError(
-            f"the tags did not cover the room: their positions spread {narrowest:.2f} m across their narrowest "
-            f"direction, {SELF_MIN_SPREAD * extent:.2f} m needed ({SELF_MIN_SPREAD:g} of the anchors' extent); "
-            "a dwell at one point cannot tell an anchor's scale from the tag's position: walk the tags over the "
-            "whole room, or calibrate on known points (--points)")
-    for k, a in enumerate(anchors):
-        seen = ep.az[ep.row_a == k]
-        span = float(np.percentile(seen, 95) - np.percentile(seen, 5)) if len(seen) else 0.0
-        if span < SELF_MIN_AZ_SPAN_DEG:
-            raise CalibrationError(f"anchor {a.name} saw the tags over {span:.0f} deg of azimuth, "
-                                   f"{SELF_MIN_AZ_SPAN_DEG:g}+ needed to tell its scale: walk the tags across its view")
-    held: list[dict[str, str]] = [{"yaw_offset_deg": "moves a near-level board's azimuths like its bias: fitted "
-                                                     "as the bias"} for _ in anchors]
-    base_free = np.zeros((n_a, 5), bool)
-    base_free[:, :2] = True
-    known = ~np.isnan(ep.height)
-    for k in range(n_a):
-        el_seen = ep.el[(ep.row_a == k) & known[ep.row_e]]
-        el_span = float(np.percentile(el_seen, 95) - np.percentile(el_seen, 5)) if len(el_seen) >= SELF_MIN_EPOCHS else 0.0
-        if el_span >= MIN_EL_SPAN_DEG:
-            base_free[k, 3:] = True
-        else:
-            held[k]["el_scale"] = held[k]["el_bias_deg"] = (
-                f"not observable: {len(el_seen)} angles of tags with a known height spanning {el_span:.0f} deg of "
-                f"elevation ({MIN_EL_SPAN_DEG:g}+ over {SELF_MIN_EPOCHS}+ needed; give the tags' heights in the site "
-                "file or --height)")
+    _check_coverage(ep, anchors)
+    base_free, held = _observable(ep, n_a)
     site_models = [a.angle_model for a in anchors]
     if models == "site":
         candidates = [("site", site_models, False), ("site+compression", site_models, True)]
@@ -508,22 +540,7 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
     progress("; final")
     cv = _cross_validate(_Model(site, chosen_models, free), ep, progress)
     for _ in range(2):  # hold what the data do not determine, and fit again
-        sd = _jackknife(cv.folds)
-        newly = False
-        for k, j in zip(*np.nonzero(free)):
-            lo, hi = LIMITS[j]
-            values = np.array([f[k, j] for f in cv.folds])
-            value = float(values[np.argmin(np.minimum(values - lo, hi - values))])  # the nearest a bound
-            if min(value - lo, hi - value) < 0.01 * (hi - lo):
-                why = f"ran to its bound ({_show(j, value)}): the data do not determine it"
-            elif sd[k, j] > DETERMINED[j]:
-                why = f"flat: the held-out folds' fits spread +-{_show_sd(j, sd[k, j])} (> {_show_sd(j, DETERMINED[j])})"
-            else:
-                continue
-            free[k, j] = False
-            held[k][NAMES[j]] = why
-            newly = True
-        if not newly:
+        if not _hold_undetermined(cv, free, held):
             break
         progress("; refit")
         cv = _cross_validate(_Model(site, chosen_models, free), ep, progress)

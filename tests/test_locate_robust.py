@@ -244,6 +244,23 @@ def test_self_calibration_holds_elevation_that_the_data_cannot_determine():
     assert any("el_bias_deg" in f.sigma for f in given_height.fits)
 
 
+def test_self_calibration_holds_a_parameter_at_its_bound_and_writes_nothing_worse():
+    """One board 50 deg off (beyond the site file's 45 deg bias limit, angles clipped at 90): its
+    bias runs to the bound, so it is held with the reason instead of written at the bound, and
+    the calibration that is left does not beat the site on held-out epochs: nothing written."""
+    from rfhoming.host.self_calibration import self_calibrate
+
+    site = sites.load(SITE)
+    true = {a.id: (a.rotation(), 1.0, 50.0 if a.name == "west" else 0.0) for a in site.anchors}
+    events = synthetic(site, lambda t: np.array([6 + 5 * np.sin(0.21 * t), 3 + 2.5 * np.sin(0.37 * t), 1.0]),
+                       90.0, rate_hz=10, true=true)
+    result = self_calibrate(site, [events])
+    west = next(f for f in result.fits if f.anchor == "west")
+    assert west.held["az_bias_deg"].startswith("ran to its bound") and west.calibration.az_bias_deg == 0.0
+    assert "az_bias_deg" not in west.sigma
+    assert not result.write and result.verdict.startswith("not written")
+
+
 def test_self_calibration_that_cannot_help_writes_nothing(tmp_path):
     """Boards with no hidden error: the site file is already right, so no fit beats it on
     held-out epochs by the margin, and nothing is written (one line says why)."""
@@ -436,11 +453,24 @@ def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path)
     site = sites.load(SITE)
     _capture_of(record(seed=4, duration=30.0).events, tmp_path / "walk.pcapng", site)
     cli = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run",
-                          "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True, timeout=120)
+                          "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True, timeout=300)
     assert cli.returncode == 0, cli.stderr
-    assert "geometric mean 1" in cli.stderr
+    assert "geometric mean 1" in cli.stderr and "held-out azimuth rms" in cli.stderr
     report = [json.loads(line) for line in cli.stdout.splitlines()]
     assert len(report) == 4 and all(r["self"] and set(r["sigma"]) >= {"az_scale", "az_bias_deg"} for r in report)
+    # boards with no hidden error: nothing to gain on held-out epochs, so the site file is left as it was
+    perfect = {"mount_error_deg": 0.0, "scale_error": 0.0, "bias_deg": 0.0, "reflection": 0.0}
+    _capture_of(record(seed=6, duration=30.0, boards=perfect).events, tmp_path / "plain.pcapng", site)
+    own_site = tmp_path / "site.toml"
+    own_site.write_text(SITE.read_text())
+    kept = subprocess.run([*RFHOMING, "calibrate", str(own_site), "--self", "--from",
+                           f"capture:{tmp_path / 'plain.pcapng'}"], capture_output=True, text=True, timeout=300)
+    assert kept.returncode == 0, kept.stderr
+    assert "self-calibration not written: on held-out epochs" in kept.stderr
+    assert own_site.read_text() == SITE.read_text()
+    located = subprocess.run([*RFHOMING, "locate", str(own_site), "--from", f"capture:{tmp_path / 'plain.pcapng'}"],
+                             capture_output=True, text=True, timeout=300)
+    assert located.returncode == 0 and "no calibration in" in located.stderr
     still = [(t, e) for t, e in synthetic(site, lambda t: np.array([6.0, 3.0, 1.0]), 30.0)]
     _capture_of(still, tmp_path / "still.pcapng", site)
     refused = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run",
