@@ -55,17 +55,27 @@ class SiteError(Error, ValueError):
 
 @dataclass(frozen=True)
 class Calibration:
-    """Per-anchor correction: true = (reported - bias) / scale; the yaw offset turns the board."""
+    """Per-anchor correction of the reported angles; the yaw offset turns the board.
+
+    Reported = scale * compress(true) + bias, where compress(a) = a * (1 - c (a / 90)^2) reads
+    |azimuth| short toward +-90 by the fraction ``az_compression`` (c) at 90 degrees."""
 
     yaw_offset_deg: float = 0.0
     az_scale: float = 1.0
     az_bias_deg: float = 0.0
     el_scale: float = 1.0
     el_bias_deg: float = 0.0
+    az_compression: float = 0.0
 
     def correct(self, azimuth_deg: float, elevation_deg: float) -> tuple[float, float]:
-        return ((azimuth_deg - self.az_bias_deg) / self.az_scale,
-                (elevation_deg - self.el_bias_deg) / self.el_scale)
+        """The true (azimuth, elevation) of reported ones: compress() inverted by Newton steps
+        (monotonic on +-90 for |c| < 1/3, which the limits keep)."""
+        u = (azimuth_deg - self.az_bias_deg) / self.az_scale
+        a, c = u, self.az_compression
+        if c:
+            for _ in range(4):
+                a -= (a * (1 - c * (a / 90) ** 2) - u) / (1 - 3 * c * (a / 90) ** 2)
+        return a, (elevation_deg - self.el_bias_deg) / self.el_scale
 
 
 @dataclass(frozen=True)
@@ -87,7 +97,7 @@ class Anchor:
 
 
 CALIBRATION_LIMITS = {"yaw_offset_deg": (-45.0, 45.0), "az_scale": (0.5, 2.0), "az_bias_deg": (-45.0, 45.0),
-                      "el_scale": (0.5, 2.0), "el_bias_deg": (-45.0, 45.0)}
+                      "el_scale": (0.5, 2.0), "el_bias_deg": (-45.0, 45.0), "az_compression": (-0.3, 0.3)}
 """What a site file accepts in [anchors.NAME.calibration]; `calibrate` keeps its fits inside."""
 
 MAX_COORD_M = 10_000.0

@@ -5,6 +5,7 @@ point to point calibrates, the cone angle model, robust fits, self-calibration."
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -195,11 +196,12 @@ def test_self_calibration_recovers_the_emulated_boards_hidden_errors():
     tells the host nothing; the walk of three tags over the room gives them back, up to the
     gauge (the scales' geometric mean)."""
     from rfhoming.campaigns.kit import record
-    from rfhoming.host.calibration import self_calibrate
+    from rfhoming.host.self_calibration import self_calibrate
 
     site = sites.load(SITE)
     rec = record(seed=4, duration=30.0)
     result = self_calibrate(site, [rec.events])
+    assert result.write and result.held_out.miss_after_m < result.held_out.miss_before_m
     truth = {t["device"]: t for t in rec.anchors_truth}
     gauge = math.exp(np.mean([math.log(t["az_scale"]) for t in truth.values()]))
     assert result.rms_after_deg < 0.5 * result.rms_before_deg
@@ -213,13 +215,65 @@ def test_self_calibration_recovers_the_emulated_boards_hidden_errors():
 
 def test_self_calibration_refuses_tags_that_did_not_cover_the_room():
     from rfhoming.campaigns.kit import record
-    from rfhoming.host.calibration import CalibrationError, self_calibrate
+    from rfhoming.host.calibration import CalibrationError
+    from rfhoming.host.self_calibration import self_calibrate
 
     site = sites.load(SITE)
     still = [(t, e) for t, e in record(seed=4, duration=30.0, calibration=True).events
              if e.instance_id == "CCF9578E0C02"]  # one tag standing in the middle
     with pytest.raises(CalibrationError, match="did not cover the room"):
         self_calibrate(site, [still])
+
+
+def test_self_calibration_holds_elevation_that_the_data_cannot_determine():
+    """High wall anchors over tags all carried at one height nobody gave: the height and the
+    elevation bias trade off, so elevation is held, with the reason; the same walk with the
+    height given (--height) fits it."""
+    from rfhoming.campaigns.kit import WALL_ROOM, record
+    from rfhoming.host.self_calibration import self_calibrate
+
+    site = sites.load(SITE)
+    site = replace(site, anchors=tuple(replace(a, position=(*a.position[:2], 2.3)) for a in site.anchors),
+                   tags=tuple(replace(t, height=None) for t in site.tags))
+    rec = record(seed=5, duration=40.0, room=WALL_ROOM)
+    unknown = self_calibrate(site, [rec.events])
+    for f in unknown.fits:
+        assert "not observable" in f.held["el_scale"] and "el_scale" not in f.sigma
+        assert f.calibration.el_scale == 1.0 and f.calibration.el_bias_deg == 0.0
+    given_height = self_calibrate(site, [rec.events], height=WALL_ROOM["tag_height_m"])
+    assert any("el_bias_deg" in f.sigma for f in given_height.fits)
+
+
+def test_self_calibration_holds_a_parameter_at_its_bound_and_writes_nothing_worse():
+    """One board 50 deg off (beyond the site file's 45 deg bias limit, angles clipped at 90): its
+    bias runs to the bound, so it is held with the reason instead of written at the bound, and
+    the calibration that is left does not beat the site on held-out epochs: nothing written."""
+    from rfhoming.host.self_calibration import self_calibrate
+
+    site = sites.load(SITE)
+    true = {a.id: (a.rotation(), 1.0, 50.0 if a.name == "west" else 0.0) for a in site.anchors}
+    events = synthetic(site, lambda t: np.array([6 + 5 * np.sin(0.21 * t), 3 + 2.5 * np.sin(0.37 * t), 1.0]),
+                       90.0, rate_hz=10, true=true)
+    result = self_calibrate(site, [events])
+    west = next(f for f in result.fits if f.anchor == "west")
+    assert west.held["az_bias_deg"].startswith("ran to its bound") and west.calibration.az_bias_deg == 0.0
+    assert "az_bias_deg" not in west.sigma
+    assert not result.write and result.verdict.startswith("not written")
+
+
+def test_self_calibration_that_cannot_help_writes_nothing(tmp_path):
+    """Boards with no hidden error: the site file is already right, so no fit beats it on
+    held-out epochs by the margin, and nothing is written (one line says why)."""
+    from rfhoming.campaigns.kit import record
+    from rfhoming.host.self_calibration import self_calibrate
+
+    site = sites.load(SITE)
+    perfect = {"mount_error_deg": 0.0, "scale_error": 0.0, "bias_deg": 0.0, "reflection": 0.0}
+    rec = record(seed=6, duration=30.0, boards=perfect)
+    result = self_calibrate(site, [rec.events])
+    assert not result.write
+    assert result.verdict.startswith("not written: on held-out epochs")
+    assert result.held_out.az_rms_after_deg > (1 - 0.02) * result.held_out.az_rms_before_deg
 
 
 from hypothesis import given, settings  # noqa: E402
@@ -399,11 +453,24 @@ def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path)
     site = sites.load(SITE)
     _capture_of(record(seed=4, duration=30.0).events, tmp_path / "walk.pcapng", site)
     cli = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run",
-                          "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True, timeout=120)
+                          "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True, timeout=300)
     assert cli.returncode == 0, cli.stderr
-    assert "geometric mean 1" in cli.stderr
+    assert "geometric mean 1" in cli.stderr and "held-out azimuth rms" in cli.stderr
     report = [json.loads(line) for line in cli.stdout.splitlines()]
     assert len(report) == 4 and all(r["self"] and set(r["sigma"]) >= {"az_scale", "az_bias_deg"} for r in report)
+    # boards with no hidden error: nothing to gain on held-out epochs, so the site file is left as it was
+    perfect = {"mount_error_deg": 0.0, "scale_error": 0.0, "bias_deg": 0.0, "reflection": 0.0}
+    _capture_of(record(seed=6, duration=30.0, boards=perfect).events, tmp_path / "plain.pcapng", site)
+    own_site = tmp_path / "site.toml"
+    own_site.write_text(SITE.read_text())
+    kept = subprocess.run([*RFHOMING, "calibrate", str(own_site), "--self", "--from",
+                           f"capture:{tmp_path / 'plain.pcapng'}"], capture_output=True, text=True, timeout=300)
+    assert kept.returncode == 0, kept.stderr
+    assert "self-calibration not written: on held-out epochs" in kept.stderr
+    assert own_site.read_text() == SITE.read_text()
+    located = subprocess.run([*RFHOMING, "locate", str(own_site), "--from", f"capture:{tmp_path / 'plain.pcapng'}"],
+                             capture_output=True, text=True, timeout=300)
+    assert located.returncode == 0 and "no calibration in" in located.stderr
     still = [(t, e) for t, e in synthetic(site, lambda t: np.array([6.0, 3.0, 1.0]), 30.0)]
     _capture_of(still, tmp_path / "still.pcapng", site)
     refused = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run",

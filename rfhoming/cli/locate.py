@@ -9,6 +9,7 @@ import logging
 import math
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,7 @@ from rfhoming.cli.args import output_file, positive_float
 from rfhoming.cli.io import _run_until, add_port_defaults
 from rfhoming.cli.live import add_ros2_option, ros2_publisher
 from rfhoming.host import site as sites
-from rfhoming.host.calibration import CalibrationError, Point, assign_dwells, calibrate, self_calibrate
+from rfhoming.host.calibration import CalibrationError, Point, assign_dwells, calibrate
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.aoa import AoaDriver, replayed_without_set_up
 from rfhoming.host.drivers.common import BoundedStream, Driver
@@ -72,9 +73,14 @@ With known points (--points FILE):
 
 Every anchor must see three or more points (spread out, not on one line through it).
 
-Without (--self): tags walked over the whole room; each anchor's azimuth scale and bias are
-fitted jointly with every epoch's position (the scales' geometric mean is fixed to 1: an
-overall scale is not observable). Refused when the tags did not cover the room.
+Without (--self): tags walked over the whole room; each anchor's azimuth scale and bias (and
+elevation, |azimuth| compression, where the data determine them) are fitted jointly with every
+epoch's position (the scales' geometric mean is fixed to 1: an overall scale is not
+observable). The epochs are cut into 10 s blocks dealt into three folds, each scored by a fit
+of the others: the calibration is written only when it beats the uncalibrated site on these
+held-out epochs, else nothing is written and one line says why. A parameter that runs to its
+bound or that the folds do not agree on is held at its default ("held", with the reason).
+Refused when the tags did not cover the room.
 
 examples:
   rfhoming calibrate site.toml --points points.toml --duration 20
@@ -173,6 +179,7 @@ def cmd_locate(args: argparse.Namespace) -> int:
         print("rfhoming locate: --smooth needs a whole recording (--from capture:FILE); a live run stays causal",
               file=sys.stderr)
         return 2
+    print(f"rfhoming locate: {_calibration_in_use(site)}", file=sys.stderr)
     locator = Locator(site, track=not (args.no_track or args.smooth), tracker=args.tracker,
                       accel_psd=args.accel_psd, loss=args.loss, height_sigma=args.height_sigma)
     # --ros2: the anchors' angles (in anchor_<id>, placed in map by /tf_static) and the fixes
@@ -220,6 +227,18 @@ def cmd_locate(args: argparse.Namespace) -> int:
     if out is not sys.stdout:
         out.close()
     return code
+
+
+def _calibration_in_use(site: sites.Site) -> str:
+    """One line: which anchors the site file calibrates (and how much), which it leaves raw."""
+    plain = sites.Calibration()
+    done = [f"{a.name} ({a.angle_model}, az_scale {a.calibration.az_scale:.3f}, az_bias {a.calibration.az_bias_deg:+.1f} deg)"
+            for a in site.anchors if a.calibration != plain]
+    raw = [a.name for a in site.anchors if a.calibration == plain]
+    where = site.path or site.name
+    if not done:
+        return f"no calibration in {where}: angles used as the boards report them (rfhoming calibrate --help)"
+    return f"calibration from {where}: " + ", ".join(done) + (f"; uncalibrated: {', '.join(raw)}" if raw else "")
 
 
 def _position(value: Any, where: str) -> tuple[float, float, float]:
@@ -313,26 +332,30 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
         if code:
             return code
         recordings.append(events)
+    from rfhoming.host.self_calibration import self_calibrate
+
+    models = "auto"
+    if args.angle_model in ("spherical", "cone"):
+        models = "site"
+        site = replace(site, anchors=tuple(replace(a, angle_model=args.angle_model) for a in site.anchors))
     try:
-        result = self_calibrate(site, recordings, args.angle_model or "site")
+        result = self_calibrate(site, recordings, height=args.height, models=models,
+                                progress=lambda text: print(text, end="", file=sys.stderr, flush=True))
     except CalibrationError as exc:
         print(f"rfhoming calibrate: {exc}", file=sys.stderr)
         return 2
-    print(f"self-calibration: {result.epochs} epochs, azimuth rms {result.rms_before_deg:.2f} -> "
-          f"{result.rms_after_deg:.2f} deg; gauge: {result.gauge}", file=sys.stderr)
-    if len(result.cost_by_model) > 1:
-        costs = sorted(result.cost_by_model.values())
-        print(f"angle model {result.fits[0].angle_model} by robust cost {result.cost_by_model}"
-              + ("; they differ by under 1 %: weak evidence, a points calibration tells the models apart better"
-                 if costs[1] < 1.01 * costs[0] else ""), file=sys.stderr)
+    print(f"self-calibration: {result.epochs} epochs; gauge: {result.gauge}", file=sys.stderr)
     for f in result.fits:
         c = f.calibration
         print(json.dumps({"kind": "calibration", "anchor": f.anchor, "self": True, "epochs": f.points,
-                          "angle_model": f.angle_model, "rms_before_deg": round(f.rms_before_deg, 2),
-                          "rms_after_deg": round(f.rms_after_deg, 2), "az_scale": round(c.az_scale, 4),
-                          "az_bias_deg": round(c.az_bias_deg, 2), "el_scale": round(c.el_scale, 4),
-                          "el_bias_deg": round(c.el_bias_deg, 2),
-                          "sigma": {k: round(v, 4) for k, v in f.sigma.items()}, "held": f.held}))
+                          "angle_model": f.angle_model, "held_out_rms_before_deg": round(f.rms_before_deg, 2),
+                          "held_out_rms_after_deg": round(f.rms_after_deg, 2), "az_scale": round(c.az_scale, 4),
+                          "az_bias_deg": round(c.az_bias_deg, 2), "az_compression": round(c.az_compression, 4),
+                          "el_scale": round(c.el_scale, 4), "el_bias_deg": round(c.el_bias_deg, 2),
+                          "sigma": f.sigma, "held": f.held, "held_out_rms_by_model_deg": result.model_scores[f.anchor]}))
+    print(f"self-calibration {result.verdict}", file=sys.stderr)
+    if not result.write:
+        return 0
     return _write(args, {f.anchor: f.calibration for f in result.fits}, {f.anchor: f.angle_model for f in result.fits})
 
 
@@ -388,8 +411,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--azimuth-only", action="store_true",
                            help="fit azimuth (and yaw) only; elevation keeps scale 1 and bias 0")
             p.add_argument("--angle-model", choices=("auto", "spherical", "cone"),
-                           help="the boards' angle model; auto: the one with the smaller residual (default with "
-                                "--points; with --self the site file's, since positions fitted freely tell the "
-                                "models apart only weakly)")
+                           help="the boards' angle model; auto (default): with --points the one with the smaller "
+                                "residual, with --self each anchor's winner on held-out epochs (spherical, cone, "
+                                "each with |azimuth| compression) if it beats the site file's by 3 percent")
+            p.add_argument("--height", type=positive_float, metavar="M",
+                           help="--self: the height (m) of tags the site file gives none (else free about 1 m); "
+                                "elevation is fitted only from tags of known height")
             p.add_argument("--dry-run", action="store_true", help="report the fit, leave the site file alone")
             p.set_defaults(func=cmd_calibrate)

@@ -1,0 +1,578 @@
+"""Self-calibration of fixed AoA anchors from tags walked over the room: no known points, and
+never a calibration that makes the site worse.
+
+Each anchor's reported azimuth is modelled as ``scale * compress(true) + bias`` (and elevation
+as ``el_scale * true + el_bias``), fitted jointly with every epoch's tag position by a robust
+sparse least-squares fit (soft-L1). What keeps it honest on real rooms:
+
+- **Held out.** The epochs are cut into time blocks dealt into ``FOLDS`` folds; each fold is
+  fitted on the others and scored on itself (its positions re-solved with the parameters
+  fixed). The held-out azimuth residual and ray miss (metres), before and after, decide: a
+  calibration that does not beat the uncalibrated site on unseen data is not written.
+- **Only what the data determine.** A parameter that runs to its bound, or whose fold fits
+  spread more than ``DETERMINED`` allows (a flat profile), is held at its default with the
+  reason; sigmas are the folds' jackknife spread, not a Jacobian at a bound. Elevation is
+  fitted only when tags of known height see elevation over ``MIN_EL_SPAN_DEG`` (high wall
+  anchors over tags at one unknown height trade the height against elevation bias).
+- **The angle model on unseen data.** Spherical, cone, and each with |azimuth| compression
+  are scored per anchor on the held-out residual; a model replaces the site's only when it
+  wins by ``MODEL_MARGIN``.
+- **Seconds.** Epochs are thinned to ``MAX_FIT_EPOCHS`` per fit and the Jacobian is sparse
+  (each residual touches its anchor's parameters and its epoch's position).
+
+Gauge: an overall azimuth scale is not observable (scaling every anchor up while pulling the
+positions to the middle barely changes the residuals): the free scales' geometric mean is 1.
+A yaw offset moves a near-level board's azimuths like its bias: it is fitted as the bias.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from rfhoming.host.calibration import AnchorFit, CalibrationError
+from rfhoming.host.estimation.anchors3d import Degenerate, locate, make_ray
+from rfhoming.host.site import CALIBRATION_LIMITS, Anchor, Calibration, Site
+from rfhoming.protocol.uconnect import AngleEvent
+
+SELF_EPOCH_S = 0.5
+"""One epoch per tag every this many seconds (each anchor's median angle of the window before)."""
+
+SELF_MIN_EPOCHS = 40
+"""Epochs a self-calibration needs at the least."""
+
+SELF_MIN_SPREAD = 0.2
+"""The epochs' positions must spread (standard deviation along their narrowest direction) over
+at least this fraction of the anchors' extent: a dwell cannot separate scale from position."""
+
+SELF_MIN_AZ_SPAN_DEG = 40.0
+"""Azimuth span each anchor must see over the epochs (5th to 95th percentile)."""
+
+MIN_EL_SPAN_DEG = 10.0
+"""Elevation span (5th to 95th percentile) an anchor must see of known-height tags to fit elevation."""
+
+ELEVATION_NOISIER = 2.0
+"""Elevation's sigma as a multiple of azimuth's (the weaker axis)."""
+
+FOLDS = 3
+BLOCK_S = 10.0
+"""Held-out folds: blocks of this many seconds of each recording, dealt round-robin."""
+
+MAX_FIT_EPOCHS = 400
+"""Epochs per fit at most (evenly thinned): neighbours 0.5 s apart add little but time."""
+
+MIN_GAIN = 0.02
+"""A calibration is written only when it cuts the held-out azimuth residual by this fraction."""
+
+MODEL_MARGIN = 0.03
+"""A candidate angle model must cut an anchor's held-out residual by this fraction to replace the site's."""
+
+OUTLIER_DEG = 20.0
+"""Held-out residuals beyond this are reflections, not calibration: left out of the figures."""
+
+UNKNOWN_HEIGHT = (1.0, 0.5)
+"""The prior (mean, sigma, metres) of a tag whose height neither the site nor --height gives."""
+
+PARAMS = ("log_az_scale", "az_bias_deg", "az_compression", "log_el_scale", "el_bias_deg")
+"""Per-anchor parameters, in the fit's column order (scales as logs: the gauge is a sum)."""
+
+DETERMINED = (0.05, 3.0, 0.1, 0.1, 3.0)
+"""The largest jackknife sigma at which each parameter counts as determined by the data."""
+
+NAMES = ("az_scale", "az_bias_deg", "az_compression", "el_scale", "el_bias_deg")
+LIMITS = np.array([[math.log(CALIBRATION_LIMITS["az_scale"][0]), math.log(CALIBRATION_LIMITS["az_scale"][1])],
+                   CALIBRATION_LIMITS["az_bias_deg"], CALIBRATION_LIMITS["az_compression"],
+                   [math.log(CALIBRATION_LIMITS["el_scale"][0]), math.log(CALIBRATION_LIMITS["el_scale"][1])],
+                   CALIBRATION_LIMITS["el_bias_deg"]])
+
+CANDIDATES = (("spherical", False), ("cone", False), ("spherical", True), ("cone", True))
+"""(angle model, |azimuth| compression fitted) pairs scored per anchor."""
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Figures on epochs no fit saw: azimuth residual rms (degrees) and the rays' miss at the
+    re-solved position (metres, rms), before (uncalibrated) and after."""
+
+    az_rms_before_deg: float
+    az_rms_after_deg: float
+    miss_before_m: float
+    miss_after_m: float
+
+    @property
+    def improves(self) -> bool:
+        return (self.az_rms_after_deg <= (1 - MIN_GAIN) * self.az_rms_before_deg
+                and self.miss_after_m <= self.miss_before_m)
+
+
+@dataclass(frozen=True)
+class SelfCalibration:
+    fits: list[AnchorFit]
+    epochs: int
+    rms_before_deg: float
+    rms_after_deg: float
+    held_out: HeldOut
+    verdict: str  # one line: why it is (or is not) written
+    model_scores: dict[str, dict[str, float]] = field(default_factory=dict)  # anchor -> candidate -> held-out rms
+    gauge: str = "the anchors' free azimuth scales have geometric mean 1 (an overall scale is not observable)"
+
+    @property
+    def write(self) -> bool:
+        return self.held_out.improves
+
+
+@dataclass
+class _Epochs:
+    """Every epoch's rows: which anchor, the measured angles, and the epoch's facts."""
+
+    row_e: np.ndarray  # (R,) epoch index of each row
+    row_a: np.ndarray  # (R,) anchor index
+    az: np.ndarray  # (R,) measured azimuth, degrees (board sign)
+    el: np.ndarray
+    height: np.ndarray  # (E,) known height or nan
+    start: np.ndarray  # (E, 3) the uncalibrated fix
+    fold: np.ndarray  # (E,) fold index
+
+    def subset(self, keep: np.ndarray) -> _Epochs:
+        """The epochs where ``keep`` (E,) is true, renumbered."""
+        new = np.full(len(keep), -1)
+        new[keep] = np.arange(int(keep.sum()))
+        rows = keep[self.row_e]
+        return _Epochs(new[self.row_e[rows]], self.row_a[rows], self.az[rows], self.el[rows], self.height[keep],
+                       self.start[keep], self.fold[keep])
+
+
+def _epoch_angles(site: Site, recording: Sequence[tuple[float, AngleEvent]], window_s: float
+                  ) -> list[tuple[float, str, dict[str, tuple[float, float]]]]:
+    """(t, tag, {anchor id: (median az, median el)}) every SELF_EPOCH_S per tag, 3+ anchors fresh."""
+    series: dict[tuple[str, str], list[tuple[float, int, int]]] = {}
+    wanted = {a.id for a in site.anchors}
+    for t, e in recording:
+        if e.anchor_id in wanted:
+            series.setdefault((e.instance_id, e.anchor_id), []).append((t, e.azimuth, e.elevation))
+    out = []
+    for tag in sorted({tag for tag, _ in series}):
+        per = {a: np.array(v) for (tg, a), v in series.items() if tg == tag}
+        t_lo = min(v[0, 0] for v in per.values())
+        t_hi = max(v[-1, 0] for v in per.values())
+        for t in np.arange(t_lo + window_s, t_hi, SELF_EPOCH_S):
+            angles = {}
+            for a, v in per.items():
+                i, j = np.searchsorted(v[:, 0], [t - window_s, t], side="right")
+                if j - i >= 3:
+                    angles[a] = (float(np.median(v[i:j, 1])), float(np.median(v[i:j, 2])))
+            if len(angles) >= 3:
+                out.append((float(t), tag, angles))
+    return out
+
+
+def _gather(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], height: float | None
+            ) -> _Epochs:
+    anchors = list(site.anchors)
+    index = {a.id: k for k, a in enumerate(anchors)}
+    raw = [replace(a, calibration=Calibration()) for a in anchors]
+    rots = [a.rotation() for a in raw]
+    row_e, row_a, az, el, heights, start, fold = [], [], [], [], [], [], []
+    for rec in recordings:
+        t0 = rec[0][0] if rec else 0.0
+        for t, tag, angles in _epoch_angles(site, rec, site.window_s):
+            info = site.tag(tag)
+            h = info.height if info and info.height is not None else height
+            rays = [make_ray(anchors[index[a]].name, anchors[index[a]].position, rots[index[a]], m_az, m_el,
+                             site.sigma_deg, model=anchors[index[a]].angle_model) for a, (m_az, m_el) in angles.items()]
+            try:
+                fix = locate(rays, height=h)
+            except Degenerate:
+                continue
+            e = len(heights)
+            for a, (m_az, m_el) in angles.items():
+                row_e.append(e)
+                row_a.append(index[a])
+                az.append(m_az)
+                el.append(m_el)
+            heights.append(np.nan if h is None else h)
+            start.append(fix.point)
+            fold.append(int((t - t0) // BLOCK_S) % FOLDS)
+    return _Epochs(np.array(row_e, int), np.array(row_a, int), np.array(az, float), np.array(el, float),
+                   np.array(heights, float), np.array(start, float).reshape(-1, 3), np.array(fold, int))
+
+
+class _Model:
+    """The forward model of every anchor under one configuration: which angle model, which
+    parameters are free (the columns of the fit), and the values of the held ones."""
+
+    def __init__(self, site: Site, models: Sequence[str], free: np.ndarray):
+        self.origins = np.array([a.position for a in site.anchors], float)
+        self.rots = np.array([replace(a, calibration=Calibration()).rotation() for a in site.anchors])
+        self.models = list(models)
+        self.free = free  # (A, 5) bool
+        self.sigma = site.sigma_deg
+        scales = np.flatnonzero(free[:, 0])
+        self.gauge = int(scales[-1]) if len(scales) else None  # its log scale is minus the sum of the others
+        own = free.copy()
+        if self.gauge is not None:
+            own[self.gauge, 0] = False
+        self.column = np.full(free.shape, -1)  # (A, 5) -> column of the free vector, -1 when held
+        self.column[own] = np.arange(int(own.sum()))
+        self.n_params = int(own.sum())
+        self.base = np.zeros(free.shape)  # the held parameters' values
+
+    def fixed_at(self, p: np.ndarray) -> _Model:
+        """This model with every parameter held at ``p``: the fit then moves the positions only."""
+        held = copy.copy(self)
+        held.free = np.zeros(self.free.shape, bool)
+        held.column = np.full(self.free.shape, -1)
+        held.n_params, held.gauge, held.base = 0, None, p
+        return held
+
+    def params(self, x: np.ndarray) -> np.ndarray:
+        """(A, 5) parameter table from the free vector (held ones at their values)."""
+        p = self.base.copy()
+        p[self.column >= 0] = x[self.column[self.column >= 0]]
+        if self.gauge is not None:
+            p[self.gauge, 0] = -p[:, 0].sum()
+        return p
+
+    def predict(self, p: np.ndarray, ep: _Epochs, pos: np.ndarray, with_jacobian: bool = False
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Every row's residuals (R, 2: azimuth, elevation, in sigmas), horizontal range (m) and
+        predicted reported azimuth (R,); with ``with_jacobian`` the residuals' derivatives by the
+        epoch's position (R, 2, 3) and by the anchor's parameters (R, 2, 5)."""
+        rot = self.rots[ep.row_a]
+        d = np.einsum("nji,nj->ni", rot, pos[ep.row_e] - self.origins[ep.row_a])
+        x, y, z = d[:, 0], d[:, 1], d[:, 2]
+        ang = np.empty((len(d), 2))
+        dang = np.zeros((len(d), 2, 3))  # by the board-frame vector
+        deg = 180 / np.pi
+        cone = np.array([self.models[k] == "cone" for k in range(len(self.models))])[ep.row_a]
+        r2 = x * x + y * y + z * z
+        r = np.sqrt(r2)
+        rho2 = np.maximum(x * x + y * y, 1e-12)
+        rho = np.sqrt(rho2)
+        u, v = np.clip(y / r, -1 + 1e-12, 1 - 1e-12), np.clip(z / r, -1 + 1e-12, 1 - 1e-12)
+        ang[:, 0] = np.where(cone, -np.degrees(np.arcsin(u)), -np.degrees(np.arctan2(y, x)))
+        ang[:, 1] = np.where(cone, np.degrees(np.arcsin(v)), np.degrees(np.arctan2(z, rho)))
+        q = p[ep.row_a]
+        s, c, se = np.exp(q[:, 0]), q[:, 2], np.exp(q[:, 3])
+        a = ang[:, 0]
+        az = s * a * (1 - c * (a / 90) ** 2) + q[:, 1]
+        el = se * ang[:, 1] + q[:, 4]
+        res = np.stack([(az - ep.az) / self.sigma, (el - ep.el) / (ELEVATION_NOISIER * self.sigma)], axis=1)
+        if not with_jacobian:
+            return res, rho, az, None, None
+        if cone.any():
+            ku = -deg / np.sqrt(1 - u * u) / r2
+            kv = deg / np.sqrt(1 - v * v) / r2
+            dang[cone, 0] = (ku[:, None] * np.stack([-u * x, r - u * y, -u * z], axis=1))[cone]
+            dang[cone, 1] = (kv[:, None] * np.stack([-v * x, -v * y, r - v * z], axis=1))[cone]
+        sph = ~cone
+        if sph.any():
+            dang[sph, 0] = (deg * np.stack([y / rho2, -x / rho2, np.zeros_like(x)], axis=1))[sph]
+            dang[sph, 1] = (deg * np.stack([-z * x / (rho * r2), -z * y / (rho * r2), rho / r2], axis=1))[sph]
+        by_pos = np.einsum("nkj,nij->nki", dang, rot)  # the board vector is rot^T (world - origin)
+        scale_az = s * (1 - 3 * c * (a / 90) ** 2) / self.sigma
+        scale_el = se / (ELEVATION_NOISIER * self.sigma)
+        by_pos[:, 0] *= scale_az[:, None]
+        by_pos[:, 1] *= scale_el[:, None]
+        by_par = np.zeros((len(d), 2, 5))
+        by_par[:, 0, 0] = s * a * (1 - c * (a / 90) ** 2) / self.sigma
+        by_par[:, 0, 1] = 1 / self.sigma
+        by_par[:, 0, 2] = -s * a * (a / 90) ** 2 / self.sigma
+        by_par[:, 1, 3] = se * ang[:, 1] / (ELEVATION_NOISIER * self.sigma)
+        by_par[:, 1, 4] = 1 / (ELEVATION_NOISIER * self.sigma)
+        return res, rho, az, by_pos, by_par
+
+    def by_vector(self, by_par: np.ndarray, row_a: np.ndarray) -> np.ndarray:
+        """(R, 2, P): the rows' derivatives by the free vector (the gauge spread over the scales)."""
+        out = np.zeros((len(row_a), 2, self.n_params))
+        for k in range(5):
+            col = self.column[row_a, k]
+            has = col >= 0
+            out[np.flatnonzero(has), :, col[has]] = by_par[has, :, k]
+        if self.gauge is not None:
+            mine = np.flatnonzero(row_a == self.gauge)
+            for col in self.column[:, 0][self.column[:, 0] >= 0]:
+                out[mine, :, col] -= by_par[mine, :, 0]
+        return out
+
+
+ROBUST = 1.5
+"""Soft-L1 scale of the residuals, in sigmas: a reflected ray is down-weighted, not obeyed."""
+
+
+def _cost(res: np.ndarray, pos: np.ndarray, free_z: np.ndarray) -> float:
+    z = (pos[free_z, 2] - UNKNOWN_HEIGHT[0]) / UNKNOWN_HEIGHT[1]
+    return float(2 * ROBUST**2 * (np.sqrt(1 + (res / ROBUST) ** 2) - 1).sum() + (z * z).sum())
+
+
+def _adjust(model: _Model, ep: _Epochs, x: np.ndarray, iterations: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """(free vector, positions) minimising the robust cost: a bundle adjustment -- Levenberg-
+    Marquardt on iteratively reweighted normal equations, the epochs' 3 x 3 blocks eliminated
+    by their Schur complement, so each step costs a small P x P solve. With no free
+    parameters it re-solves the positions alone."""
+    n_e, n_p = len(ep.height), model.n_params
+    free_z = np.isnan(ep.height)
+    pos = ep.start.copy()
+    pos[~free_z, 2] = ep.height[~free_z]
+    lo = np.array([LIMITS[k, 0] for _, k in zip(*np.nonzero(model.column >= 0))])
+    hi = np.array([LIMITS[k, 1] for _, k in zip(*np.nonzero(model.column >= 0))])
+    order = np.argsort(model.column[model.column >= 0])
+    lo, hi = lo[order], hi[order]
+    z0, z_sigma = UNKNOWN_HEIGHT
+    lam = 1e-3
+    res, *_ = model.predict(model.params(x), ep, pos)
+    cost = _cost(res, pos, free_z)
+    for _ in range(iterations):
+        res, _, _, by_pos, by_par = model.predict(model.params(x), ep, pos, with_jacobian=True)
+        assert by_pos is not None and by_par is not None
+        by_pos[~free_z[ep.row_e], :, 2] = 0.0
+        w = 1.0 / np.sqrt(1.0 + (res / ROBUST) ** 2)
+        jp = model.by_vector(by_par, ep.row_a)
+        v_blocks = np.einsum("rki,rk,rkj->rij", by_pos, w, by_pos).reshape(-1, 9)
+        v = np.stack([np.bincount(ep.row_e, v_blocks[:, k], n_e) for k in range(9)], axis=1).reshape(n_e, 3, 3)
+        g_e = np.stack([np.bincount(ep.row_e, np.einsum("rki,rk,rk->r", by_pos[:, :, [k]], w, res), n_e)
+                        for k in range(3)], axis=1)
+        v[free_z, 2, 2] += 1 / z_sigma**2
+        g_e[free_z, 2] += (pos[free_z, 2] - z0) / z_sigma**2
+        v[~free_z, 2, 2] = 1.0
+        g_e[~free_z, 2] = 0.0
+        v_damped = v + lam * np.einsum("nii->ni", v)[:, :, None] * np.eye(3) + 1e-9 * np.eye(3)
+        v_inv = np.linalg.inv(v_damped)
+        if n_p:
+            u = np.einsum("rki,rk,rkj->ij", jp, w, jp)
+            g_p = np.einsum("rki,rk,rk->i", jp, w, res)
+            w_rows = np.einsum("rki,rk,rkj->rij", jp, w, by_pos).reshape(len(res), -1)
+            w_e = np.zeros((n_e, n_p * 3))
+            np.add.at(w_e, ep.row_e, w_rows)
+            w_e = w_e.reshape(n_e, n_p, 3)
+            w_vinv = np.einsum("npi,nij->npj", w_e, v_inv)
+            schur = u + lam * np.diag(np.diag(u)) + 1e-9 * np.eye(n_p) - np.einsum("npj,nqj->pq", w_vinv, w_e)
+            rhs = -g_p + np.einsum("npj,nj->p", w_vinv, g_e)
+            dx = np.linalg.solve(schur, rhs)
+            de = -np.einsum("nij,nj->ni", v_inv, g_e + np.einsum("npj,p->nj", w_e, dx))
+        else:
+            dx = np.zeros(0)
+            de = -np.einsum("nij,nj->ni", v_inv, g_e)
+        x_new = np.clip(x + dx, lo, hi)
+        pos_new = pos + de
+        res_new, *_ = model.predict(model.params(x_new), ep, pos_new)
+        cost_new = _cost(res_new, pos_new, free_z)
+        if cost_new < cost:
+            done = cost - cost_new < 1e-7 * cost
+            x, pos, cost, lam = x_new, pos_new, cost_new, max(lam / 3, 1e-7)
+            if done:
+                break
+        else:
+            lam *= 8
+            if lam > 1e8:
+                break
+    return x, pos
+
+
+def _fit(model: _Model, ep: _Epochs) -> np.ndarray:
+    """The (A, 5) parameters that fit ``ep`` (positions free)."""
+    x, _ = _adjust(model, ep, np.zeros(model.n_params))
+    return model.params(x)
+
+
+def _score(model: _Model, p: np.ndarray, ep: _Epochs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Positions re-solved with ``p`` fixed: (azimuth residual, ray miss m, anchor) of every row."""
+    _, pos = _adjust(model.fixed_at(p), ep, np.zeros(0))
+    res, rho, az, _, _ = model.predict(p, ep, pos)
+    r = az - ep.az
+    return r, rho * np.radians(r), ep.row_a
+
+
+def _rms(values: np.ndarray, r: np.ndarray) -> float:
+    keep = np.abs(r) <= OUTLIER_DEG
+    return float(np.sqrt(np.mean(values[keep] ** 2))) if keep.any() else math.inf
+
+
+def _thin(ep: _Epochs) -> _Epochs:
+    n = len(ep.height)
+    if n <= MAX_FIT_EPOCHS:
+        return ep
+    keep = np.zeros(n, bool)
+    keep[np.linspace(0, n - 1, MAX_FIT_EPOCHS).round().astype(int)] = True
+    return ep.subset(keep)
+
+
+@dataclass
+class _CrossValidated:
+    folds: list[np.ndarray]  # (A, 5) of each fold's fit
+    r: np.ndarray  # held-out azimuth residual of every row
+    miss: np.ndarray
+    row_a: np.ndarray
+
+
+def _cross_validate(model: _Model, ep: _Epochs, progress: Callable[[str], None]) -> _CrossValidated:
+    folds, rs, misses, anchors = [], [], [], []
+    for k in range(FOLDS):
+        p = _fit(model, _thin(ep.subset(ep.fold != k)))
+        folds.append(p)
+        r, miss, row_a = _score(model, p, ep.subset(ep.fold == k))
+        rs.append(r)
+        misses.append(miss)
+        anchors.append(row_a)
+        progress(".")
+    return _CrossValidated(folds, np.concatenate(rs), np.concatenate(misses), np.concatenate(anchors))
+
+
+def _jackknife(folds: list[np.ndarray]) -> np.ndarray:
+    f = np.array(folds)
+    return np.sqrt((len(f) - 1) / len(f) * ((f - f.mean(axis=0)) ** 2).sum(axis=0))
+
+
+def _check_coverage(ep: _Epochs, anchors: Sequence[Anchor]) -> None:
+    """CalibrationError unless the tags covered the room and each anchor saw a span of azimuth."""
+    origins = np.array([a.position for a in anchors], float)
+    extent = float(min(np.ptp(origins[:, 0]), np.ptp(origins[:, 1])) or max(np.ptp(origins[:, :2], axis=0)))
+    narrowest = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(ep.start[:, :2].T))[0], 0.0)))
+    if narrowest < SELF_MIN_SPREAD * extent:
+        raise CalibrationError(
+            f"the tags did not cover the room: their positions spread {narrowest:.2f} m across their narrowest "
+            f"direction, {SELF_MIN_SPREAD * extent:.2f} m needed ({SELF_MIN_SPREAD:g} of the anchors' extent); "
+            "a dwell at one point cannot tell an anchor's scale from the tag's position: walk the tags over the "
+            "whole room, or calibrate on known points (--points)")
+    for k, a in enumerate(anchors):
+        seen = ep.az[ep.row_a == k]
+        span = float(np.percentile(seen, 95) - np.percentile(seen, 5)) if len(seen) else 0.0
+        if span < SELF_MIN_AZ_SPAN_DEG:
+            raise CalibrationError(f"anchor {a.name} saw the tags over {span:.0f} deg of azimuth, "
+                                   f"{SELF_MIN_AZ_SPAN_DEG:g}+ needed to tell its scale: walk the tags across its view")
+
+
+def _observable(ep: _Epochs, n_a: int) -> tuple[np.ndarray, list[dict[str, str]]]:
+    """(A, 5) which parameters the geometry lets a fit determine, and why the rest are held."""
+    held: list[dict[str, str]] = [{"yaw_offset_deg": "moves a near-level board's azimuths like its bias: fitted "
+                                                     "as the bias"} for _ in range(n_a)]
+    base_free = np.zeros((n_a, 5), bool)
+    base_free[:, :2] = True
+    known = ~np.isnan(ep.height)
+    for k in range(n_a):
+        el_seen = ep.el[(ep.row_a == k) & known[ep.row_e]]
+        el_span = float(np.percentile(el_seen, 95) - np.percentile(el_seen, 5)) if len(el_seen) >= SELF_MIN_EPOCHS else 0.0
+        if el_span >= MIN_EL_SPAN_DEG:
+            base_free[k, 3:] = True
+        else:
+            held[k]["el_scale"] = held[k]["el_bias_deg"] = (
+                f"not observable: {len(el_seen)} angles of tags with a known height spanning {el_span:.0f} deg of "
+                f"elevation ({MIN_EL_SPAN_DEG:g}+ over {SELF_MIN_EPOCHS}+ needed; give the tags' heights in the site "
+                "file or --height)")
+    return base_free, held
+
+
+def _hold_undetermined(cv: _CrossValidated, free: np.ndarray, held: list[dict[str, str]]) -> bool:
+    """Hold (in ``free`` and ``held``) every parameter a fold ran to its bound or the folds
+    disagree on; True when any was."""
+    sd = _jackknife(cv.folds)
+    newly = False
+    for k, j in zip(*np.nonzero(free)):
+        lo, hi = LIMITS[j]
+        values = np.array([f[k, j] for f in cv.folds])
+        value = float(values[np.argmin(np.minimum(values - lo, hi - values))])  # the nearest a bound
+        if min(value - lo, hi - value) < 0.01 * (hi - lo):
+            why = f"ran to its bound ({_show(j, value)}): the data do not determine it"
+        elif sd[k, j] > DETERMINED[j]:
+            why = f"flat: the held-out folds' fits spread +-{_show_sd(j, sd[k, j])} (> {_show_sd(j, DETERMINED[j])})"
+        else:
+            continue
+        free[k, j] = False
+        held[k][NAMES[j]] = why
+        newly = True
+    return newly
+
+
+def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *,
+                   height: float | None = None, models: str = "auto",
+                   progress: Callable[[str], None] = lambda _: None) -> SelfCalibration:
+    """Each anchor's angle corrections from tags moving over the room (module docstring).
+
+    ``height``: the height (m) of tags the site gives none (else each epoch's height is free
+    about 1 +- 0.5 m); ``models``: "auto" scores the candidates per anchor on held-out epochs,
+    "site" keeps the site's angle models (compression still scored). CalibrationError when the
+    epochs do not spread over the room or an anchor sees too narrow a span of azimuth."""
+    progress("gathering epochs")
+    ep = _gather(site, recordings, height)
+    anchors = list(site.anchors)
+    n_a, n_e = len(anchors), len(ep.height)
+    if n_e < SELF_MIN_EPOCHS:
+        raise CalibrationError(f"self-calibration needs {SELF_MIN_EPOCHS}+ epochs (a tag heard by 3+ anchors, one "
+                               f"per {SELF_EPOCH_S:g} s); the recordings give {n_e}: record longer")
+    _check_coverage(ep, anchors)
+    base_free, held = _observable(ep, n_a)
+    site_models = [a.angle_model for a in anchors]
+    if models == "site":
+        candidates = [("site", site_models, False), ("site+compression", site_models, True)]
+    else:
+        candidates = [(m + ("+compression" if comp else ""), [m] * n_a, comp) for m, comp in CANDIDATES]
+    # the uncalibrated site, scored on every epoch (each is held out of the fits that score it)
+    plain = _Model(site, site_models, np.zeros((n_a, 5), bool))
+    progress(f"{n_e} epochs, {FOLDS} folds; the uncalibrated site")
+    r0, miss0, _ = _score(plain, plain.base, ep)
+    scores: dict[str, dict[str, float]] = {a.name: {} for a in anchors}
+    for label, names, comp in candidates:
+        progress(f"; {label}")
+        free = base_free.copy()
+        free[:, 2] = comp
+        cv = _cross_validate(_Model(site, names, free), ep, progress)
+        for k, a in enumerate(anchors):
+            mine = cv.row_a == k
+            scores[a.name][label] = round(_rms(cv.r[mine], cv.r[mine]), 3)
+    chosen_models, chosen_comp = [], []
+    for k, a in enumerate(anchors):
+        own = scores[a.name]
+        site_label = "site" if models == "site" else site_models[k]
+        best = min(own, key=own.__getitem__)
+        pick = best if site_label not in own or own[best] < (1 - MODEL_MARGIN) * own[site_label] else site_label
+        label, names, comp = next(c for c in candidates if c[0] == pick)
+        chosen_models.append(names[k])
+        chosen_comp.append(comp)
+    free = base_free.copy()
+    free[:, 2] = chosen_comp
+    for k in range(n_a):
+        if not chosen_comp[k]:
+            held[k]["az_compression"] = "the angle model without compression won on held-out epochs"
+    progress("; final")
+    cv = _cross_validate(_Model(site, chosen_models, free), ep, progress)
+    for _ in range(2):  # hold what the data do not determine, and fit again
+        if not _hold_undetermined(cv, free, held):
+            break
+        progress("; refit")
+        cv = _cross_validate(_Model(site, chosen_models, free), ep, progress)
+    progress("; on every epoch\n")
+    sd = _jackknife(cv.folds)
+    p = _fit(_Model(site, chosen_models, free), _thin(ep))
+    held_out = HeldOut(_rms(r0, r0), _rms(cv.r, cv.r), _rms(miss0, r0), _rms(cv.miss, cv.r))
+    fits = []
+    for k, a in enumerate(anchors):
+        cal = Calibration(0.0, float(math.exp(p[k, 0])), float(p[k, 1]), float(math.exp(p[k, 3])), float(p[k, 4]),
+                          float(p[k, 2]))
+        sigma = {NAMES[j]: round(float(sd[k, j] * (math.exp(p[k, j]) if j in (0, 3) else 1.0)), 4)
+                 for j in range(5) if free[k, j]}
+        mine_before, mine_after = ep.row_a == k, cv.row_a == k
+        fits.append(AnchorFit(a.name, cal, int(mine_before.sum()), _rms(r0[mine_before], r0[mine_before]),
+                              _rms(cv.r[mine_after], cv.r[mine_after]), chosen_models[k], sigma, held[k]))
+    if held_out.improves:
+        verdict = (f"held-out azimuth rms {held_out.az_rms_before_deg:.2f} -> {held_out.az_rms_after_deg:.2f} deg, "
+                   f"ray miss {held_out.miss_before_m:.3f} -> {held_out.miss_after_m:.3f} m")
+    else:
+        verdict = (f"not written: on held-out epochs it does not beat the uncalibrated site (azimuth rms "
+                   f"{held_out.az_rms_before_deg:.2f} -> {held_out.az_rms_after_deg:.2f} deg, ray miss "
+                   f"{held_out.miss_before_m:.3f} -> {held_out.miss_after_m:.3f} m; {MIN_GAIN:.0%} cut needed): "
+                   "walk the tags over more of the room, or calibrate on known points (--points)")
+    return SelfCalibration(fits, n_e, held_out.az_rms_before_deg, held_out.az_rms_after_deg, held_out, verdict, scores)
+
+
+def _show(j: int, value: float) -> str:
+    return f"{math.exp(value):.3f}" if j in (0, 3) else f"{value:.3f}"
+
+
+def _show_sd(j: int, sd: float) -> str:
+    return f"{100 * sd:.1f} %" if j in (0, 3) else f"{sd:.2f}"
+
+
