@@ -225,6 +225,7 @@ def test_self_calibration_refuses_tags_that_did_not_cover_the_room():
         self_calibrate(site, [still])
 
 
+@pytest.mark.slow
 def test_self_calibration_holds_elevation_that_the_data_cannot_determine():
     """High wall anchors over tags all carried at one height nobody gave: the height and the
     elevation bias trade off, so elevation is held, with the reason; the same walk with the
@@ -261,6 +262,7 @@ def test_self_calibration_holds_a_parameter_at_its_bound_and_writes_nothing_wors
     assert not result.write and result.verdict.startswith("not written")
 
 
+@pytest.mark.slow
 def test_self_calibration_that_cannot_help_writes_nothing(tmp_path):
     """Boards with no hidden error: the site file is already right, so no fit beats it on
     held-out epochs by the margin, and nothing is written (one line says why)."""
