@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, Literal, NamedTuple, Protocol, TypeAlias, TypedDict, TypeVar, Union, Unpack
 from typing import overload as _overload
 
+from rfhoming.host import losses
 from rfhoming.host.capture import CaptureWriter, describe_dialects
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.portspec import PortSpec
@@ -151,6 +152,7 @@ class Devices(Generic[ItemT]):
             driver.listeners.append(listener_of(driver))
         tasks = [asyncio.create_task(d.run()) for d in self.drivers]
         dialects = asyncio.create_task(describe_dialects(self.drivers, capture)) if capture else None
+        lost = asyncio.create_task(losses.watch(self.health))
         self._stop = stopped = asyncio.Event()
 
         async def watch() -> None:
@@ -180,7 +182,7 @@ class Devices(Generic[ItemT]):
                     raise error
         finally:
             watcher.cancel()
-            for task in [*tasks, *([dialects] if dialects else [])]:
+            for task in [*tasks, lost, *([dialects] if dialects else [])]:
                 task.cancel()
             for task in tasks:
                 with contextlib.suppress(BaseException):
