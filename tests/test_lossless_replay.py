@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import shutil
 import subprocess
 import sys
 import time
@@ -147,3 +148,40 @@ def test_the_api_hands_a_slow_caller_every_event_of_a_capture(long_capture):
 
     seen, dropped = asyncio.run(slow_async())
     assert seen == got and dropped == 0
+
+
+MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None)
+SUB = shutil.which("mosquitto_sub")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (MOSQUITTO and SUB), reason="mosquitto / mosquitto-clients not installed")
+def test_a_gateway_on_a_capture_publishes_every_event(long_capture, tmp_path):
+    """Old code: each anchor's queue counted about half its events as dropped. Mosquitto's own
+    mosquitto_sub counts what reached the broker."""
+    from test_sitebus import _free_port, _start_broker
+
+    from rfhoming.protocol import sitebus
+
+    port = _free_port()
+    broker = _start_broker(tmp_path, port)
+    try:
+        sub = subprocess.Popen([SUB, "-h", "127.0.0.1", "-p", str(port), "-t", "rfhoming/kit-room/angles/#",
+                                "-W", "120"], stdout=subprocess.PIPE, text=True)
+        time.sleep(1.0)  # subscribed before the gateway publishes (no retained batches)
+        gw = _cli("gateway", "--broker", f"mqtt://127.0.0.1:{port}", "--site", str(SITE),
+                  "--device", f"capture:{long_capture}", "--flush", "0.2")
+        assert gw.returncode == 0, gw.stderr
+        _whole(_counters(gw.stderr))
+        line = json.loads(gw.stdout.splitlines()[-1])
+        assert line["events"] == EVENTS and line["dropped"] == 0
+        batches: list[str] = []
+        deadline = time.monotonic() + 120
+        while len(batches) < line["published"] and time.monotonic() < deadline:
+            batches.append(sub.stdout.readline().strip())
+        sub.terminate()
+        heard = sum(len(sitebus.decode_angles(b.encode()).events) for b in batches if b)
+        assert heard == EVENTS
+    finally:
+        broker.terminate()
+        broker.wait(30)
