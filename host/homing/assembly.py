@@ -390,9 +390,10 @@ async def run(plan: Homing) -> Outcome:
     watch = asyncio.create_task(supervise(assembled.deadlines))  # at once done for in-process ports and replays
     lost = asyncio.create_task(losses.watch(lambda: [d.health() for d in drivers]))
     try:
-        done, _ = await asyncio.wait({homing, watch}, return_when=asyncio.FIRST_EXCEPTION)
+        done, _ = await asyncio.wait({homing, watch}, return_when=asyncio.FIRST_COMPLETED)
         if watch in done:
             watch.result()  # raises: the run cannot go on
+            await homing  # or there was nothing to watch
         return homing.result()
     finally:
         for task in (homing, watch, lost):
