@@ -5,16 +5,25 @@ they come and are flushed at least once a second, so a killed process loses at m
 second and the file stays readable (a torn last block is skipped by every reader). The section
 header and each interface block are flushed the moment they are written: a capture killed at
 any time holds a whole header.
+
+A write that fails (a full disk) does not stop the devices: the capture ends there, one error
+names the file and what it kept (``error``), and the command reports it at its end.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import logging
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from rfhoming.host import outputs
 from rfhoming.protocol import devices, pcapng
+
+log = logging.getLogger(__name__)
 
 FLUSH_INTERVAL = 1.0
 DISCONNECTED = "disconnected"
@@ -27,8 +36,15 @@ class CaptureWriter:
         """``comment`` goes in the section header: what the capture is (a homing run's record)."""
         self.path = Path(path)
         self._file: BinaryIO = open(self.path, "wb")
-        self._file.write(pcapng.section_header(comment=comment))
-        self._file.flush()
+        try:
+            self._file.write(pcapng.section_header(comment=comment))
+            self._file.flush()
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                self._file.close()
+            raise outputs.failed(self.path, exc, "it is no capture (a torn header)") from None
+        self.error: outputs.WriteFailed | None = None  # why the capture ended early (a full disk)
+        self.t_last: float | None = None  # of the last packet written
         self._ids: dict[str, int] = {}
         self.descriptions = dict(descriptions or {})
         self._comments: dict[str, str] = {}
@@ -53,9 +69,11 @@ class CaptureWriter:
         fields = self.descriptions.get(port, {})
         linktype = devices.protocol(fields["protocol"]).linktype if "protocol" in fields else pcapng.LINKTYPE_FRAMES
         text = " ".join(f"{k}={v}" for k, v in fields.items())
-        self._file.write(pcapng.interface(port, text, linktype))
-        self._file.flush()
         iface = self._ids[port] = len(self._ids)
+        if not self._file.closed:
+            with self._writing():
+                self._file.write(pcapng.interface(port, text, linktype))
+                self._file.flush()
         return iface
 
     def tap(self, port: str, direction: str, t: float, data: bytes) -> None:
@@ -64,16 +82,31 @@ class CaptureWriter:
         iface = self._ids.get(port)
         if iface is None:
             iface = self._interface(port)
-        if direction == "lost":  # an empty packet marks where the device went away
-            self._file.write(pcapng.packet(iface, t, b"", 0, DISCONNECTED))
-        elif direction.startswith(SNIFFED):
-            flag = pcapng.INBOUND if direction.endswith("in") else pcapng.OUTBOUND
-            self._file.write(pcapng.packet(iface, t, data, flag, SNIFFED))
-        else:
-            flag = pcapng.INBOUND if direction == "in" else pcapng.OUTBOUND
-            self._file.write(pcapng.packet(iface, t, data, flag, self._comments.pop(port, "")))
-        self.packets += 1
+        with self._writing():
+            if direction == "lost":  # an empty packet marks where the device went away
+                self._file.write(pcapng.packet(iface, t, b"", 0, DISCONNECTED))
+            elif direction.startswith(SNIFFED):
+                flag = pcapng.INBOUND if direction.endswith("in") else pcapng.OUTBOUND
+                self._file.write(pcapng.packet(iface, t, data, flag, SNIFFED))
+            else:
+                flag = pcapng.INBOUND if direction == "in" else pcapng.OUTBOUND
+                self._file.write(pcapng.packet(iface, t, data, flag, self._comments.pop(port, "")))
+            self.packets += 1
+            self.t_last = t
         self._schedule_flush()
+
+    @contextlib.contextmanager
+    def _writing(self) -> Iterator[None]:
+        """A failed write ends the capture (never the caller, a port's reader), said once."""
+        try:
+            yield
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                self._file.close()
+            until = f" up to t = {self.t_last:.6f}" if self.t_last is not None else ""
+            self.error = outputs.failed(self.path, exc, f"it holds about {self.packets} packets{until}, flushed at "
+                                        "least a second before; replay and Wireshark read up to the last whole block")
+            log.error("capture: %s", self.error)
 
     def _schedule_flush(self) -> None:
         if time.monotonic() - self._last_flush >= FLUSH_INTERVAL:
@@ -92,12 +125,15 @@ class CaptureWriter:
             self._timer.cancel()
             self._timer = None
         if not self._file.closed:
-            self._file.flush()
+            with self._writing():
+                self._file.flush()
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
         self.flush()
-        self._file.close()
+        if not self._file.closed:
+            with self._writing():
+                self._file.close()
 
 
 async def describe_dialects(drivers: list[Any], capture: CaptureWriter) -> None:

@@ -67,6 +67,8 @@ class ReplayPort:
     set-up, the homing loop's commands) and are matched; False for writes nobody will make
     (the loop's, in a replay of the drivers alone), which are then passed over at once."""
 
+    is_file = True  # its reader may wait for its consumers (host/drivers/common.py Driver._read)
+
     def __init__(self, name: str, packets: list[pcapng.Packet], *, speed: float | None = None,
                  sequencer: Sequencer | None = None, match_writes: bool = True,
                  description: dict[str, str] | None = None) -> None:
@@ -185,8 +187,9 @@ class ReplayPort:
 
 
 def _lead(packets: list[pcapng.Packet]) -> int:
-    """How many of a port's first packets came in before its host first wrote."""
-    return next((i for i, p in enumerate(packets) if p.direction == pcapng.OUTBOUND), len(packets))
+    """How many of a port's first packets came in before its host first wrote; none if it
+    never wrote (a recording of inbound bytes alone goes wholly in the global order)."""
+    return next((i for i, p in enumerate(packets) if p.direction == pcapng.OUTBOUND), 0)
 
 
 def load_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatError], None] | None = None

@@ -21,6 +21,7 @@ from rfhoming.host import portspec
 from rfhoming.host.discovery import resolve_auto
 from rfhoming.host.drivers.aoa import AoaSetup
 from rfhoming.host.drivers.common import DEFAULT_BAUD, Driver
+from rfhoming.host.losses import with_losses
 from rfhoming.host.ports import HostPort, PortError, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.replay import ReplayPort, Sequencer, load_capture
@@ -199,4 +200,5 @@ def recorded_kind(interface: Any) -> DeviceKind:
 
 
 def health(drivers: list[Driver]) -> list[dict[str, Any]]:
-    return [d.health() for d in drivers]
+    """Each driver's counters, its nonzero losses under ``losses`` (each warned of once)."""
+    return [with_losses(d.health()) for d in drivers]

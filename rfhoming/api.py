@@ -19,8 +19,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, Literal, NamedTuple, Protocol, TypeAlias, TypedDict, TypeVar, Union, Unpack
 from typing import overload as _overload
 
+from rfhoming.host import losses
 from rfhoming.host.capture import CaptureWriter, describe_dialects
-from rfhoming.host.drivers.common import Driver
+from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.portspec import PortSpec
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.drop import Drop
@@ -45,7 +46,9 @@ if TYPE_CHECKING:  # bumble's, imported only with an hci: port
     from rfhoming.host.drivers.hci import Advertisement, HciPacket
 
 QUEUE_SIZE = 10_000
-"""Items held for a slow reader; beyond this the oldest wait and new ones are counted as dropped."""
+"""Items held for a slow reader; beyond this a live device's oldest are dropped and counted,
+while a recording waits for the reader."""
+HAND_OVER_WAIT = 0.005  # seconds between tries to hand a recording's item to a caller who lags
 
 CHATTER = frozenset({"echo", "info", "final"})
 """The AT conversation the driver holds with the board: not yielded unless asked for."""
@@ -123,17 +126,17 @@ class Devices(Generic[ItemT]):
         """Open the devices, yield their items until ``duration``, the end of a capture, or
         until the consumer stops; the devices are closed however it ends. PortError / ValueError
         say why a device could not be opened."""
-        items: asyncio.Queue[Received[ItemT] | None] = asyncio.Queue(QUEUE_SIZE)
+        items: BoundedStream[Received[ItemT] | None] = BoundedStream(QUEUE_SIZE)
 
         def listener_of(driver: Driver) -> Any:
             tracker = track(driver)
+            driver.consumers.append(items)  # a recording waits for the caller to take its items
 
             def listener(device: str, t: float, item: Any) -> None:
                 if self.wanted(item.kind):
-                    try:
-                        items.put_nowait(Received(t, device, item, tracker.current))
-                    except asyncio.QueueFull:
-                        self.dropped += 1
+                    before = items.dropped
+                    items.put(Received(t, device, item, tracker.current))
+                    self.dropped += items.dropped - before
             return listener
 
         capture = self.recording = (CaptureWriter(self.capture) if isinstance(self.capture, (str, Path))
@@ -149,6 +152,7 @@ class Devices(Generic[ItemT]):
             driver.listeners.append(listener_of(driver))
         tasks = [asyncio.create_task(d.run()) for d in self.drivers]
         dialects = asyncio.create_task(describe_dialects(self.drivers, capture)) if capture else None
+        lost = asyncio.create_task(losses.watch(self.health))
         self._stop = stopped = asyncio.Event()
 
         async def watch() -> None:
@@ -166,7 +170,8 @@ class Devices(Generic[ItemT]):
                         return
             finally:
                 stop.cancel()
-                await items.put(None)
+                await items.room()  # the end evicts no item
+                items.put(None)
 
         watcher = asyncio.create_task(watch())
         try:
@@ -177,7 +182,7 @@ class Devices(Generic[ItemT]):
                     raise error
         finally:
             watcher.cancel()
-            for task in [*tasks, *([dialects] if dialects else [])]:
+            for task in [*tasks, lost, *([dialects] if dialects else [])]:
                 task.cancel()
             for task in tasks:
                 with contextlib.suppress(BaseException):
@@ -212,10 +217,8 @@ class Devices(Generic[ItemT]):
         async def pump() -> None:
             try:
                 async for got in self.stream():
-                    try:
-                        out.put_nowait(("item", got))
-                    except queue.Full:
-                        self.dropped += 1
+                    while not self._hand_over(out, got):
+                        await asyncio.sleep(HAND_OVER_WAIT)
                 out.put(("end", None))
             except BaseException as exc:  # handed to the caller's thread below
                 out.put(("error", exc))
@@ -240,6 +243,18 @@ class Devices(Generic[ItemT]):
                     return
         finally:
             self.close()
+
+    def _hand_over(self, out: queue.Queue[tuple[str, Any]], got: Received[ItemT]) -> bool:
+        """Put an item in the caller's queue; False while it is full and a recording can wait
+        for the caller (until the stream is stopped), else the item is dropped and counted."""
+        try:
+            out.put_nowait(("item", got))
+        except queue.Full:
+            stopped = self._stop is not None and self._stop.is_set()
+            if not stopped and any(getattr(d.port, "is_file", False) for d in self.drivers):
+                return False
+            self.dropped += 1
+        return True
 
     def close(self) -> None:
         """Stop the stream and close the devices (also on leaving ``with``)."""

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import replace
 from typing import Any, Generic, TypeVar
 
@@ -56,30 +57,59 @@ class BoundedStream(Generic[T]):
     """A bounded queue of readings: when the consumer lags, the oldest go first (counted).
 
     A stream nobody reads (``listen`` and ``capture`` show the items to listeners instead)
-    keeps only the newest and counts no loss: nothing was waiting for what it overwrote."""
+    keeps only the newest and counts no loss: nothing was waiting for what it overwrote.
+
+    A file can wait where a live port cannot: while a recording's chunk is decoded
+    (:meth:`filling`) a read stream takes every item, over its bound by that chunk's items at
+    most, and the recording waits (:meth:`room`) before its next chunk until the consumer has
+    taken enough."""
 
     def __init__(self, size: int) -> None:
-        self._items: deque[T] = deque(maxlen=size)
+        self.size = size
+        self._items: deque[T] = deque()
         self._ready = asyncio.Event()
+        self._taken = asyncio.Event()
         self._read = False
+        self._filling = 0
         self.dropped = 0
 
     def put(self, item: T) -> None:
-        if len(self._items) == self._items.maxlen and self._read:
-            self.dropped += 1
+        if len(self._items) >= self.size and not (self._filling and self._read):
+            self._items.popleft()
+            if self._read:
+                self.dropped += 1
         self._items.append(item)
         self._ready.set()
+
+    @contextlib.contextmanager
+    def filling(self) -> Iterator[None]:
+        """Every item put meanwhile is kept (a recording's chunk, which then waits for :meth:`room`)."""
+        self._filling += 1
+        try:
+            yield
+        finally:
+            self._filling -= 1
+
+    async def room(self) -> None:
+        """Until the stream is below its bound (at once if nobody reads it: nothing would)."""
+        while self._read and len(self._items) >= self.size:
+            self._taken.clear()
+            await self._taken.wait()
 
     def get_nowait(self) -> T | None:
         """The oldest item, or None when there is none (no await: the loop's fast path)."""
         self._read = True
-        return self._items.popleft() if self._items else None
+        if not self._items:
+            return None
+        self._taken.set()
+        return self._items.popleft()
 
     async def get(self) -> T:
         self._read = True
         while not self._items:
             self._ready.clear()
             await self._ready.wait()
+        self._taken.set()
         return self._items.popleft()
 
     def __len__(self) -> int:
@@ -110,6 +140,9 @@ class Driver:
         self.port = port
         self.reconnect = reconnect
         self.out: BoundedStream[Any] = out if out is not None else BoundedStream(queue_size)
+        self.consumers: list[BoundedStream[Any]] = [self.out]
+        """The streams this driver's items go to (its own, and any a listener fills): a
+        recording waits for each of them to have room before its next chunk."""
         self.state = "closed"
         self.counters: dict[str, int] = {"reconnects": 0}
         self.latency: deque[float] = deque(maxlen=1000)  # seconds to handle one chunk
@@ -216,11 +249,17 @@ class Driver:
             self.on_chunk(chunk.data, chunk.t)
 
     async def _read(self) -> None:
+        recording = getattr(self.port, "is_file", False)  # a file can wait for its consumers; a live port cannot
         while True:
             chunk = await self.port.read()
             start = time.perf_counter()
-            self.on_chunk(chunk.data, chunk.t)
+            with contextlib.ExitStack() as keeping:
+                for stream in self.consumers if recording else ():
+                    keeping.enter_context(stream.filling())
+                self.on_chunk(chunk.data, chunk.t)
             self.latency.append(time.perf_counter() - start)
+            for stream in self.consumers if recording else ():
+                await stream.room()
 
     def health(self) -> dict[str, Any]:
         """Counters of the port, the decoder and the driver, plus handling latency."""

@@ -59,6 +59,7 @@ from rfhoming.host.capture import DISCONNECTED, SNIFFED
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.robot_base import Pose2D, Scan, scan_of
 from rfhoming.host.drivers.rss import NodeClock
+from rfhoming.host import outputs
 from rfhoming.host.export import frames, rosmsgs
 from rfhoming.host.replay import ReplayPort, load_capture
 from rfhoming.host.session import driver_class, recorded_kind
@@ -123,6 +124,8 @@ class McapRecorder(Sink):
         self._held_n = 0
         self._written_ns = 0  # log time of the last message written
         self._closed = False
+        self.path = output if isinstance(output, (str, Path)) else getattr(output, "name", "the MCAP output")
+        self.write_error: OSError | None = None  # the first failed write of the file
 
     def watch(self, loop: Any) -> None:
         """The run's loop: its config's sensor mountings and its controller's source."""
@@ -131,7 +134,15 @@ class McapRecorder(Sink):
         self.site = getattr(getattr(loop, "controller", None), "site", None)
 
     def _failed(self, kind: str, exc: Exception) -> None:
-        """An item that cannot be written: counted as skipped, logged once per kind."""
+        """An item that cannot be written: counted as skipped, logged once per kind; the file
+        that cannot be written (a full disk): said once, naming it (``write_error``)."""
+        if isinstance(exc, OSError):
+            if self.write_error is None:
+                self.write_error = exc
+                log.error("MCAP %s: cannot write: %s; %s; later messages are counted as skipped",
+                          self.path, exc.strerror or exc, KEPT)
+            self.skipped["write error"] += 1
+            return
         if not self.skipped[f"unwritable {kind}"]:
             log.warning("MCAP: cannot write a %s (%s); counting such items as skipped", kind, exc)
         self.skipped[f"unwritable {kind}"] += 1
@@ -287,10 +298,12 @@ class McapRecorder(Sink):
         if self._closed:
             return
         self._closed = True
-        self._release(math.inf)
-        self.writer.finish()
-        if self._file is not None:
-            self._file.close()
+        try:
+            self._release(math.inf)
+            self.writer.finish()
+        finally:
+            if self._file is not None:
+                self._file.close()
 
     def summary(self) -> dict[str, Any]:
         return {"messages": sum(self.counts.values()), "topics": dict(sorted(self.counts.items())),
@@ -317,10 +330,26 @@ def export(output: Path | str, *, runlog: Path | str | None = None, capture: Pat
     source = next((r.get("source") for r in records if r.get("kind") == "measurement"), None)
     if source is None and site is not None:  # only --controller anchors records a site
         source = "anchors"
-    recorder = McapRecorder(output, clock="robot" if has_base else "host",
-                            commands_from="runlog" if runlog is not None else "capture", mounting=mounting, source=source,
-                            site=site)
-    pending = deque(records)
+    try:
+        recorder = McapRecorder(output, clock="robot" if has_base else "host",
+                                commands_from="runlog" if runlog is not None else "capture", mounting=mounting,
+                                source=source, site=site)
+        _feed(recorder, drivers, packets, deque(records))
+        if recorder.write_error is not None:
+            raise recorder.write_error
+    except OSError as exc:  # a full disk: name the file; an empty one is not left behind
+        raise outputs.failed(output, exc, KEPT) from None
+    return recorder.summary()
+
+
+KEPT = ("readable up to its last complete chunk (it has no summary at its end; "
+        "the mcap library's readers and rosbags read past that)")
+
+
+def _feed(recorder: McapRecorder, drivers: dict[str, Driver], packets: list[tuple[str, Any]],
+          pending: deque[dict[str, Any]]) -> None:
+    """The capture's packets through their drivers into ``recorder``, the run log's records
+    merged in by robot time; the recorder is closed however it ends."""
     sent = {name: FrameDecoder() for name, d in drivers.items() if d.kind == "base"}  # the commands
     for driver in drivers.values():
         driver.listeners.append(recorder.on_item)
@@ -337,7 +366,6 @@ def export(output: Path | str, *, runlog: Path | str | None = None, capture: Pat
             recorder.on_runlog(pending.popleft())
     finally:
         recorder.close()
-    return recorder.summary()
 
 
 def _capture_drivers(path: Path | str) -> tuple[dict[str, Driver], list[tuple[str, Any]]]:
@@ -361,13 +389,19 @@ def _read_runlog(path: Path | str) -> list[dict[str, Any]]:
         text = Path(path).read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
         raise RunLogError(f"{path} is not a run log: byte {exc.start} is not UTF-8 text") from None
-    for n, line in enumerate(text.splitlines(), 1):
+    lines = text.splitlines()
+    last = max((n for n, line in enumerate(lines, 1) if line.strip()), default=0)
+    for n, line in enumerate(lines, 1):
         if not line.strip():
             continue
         try:
             record = json.loads(line)
             float(record["t"])
         except (ValueError, KeyError, TypeError):
+            if n == last and not text.endswith("\n"):  # a writer killed mid-line, as a torn pcapng block
+                log.warning("%s:%d: a torn last line (%d bytes, a killed writer); exporting the %d lines before it",
+                            path, n, len(line.encode()), len(records))
+                break
             raise RunLogError(f"{path}:{n}: not a run log line (JSON with kind and t): {line[:60]!r}") from None
         records.append(record)
     return records

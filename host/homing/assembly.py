@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from rfhoming.host import losses
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.aoa import AoaSetup
@@ -384,16 +385,17 @@ async def run(plan: Homing) -> Outcome:
     when a device cannot be used, naming its port."""
     check(plan)
     assembled = build(await resolve_devices(plan))
-    if not assembled.deadlines:  # in-process ports and replays: nothing to set up or wait for
-        return await assembled.loop.run()
+    drivers = [*assembled.loop.sensors, assembled.loop.base]
     homing = asyncio.create_task(assembled.loop.run())
-    watch = asyncio.create_task(supervise(assembled.deadlines))
+    watch = asyncio.create_task(supervise(assembled.deadlines))  # at once done for in-process ports and replays
+    lost = asyncio.create_task(losses.watch(lambda: [d.health() for d in drivers]))
     try:
         done, _ = await asyncio.wait({homing, watch}, return_when=asyncio.FIRST_COMPLETED)
         if watch in done:
             watch.result()  # raises: the run cannot go on
+            await homing  # or there was nothing to watch
         return homing.result()
     finally:
-        for task in (homing, watch):
+        for task in (homing, watch, lost):
             task.cancel()
-        await asyncio.gather(homing, watch, return_exceptions=True)
+        await asyncio.gather(homing, watch, lost, return_exceptions=True)

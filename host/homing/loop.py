@@ -30,6 +30,7 @@ byte-in -> command-out latency of every command.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
@@ -42,6 +43,8 @@ from typing import IO, Any
 
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host import outputs
+from rfhoming.host.losses import with_losses
 from rfhoming.host.drivers.robot_base import BaseDriver, Pose2D, Scan
 from rfhoming.host.homing.avoidance import ObstacleAvoidance
 from rfhoming.host.homing.config import Config
@@ -79,17 +82,30 @@ class Outcome:
 
 
 class RunLog:
-    """JSON lines, one per event, flushed as they come (a killed run keeps its log)."""
+    """JSON lines, one per event, flushed as they come (a killed run keeps its log).
+
+    A write that fails (a full disk) ends the run with an error naming the file and how many
+    records it kept: a run without its record is not what was asked for."""
 
     def __init__(self, out: IO[str] | None, listeners: list[Callable[[dict[str, Any]], None]] | None = None) -> None:
         self.out = out
         self.listeners = listeners or []  # each record also goes to these (an MCAP recorder, a live view)
+        self.written = 0  # records on disk
 
     def write(self, kind: str, t: float, **fields: Any) -> None:
         record = {"kind": kind, "t": round(t, 4), **fields}
         if self.out is not None:
-            self.out.write(json.dumps(record) + "\n")
-            self.out.flush()
+            try:
+                self.out.write(json.dumps(record) + "\n")
+                self.out.flush()
+            except OSError as exc:
+                out, self.out = self.out, None
+                with contextlib.suppress(OSError):  # what it still holds cannot be written either
+                    out.close()
+                raise outputs.failed(getattr(out, "name", "the run log"), exc,
+                                     f"it holds the run's first {self.written} records (export skips a torn "
+                                     "last line)") from None
+            self.written += 1
         for listener in self.listeners:
             listener(record)
 
@@ -404,7 +420,8 @@ class HomingLoop:
         self.log.write("event", duration, what=reason)
         drivers = [*self.sensors, self.base]
         kinds = [d.kind for d in drivers]
-        links = {(d.kind if kinds.count(d.kind) == 1 else f"{d.kind}:{d.port.name}"): d.health() for d in drivers}
+        links = {(d.kind if kinds.count(d.kind) == 1 else f"{d.kind}:{d.port.name}"): with_losses(d.health())
+                 for d in drivers}
         return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, list(self.latency_ms),
                        links)
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from rfhoming.cli.args import nonnegative_float, output_file, positive_float, positive_int
 from rfhoming.cli.live import add_foxglove_option, add_ros2_option, start_foxglove, start_ros2
+from rfhoming.host import losses
 from rfhoming.host.capture import CaptureWriter, describe_dialects
 from rfhoming.host.discovery import candidates
 from rfhoming.host.drivers.common import Driver
@@ -79,6 +80,7 @@ async def _run_until(drivers: list[Driver], duration: float | None, extra: list[
     tasks.append(asyncio.create_task(supervise(live(drivers))))
     tasks += list(extra)
     tasks.append(asyncio.create_task(_log_health(drivers)))
+    tasks.append(asyncio.create_task(losses.watch(lambda: health(drivers))))
     main = asyncio.current_task()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -138,7 +140,7 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
         if capture is not None:
             capture.close()
             print(f"captured {capture.packets} chunks to {capture.path}", file=sys.stderr)
-    return 0
+    return 2 if capture is not None and capture.error else 0  # said when it happened
 
 
 def cmd_listen(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ import numpy as np
 
 from rfhoming.cli.args import output_file, positive_float
 from rfhoming.cli.io import _run_until, add_port_defaults
+from rfhoming.host import losses
 from rfhoming.cli.live import add_ros2_option, ros2_publisher
 from rfhoming.host import site as sites
 from rfhoming.host.calibration import CalibrationError, Point, assign_dwells, calibrate
@@ -222,7 +223,8 @@ def cmd_locate(args: argparse.Namespace) -> int:
                "raw fixes" if args.no_track else f"causal ({args.tracker} tracker)",
                "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
                         for tag, v in sorted(per_tag.items())},
-               "anchors": sorted(names.values()), **locator.counters}
+               "anchors": sorted(names.values()), **locator.counters,
+               "losses": losses.WARNINGS.check("locate", locator.counters)}
     out.write(json.dumps(summary) + "\n")
     if out is not sys.stdout:
         out.close()

@@ -14,6 +14,7 @@ from rfhoming.cli.io import (
     add_port_defaults,
 )
 from rfhoming.cli.live import add_foxglove_option, add_ros2_option, start_foxglove, start_ros2
+from rfhoming.host import losses
 from rfhoming.host.capture import CaptureWriter, describe_dialects
 from rfhoming.host.ports import PortError
 from rfhoming.host.serve import QUEUE_LINES, ItemServer
@@ -82,7 +83,8 @@ async def _serve(args: argparse.Namespace) -> int:
             ros2.close()
         for h in health(drivers):
             print(json.dumps({"kind": "counters", **h}), flush=True)
-        print(json.dumps({"kind": "server", **server.health()}), flush=True)
+        served = server.health()
+        print(json.dumps({"kind": "server", **served, "losses": losses.WARNINGS.check("serve", served)}), flush=True)
         if capture is not None:
             capture.close()
     return 0
