@@ -73,7 +73,6 @@ BACKLOG = 128
 paths and point clouds could hold tens of MB for one client that never reads). What a client
 sends is bounded by the SDK itself: a message over 16 MiB ends that client's connection
 (foxglove-sdk 0.30; ``tests/test_foxglove_view.py`` holds it to that)."""
-SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")  # what the view takes (the front renames the second)
 STOP_S = 5.0  # what close() waits for the SDK's server to stop
 ENTITY_LIFETIME_S = 2.0  # a scene entity not drawn again within this vanishes
 LAYOUT = files("rfhoming.host").joinpath("foxglove_layout.json")

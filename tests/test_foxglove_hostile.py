@@ -35,7 +35,7 @@ def test_clients_that_never_read_do_not_hold_up_close_or_others() -> None:
         subscribe = json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": i} for i in range(1, 20)]})
         for _ in range(3):
             never.append(handshake(port, rcvbuf=4096, protocol="foxglove.sdk.v1"))  # the name both views take
-            never[-1].recv(1)  # the handshake's answer has begun: the connection is the SDK's
+            never[-1].recv(1)  # the handshake's answer has begun: a subscription before it counts for nothing
             never[-1].sendall(frame(subscribe.encode(), 1))
         with handshake(port, protocol="foxglove.sdk.v1") as garbage:
             rng = random.Random(0)

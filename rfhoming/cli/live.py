@@ -20,7 +20,7 @@ from rfhoming.host.sink import Sink
 from rfhoming.protocol.errors import Error
 
 DEFAULT_PORT = 8765  # Foxglove's own default (rfhoming.host.foxglove_view.DEFAULT_PORT)
-SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]  # rfhoming.host.foxglove_view's, without the SDK
+SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]  # what the view takes (host/foxglove_front.py)
 FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {DEFAULT_PORT}, 0 = any free port) to "
                  "Foxglove or Lichtblick (subprotocol foxglove.websocket.v1 or foxglove.sdk.v1); "
                  "in Foxglove open a WebSocket connection to it and import the layout "
