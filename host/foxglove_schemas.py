@@ -8,6 +8,7 @@ from typing import Any
 
 NUM, INT, STR = {"type": "number"}, {"type": "integer"}, {"type": "string"}
 NULLABLE_NUM = {"type": ["number", "null"]}
+BLE_ADDRESS = {**STR, "pattern": "^[0-9A-F]{12}$", "description": "BLE address, MSB first, upper-case hex"}
 XY = {"type": ["array", "null"], "items": NUM, "minItems": 2, "maxItems": 2, "description": "x, y (m)"}
 
 
@@ -27,7 +28,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "timestamp_ms": INT, "seq": {"type": ["integer", "null"]}, "azimuth_raw": {"type": ["integer", "null"]},
         "elevation_raw": {"type": ["integer", "null"]}}, ("device", "t", "azimuth", "rssi1")),
     "/rfhoming/ble": _object("rfhoming.AdvReport", "A BLE scan result (record 0x01)", {
-        **_FRAMED, "addr": {**STR, "description": "LSB first, hex"}, "addr_type": INT, "adv_props": INT,
+        **_FRAMED, "address": BLE_ADDRESS, "addr_type": INT, "adv_props": INT,
         "rssi_dbm": INT, "tx_power_dbm": INT, "channel": INT, "ad": STR}, ("device", "t", "rssi_dbm")),
     "/rfhoming/antennas": _object("rfhoming.AntennaSet", "One emitter frame on the four dishes (record 0x03)", {
         **_FRAMED, "emitter_seq": INT, "channel": INT, "page": INT, "rssi_base_dbm": INT, "valid_mask": INT,
@@ -36,7 +37,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "/rfhoming/measurement": _object("rfhoming.Measurement", "A reading the homing loop used (run log)", {
         "kind": STR, "t": {**NUM, "description": "robot time (s)"}, "source": STR,
         "theta_s": {**NUM, "description": "S0 bearing, robot frame (rad)"}, "distance": NUM,
-        "theta": {**NUM, "description": "S2 bearing (rad)"}, "range": NUM, "azimuth": NUM, "rssi": NUM},
+        "theta": {**NUM, "description": "S2 bearing (rad)"}, "range": NUM, "azimuth": NUM, "rssi": NUM,
+        "address": BLE_ADDRESS},
         ("t", "source")),
     "/rfhoming/command": _object("rfhoming.Command", "A velocity command (run log)", {
         "kind": STR, "t": NUM, "v": {**NUM, "description": "m/s"}, "w": {**NUM, "description": "rad/s"},

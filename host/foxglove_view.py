@@ -15,7 +15,8 @@ item, ``on_runlog`` every run log record. It publishes, with foxglove-sdk's own 
 - ``/rfhoming/particles``: S2's particle cloud, ``/rfhoming/obstacles``: the occupied cells of
   the loop's occupancy grid (both when the view :meth:`FoxgloveView.watch` es the loop);
 - JSON channels for plots, each with its JSON schema (host/foxglove_schemas.py):
-  ``/rfhoming/aoa`` (angle events), ``/rfhoming/ble`` (BLE RSSI), ``/rfhoming/antennas``
+  ``/rfhoming/aoa`` (angle events), ``/rfhoming/ble`` (BLE RSSI; ``address`` MSB first, as in
+  the run log's measurements), ``/rfhoming/antennas``
   (antenna sets), ``/rfhoming/measurement``, ``/rfhoming/command``, ``/rfhoming/estimate``.
 
 Scene entities have lifetimes (:data:`ENTITY_LIFETIME_S`; the anchors none: they stay), so a
@@ -26,10 +27,14 @@ Time: in a run (the view watches its loop) robot time, the run log's axis (0 bef
 first odometry), else the host's wall clock (``listen``/``serve`` without a base). The server has the ``time`` capability and
 broadcasts that clock, so the viewer's "now" is the robot's.
 
-Subprotocol: foxglove-sdk's server accepts ``foxglove.sdk.v1`` only (handshake.rs in the
-foxglove-sdk repository; ``foxglove.websocket.v1`` gets HTTP 400 and the SDK has no option for
-it). Foxglove's app and Lichtblick releases after its PR #819 (Dec 2025) offer it; older
-Lichtblick releases (1.21.0 and before) offer only ``foxglove.websocket.v1`` and cannot connect.
+Clients: foxglove-sdk's server listens on a free loopback port behind
+:class:`~rfhoming.host.foxglove_front.Front`, which takes both names of the protocol
+(``foxglove.sdk.v1``, which the SDK alone accepts, and the spec's ``foxglove.websocket.v1``, which
+Foxglove's ``FoxgloveClient`` and Lichtblick 1.21 and older offer) and stands between the SDK
+and its clients, so that one that never reads cannot stall the SDK's ``stop()`` (nor Ctrl-C).
+The SDK's own log lines (about what a client sent, or a connection that broke) are kept out of
+Python's logging: each needs the GIL from the SDK's network threads, so a client sending garbage
+would make them queue for it behind the run; the front counts and logs what matters.
 """
 
 from __future__ import annotations
@@ -50,6 +55,7 @@ from foxglove.websocket import Capability, ServerListener
 from rfhoming.host.drivers.robot_base import scan_of
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.export import frames
+from rfhoming.host.foxglove_front import Front
 from rfhoming.host.foxglove_schemas import SCHEMAS
 from rfhoming.host.sink import Sink
 from rfhoming.protocol.jsonable import as_dict
@@ -67,7 +73,7 @@ BACKLOG = 128
 paths and point clouds could hold tens of MB for one client that never reads). What a client
 sends is bounded by the SDK itself: a message over 16 MiB ends that client's connection
 (foxglove-sdk 0.30; ``tests/test_foxglove_view.py`` holds it to that)."""
-SUBPROTOCOL = "foxglove.sdk.v1"  # the only one foxglove-sdk's server accepts
+STOP_S = 5.0  # what close() waits for the SDK's server to stop
 ENTITY_LIFETIME_S = 2.0  # a scene entity not drawn again within this vanishes
 LAYOUT = files("rfhoming.host").joinpath("foxglove_layout.json")
 
@@ -78,10 +84,16 @@ class FoxgloveView(Sink):
     def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1", name: str = "rfhoming") -> None:
         self.context = foxglove.Context()
         self._subscribed = threading.Event()
-        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
+        logging.getLogger("foxglove").setLevel(logging.CRITICAL)  # the SDK logs nothing that high
+        self.server = foxglove.start_server(name=name, host="127.0.0.1", port=0, context=self.context,
                                             capabilities=[Capability.Time], server_listener=_Listener(self._subscribed),
                                             message_backlog_size=BACKLOG)
-        self.address = f"ws://{host}:{self.server.port}"
+        try:
+            self.front = Front(self.server.port, host, port)
+        except BaseException:
+            self._stop_server()
+            raise
+        self.address = f"ws://{host}:{self.front.port}"
         ctx = {"context": self.context}
         self.tf = channels.FrameTransformsChannel("/tf", **ctx)
         self.tf_static = channels.FrameTransformsChannel("/tf_static", **ctx)
@@ -132,7 +144,10 @@ class FoxgloveView(Sink):
             if self.clock == "host":
                 self.server.broadcast_time(self._ns())  # no base: the host's clock
             topic = {"angle": "/rfhoming/aoa", "adv_report": "/rfhoming/ble", "antenna_set": "/rfhoming/antennas"}[kind]
-            self._log(self.json[topic], {"device": device, "t": self._ns() / 1e9, **as_dict(item)})
+            fields = as_dict(item)
+            if kind == "adv_report":  # the BLE address as everywhere else in rfhoming, not the record's bytes
+                fields["address"] = ble_address(fields.pop("addr"))
+            self._log(self.json[topic], {"device": device, "t": self._ns() / 1e9, **fields})
 
     def _on_runlog(self, record: dict[str, Any]) -> None:
         kind = record.get("kind")
@@ -163,7 +178,16 @@ class FoxgloveView(Sink):
             self.mounts = frames.sensor_mounts(config.mounting)
 
     def close(self) -> None:
-        self.server.stop()
+        """The front first (every client gone), then the SDK's server, waited for STOP_S at most."""
+        self.front.close()
+        self._stop_server()
+
+    def _stop_server(self) -> None:
+        stopper = threading.Thread(target=self.server.stop, name="foxglove-stop", daemon=True)
+        stopper.start()
+        stopper.join(STOP_S)
+        if stopper.is_alive():
+            log.warning("Foxglove view: the server did not stop within %.0f s; leaving it", STOP_S)
 
     # -- drawing -------------------------------------------------------------------------
     def _on_pose(self, x: float, y: float, theta: float) -> None:
@@ -270,6 +294,13 @@ class FoxgloveView(Sink):
     def _log(self, channel: Any, message: Any) -> None:
         channel.log(message, log_time=self._ns())
         self.published += 1
+
+
+def ble_address(lsb_first_hex: str) -> str:
+    """A BLE address as rfhoming spells it everywhere (the run log, the ROS messages, the
+    XPLR-AOA's tag ids): MSB first, upper-case hex, no colons (``AC0000000001``); framed
+    records carry it LSB first, as on the air."""
+    return bytes.fromhex(lsb_first_hex)[::-1].hex().upper()
 
 
 class _Listener(ServerListener):

@@ -9,8 +9,9 @@ wire; in short:
   each device with its state); the gpsd-named fields (``class``, ``proto_major``, ...) make it
   a gpsd VERSION object too;
 - then, while it watches (by default: every device, every kind but the devices' set-up
-  chatter), one line per item, ``{"n": N, "device": ..., "t": ..., "kind": ..., <fields>}``
-  (the form of ``listen --json`` plus ``n``, the server's item number), and a ``device`` line
+  chatter), one line per item, ``{"class": KIND, "n": N, "device": ..., "t": ..., "kind": ...,
+  <fields>}`` (the form of ``listen --json`` plus ``n``, the server's item number, and gpsd's
+  ``class``: the kind in upper case, as every line has one), and a ``device`` line
   whenever a device's state changes (``disconnected``, ``connected``, ``ready``, ``streaming``);
 - a client may send commands, one JSON object a line (``{"cmd": "watch", ...}``, ``poll``,
   ``devices``, ``version``) or in gpsd's syntax (``?WATCH={...};``, ``?POLL;``, ``?DEVICES;``,
@@ -111,6 +112,12 @@ def _version_fields() -> dict[str, Any]:
     return {"server": "rfhoming", "release": release, "rev": release,
             "proto": {"major": PROTO_MAJOR, "minor": PROTO_MINOR},
             "proto_major": PROTO_MAJOR, "proto_minor": PROTO_MINOR}
+
+
+def item_class(kind: str) -> str:
+    """An item line's gpsd ``class``: its kind in gpsd's upper case (``angle`` -> ``ANGLE``), so
+    a gpsd client that dispatches on ``class`` gets one on every line."""
+    return kind.upper()
 
 
 def _line(record: dict[str, Any]) -> bytes:
@@ -273,8 +280,9 @@ class ItemServer:
     def publish(self, device: str, t: float, item: Any) -> None:
         """One decoded item to every client that watches it (a driver listener)."""
         self.counters["items"] += 1
-        record = {"n": self.counters["items"], "device": device, "t": t, **as_dict(item)}
-        kind = record["kind"]
+        fields = as_dict(item)
+        kind = fields["kind"]
+        record = {"class": item_class(kind), "n": self.counters["items"], "device": device, "t": t, **fields}
         dev = self.devices.get(device)
         if dev is None:  # an item of a device it was not told of (a test's): tell of it from now on
             dev = self.devices[device] = _Device(device, state="streaming")
@@ -360,7 +368,8 @@ class ItemServer:
             self.counters["disconnected_slow"] += 1
             log.warning("client %s took nothing while %d lines were dropped: disconnecting it",
                         client.peer, client.dropped_in_a_row)
-            self._drop_client(client, {"kind": "dropped", "count": client.dropped, "total": client.dropped_total,
+            self._drop_client(client, {"kind": "dropped", "class": "DROPPED", "count": client.dropped,
+                                       "total": client.dropped_total,
                                        "disconnected": "too slow: took nothing while its queue overflowed"})
 
     def _error(self, client: _Client, message: str) -> None:
@@ -380,7 +389,7 @@ class ItemServer:
         """The next line the client is sent: a dropped notice if lines were dropped since the
         last, else the head of its queue; None when there is nothing."""
         if client.dropped:
-            notice = {"kind": "dropped", "count": client.dropped, "total": client.dropped_total}
+            notice = {"kind": "dropped", "class": "DROPPED", "count": client.dropped, "total": client.dropped_total}
             client.dropped = 0
             return _line(notice)
         if not client.queue:

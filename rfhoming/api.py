@@ -16,7 +16,20 @@ import queue
 import threading
 from collections.abc import AsyncIterator, Collection, Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, Literal, NamedTuple, Protocol, TypeAlias, TypedDict, TypeVar, Union, Unpack
+from typing import (
+    TYPE_CHECKING,
+    Any,
+    Generic,
+    Literal,
+    NamedTuple,
+    Protocol,
+    TypeAlias,
+    TypedDict,
+    TypeVar,
+    Union,
+    Unpack,
+    get_args,
+)
 from typing import overload as _overload
 
 from rfhoming.host import losses
@@ -25,6 +38,7 @@ from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.portspec import PortSpec
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.errors import Error
 from rfhoming.protocol.espat import Event, Final, Info, ScanReport
 from rfhoming.protocol.frames.records import (
     AdvReport,
@@ -65,6 +79,31 @@ Item: TypeAlias = Union[
 
 ItemT = TypeVar("ItemT", bound=Item, covariant=True)
 
+Kind: TypeAlias = Literal[
+    "angle", "tag_data", "startup", "echo", "info", "final", "unknown",
+    "adv_report", "rf_frame", "antenna_set", "status", "odometry", "velocity_command", "range_scan", "range_scan_v2",
+    "log_text", "node_command", "scan_report", "event", "advertisement", "hci", "h4_packet", "drop",
+]
+"""The ``kind`` of every :data:`Item`: what ``kinds=`` takes, so a type checker flags a misspelt one."""
+KINDS: tuple[str, ...] = get_args(Kind)
+
+
+class UnknownKind(Error, ValueError):
+    """``kinds=`` names a kind no device yields (a typo would otherwise yield nothing, silently)."""
+
+
+def _kinds(kinds: Iterable[str] | None) -> frozenset[str] | None:
+    """``kinds`` checked against :data:`KINDS`; UnknownKind lists them."""
+    if kinds is None:
+        return None
+    if isinstance(kinds, str):  # "angle" would be the kinds "a", "n", ...
+        raise UnknownKind(f"kinds={kinds!r}: give a collection of kinds, e.g. kinds={{{kinds!r}}}")
+    chosen = frozenset(kinds)
+    unknown = sorted(chosen - set(KINDS))
+    if unknown:
+        raise UnknownKind(f"kinds: unknown {', '.join(map(repr, unknown))}; the kinds are {', '.join(KINDS)}")
+    return chosen
+
 
 class Received(NamedTuple, Generic[ItemT]):
     """One decoded item, with the host time its bytes arrived, the device it came from and
@@ -90,20 +129,21 @@ class Devices(Generic[ItemT]):
 
     ``specs`` are port specs (``xplr-aoa:/dev/ttyUSB0,baud=1000000,tags=...``,
     ``capture:run.pcapng``, ``auto`` ...). ``kinds`` keeps only those item kinds (``"angle"``,
-    ``"rss_report"``, ``"drop"`` ...); by default everything but the AT conversation.
+    ``"adv_report"``, ``"drop"`` ...: :data:`KINDS`; another is refused with :class:`UnknownKind`);
+    by default everything but the AT conversation.
     ``duration`` ends the stream after that many seconds; a capture ends by itself.
     ``capture``: a pcapng file to record every byte both ways, as ``rfhoming capture -o`` does
     (a path: created, and closed when the stream ends; a :class:`CaptureWriter`: written to,
     left open for its owner).
     """
 
-    def __init__(self, *specs: str | PortSpec, kinds: Iterable[str] | None = None,
+    def __init__(self, *specs: str | PortSpec, kinds: Iterable[Kind] | None = None,
                  duration: float | None = None, baud: int | None = None, flow: str | None = None,
                  capture: str | Path | CaptureWriter | None = None) -> None:
         if not specs:
             raise ValueError("give at least one port spec, e.g. rfhoming.open('xplr-aoa:/dev/ttyUSB0')")
         self.specs = specs
-        self.kinds = frozenset(kinds) if kinds is not None else None
+        self.kinds = _kinds(kinds)
         self.duration = duration
         self.baud, self.flow = baud, flow
         self.capture = capture
@@ -333,7 +373,7 @@ class Opener(Protocol):
     @_overload
     def __call__(self, *specs: Spec, kinds: Collection[Literal["drop"]], **options: Unpack[Options]) -> Devices[Drop]: ...
     @_overload
-    def __call__(self, *specs: Spec, kinds: Iterable[str] | None = None, **options: Unpack[Options]) -> Devices[Item]: ...
+    def __call__(self, *specs: Spec, kinds: Iterable[Kind] | None = None, **options: Unpack[Options]) -> Devices[Item]: ...
     # fmt: on
 
 
@@ -359,12 +399,12 @@ class Reader:
     peer closes; a serial port's read timeout is not an end (it reads on). ``name`` is the
     ``device`` of the items (default: the port or file name)."""
 
-    def __init__(self, stream: Any, protocol: str = "uconnect", *, kinds: Iterable[str] | None = None,
+    def __init__(self, stream: Any, protocol: str = "uconnect", *, kinds: Iterable[Kind] | None = None,
                  name: str | None = None) -> None:
         self.stream = stream
         self.protocol = stream_protocol(protocol)  # an unknown or non-stream protocol fails here
         read_function(stream)  # so does a stream that cannot be read
-        self.kinds = frozenset(kinds) if kinds is not None else None
+        self.kinds = _kinds(kinds)
         self.name = name
 
     def __iter__(self) -> Iterator[Received[Item]]:

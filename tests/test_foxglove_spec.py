@@ -1,6 +1,6 @@
 """``demo --foxglove`` as a person watches it, checked by a client written from the published
 Foxglove WebSocket spec (foxglove/ws-protocol docs/spec.md) with ``websockets``: which
-subprotocols the server takes, the ``time`` capability and robot-time messages, JSON schemas,
+subprotocols the view takes, the ``time`` capability and robot-time messages, JSON schemas,
 REP 105 transforms, scene lifetimes; a viewer that connects 3 s after the address is printed
 still sees the whole run (the demo waits for it); the run is paced at robot time."""
 
@@ -24,7 +24,8 @@ def start_demo(out: Path, *args: str) -> tuple[subprocess.Popen, str]:
     demo = subprocess.Popen([sys.executable, "-m", "rfhoming", "demo", "--out", str(out), "--foxglove=0", "--json",
                              "--linger", "0", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = json.loads(demo.stderr.readline())
-    assert first == {"kind": "listening", "address": first["address"], "protocol": "foxglove.sdk.v1"}
+    assert first == {"kind": "listening", "address": first["address"],
+                     "protocols": ["foxglove.websocket.v1", "foxglove.sdk.v1"]}
     return demo, first["address"]
 
 
@@ -34,17 +35,20 @@ def finish(demo: subprocess.Popen) -> dict:
     return json.loads(out)
 
 
-def test_the_sdk_takes_foxglove_sdk_v1_and_refuses_the_specs_websocket_v1() -> None:
-    """foxglove-sdk's server hard-codes its subprotocol: a client offering only the spec's
-    foxglove.websocket.v1 (older Lichtblick) gets HTTP 400; one offering both gets sdk.v1."""
+def test_the_view_takes_both_names_of_the_protocol_and_answers_with_the_offered_one() -> None:
+    """foxglove-sdk's server alone takes only foxglove.sdk.v1; the view's front takes the spec's
+    foxglove.websocket.v1 too (Foxglove's FoxgloveClient, Lichtblick 1.21 and older) and answers
+    with it; a client offering neither still gets HTTP 400."""
     view = FoxgloveView(port=0)
     try:
         with pytest.raises(InvalidStatus) as refused:
-            connect(view.address, subprotocols=["foxglove.websocket.v1"], open_timeout=SAFETY_S)
+            connect(view.address, subprotocols=["ros1"], open_timeout=SAFETY_S)
         assert refused.value.response.status_code == 400
-        for offered in (["foxglove.sdk.v1"], ["foxglove.websocket.v1", "foxglove.sdk.v1"]):
+        for offered, answer in ((["foxglove.sdk.v1"], "foxglove.sdk.v1"),
+                                (["foxglove.websocket.v1"], "foxglove.websocket.v1"),
+                                (["foxglove.websocket.v1", "foxglove.sdk.v1"], "foxglove.sdk.v1")):
             with connect(view.address, subprotocols=offered, open_timeout=SAFETY_S) as ws:
-                assert ws.subprotocol == "foxglove.sdk.v1"
+                assert ws.subprotocol == answer
                 info = json.loads(ws.recv(timeout=SAFETY_S))
                 assert info["op"] == "serverInfo" and "time" in info["capabilities"]
     finally:

@@ -646,16 +646,16 @@ import json, sys
 from gps import gps, WATCH_ENABLE, WATCH_JSON
 session = gps(host="127.0.0.1", port=int(sys.argv[1]), mode=WATCH_ENABLE | WATCH_JSON)
 seen = []
-for report in session:
-    if report is None or session.response == "":  # a part of a line so far: the client reads on
+for report in session:  # gpsd's standard loop, dispatching on class as its clients do
+    if report['class'] == 'TPV':
         continue
-    seen.append(report.get("class") or report.get("kind"))
-    if report.get("kind") == "angle" and "POLL" not in seen:
+    seen.append(report['class'])
+    if report['class'] == 'ANGLE' and 'POLL' not in seen:
         session.send("?POLL;")
-    if report.get("class") == "POLL":
+    if report['class'] == 'POLL':
         break
 print(json.dumps({"seen": seen, "version": dict(session.version.__dict__),
-                  "poll": [i["device"] for i in report["items"]]}))
+                  "poll": [i["device"] for i in report["items"]], "poll_classes": [i["class"] for i in report["items"]]}))
 """
 
 
@@ -678,4 +678,20 @@ def test_gpsds_own_python_client_reads_the_server(served) -> None:
     seen = out["seen"]
     assert seen[0] == "VERSION" and seen[seen.index("DEVICES") + 1] == "WATCH"  # the hello; ?WATCH's replies
     assert out["version"]["proto_major"] == 1 and out["version"]["class"] == "VERSION"
-    assert "angle" in out["seen"] and out["seen"][-1] == "POLL" and set(out["poll"]) <= {"aoa", "base"}
+    assert {"ANGLE", "ODOMETRY"} <= set(seen) and seen[-1] == "POLL" and set(out["poll"]) <= {"aoa", "base"}
+    assert "ANGLE" in out["poll_classes"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("gpspipe") is None, reason="needs gpspipe (Debian's gpsd-clients)")
+def test_gpspipe_prints_every_line_with_a_class(served) -> None:
+    """gpsd's own ``gpspipe -w``: it watches in JSON and prints each line as it comes."""
+    port, _ = served
+    done = subprocess.run(["gpspipe", "-w", "-n", "60", f"127.0.0.1:{port}"], capture_output=True, text=True,
+                          timeout=SAFETY_S)
+    assert done.returncode == 0, done.stderr
+    lines = [json.loads(line) for line in done.stdout.splitlines()]
+    assert len(lines) == 60 and all(isinstance(r.get("class"), str) and r["class"] for r in lines), \
+        [r for r in lines if "class" not in r][:3]
+    assert lines[0]["class"] == "VERSION" and {"DEVICES", "WATCH", "ANGLE", "ODOMETRY"} <= {r["class"] for r in lines}
+    assert all(r["class"] == r["kind"].upper() for r in lines if "n" in r)  # an item's class is its kind

@@ -84,6 +84,21 @@ def test_mypy_strict_catches_typos_in_a_users_program(tmp_path: Path) -> None:
         assert f"typos.py:{line}: error:" in done.stdout and what in done.stdout, done.stdout
 
 
+def test_mypy_strict_catches_a_misspelt_kind(tmp_path: Path) -> None:
+    """``kinds={"angel"}`` would yield nothing at all: the type checker names it, as does the call."""
+    (tmp_path / "kind.py").write_text(
+        "import rfhoming\n"
+        "for got in rfhoming.read('capture:run.pcapng', kinds={'angle', 'odometry'}):\n"
+        "    print(got.kind)\n"
+        "devices = rfhoming.open('capture:run.pcapng', kinds={'angel'})\n"
+        "reader = rfhoming.Reader(open('run.bin', 'rb'), kinds=['antenna_sett'])\n"
+    )
+    done = mypy(tmp_path, "kind.py")
+    assert done.returncode == 1, done.stdout + done.stderr
+    errors = [line for line in done.stdout.splitlines() if ": error:" in line]
+    assert {line.split(":")[1] for line in errors} == {"4", "5"}, done.stdout
+
+
 def test_ruff_passes() -> None:
     """The rules chosen in pyproject.toml ([tool.ruff]), over the whole tree."""
     done = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "."], cwd=ROOT, text=True,

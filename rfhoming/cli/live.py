@@ -20,9 +20,9 @@ from rfhoming.host.sink import Sink
 from rfhoming.protocol.errors import Error
 
 DEFAULT_PORT = 8765  # Foxglove's own default (rfhoming.host.foxglove_view.DEFAULT_PORT)
-SUBPROTOCOL = "foxglove.sdk.v1"  # rfhoming.host.foxglove_view.SUBPROTOCOL, without importing the SDK
+SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]  # what the view takes (host/foxglove_front.py)
 FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {DEFAULT_PORT}, 0 = any free port) to "
-                 f"Foxglove or Lichtblick (subprotocol {SUBPROTOCOL}: Lichtblick releases of 2025-12 and later); "
+                 "Foxglove or Lichtblick (subprotocol foxglove.websocket.v1 or foxglove.sdk.v1); "
                  "in Foxglove open a WebSocket connection to it and import the layout "
                  "rfhoming/host/foxglove_layout.json; needs the foxglove extra")
 WAIT_S = 60.0
@@ -81,7 +81,7 @@ def start_foxglove(args: argparse.Namespace, command: str, out: TextIO = sys.std
         print(f"rfhoming {command}: cannot start the Foxglove server on port {args.foxglove}: {exc}; "
               "choose another with --foxglove=PORT", file=sys.stderr)
         raise SystemExit(2) from None
-    print(json.dumps({"kind": "listening", "address": view.address, "protocol": SUBPROTOCOL}), file=out, flush=True)
+    print(json.dumps({"kind": "listening", "address": view.address, "protocols": SUBPROTOCOLS}), file=out, flush=True)
     return view
 
 
