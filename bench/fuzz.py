@@ -32,12 +32,19 @@ More targets, each fed random, mutated and structure-aware input the same way:
 - ``cref``: the C reference (tests/rfh_harness.c, built here) against FrameDecoder, frame end by
   frame end, on near-limit frames, log_text bodies, mutated frames and random bytes;
 - ``config``, ``site``, ``points``: the TOML readers on random, mutated and retyped files: only
-  the project's Error may come out (``escaped.<type>`` counts the rest by type).
+  the project's Error may come out (``escaped.<type>`` counts the rest by type);
+- ``sitebus``: a site worker's drain (host/sitebus.py: the angle-batch decoder, then numpy and the
+  batched engine) on one message between two good batches: random bytes, mutated batches
+  (versions 1 and 2), and hostile JSON (nesting to 100,000 levels, numbers of up to 20,000 digits,
+  1e999, NaN, ids with MQTT wildcards, lone surrogates, fields of the wrong type); nothing may
+  escape the drain or the worker's tick, and the good batches' events must all be fed
+  (``good_events_lost``): a message costs at most itself.
 
     python bench/fuzz.py --n 20000                     # every target, 20,000 streams each
     python bench/fuzz.py --target frames --n 1000000 --seconds 3600
     python bench/fuzz.py --target pcapng --n 100000 --json
     python bench/fuzz.py --target cref --n 1000000 --json
+    python bench/fuzz.py --target sitebus --n 1000000 --json
     python bench/fuzz.py --hypothesis                  # the property tests, many more examples
 
 --seconds bounds each target's time; the report says how many streams actually ran.
@@ -65,7 +72,7 @@ from cobs import cobs
 
 from rfhoming.host.drivers.hci import HciDriver
 from rfhoming.host.ports import HostPort
-from rfhoming.protocol import accel, espat, h4, pcapng
+from rfhoming.protocol import accel, espat, h4, pcapng, sitebus
 from rfhoming.protocol import ad as adv
 from rfhoming.protocol.drop import Drop
 from rfhoming.protocol.errors import Error
@@ -788,11 +795,150 @@ def _capture(path: Path) -> Any:
     return pcapng.read_all(path.read_bytes())
 
 
+# -- the site bus: any MQTT message a worker receives costs at most itself ------------------------
+def _hostile_values() -> tuple[str, ...]:
+    """JSON values that are valid text but hostile to a reader: deep, huge, odd or of the wrong
+    type (built once: the deep and long ones cost more to build than to refuse)."""
+    out = ["1e999", "-1e999", "1e-999", "NaN", "Infinity", "-Infinity", "0", "-1", "0.5", "9223372036854775808",
+           "1e23", "true", "false", "null", '""', '"x"', '"a/#"', '"+"', '"t/1"', '"\\u0000"', '"\\ud800"', "[]",
+           "{}", "[1]", '["a"]', "[[0],[0],[0]]", "[[1],[0]]", '{"v":2}']
+    for depth in (10, 900, 1000, 5000, 100_000):
+        out += ["[" * depth + "]" * depth, '{"a":' * depth + "1" + "}" * depth, "[" * depth]
+    for digits in (20, 400, 4300, 4301, 20_000):
+        out += ["9" * digits, "-" + "9" * digits, "1" + "0" * digits + ".5", "0." + "1" * digits]
+    return tuple(out + ['"' + "x" * n + '"' for n in (256, 257, 100_000)])
+
+
+HOSTILE = _hostile_values()
+
+
+def _json_value(rng: random.Random) -> str:
+    return rng.choice(HOSTILE)
+
+
+def _batch_fields(rng: random.Random, anchors: list[str]) -> dict[str, str]:
+    """A valid batch (version 1 or 2) as its top-level fields' JSON texts, so any can be replaced."""
+    tags = [f"T{k}" for k in range(rng.randint(1, 4))]
+    rows = [(1e9 + rng.uniform(0, 2), rng.choice(anchors), rng.choice(tags), rng.randint(-90, 90),
+             rng.randint(-90, 90)) for _ in range(rng.randint(0, 12))]
+    body = json.loads(sitebus.encode_angles("gw", rng.randrange(1000), 1e9 + 2, 0.0, rows))
+    if rng.random() < 0.25:
+        body = {k: body[k] for k in ("v", "gw", "seq", "sent", "offset_s")} | {"v": 1, "events": [list(r) for r in rows]}
+    return {k: json.dumps(v) for k, v in body.items()}
+
+
+def _replace_inside(rng: random.Random, text: str) -> str:
+    """One element of a column (or a value in a list) replaced by a hostile value."""
+    starts = [i for i, ch in enumerate(text) if ch in "[,"]
+    if not starts:
+        return _json_value(rng)
+    i = rng.choice(starts) + 1
+    j = i
+    while j < len(text) and text[j] not in ",]":
+        j += 1
+    return text[:i] + _json_value(rng) + text[j:]
+
+
+def sitebus_input(rng: random.Random, kind: str, anchors: list[str]) -> bytes:
+    if kind == "random":
+        return rng.randbytes(rng.randint(0, 2000))
+    fields = _batch_fields(rng, anchors)
+    if kind == "mutated":
+        text = "{" + ",".join(f'"{k}":{v}' for k, v in fields.items()) + "}"
+        return mutate(rng, text.encode(), rng.randint(1, 8))[0]
+    roll = rng.random()
+    if roll < 0.15:  # hostile alone
+        return _json_value(rng).encode()
+    for _ in range(rng.randint(1, 3)):  # fields retyped, added, or one element of them replaced
+        key = rng.choice([*fields, "v", "x"])
+        if key in fields and rng.random() < 0.5:
+            fields[key] = _replace_inside(rng, fields[key])
+        else:
+            fields[key] = _json_value(rng)
+    return ("{" + ",".join(f'"{k}":{v}' for k, v in fields.items()) + "}").encode()
+
+
+class SitebusTarget:
+    """Every message through the decoder; each one it passes (and every 64th it refuses) through a
+    site worker between two good batches, the worker ticked every 256 of those: what escapes the
+    decoder, the drain or the tick is counted, and so are good events not fed. (A refused message
+    costs the drain one counter, by construction; the decoder is what has to hold.)"""
+
+    name = "sitebus"
+
+    def __init__(self) -> None:
+        self.worker: Any = None
+
+    def _make(self) -> Any:
+        from rfhoming.emulator.site import SiteScenario
+        from rfhoming.host.site import Anchor, Site
+        from rfhoming.host.sitebus import Broker, Worker
+
+        sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
+        site = Site("fuzz", tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg) for a in sc.anchors),
+                    sigma_deg=sc.sigma_deg)
+        self.now = 1e9
+        # no broker is ever reached (port 1): positions wait in the publisher's bounded buffer
+        worker = Worker(site, Broker("127.0.0.1", 1, False, None), worker_id="fuzz", partitions=1,
+                        clock=lambda: self.now)
+        self.anchors = [a.id for a in sc.anchors]
+        return worker
+
+    def _good(self, seq: int) -> bytes:
+        rows = [(self.now - 0.05 + 0.01 * k, a, f"G{k % 2}", 10, -20) for k, a in enumerate(self.anchors)]
+        return sitebus.encode_angles("good", seq, self.now, 0.0, rows)
+
+    def one(self, rng: random.Random, kind: str, c: Counts, examples: list[str]) -> None:
+        if self.worker is None:
+            self.worker = self._make()
+            self.streams = 0
+        w = self.worker
+        data = sitebus_input(rng, kind, self.anchors)
+        c.add("streams")
+        c.add("bytes", len(data))
+        try:
+            sitebus.decode_angles(data)
+            c.add("decoded")
+        except sitebus.PayloadError:
+            c.add("refused")
+            if rng.randrange(64):
+                return
+        except Exception as exc:  # noqa: BLE001 -- counting what escapes is the point
+            c.add("escaped_exceptions")
+            c.add(f"escaped.{type(exc).__name__}")
+            if len(examples) < 5:
+                examples.append(f"{type(exc).__name__}: {str(exc)[:100]} on {data[:60]!r}")
+            return
+        c.add("through_the_worker")
+        self.now += 0.01
+        self.streams += 1
+        topic = "rfhoming/fuzz/angles/0"
+        before = dict(w.counters)
+        w._inbox.extend([(self.now, topic, self._good(2 * self.streams)), (self.now, topic, data),
+                         (self.now, topic, self._good(2 * self.streams + 1))])
+        try:
+            w._drain()
+            if self.streams % 256 == 0:
+                w._tick(self.now)
+        except Exception as exc:  # noqa: BLE001 -- counting what escapes is the point
+            c.add("escaped_exceptions")
+            c.add(f"escaped.{type(exc).__name__}")
+            w._inbox.clear()
+            if len(examples) < 5:
+                examples.append(f"{type(exc).__name__}: {str(exc)[:100]} on {data[:60]!r}")
+            return
+        fed = w.counters["events"] - before["events"]
+        if fed < 2 * len(self.anchors):
+            c.add("good_events_lost", 2 * len(self.anchors) - fed)
+            if len(examples) < 5:
+                examples.append(f"good events lost beside {data[:60]!r}")
+
+
 TARGETS: dict[str, Any] = {
     "frames": FramesTarget(), "uconnect": UConnectTarget(), "pcapng": PcapngTarget(), "espat": EspAtTarget(),
     "h4": H4Target(), "ad": AdTarget(), "hci": HciDriverTarget(), "cref": CrefTarget(),
     "config": FilesTarget("config", CONFIG, _config), "site": FilesTarget("site", SITE, _site),
-    "points": FilesTarget("points", POINTS, _points),
+    "points": FilesTarget("points", POINTS, _points), "sitebus": SitebusTarget(),
 }
 
 
@@ -802,7 +948,7 @@ KEYS = {"frames": ("chunked_vs_whole_differences", "c_vs_python_differences", "i
                      "corrupt_accepted"),
         "pcapng": ("chunked_vs_whole_differences",), "espat": ("chunked_vs_whole_differences", "intact_units_lost"),
         "h4": ("chunked_vs_whole_differences", "intact_units_lost", "intact_units_misframed"), "hci": ("chunked_vs_whole_differences",),
-        "cref": ("c_vs_python_differences",)}
+        "cref": ("c_vs_python_differences",), "sitebus": ("good_events_lost",)}
 """The counts every report shows, zero or not."""
 
 
@@ -858,7 +1004,8 @@ def main(argv: list[str] | None = None) -> int:
     for target in (TARGETS if args.target == "all" else [args.target]):
         result = run(target, args.n, args.seconds, args.seed, progress=not args.json)
         bad += result.get("escaped_exceptions", 0) + result.get("c_vs_python_differences", 0) \
-            + result.get("chunked_vs_whole_differences", 0) + result.get("intact_units_lost", 0)
+            + result.get("chunked_vs_whole_differences", 0) + result.get("intact_units_lost", 0) \
+            + result.get("good_events_lost", 0)
         if args.json:
             print(json.dumps(result), flush=True)
         else:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, angle_sigma_deg, locate, make_ray
+from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, Fix, angle_sigma_deg, locate, make_ray
 from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
 from rfhoming.host.site import Anchor, Calibration, Site
 from rfhoming.protocol.uconnect import AngleEvent
@@ -55,7 +55,7 @@ class Position:
     anchors: tuple[str, ...]  # anchor names the fix rests on
     rejected: tuple[str, ...]
     tracked: bool
-    quality: float | None = None  # the fix's rms normalised ray miss (None: no fix this tick)
+    quality: float | None = None  # the fix's chi-square per degree of freedom (None: no fix this tick)
     smoothed: bool = False  # True: from the RTS smoother over a whole recording (not causal)
     t_fix: float | None = None  # a raw fix: the mean time of the angles it rests on
 
@@ -64,11 +64,18 @@ class Position:
                "y": round(float(self.point[1]), 3), "z": round(float(self.point[2]), 3),
                "cov": [[round(float(v), 5) for v in row] for row in self.covariance],
                "anchors": list(self.anchors), "rejected": list(self.rejected)}
-        if self.quality is not None:
-            out["rms"] = round(self.quality, 3)
+        if self.quality is not None:  # named as on the site bus (protocol/sitebus.py)
+            out["chi2_per_dof"] = round(self.quality, 3)
         if self.smoothed:
             out["smoothed"] = True
         return out
+
+
+def _chi2_per_dof(fix: Fix, height: float | None, height_sigma: float | None) -> float:
+    """The rays' chi-square about the fix per degree of freedom: two angles a ray, less the three
+    coordinates (two when the height is a constraint), as BatchLocator's."""
+    fixed = height is not None and height_sigma is None
+    return fix.chi2 / max(1, 2 * len(fix.used) - (2 if fixed else 3))
 
 
 class Locator:
@@ -221,14 +228,14 @@ class Locator:
             self.counters["fixes"] += 1
             self.counters["rejected_anchor"] += len(fix.rejected)
             if not self.track:
-                out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False, fix.rms,
+                out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False, _chi2_per_dof(fix, height, self.height_sigma),
                                     t_fix=t_fix))
                 continue
             if self.tracker == "ekf":  # a fix starts (or restarts) the filter; angles drive it
                 ekf = self._ekfs[tag] = BearingEkf(self.accel_psd)
                 ekf.start(t_fix, fix.point, fix.covariance)
                 point, cov = ekf.predicted(t)
-                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, fix.rms))
+                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, _chi2_per_dof(fix, height, self.height_sigma)))
                 continue
             tracker = self._trackers.setdefault(tag, ConstantVelocity(self.accel_psd))
             if not tracker.update(t_fix, fix.point, fix.covariance):
@@ -238,7 +245,7 @@ class Locator:
             point, cov = tracker.predicted(t)
             if height is not None and self.height_sigma is None:  # a constraint, not a prior
                 point = np.array([point[0], point[1], height])
-            out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, fix.rms))
+            out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, _chi2_per_dof(fix, height, self.height_sigma)))
         return out
 
 

@@ -53,6 +53,10 @@ READ_BURST = 1000
 RECONNECT_MIN_S, RECONNECT_MAX_S = 0.1, 5.0
 """Seconds between tries to reach a lost broker: the first, doubling up to the last."""
 
+CONNECT_TIMEOUT_S = 1.0
+"""Seconds one try to reach the broker may block (TCP connect, TLS handshake; paho's default is 5):
+a worker tries in its own loop, and --duration, Ctrl-C and SIGTERM must end it promptly."""
+
 
 _FEED_ERRORS = (ArithmeticError, LookupError, TypeError, ValueError)
 """What a decoded batch that is still unusable raises in numpy or the engine (Worker._drain)."""
@@ -79,17 +83,32 @@ class Broker:
 
     @classmethod
     def parse(cls, url: str) -> Broker:
+        """The parts of a broker URL, each checked here: a bad one is a one-line error (exit 2), not
+        a connection that can never succeed or a worker that subscribes to a billion partitions."""
         u = urlsplit(url if "://" in url else f"mqtt://{url}")
         if u.scheme not in ("mqtt", "mqtts") or not u.hostname:
             raise BrokerError(f"{url!r}: write mqtt://HOST[:PORT][/PARTITIONS] (or mqtts:// for TLS)")
-        path = u.path.strip("/")
-        if path and not path.isdigit():
-            raise BrokerError(f"{url!r}: the path is the partition count, a whole number")
+        if u.query or u.fragment:
+            raise BrokerError(f"{url!r}: a broker URL has no ?query or #fragment: mqtt://HOST[:PORT][/PARTITIONS]")
         try:
-            port = u.port or (8883 if u.scheme == "mqtts" else 1883)
+            u.hostname.encode("idna")
+        except UnicodeError:
+            raise BrokerError(f"{url!r}: {u.hostname!r} is not a host name") from None
+        path = u.path.strip("/")
+        if path and not (path.isascii() and path.isdigit() and 1 <= int(path) <= sitebus.MAX_PARTITIONS):
+            raise BrokerError(f"{url!r}: the path is the site's partition count, a whole number in "
+                              f"1..{sitebus.MAX_PARTITIONS} (the same for every gateway and worker of the site)")
+        try:
+            port = u.port
         except ValueError:
-            raise BrokerError(f"{url!r}: the port is not a number") from None
+            raise BrokerError(f"{url!r}: the port is a number in 1..65535") from None
+        if port == 0:
+            raise BrokerError(f"{url!r}: the port is a number in 1..65535 (leave it out for 1883, mqtts 8883)")
+        port = port or (8883 if u.scheme == "mqtts" else 1883)
         return cls(u.hostname, port, u.scheme == "mqtts", int(path) if path else None, u.username, u.password)
+
+    def __str__(self) -> str:
+        return f"{'mqtts' if self.tls else 'mqtt'}://{self.host}:{self.port}"
 
 
 def _client(client_id: str, broker: Broker, ca_file: str | None = None) -> mqtt.Client:
@@ -102,6 +121,7 @@ def _client(client_id: str, broker: Broker, ca_file: str | None = None) -> mqtt.
     if broker.tls:
         c.tls_set(ca_certs=ca_file, cert_reqs=ssl.CERT_REQUIRED)
     c.reconnect_delay_set(min_delay=RECONNECT_MIN_S, max_delay=RECONNECT_MAX_S)
+    c.connect_timeout = CONNECT_TIMEOUT_S
     return c
 
 
@@ -117,6 +137,7 @@ class Publisher:
     def __init__(self, broker: Broker, client_id: str, *, buffer: int = BUFFER_MESSAGES, keepalive: int = 10,
                  will: tuple[str, bytes] | None = None, ca_file: str | None = None, threaded: bool = True,
                  clock: Callable[[], float] = time.monotonic) -> None:
+        self.broker = broker
         self.client = _client(client_id, broker, ca_file)
         self.client.max_queued_messages_set(buffer)  # QoS 1 messages (a worker's entry); QoS 0: _room()
         if will is not None:
@@ -126,13 +147,18 @@ class Publisher:
         self._lock = threading.Lock()
         self.connected = threading.Event()
         self.on_connect: list[Callable[[], None]] = []
-        self.counters = {"published": 0, "buffered": 0, "dropped": 0, "connects": 0, "disconnects": 0, "refused": 0}
+        self.counters = {"published": 0, "buffered": 0, "dropped": 0, "unsent": 0, "connects": 0, "disconnects": 0,
+                         "refused": 0}
         self._refusals = 0  # in the current streak: the first is logged, the rest counted
+        self._away_since: float | None = time.monotonic()  # None while connected; the outage's first warning
+        self._warned_away = self._warned_drop = False  # once per outage each
         self.client.on_connect = self._connected
+        self.client.on_connect_fail = lambda client, userdata: self._unreachable(None)
         self.client.on_disconnect = self._disconnected
         self.client.connect_async(broker.host, broker.port, keepalive=keepalive)
         self._clock = clock
         self._retry_at, self._delay = -math.inf, RECONNECT_MIN_S
+        self._closing = False
         if threaded:
             self.client.loop_start()
 
@@ -151,6 +177,7 @@ class Publisher:
             try:
                 self.client.reconnect()
             except OSError as exc:
+                self._unreachable(exc)
                 log.debug("broker not reachable (%s): again in %.1f s", exc, self._retry_at - now)
                 return
         self.client.loop(timeout)
@@ -175,6 +202,16 @@ class Publisher:
                 self.connected.wait(0.05)
         return self.connected.is_set()
 
+    def _unreachable(self, exc: BaseException | None) -> None:
+        """A try to reach the broker failed: said once per outage, as a warning (nothing is
+        published meanwhile), the rest at debug level."""
+        if not self._warned_away:
+            self._warned_away = True
+            log.warning("MQTT broker %s not reachable%s: nothing is published; messages wait in a buffer of %d "
+                        "(the oldest dropped when it is full) and the broker is tried again every %g..%g s. "
+                        "Check that the broker runs and the URL's host and port", self.broker,
+                        f" ({exc})" if exc else "", self._cap, RECONNECT_MIN_S, RECONNECT_MAX_S)
+
     def _connected(self, client: mqtt.Client, userdata: object, flags: object, reason: object,
                    props: object) -> None:
         if getattr(reason, "is_failure", False):
@@ -185,6 +222,11 @@ class Publisher:
             return
         self._refusals, self._delay = 0, RECONNECT_MIN_S
         self.counters["connects"] += 1
+        if self._warned_away and self._away_since is not None:
+            log.warning("MQTT broker %s reached after %.1f s away; %d messages waiting are sent now, %d dropped "
+                        "so far", self.broker, time.monotonic() - self._away_since, len(self._buffer),
+                        self.counters["dropped"])
+        self._away_since, self._warned_away, self._warned_drop = None, False, False
         for hook in self.on_connect:
             hook()
         with self._lock:
@@ -209,8 +251,14 @@ class Publisher:
 
     def _disconnected(self, client: mqtt.Client, userdata: object, flags: object, reason: object,
                       props: object) -> None:
+        was = self.connected.is_set()
         self.connected.clear()
         self.counters["disconnects"] += 1
+        if was and not self._closing:
+            self._away_since, self._warned_away = time.monotonic(), True
+            log.warning("lost the MQTT broker %s (%s): nothing is published; messages wait in a buffer of %d and "
+                        "it is tried again every %g..%g s", self.broker, reason, self._cap, RECONNECT_MIN_S,
+                        RECONNECT_MAX_S)
 
     def publish(self, topic: str, payload: bytes, qos: int = 0, retain: bool = False) -> None:
         with self._lock:
@@ -223,22 +271,36 @@ class Publisher:
             if len(self._buffer) >= self._cap:
                 self._buffer.popleft()
                 self.counters["dropped"] += 1
+                if not self._warned_drop:
+                    self._warned_drop = True
+                    log.warning("MQTT buffer full (%d messages, broker %s %s): the oldest are dropped from now on, "
+                                "counted in \"dropped\"", self._cap, self.broker,
+                                "away" if not self.connected.is_set() else "reading slower than we publish")
             self._buffer.append((topic, payload, qos, retain))
             self.counters["buffered"] += 1
 
     def close(self) -> None:
+        """Send what waits if the broker is there (for 2 s at most), disconnect; never raises, so the
+        owner's counters are printed whatever the broker does. What never went out is ``unsent``."""
         end = time.monotonic() + 2.0  # without paho's thread, what paho holds is written first (a bound)
-        while self.client._thread is None and time.monotonic() < end and (  # noqa: SLF001
-                self.client.want_write() or (self._buffer and self.connected.is_set())):
+        while self.client._thread is None and time.monotonic() < end and self.connected.is_set() and (  # noqa: SLF001
+                self.client.want_write() or self._buffer):
             self.service(0.05)
+        self._closing = True
         self.client.disconnect()
         self.client.loop_stop()
+        self.counters["unsent"] = len(self._buffer)
+        if self._buffer:
+            log.warning("%d messages never reached the MQTT broker %s (it was away at the end)", len(self._buffer),
+                        self.broker)
 
 
 class Gateway:
     """A gateway's side: angle events of its anchors, sorted into partitions, sent in batches."""
 
     def __init__(self, publisher: Publisher, site: str, name: str, partitions: int, offset_s: float = 0.0) -> None:
+        sitebus.check_level("site name", site)
+        sitebus.check_level("gateway name", name)  # a worker refuses a batch whose "gw" is not one
         self.publisher, self.site, self.name, self.partitions, self.offset_s = publisher, site, name, partitions, offset_s
         self._rows: dict[int, list[sitebus.Row]] = {}
         self._part_of: dict[str, int] = {}
@@ -275,9 +337,10 @@ class Gateway:
 
     def flush(self, now: float) -> None:
         """Publish each partition's events since the last flush (``now`` on this gateway's clock)."""
+        step = sitebus.MAX_BATCH_EVENTS  # a worker parses a bounded payload (sitebus.MAX_PAYLOAD)
         for part, rows in self._rows.items():
-            if rows:
-                payload = sitebus.encode_angles(self.name, self._seq[part], now, self.offset_s, rows)
+            for k in range(0, len(rows), step):
+                payload = sitebus.encode_angles(self.name, self._seq[part], now, self.offset_s, rows[k:k + step])
                 self._seq[part] += 1
                 self.publisher.publish(sitebus.angles_topic(self.site, part), payload)
         self._rows = {}
@@ -290,7 +353,12 @@ class Worker:
     def __init__(self, site: Site, broker: Broker, *, worker_id: str, partitions: int,
                  rate_hz: float | None = None, reorder_s: float = 0.02, track: bool = True, ca_file: str | None = None,
                  clock: Callable[[], float] = time.time) -> None:
+        sitebus.check_level("site name", site.name)
+        sitebus.check_level("worker id", worker_id)
+        if not 1 <= partitions <= sitebus.MAX_PARTITIONS:
+            raise BrokerError(f"{partitions} partitions: a site has 1..{sitebus.MAX_PARTITIONS}")
         self.site, self.worker_id, self.partitions = site, worker_id, partitions
+        self._anchor_id = {a.name: a.id for a in site.anchors}  # positions name anchors as the batches do
         self.period = 1.0 / (rate_hz or site.rate_hz)
         self.reorder_s = reorder_s
         self.clock = clock
@@ -362,8 +430,10 @@ class Worker:
             try:
                 batch = sitebus.decode_angles(payload)
             except sitebus.PayloadError as exc:
+                (log.warning if self.counters["bad_payload"] == 0 else log.debug)(
+                    "dropped a message on %s that is not an angle batch (%s); further ones are counted "
+                    "(bad_payload)", topic, exc)
                 self.counters["bad_payload"] += 1
-                log.debug("dropped a batch on %s: %s", topic, exc)
                 continue
             self.counters["batches"] += 1
             key = (batch.gateway, topic)
@@ -440,9 +510,10 @@ class Worker:
                 continue
             now = self.clock()
             self.latencies.append(now - f.newest)
+            ids = self._anchor_id
             self.pub.publish(sitebus.positions_topic(site, f.tag), sitebus.position_payload(
-                t, f.tag, f.fix.point, f.fix.covariance, list(f.fix.used), list(f.fix.rejected), f.quality,
-                self.worker_id, latency_s=now - f.newest))
+                site, t, f.tag, f.fix.point, f.fix.covariance, [ids[a] for a in f.fix.used],
+                [ids[a] for a in f.fix.rejected], f.quality, self.worker_id, latency_s=now - f.newest))
             self.counters["positions"] += 1
 
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> None:
@@ -452,10 +523,15 @@ class Worker:
             self.pub.service(min(self.step(), 0.05))
 
     def close(self) -> None:
-        info = self.pub.client.publish(self._me, b"offline", qos=1, retain=True)
-        end = time.monotonic() + 2.0  # a bound: a broker that is away hears the will instead
-        while not info.is_published() and self.pub.client.is_connected() and time.monotonic() < end:
-            self.pub.service(0.05)
+        """Say "offline" if the broker is there (for 2 s at most: one that is away publishes the
+        will instead), then close; never raises, with or without a broker."""
+        if self.pub.connected.is_set():
+            info = self.pub.client.publish(self._me, b"offline", qos=1, retain=True)
+            end = time.monotonic() + 2.0
+            # is_published() raises unless the publish was queued (rc 0): checked first
+            while (info.rc == mqtt.MQTT_ERR_SUCCESS and not info.is_published() and self.pub.connected.is_set()
+                   and time.monotonic() < end):
+                self.pub.service(0.05)
         self.pub.close()
 
     def health(self) -> dict[str, object]:

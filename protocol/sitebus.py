@@ -18,8 +18,10 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 import zlib
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
@@ -30,10 +32,31 @@ VERSION = 2
 """Angle-batch payload version written: 2 is columnar; version 1 (one list per event) is still
 read, for gateways not yet upgraded. A worker drops (and counts) a batch of any other version."""
 
-POSITION_VERSION = 1
-"""Position payload version."""
+POSITION_VERSION = 2
+"""Position payload version: 2 names its site, frame, units and UTC time, the anchors by the ids
+the angle batches use, and its quality ``chi2_per_dof`` (version 1: none of that, ``quality``)."""
+
+FRAME = "map"
+"""The frame of a position: the site's world-fixed frame, REP 105's ``map`` (REP 103: x, y on the
+floor, z up, metres)."""
+
+UNITS = {"x": "m", "y": "m", "z": "m", "cov": "m^2", "t": "s", "latency_s": "s"}
+"""Each position's units, in the payload itself (``t``: Unix time, UTC, ``time`` the same instant)."""
 
 DEFAULT_PARTITIONS = 8
+MAX_PARTITIONS = 1024
+"""A site's partition count is 1..1024: a worker subscribes to each partition it owns, one topic each."""
+
+MAX_PAYLOAD = 4_000_000
+"""Bytes of an angle batch a worker parses at most (a gateway splits its batches well below:
+MAX_BATCH_EVENTS). JSON's nesting and numbers are unbounded, its parser recursive: a bound on
+the bytes bounds what one message can cost."""
+
+MAX_BATCH_EVENTS = 20_000
+"""Events a gateway puts in one batch at most (about 300 kB); more go in further batches."""
+
+MAX_ID = 256
+"""Characters of a gateway, anchor, tag, worker or site name at most (a board's ids are 12)."""
 
 MAX_SPAN_US = 3_600_000_000
 """A batch's events lie within an hour of its ``t0`` (a flush spans 20 ms): a larger ``dt_us`` is
@@ -49,6 +72,29 @@ MAX_SEQ = 2**63
 
 class PayloadError(Error, ValueError):
     """A site-bus message that is not what docs/protocol.md describes (dropped and counted)."""
+
+
+class TopicNameError(Error, ValueError):
+    """A site, worker or gateway name that cannot be an MQTT topic level."""
+
+
+_NOT_IN_A_LEVEL = re.compile("[/+#\x00\ud800-\udfff]")
+"""What an MQTT topic level cannot hold: the level separator, the wildcards (a publish to a topic
+with them is refused), U+0000 (MQTT 3.1.1 section 1.5.3) and lone surrogates (not UTF-8)."""
+
+
+def is_level(name: object) -> bool:
+    """Whether ``name`` can be one level of a topic: a non-empty string of at most MAX_ID
+    characters, none of ``/ + #``, U+0000 or a lone surrogate."""
+    return isinstance(name, str) and 0 < len(name) <= MAX_ID and _NOT_IN_A_LEVEL.search(name) is None
+
+
+def check_level(what: str, name: str) -> str:
+    """``name`` as one level of the site bus's topics, or a one-line error saying why not."""
+    if not is_level(name):
+        raise TopicNameError(f"{what} {name!r}: a site-bus name is 1..{MAX_ID} characters without '/', '+', '#' "
+                         "(MQTT's level separator and wildcards) or NUL")
+    return name
 
 
 def partition(tag: str, partitions: int) -> int:
@@ -164,10 +210,18 @@ def _angles(col: object, n: int, what: str) -> list[float]:
 
 
 def _names(raw: dict, key: str) -> list[str]:
+    """Ids that become topic levels (a tag's position topic) or payload text: each one a level."""
     v = raw[key]
-    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
-        raise PayloadError(f"{key} is not a list of ids")
+    if not isinstance(v, list) or not all(is_level(x) for x in v):
+        raise PayloadError(f"{key} is not a list of ids (1..{MAX_ID} characters, none of / + # or NUL)")
     return v
+
+
+def _gateway(raw: dict) -> str:
+    gw = raw["gw"]
+    if not is_level(gw):
+        raise PayloadError(f"gw is not a gateway name (1..{MAX_ID} characters, none of / + # or NUL)")
+    return gw
 
 
 def _decode_v2(raw: dict) -> AngleBatch:
@@ -178,7 +232,7 @@ def _decode_v2(raw: dict) -> AngleBatch:
     dt = _whole(i[0], None, "dt_us", MAX_SPAN_US)
     n = len(dt)
     a, g = _whole(i[1], n, "anchor", len(anchors)), _whole(i[2], n, "tag", len(tags))
-    return AngleBatch(str(raw["gw"]), _seq(raw), _seconds(raw, "sent"), _seconds(raw, "offset_s"), anchors, tags,
+    return AngleBatch(_gateway(raw), _seq(raw), _seconds(raw, "sent"), _seconds(raw, "offset_s"), anchors, tags,
                       _seconds(raw, "t0"), dt, a, g, _angles(ang[0], n, "azimuth"), _angles(ang[1], n, "elevation"))
 
 
@@ -193,35 +247,47 @@ def _decode_v1(raw: dict) -> AngleBatch:
                 and -90.0 <= az <= 90.0 and -90.0 <= el <= 90.0):
             raise PayloadError("an event row is not [time, anchor, tag, azimuth, elevation]")
         rows.append((t, a, tag, az, el))
-    return _decode_v2(json.loads(encode_angles(str(raw["gw"]), _seq(raw), _seconds(raw, "sent"),
+    return _decode_v2(json.loads(encode_angles(_gateway(raw), _seq(raw), _seconds(raw, "sent"),
                                                _seconds(raw, "offset_s"), rows)))
 
 
 def decode_angles(payload: bytes) -> AngleBatch:
-    """An angle batch from its JSON (version 2, or the older version 1); PayloadError for anything else."""
+    """An angle batch from its JSON (version 2, or the older version 1); PayloadError for anything
+    else, whatever the bytes: any message costs at most its own parse (bench/fuzz.py, target sitebus)."""
+    if len(payload) > MAX_PAYLOAD:
+        raise PayloadError(f"an angle batch of {len(payload):,} bytes (at most {MAX_PAYLOAD:,})")
     try:
         raw = json.loads(payload)
-        if not isinstance(raw, dict) or raw.get("v") not in (1, 2):
+        if not isinstance(raw, dict) or type(raw.get("v")) is not int or raw["v"] not in (1, 2):
             raise PayloadError("not a version-1 or version-2 angle batch")
         batch = _decode_v2(raw) if raw["v"] == 2 else _decode_v1(raw)
     except PayloadError:
         raise
-    except (ValueError, TypeError, KeyError, OverflowError) as exc:
-        raise PayloadError(f"malformed angle batch ({type(exc).__name__}: {exc})") from None
+    except (ValueError, TypeError, KeyError, OverflowError, RecursionError) as exc:
+        # RecursionError: json's parser recurses per nesting level ("[" * 1000 is enough)
+        raise PayloadError(f"malformed angle batch ({type(exc).__name__}: {str(exc)[:100]})") from None
     return batch
 
 
-def position_payload(t: float, tag: str, point: np.ndarray, covariance: np.ndarray, anchors: list[str], rejected: list[str],
-                     quality: float, worker: str, latency_s: float | None = None) -> bytes:
-    """A position as JSON: metres, site frame (REP 103: x, y on the floor, z up), covariance m^2,
-    ``quality`` = chi-square of the rays about the fix per degree of freedom (about 1 = as expected),
-    ``worker`` the worker that made it, ``latency_s`` its age: publishing time minus the newest angle's."""
+def utc(t: float) -> str:
+    """Unix time ``t`` as ISO 8601 UTC to the microsecond (``2026-12-02T00:45:02.500000Z``)."""
+    return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def position_payload(site: str, t: float, tag: str, point: np.ndarray, covariance: np.ndarray, anchors: list[str],
+                     rejected: list[str], chi2_per_dof: float, worker: str, latency_s: float | None = None) -> bytes:
+    """A position as JSON that says what it is (docs/schemas/position.schema.json): its site, frame
+    (FRAME) and units (UNITS) in it, ``t`` Unix time with ``time`` the same instant in ISO 8601 UTC,
+    ``anchors``/``rejected`` by the ids the angle batches carry, ``chi2_per_dof`` the rays'
+    chi-square about the fix per degree of freedom (about 1 or below: they agree as their sigmas
+    say), ``worker`` the worker that made it, ``latency_s`` its age: publishing time minus the
+    newest angle's."""
     x, y, z = (round(v, 3) for v in point.tolist())
+    t = round(t, 6)
     body: dict[str, Any] = {
-        "v": POSITION_VERSION, "t": round(t, 6), "tag": tag, "x": x, "y": y, "z": z,
-        "cov": covariance.round(5).tolist(),
-        "anchors": anchors, "rejected": rejected, "quality": round(quality, 3), "worker": worker}
+        "v": POSITION_VERSION, "site": site, "frame": FRAME, "units": UNITS, "t": t, "time": utc(t), "tag": tag,
+        "x": x, "y": y, "z": z, "cov": covariance.round(5).tolist(), "anchors": anchors, "rejected": rejected,
+        "chi2_per_dof": round(chi2_per_dof, 3), "worker": worker}
     if latency_s is not None:
         body["latency_s"] = round(latency_s, 4)
     return json.dumps(body, separators=(",", ":")).encode()
-

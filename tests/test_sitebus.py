@@ -46,8 +46,9 @@ def test_partition_is_crc32_mod_count() -> None:
         assert sitebus.partition(tag, 16) == zlib.crc32(tag.encode()) % 16
 
 
-row = st.tuples(st.floats(0, 3000), st.text(min_size=1, max_size=12), st.text(min_size=1, max_size=12),
-                st.integers(-90, 90), st.integers(-90, 90))
+ids = st.text(st.characters(blacklist_characters="/+#\x00", blacklist_categories=("Cs",)), min_size=1, max_size=12)
+"""Ids that are MQTT topic levels (a tag's is one, in its position topic): any other is refused."""
+row = st.tuples(st.floats(0, 3000), ids, ids, st.integers(-90, 90), st.integers(-90, 90))
 
 
 @given(st.lists(row, max_size=20), st.integers(0, 2**31), st.floats(-1e3, 1e3), st.floats(0, 2e9))
@@ -102,6 +103,25 @@ V2_BAD_HEAD = [V2.replace('"seq":0', '"seq":9223372036854775808'), V2.replace('"
                                      ("{" + V2.replace('"t0":0', '"t0":Infinity') + V2_BAD[1].replace("0.5", "0")
                                       + "}").encode()])
 def test_bad_batches_are_refused(payload: bytes) -> None:
+    with pytest.raises(sitebus.PayloadError):
+        sitebus.decode_angles(payload)
+
+
+HOSTILE = [b"[" * 1000, b"{" * 1000, b'{"v":2,"gw":' + b"[" * 5000, b"[" * 100_000 + b"]" * 100_000,
+           b'{"v":2,"gw":"g","seq":' + b"9" * 10_000 + b"}", b'{"v":' + b"9" * 5000 + b"}",
+           b'{"v":2,"gw":"g","seq":0,"sent":1e999}', b'{"v":true}', b'{"v":2.0}',
+           b" " * (sitebus.MAX_PAYLOAD + 1),
+           b'{"v":1,"gw":"g","seq":0,"sent":0,"offset_s":0,"events":[[0,"a",' + b"[" * 3000 + b"]]}",
+           *(("{" + V2.replace('"tags":["t"]', f'"tags":[{json.dumps(bad)}]') + '"i":[[0],[0],[0]],"ang":[[1],[0]]}')
+             .encode() for bad in ("a/b", "t+", "#", "", "t\x00", "\ud800", "x" * 257, 7)),
+           ("{" + V2.replace('"gw":"g"', '"gw":["g"]') + '"i":[[0],[0],[0]],"ang":[[1],[0]]}').encode()]
+
+
+@pytest.mark.parametrize("payload", HOSTILE, ids=range(len(HOSTILE)))
+def test_deep_nesting_huge_numbers_and_unusable_ids_are_payload_errors(payload: bytes) -> None:
+    """Anyone who can publish to the broker can send these; each must cost only itself. 1,000
+    ``[`` made json.loads raise RecursionError (not caught: the worker died); a tag id with a
+    wildcard or "/" passed and made the worker's publish of its position raise."""
     with pytest.raises(sitebus.PayloadError):
         sitebus.decode_angles(payload)
 
@@ -716,3 +736,224 @@ def test_tags_are_bounded_once_the_pairs_are_full(monkeypatch) -> None:
     assert loc.tags == ["T0", "T1"] and len(loc.tracker.t) <= 2 and loc.counters["overflow"] == 10
     assert loc.counters["events"] == 5
     loc.tick(10.2)  # the rows and the pairs agree
+
+
+# -- the broker away, killed and back; hostile messages; names; self-describing positions ------------------
+def test_a_worker_without_a_broker_runs_warns_and_closes(caplog: pytest.LogCaptureFixture) -> None:
+    """No broker at the URL: the worker runs, says so once as a warning, and close() returns (it
+    raised paho's RuntimeError "The client is not currently connected", so --duration and Ctrl-C
+    ended in exit 1 and no counters)."""
+    from rfhoming.host.sitebus import Broker, Worker
+
+    sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
+    caplog.set_level("WARNING", logger="rfhoming.host.sitebus")
+    worker = Worker(_site(sc), Broker("127.0.0.1", _free_port(), False, None), worker_id="w", partitions=1)
+    stop = threading.Event()
+    tries = 0
+    reconnect = worker.pub.client.reconnect
+
+    def counted() -> object:  # stop after a few tries, whatever the machine's speed
+        nonlocal tries
+        tries += 1
+        if tries >= 3:
+            stop.set()
+        return reconnect()
+
+    worker.pub.client.reconnect = counted  # type: ignore[method-assign]
+    worker.run(stop=stop)
+    worker.close()
+    health = worker.health()
+    assert health["mqtt_connects"] == 0 and health["mqtt_published"] == 0
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len([m for m in warned if "not reachable" in m]) == 1, warned
+
+
+@pytest.mark.parametrize("url", ["mqtt://h/0", "mqtt://h/1025", "mqtt://h/1000000000", "mqtt://h:0/8", "mqtt://h/-1",
+                                 "mqtt://h/٣", "mqtt://h/8?qos=1", "mqtt://h/8#x", "mqtt://a..b/8", "mqtt://h:99999/8"])
+def test_broker_urls_the_site_bus_cannot_use_are_refused(url: str) -> None:
+    from rfhoming.host.sitebus import Broker, BrokerError
+
+    with pytest.raises(BrokerError):
+        Broker.parse(url)
+
+
+def test_broker_urls_the_site_bus_can_use() -> None:
+    from rfhoming.host.sitebus import Broker
+
+    assert Broker.parse("mqtt://h/1024").partitions == 1024
+    assert Broker.parse("mqtts://u:p@h").port == 8883 and Broker.parse("h:1884/8/").port == 1884
+
+
+@pytest.mark.parametrize("args", [["locate", "site-16x40", "--from", "mqtt://127.0.0.1:1/0"],
+                                  ["locate", "site-16x40", "--from", "mqtt://127.0.0.1:1/1000000000"],
+                                  ["locate", "site-16x40", "--from", "mqtt://127.0.0.1:1/8", "--id", "a/#"],
+                                  ["locate", "site-16x40", "--from", "mqtt://127.0.0.1:1/8", "--id", ""],
+                                  ["gateway", "--emulate", "site-16x40", "--broker", "mqtt://127.0.0.1:1/0"],
+                                  ["gateway", "--emulate", "site-16x40", "--broker", "mqtt://127.0.0.1:1/8",
+                                   "--site-name", "a/+/#"],
+                                  ["gateway", "--device", "xplr-aoa:/dev/null", "--site-name", "s",
+                                   "--name", "gw+1", "--broker", "mqtt://127.0.0.1:1/8"]],
+                         ids=["partitions-0", "partitions-1e9", "id-wildcard", "id-empty", "gw-partitions-0",
+                              "site-wildcard", "gw-name-wildcard"])
+def test_site_bus_names_and_partitions_are_refused_in_one_line(args: list[str], tmp_path: Path) -> None:
+    """A partition count of 0 (accepted, exit 0), of 10^9 (a worker hashing a billion partitions:
+    a hang), a name with MQTT's wildcards or level separator (a publish paho refuses: exit 1):
+    one line naming it, exit 2, before any connection."""
+    proc = subprocess.run([sys.executable, "-m", "rfhoming.cli.main", *args, "--duration", "1"], env=ENV, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def _last_json(proc: subprocess.Popen) -> dict:
+    out = proc.stdout.read()  # type: ignore[union-attr]  (the process has ended)
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def _wait_for(path: Path, text: str, count: int = 1, timeout: float = 120) -> None:
+    """Until ``text`` is in the log ``count`` times (a hang guard, not a speed check)."""
+    deadline = time.monotonic() + timeout
+    while path.read_text().count(text) < count:
+        assert time.monotonic() < deadline, f"{text!r} x{count} not in {path.name}: {path.read_text()[-1500:]}"
+        time.sleep(0.05)
+
+
+def _positions(port: int, site: str, count: int) -> list[dict]:
+    out, _ = _sub(port, f"rfhoming/{site}/positions/#", count).communicate(timeout=300)
+    return [json.loads(line.split(" ", 1)[1]) for line in out.splitlines()]
+
+
+@pytest.mark.slow
+@needs_broker
+def test_workers_and_gateways_survive_a_hostile_message_and_a_broker_killed_and_restarted(tmp_path: Path) -> None:
+    """A worker and an emulated gateway started with no broker: each warns and runs. Mosquitto
+    starts: positions (mosquitto_sub). 1,000 ``[`` and other hostile messages on every angle topic
+    (mosquitto_pub): counted in bad_payload, warned once, positions go on. Mosquitto SIGKILLed:
+    each warns; restarted on the same port: positions again. Killed again, both stopped with
+    SIGINT while it is away: exit 0, each prints its counters. (Before: the gateway gave no
+    warning; the hostile message ended the worker with exit 1; a stop with no broker was exit 1
+    with no counters.)"""
+    port, site = _free_port(), "site-16x40"
+    url = f"mqtt://127.0.0.1:{port}/4"
+    logs = {name: tmp_path / f"{name}.log" for name in ("worker", "gateway")}
+    procs = {"worker": _cli(logs["worker"], "locate", site, "--from", url, "--id", "w1", "--rate", "20"),
+             "gateway": _cli(logs["gateway"], "gateway", "--emulate", site, "--broker", url)}
+    broker = None
+    try:
+        for log in logs.values():
+            _wait_for(log, "not reachable")
+        broker = _start_broker(tmp_path, port)
+        assert len(_positions(port, site, 20)) == 20
+        pub = shutil.which("mosquitto_pub") or "mosquitto_pub"
+        for payload in (b"[" * 1000, b'{"v":2,"seq":' + b"9" * 5000 + b"}", b'{"v":1e999}'):
+            for part in range(4):
+                subprocess.run([pub, "-h", "127.0.0.1", "-p", str(port), "-t", f"rfhoming/{site}/angles/{part}",
+                                "-s"], input=payload, check=True, timeout=60)
+        _wait_for(logs["worker"], "not an angle batch")
+        assert len(_positions(port, site, 20)) == 20  # published after the hostile messages
+        for restart in (True, False):
+            broker.kill()
+            broker.wait(30)
+            for log in logs.values():
+                _wait_for(log, "lost the MQTT broker", 1 if restart else 2)
+            if restart:
+                broker = _start_broker(tmp_path, port)
+                assert len(_positions(port, site, 20)) == 20
+        for proc in procs.values():
+            proc.send_signal(signal.SIGINT)
+        codes = {name: proc.wait(60) for name, proc in procs.items()}
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(30)
+        if broker is not None and broker.poll() is None:
+            broker.kill()
+            broker.wait(30)
+    assert codes == {"worker": 0, "gateway": 0}, {n: log.read_text()[-1500:] for n, log in logs.items()}
+    worker, gateway = _last_json(procs["worker"]), _last_json(procs["gateway"])
+    assert worker["kind"] == "worker" and worker["bad_payload"] >= 12 and worker["positions"] > 0
+    assert worker["mqtt_connects"] == 2 and gateway["connects"] == 2 and gateway["published"] > 0
+    warned = [line for line in logs["worker"].read_text().splitlines() if "not an angle batch" in line]
+    assert len(warned) == 1 and "WARNING" in warned[0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("args", [["locate", "site-16x40", "--from", "URL", "--duration", "2"],
+                                  ["gateway", "--emulate", "site-16x40", "--broker", "URL", "--duration", "2"]],
+                         ids=["worker", "gateway"])
+def test_with_no_broker_a_worker_or_gateway_warns_and_ends_at_duration_with_its_counters(
+        args: list[str], tmp_path: Path) -> None:
+    """Nothing listens at the broker's port: exit 0 at --duration, a warning that nothing is
+    published, the counters line (the worker ended in exit 1 without counters; the gateway waited
+    10 s for the broker first and said nothing)."""
+    url = f"mqtt://127.0.0.1:{_free_port()}/4"
+    proc = subprocess.run([sys.executable, "-m", "rfhoming.cli.main", *[url if a == "URL" else a for a in args]],
+                          env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "WARNING" in proc.stderr and "not reachable" in proc.stderr and "nothing is published" in proc.stderr
+    counters = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert counters["kind"] in ("worker", "gateways")
+    assert counters.get("published", counters.get("mqtt_published")) == 0
+
+
+POSITION_SCHEMA = Path(__file__).resolve().parents[1] / "docs" / "schemas" / "position.schema.json"
+
+
+def _schema_validator():
+    jsonschema = pytest.importorskip("jsonschema")
+    schema = json.loads(POSITION_SCHEMA.read_text())
+    jsonschema.Draft202012Validator.check_schema(schema)
+    return jsonschema.Draft202012Validator(schema, format_checker=jsonschema.Draft202012Validator.FORMAT_CHECKER)
+
+
+def test_the_position_payload_matches_its_schema_and_says_what_it_is() -> None:
+    """The codec's own output against docs/schemas/position.schema.json (the published one:
+    below, through Mosquitto); and the schema refuses version 1's payload (no site, frame, units)."""
+    validator = _schema_validator()
+    body = json.loads(sitebus.position_payload("hall", 1796148054.5, "T1", np.array([1.0, 2.0, 0.9]), np.eye(3) * 0.01,
+                                               ["A1", "A2"], ["A3"], 0.75, "w1", latency_s=0.05))
+    validator.validate(body)
+    assert (body["site"], body["frame"], body["time"], body["units"]["x"]) == (
+        "hall", "map", "2026-12-01T18:00:54.500000Z", "m")
+    old = {"v": 1, "t": 1796148054.5, "tag": "T1", "x": 1.0, "y": 2.0, "z": 0.9, "cov": [[0.0] * 3] * 3,
+           "anchors": ["a001"], "rejected": [], "quality": 0.75, "worker": "w1"}
+    assert not validator.is_valid(old)
+
+
+def test_locate_names_the_quality_as_the_site_bus_does() -> None:
+    from rfhoming.host.locate import Position
+
+    line = Position(1.0, "T1", np.zeros(3), np.eye(3), ("a",), (), True, 0.5).as_dict()
+    assert line["chi2_per_dof"] == 0.5 and "rms" not in line
+
+
+@pytest.mark.slow
+@needs_broker
+def test_positions_read_by_mosquitto_sub_match_the_schema(broker: int, tmp_path: Path) -> None:
+    """Emulated gateways -> Mosquitto -> a worker -> mosquitto_sub: every position it reads is valid
+    against docs/schemas/position.schema.json, names its site, the map frame and the same time
+    twice, and names its anchors by the ids the angle batches carry (it named them a001, the
+    batches A00001)."""
+    from datetime import datetime
+
+    validator = _schema_validator()
+    site, url = "site-16x40", f"mqtt://127.0.0.1:{broker}/4"
+    procs = [_cli(tmp_path / "worker.log", "locate", site, "--from", url, "--id", "w1", "--rate", "20"),
+             _cli(tmp_path / "gateway.log", "gateway", "--emulate", site, "--broker", url)]
+    try:
+        batches, _ = _sub(broker, f"rfhoming/{site}/angles/#", 20).communicate(timeout=300)
+        positions = _positions(broker, site, 40)
+    finally:
+        for proc in procs:
+            proc.send_signal(signal.SIGINT)
+        for proc in procs:
+            proc.wait(60)
+    batch_anchors = {a for line in batches.splitlines() for a in json.loads(line.split(" ", 1)[1])["anchors"]}
+    assert len(positions) == 40
+    for p in positions:
+        errors = [e.message for e in validator.iter_errors(p)]
+        assert not errors, (errors, p)
+        assert p["site"] == site and p["frame"] == "map" and p["worker"] == "w1"
+        assert datetime.fromisoformat(p["time"].replace("Z", "+00:00")).timestamp() == pytest.approx(p["t"], abs=1e-6)
+        assert set(p["anchors"]) <= set(SiteScenario.named(site).anchor_ids)
+    assert {a for p in positions for a in p["anchors"]} & batch_anchors

@@ -37,9 +37,9 @@ Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "F
 Every anchor's angle events are merged by host arrival time; at --rate (default: the site's
 rate_hz) each tag seen by enough fresh anchors gets a fix (3-D rays, weighted, one bad anchor
 left out) that a constant-velocity filter tracks. Output: one JSON line per position
-(kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected, rms = the
-fix's quality), and on exit one "summary" line (its "estimate" says causal or smoothed). A
-capture of the anchors gives the same lines as the live run did; --smooth on a capture gives
+(kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected,
+chi2_per_dof = the fix's quality, as on the site bus), and on exit one "summary" line (its
+"estimate" says causal or smoothed). A capture of the anchors gives the same lines as the live run did; --smooth on a capture gives
 RTS-smoothed positions instead, each marked "smoothed": true.
 
 examples:

@@ -15,12 +15,16 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rfhoming.cli.args import nonnegative_float, positive_float
 from rfhoming.cli.io import add_port_defaults
 from rfhoming.host import site as site_file
 from rfhoming.host.site import Anchor, Site
 from rfhoming.protocol import sitebus
+
+if TYPE_CHECKING:
+    from rfhoming.host.sitebus import Publisher  # paho-mqtt: the "site" extra, imported when used
 
 GATEWAY_HELP = """\
 A site gateway: the XPLR-AOA anchors on this machine's ports (--device SPEC, repeatable, or the
@@ -93,6 +97,8 @@ def _device_gateway(args: argparse.Namespace) -> int:
         print("rfhoming gateway: name the site of the topics with --site-name (or give --site FILE)", file=sys.stderr)
         return 2
     gw_name = args.name or socket.gethostname()
+    sitebus.check_level("--site-name", name)
+    sitebus.check_level("--name", gw_name)
     pub = Publisher(broker, f"rfhoming-gw-{name}-{gw_name}", ca_file=args.ca)
     gw = Gateway(pub, name, gw_name, broker.partitions or sitebus.DEFAULT_PARTITIONS)
     flushing = False
@@ -116,10 +122,16 @@ def _device_gateway(args: argparse.Namespace) -> int:
         code = asyncio.run(_gather(gather, site, on_angle))
         gw.flush(time.time())
     finally:
-        pub.close()
-        print(json.dumps({"kind": "gateway", "name": gw_name, "site": name, "events": gw.events,
-                          **{k: pub.counters[k] for k in ("published", "buffered", "dropped")}}), flush=True)
+        try:
+            pub.close()
+        finally:
+            print(json.dumps({"kind": "gateway", "name": gw_name, "site": name, "events": gw.events,
+                              **_publish_counters(pub)}), flush=True)
     return code
+
+
+def _publish_counters(pub: Publisher) -> dict[str, int]:
+    return {k: pub.counters[k] for k in ("published", "buffered", "dropped", "unsent", "connects")}
 
 
 def _emulated_gateways(args: argparse.Namespace) -> int:
@@ -129,14 +141,13 @@ def _emulated_gateways(args: argparse.Namespace) -> int:
     broker = Broker.parse(args.broker)
     partitions = broker.partitions or sitebus.DEFAULT_PARTITIONS
     sc = SiteScenario.named(args.emulate, seed=args.seed, tag_rate_hz=args.tag_rate)
-    site = args.site_name or args.emulate
+    site = sitebus.check_level("--site-name", args.site_name or args.emulate)
     # one connection for all of them: they are one process here (a real gateway box has its own),
     # and 16 paho network threads cost more CPU than the emulation itself
     pub = Publisher(broker, f"rfhoming-gw-{site}-{args.seed}", ca_file=args.ca, threaded=False)
     gws = {g: Gateway(pub, site, g, partitions) for g in sc.gateways}
     stop = _stop_on_signals()
-    pub.wait_connected(10)
-    start = t0 = time.time()
+    start = t0 = time.time()  # at once, broker or not: what it cannot take waits in the buffer
     cpu0 = time.process_time()
     behind = 0
     try:
@@ -152,10 +163,12 @@ def _emulated_gateways(args: argparse.Namespace) -> int:
                 behind += 1
             t0 = t1
     finally:
-        pub.close()
-        total = {k: pub.counters[k] for k in ("published", "buffered", "dropped")}
-        print(json.dumps({"kind": "gateways", "gateways": len(gws), "events": sum(g.events for g in gws.values()),
-                          "behind": behind, "cpu_s": round(time.process_time() - cpu0, 3), **total}), flush=True)
+        try:
+            pub.close()
+        finally:
+            print(json.dumps({"kind": "gateways", "gateways": len(gws), "events": sum(g.events for g in gws.values()),
+                              "behind": behind, "cpu_s": round(time.process_time() - cpu0, 3),
+                              **_publish_counters(pub)}), flush=True)
     return 0
 
 
@@ -188,8 +201,10 @@ def cmd_worker(args: argparse.Namespace) -> int:
     try:
         worker.run(args.duration, stop)
     finally:
-        worker.close()
-        print(json.dumps({"kind": "worker", "id": args.id, **worker.health()}), flush=True)
+        try:
+            worker.close()
+        finally:
+            print(json.dumps({"kind": "worker", "id": args.id, **worker.health()}), flush=True)
     return 0
 
 
