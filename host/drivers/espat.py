@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,6 +43,8 @@ class EspAtSetup:
     node_id: int = 0  # the readings' node_id (ESP-AT has none of its own)
     command_timeout: float = 2.0
     retries: int = 2
+    silence_timeout: float = 10.0
+    """Scanning without one report this long: say why that may be."""
 
     def __post_init__(self) -> None:
         if not 2.5 <= self.window_ms <= self.interval_ms <= 10_240:
@@ -68,6 +71,7 @@ def setup_from_spec(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
 
 class EspAtDriver(Driver):
     kind = "esp-at"
+    sets_up = True
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> EspAtDriver:
@@ -78,7 +82,7 @@ class EspAtDriver(Driver):
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
         self.decoder = EspAtDecoder()
-        self.counters.update(setups=0, reboots=0, retries=0, scans_done=0)
+        self.counters.update(setups=0, reboots=0, retries=0, scans_done=0, silent=0)
         self._answer: asyncio.Future[list[Any]] | None = None
         self._lines: list[Any] = []
         self.counters.update(busy=0)
@@ -87,6 +91,7 @@ class EspAtDriver(Driver):
         for item in self.decoder.feed(data):
             self.emit(t_host, item)
             if item.kind == "scan_report":
+                self.last_item = time.monotonic()
                 self.out.put(BleRssi(t_host, self.setup.node_id, item.address, item.rssi_dbm))
             elif item.kind == "info":
                 self._lines.append(item)
@@ -123,11 +128,26 @@ class EspAtDriver(Driver):
                 raise CommandFailed(f"{text} answered ERROR")
             return answer
         raise CommandFailed(f"{text}: no answer after {self.setup.retries + 1} tries "
-                            f"({self.setup.command_timeout:g} s each); is it an ESP32 with ESP-AT at this baud rate?")
+                            f"({self.setup.command_timeout:g} s each); is it an ESP32 with ESP-AT at this baud rate, and is "
+                            "this its AT UART? ESP-AT takes commands on a separate UART, not on the USB port "
+                            "used for flashing (docs/hardware.md, ESP32 with ESP-AT)")
 
     async def session(self) -> None:
-        """Set the board up after every open and every reboot."""
-        await self.keep_set_up()
+        """Set the board up after every open and every reboot; say so when nothing arrives."""
+        quiet = asyncio.create_task(self.watch_quiet(self.setup.silence_timeout, "+BLESCAN report", self._quiet_hint))
+        try:
+            await self.keep_set_up()
+        finally:
+            quiet.cancel()
+
+    def _quiet_hint(self) -> str:
+        s = self.setup
+        hint = "no Bluetooth LE advertiser in range"
+        if s.filter_mac or s.filter_name:
+            hint += f", or none matches the scan's filter ({'mac=' + s.filter_mac if s.filter_mac else 'adname=' + str(s.filter_name)})"
+        if self.counters["scans_done"]:
+            hint += "; the board's scan ended (+BLESCANDONE): a scan with a duration stops"
+        return hint
 
     async def _set_up(self) -> None:
         self.state = "setting_up"
@@ -151,7 +171,7 @@ class EspAtDriver(Driver):
             await self.command(text)
         self.counters["setups"] += 1
         self.problem = None
-        self.state = "streaming"
+        self.state, self.streaming_at = "streaming", time.monotonic()
 
     def health(self) -> dict[str, Any]:
         return {**super().health(), "queued": len(self.out), "queue_dropped": self.out.dropped,
