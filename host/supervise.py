@@ -58,7 +58,7 @@ async def supervise(deadlines: dict[Driver, float], *, clock: Callable[[], float
                     period: float = 0.05) -> None:
     """Raise PortError or DeviceNotReady as soon as a driver cannot go on; runs until cancelled
     (returns at once when there is nothing to watch, e.g. a replay). ``clock`` must be the
-    drivers' own (:attr:`Driver.clock`)."""
+    drivers' own (:attr:`Driver.contact_clock`)."""
     if not deadlines:
         return
     waiting = dict(deadlines)
@@ -79,6 +79,9 @@ async def supervise(deadlines: dict[Driver, float], *, clock: Callable[[], float
                 del waiting[driver]
             elif hopeless(driver) or (since is not None and clock() - since > limit):
                 why = getattr(driver, "problem", None) or f"still {driver.state}"
+                if driver.port.counters.get("bytes_in", 0) == 0 and driver.state != "setup_failed":
+                    raise DeviceNotReady(f"{driver.port.name} ({driver.kind}) said nothing within {limit:g} s of its "
+                                         f"port opening: {driver.silent_hint()}")
                 if driver.state == "setup_failed":
                     raise DeviceNotReady(f"{driver.port.name} ({driver.kind}): set-up failed: {why}")
                 raise DeviceNotReady(f"{driver.port.name} ({driver.kind}) was not ready within {limit:g} s of its "

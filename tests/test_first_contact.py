@@ -110,7 +110,7 @@ async def test_the_set_up_deadline_counts_from_the_first_answer_not_from_the_sta
     nothing here depends on how fast this machine is."""
     clock = _Clock()
     driver = _SetsUp(_QuietPort())  # type: ignore[arg-type]
-    driver.clock = clock
+    driver.contact_clock = clock
     driver.state = "opening"
     watch = asyncio.create_task(supervise({driver: 1.0}, clock=clock, period=0))
 
@@ -240,3 +240,59 @@ async def test_discovery_asks_an_ftdi_port_what_it_is(tmp_path: Path, monkeypatc
     assert await asyncio.to_thread(discovery.resolve_auto, "xplr-aoa") == where(aoa_em, "aoa")
     await stop(aoa_em)
     await stop(ble_em)
+
+
+# -- identification strings the driver did not expect ---------------------------------------
+@pytest.mark.parametrize("model", ['"NINA-B4-DF-TAG"', "XPLR-AOA rev C, made-up", '"NINA-B411-40B"', "NINA-B411-40B"])
+async def test_an_unexpected_identification_costs_only_the_guess(tmp_path: Path, model: str) -> None:
+    """Whatever AT+GMM answers, quoted or not, the set-up goes on; the dialect is the guess (1.2)
+    until the field count of a +UUDF line says otherwise -- never 1.0 for a name that merely
+    starts like 1.0's."""
+    em = await start(tmp_path, options={"aoa": {"dialect": "2.x"}})
+    fw = em.device("aoa").firmware
+    execute = fw._execute
+    fw._execute = lambda line: fw._answer([model]) if line == "AT+GMM" else execute(line)
+    driver = AoaDriver(HostPort(where(em, "aoa")))
+    task = asyncio.create_task(driver.run())
+    await until(lambda: driver.state == "streaming")
+    assert driver.identity["model"] == model
+    await asyncio.wait_for(driver.out.get(), 15)
+    assert driver.dialect.value == "2.x"  # 10 fields decided
+    await stop(em, task)
+
+
+# -- ESP-AT: a board left in the server role ------------------------------------------------
+async def test_an_esp_at_server_is_restarted_not_deinitialised(tmp_path: Path) -> None:
+    """ESP-AT 3.2 changes a role only after AT+RST (master also allows AT+BLEINIT=0 first)."""
+    from rfhoming.firmware.esp_at import EspAtFirmware
+    from rfhoming.host.drivers.espat import EspAtDriver
+
+    fw = EspAtFirmware("3.2")
+    fw.receive(b"AT+BLEINIT=2\r\n")
+    fw.read()
+    sent: list[str] = []
+
+    class _Wire:
+        name, counters = "esp-at", {"bytes_in": 0}
+
+        def write(self, data: bytes) -> None:
+            sent.append(data.decode().strip())
+            fw.receive(data)
+
+    driver = EspAtDriver(_Wire())  # type: ignore[arg-type]
+
+    async def pump() -> None:
+        while True:
+            driver.on_chunk(fw.read(), 0.0)
+            await asyncio.sleep(0.001)
+
+    feeding = asyncio.create_task(pump())
+    try:
+        await asyncio.wait_for(driver._set_up(), 15)
+    finally:
+        feeding.cancel()
+    assert "AT+RST" in sent and "AT+BLEINIT=0" not in sent and fw.role == 1 and fw.scanning
+    fresh = EspAtFirmware("3.2")
+    for line in (b"AT+BLEINIT=2\r\n", b"AT+BLEINIT=0\r\n", b"AT+BLEINIT=1\r\n"):
+        fresh.receive(line)
+    assert fresh.read().endswith(b"ERROR\r\n") and fresh.role == 0  # the emulated 3.2 follows its docs

@@ -119,10 +119,12 @@ def filter_ids(info: list[str]) -> tuple[str, ...]:
 
 def identify_dialect(model: str, version: str, software: str) -> Dialect:
     """AT+GMM / AT+GMR / ATI9 answers -> the +UUDF dialect (docs/protocol.md); the common
-    dialect (1.2) when the answers say nothing."""
+    dialect (1.2) when the answers say nothing. Answers are taken quoted or not (u-blox's tag
+    quotes AT+GMM; no anchor capture is public), the model as a whole word: a C209 tag's
+    "NINA-B4-TAG" or a "NINA-B4-DF-TAG" build is no 1.0 anchor."""
     if "locateembed" in software.lower():
         return Dialect.EMBED
-    if "NINA-B4-DF" in model:
+    if model.strip().strip('"') == "NINA-B4-DF":
         return Dialect.V1_0
     digits = version.strip('"').split(".")[0]
     if digits.isdigit() and int(digits) >= 2:

@@ -123,7 +123,7 @@ class Driver:
         self.error: Exception | None = None
         """Why :meth:`run` ended with an exception (e.g. a port that never opened), for a
         supervisor that does not await the task itself."""
-        self.clock: Callable[[], float] = time.monotonic
+        self.contact_clock: Callable[[], float] = time.monotonic
         self.last_item: float | None = None
         """When the last reading arrived (monotonic), for :meth:`watch_quiet`."""
         self.streaming_at = 0.0
@@ -177,6 +177,10 @@ class Driver:
     async def _set_up(self) -> None:
         raise NotImplementedError
 
+    def silent_hint(self) -> str:
+        """What to check when the port says nothing at all."""
+        return "is this the right port, and the device's baud rate?"
+
     async def watch_quiet(self, timeout: float, what: str, hint: Callable[[], str]) -> None:
         """Set up (``streaming``), yet no ``what`` for ``timeout`` s: say in ``problem`` (and the
         log, once per silence; counter ``silent``) why that may be. Subclasses stamp
@@ -228,7 +232,7 @@ class Driver:
             if not first:
                 self.counters["reconnects"] += 1
             first = False
-            self.opened_at, self.answered_at = self.clock(), None
+            self.opened_at, self.answered_at = self.contact_clock(), None
             self.connected.set()
             reader = asyncio.create_task(self._read())
             setup = asyncio.create_task(self.session())
@@ -257,7 +261,7 @@ class Driver:
         while True:
             chunk = await self.port.read()
             if self.answered_at is None:
-                self.answered_at = self.clock()
+                self.answered_at = self.contact_clock()
             start = time.perf_counter()
             self.on_chunk(chunk.data, chunk.t)
             self.latency.append(time.perf_counter() - start)

@@ -27,6 +27,7 @@ UNIT_MS = 0.625
 NO_BLE_HINT = ("this ESP-AT build has no Bluetooth LE commands (the default ESP32-C2 firmware has none: "
                "build the ESP32C2-2MB-BLE variant, ESP-AT docs 'Bluetooth LE AT Commands')")
 BUSY_RETRY_S = 0.1
+RESTART_TIMEOUT_S = 5.0
 
 
 
@@ -86,6 +87,7 @@ class EspAtDriver(Driver):
         self._answer: asyncio.Future[list[Any]] | None = None
         self._lines: list[Any] = []
         self.counters.update(busy=0)
+        self._booted = asyncio.Event()
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
         for item in self.decoder.feed(data):
@@ -99,7 +101,9 @@ class EspAtDriver(Driver):
                 if self._answer is not None and not self._answer.done():
                     self._answer.set_result([*self._lines, item])
                 self._lines = []
-            elif item.kind == "event" and item.what == "ready" and self.state == "streaming":
+            elif item.kind == "event" and item.what == "ready" and self.state != "streaming":
+                self._booted.set()
+            elif item.kind == "event" and item.what == "ready":
                 self.counters["reboots"] += 1
                 log.warning("%s: the board restarted (ready); setting it up again", self.port.name)
                 self._needs_setup.set()
@@ -128,9 +132,11 @@ class EspAtDriver(Driver):
                 raise CommandFailed(f"{text} answered ERROR")
             return answer
         raise CommandFailed(f"{text}: no answer after {self.setup.retries + 1} tries "
-                            f"({self.setup.command_timeout:g} s each); is it an ESP32 with ESP-AT at this baud rate, and is "
-                            "this its AT UART? ESP-AT takes commands on a separate UART, not on the USB port "
-                            "used for flashing (docs/hardware.md, ESP32 with ESP-AT)")
+                            f"({self.setup.command_timeout:g} s each); {self.silent_hint()}")
+
+    def silent_hint(self) -> str:
+        return ("is it an ESP32 with ESP-AT at this baud rate, and is this its AT UART? ESP-AT takes commands on a "
+                "separate UART, not on the USB port used for flashing (docs/hardware.md, ESP32 with ESP-AT)")
 
     async def session(self) -> None:
         """Set the board up after every open and every reboot; say so when nothing arrives."""
@@ -157,8 +163,8 @@ class EspAtDriver(Driver):
         except CommandFailed:
             raise CommandFailed(f"AT+BLEINIT? answered ERROR: {NO_BLE_HINT}") from None
         role = next((i.value for i in answer if i.name == "BLEINIT"), "0")
-        if role not in ("0", "1", "3"):  # a server role cannot become a client without a deinit
-            await self.command("AT+BLEINIT=0")
+        if role not in ("0", "1", "3"):  # a server cannot become a client without a restart (3.2; master
+            await self._restart()       # also allows AT+BLEINIT=0 first)
             role = "0"
         if role == "0":
             await self.command("AT+BLEINIT=1")
@@ -172,6 +178,16 @@ class EspAtDriver(Driver):
         self.counters["setups"] += 1
         self.problem = None
         self.state, self.streaming_at = "streaming", time.monotonic()
+
+    async def _restart(self) -> None:
+        """``AT+RST``, then wait for ``ready``: every version documents it as the way to a new role."""
+        self._booted.clear()
+        await self.command("AT+RST")
+        try:
+            async with asyncio.timeout(RESTART_TIMEOUT_S):
+                await self._booted.wait()
+        except TimeoutError:
+            raise CommandFailed(f"no ready within {RESTART_TIMEOUT_S:g} s of AT+RST") from None
 
     def health(self) -> dict[str, Any]:
         return {**super().health(), "queued": len(self.out), "queue_dropped": self.out.dropped,

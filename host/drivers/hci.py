@@ -227,8 +227,8 @@ class HciDriver(Driver):
             async with asyncio.timeout(self.setup.command_timeout):
                 event = await future
         except TimeoutError:
-            hint = getattr(self.port, "firmware_hint", None) or "is this an HCI controller (H4) at this baud rate?"
-            raise CommandFailed(f"{command.name}: no answer in {self.setup.command_timeout:g} s; {hint}") from None
+            raise CommandFailed(f"{command.name}: no answer in {self.setup.command_timeout:g} s; "
+                                f"{self.silent_hint()}") from None
         finally:
             self._pending = None
         params = getattr(event, "return_parameters", event)
@@ -244,6 +244,9 @@ class HciDriver(Driver):
             await self.keep_set_up()
         finally:
             quiet.cancel()
+
+    def silent_hint(self) -> str:
+        return getattr(self.port, "firmware_hint", None) or "is this an HCI controller (H4) at this baud rate?"
 
     def _quiet_hint(self) -> str:
         return getattr(self.port, "firmware_hint", None) or (
