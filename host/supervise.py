@@ -3,10 +3,11 @@ naming the device, when one cannot go on -- its port never opened, its set-up fa
 that said nothing, it was not ready within its deadline (the device table's ``setup_timeout_s`` for its kind, or the
 spec's ``timeout=``), or several tags are in view and none was chosen.
 
-A deadline counts from the device's first bytes (or from its port's open while it says
-nothing), not from when the command started: on a loaded machine the time before a device's
-first answer is the machine's, not the device's. A port that stays silent still fails fast,
-through its driver's own first set-up command."""
+A deadline counts from the device's first bytes, or from its port's open while it says
+nothing -- only a port whose open has not returned (a ROS 2 base's returns at its first
+odometry) is timed from the start: on a loaded machine the time before a device's first answer
+is the machine's, not the device's. A port that stays silent still fails fast, through its
+driver's own first set-up command."""
 
 from __future__ import annotations
 
@@ -62,6 +63,7 @@ async def supervise(deadlines: dict[Driver, float], *, clock: Callable[[], float
     if not deadlines:
         return
     waiting = dict(deadlines)
+    start = clock()
     while True:
         await asyncio.sleep(period)
         for driver in deadlines:
@@ -74,14 +76,15 @@ async def supervise(deadlines: dict[Driver, float], *, clock: Callable[[], float
             if isinstance(driver, AoaDriver) and driver.ambiguous_tags:
                 raise DeviceNotReady(f"{driver.port.name}: {driver.problem}")
         for driver, limit in list(waiting.items()):
-            since = driver.contact_at
+            since = start if driver.contact_at is None else driver.contact_at
             if ready(driver):
                 del waiting[driver]
-            elif hopeless(driver) or (since is not None and clock() - since > limit):
+            elif hopeless(driver) or clock() - since > limit:
                 why = getattr(driver, "problem", None) or f"still {driver.state}"
-                if driver.port.counters.get("bytes_in", 0) == 0 and driver.state != "setup_failed":
+                if driver.opened_at is not None and driver.port.counters.get("bytes_in", 0) == 0 \
+                        and driver.state != "setup_failed":
                     raise DeviceNotReady(f"{driver.port.name} ({driver.kind}) said nothing within {limit:g} s of its "
-                                         f"port opening: {driver.silent_hint()}")
+                                         f"port opening: {driver.problem or driver.silent_hint()}")
                 if driver.state == "setup_failed":
                     raise DeviceNotReady(f"{driver.port.name} ({driver.kind}): set-up failed: {why}")
                 raise DeviceNotReady(f"{driver.port.name} ({driver.kind}) was not ready within {limit:g} s of its "

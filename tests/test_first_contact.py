@@ -105,8 +105,8 @@ class _SetsUp(Driver):
 
 
 async def test_the_set_up_deadline_counts_from_the_first_answer_not_from_the_start() -> None:
-    """A machine so loaded that the device's port opens, and its first bytes come, long after the
-    command started: the deadline (1 s here) starts at the first bytes. Driven by a fake clock:
+    """A machine so loaded that the device's port opens, and its first bytes come, late: the
+    deadline (1 s here) restarts at the open, then at the first bytes. Driven by a fake clock:
     nothing here depends on how fast this machine is."""
     clock = _Clock()
     driver = _SetsUp(_QuietPort())  # type: ignore[arg-type]
@@ -120,14 +120,30 @@ async def test_the_set_up_deadline_counts_from_the_first_answer_not_from_the_sta
             await asyncio.sleep(0)
         assert not watch.done(), watch
 
-    await at(30.0)  # 30 s of a loaded machine before the port even opened
-    driver.opened_at, driver.state = 30.0, "setting_up"
-    await at(30.9)
-    driver.answered_at = _QuietPort.counters["bytes_in"] = 30.9  # the first bytes
-    await at(31.8)  # 0.9 s after them: still within the deadline
-    clock.now = 32.0  # 1.1 s after them: not ready
-    with pytest.raises(DeviceNotReady, match="slow"):
+    await at(0.9)  # a loaded machine: the port opens 0.9 s after the start
+    driver.opened_at, driver.state = 0.9, "setting_up"
+    await at(1.8)  # 0.9 s after the open, silent: within the deadline (timed from the start: past it)
+    driver.answered_at = _QuietPort.counters["bytes_in"] = 1.8  # the first bytes
+    await at(2.7)  # 0.9 s after them: still within the deadline
+    clock.now = 2.9  # 1.1 s after them: not ready
+    with pytest.raises(DeviceNotReady, match="slow .xplr-aoa. was not ready within 1 s of its first answer"):
         await asyncio.wait_for(watch, 5)
+
+
+async def test_a_port_silent_since_its_open_ends_at_its_deadline_and_says_so() -> None:
+    clock = _Clock()
+    driver = _SetsUp(_SilentPort())  # type: ignore[arg-type]
+    driver.contact_clock = clock
+    driver.opened_at, driver.state = 0.0, "setting_up"
+    watch = asyncio.create_task(supervise({driver: 1.0}, clock=clock, period=0))
+    clock.now = 1.1
+    with pytest.raises(DeviceNotReady, match="said nothing within 1 s of its port opening"):
+        await asyncio.wait_for(watch, 5)
+
+
+class _SilentPort:
+    name = "silent"
+    counters = {"bytes_in": 0}
 
 
 # -- 3. a receiver set up but hearing nothing -----------------------------------------------

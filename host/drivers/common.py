@@ -135,7 +135,8 @@ class Driver:
     @property
     def contact_at(self) -> float | None:
         """Where a set-up deadline starts: the device's first bytes, or the open while it is
-        silent -- never the moment the program started, which a loaded machine stretches."""
+        silent (None before the open) -- not the moment the program started, which a loaded
+        machine stretches."""
         return self.answered_at if self.answered_at is not None else self.opened_at
 
     @classmethod
