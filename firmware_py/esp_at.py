@@ -58,6 +58,7 @@ class EspAtFirmware:
         self._now_us = 0
         self.echo = True
         self.role = 0
+        self._deinitialised, self._last_role = False, 0  # AT+BLEINIT=0 since boot, from which role
         self.scan_type = 0
         self.interval, self.window = DEFAULT_SCAN.get(version, (100, 50))
         self.scanning = False
@@ -160,8 +161,13 @@ class EspAtFirmware:
     def _init(self, args: str) -> None:
         roles = ("0", "1", "2", "3") if self.version in ("5.0", "master") else ("0", "1", "2")
         if args not in roles or (self.role and args != "0" and int(args) != self.role):
-            self._error()  # the role cannot change without AT+RST (or AT+BLEINIT=0 first)
+            self._error()  # the role cannot change without AT+RST (or, on master, AT+BLEINIT=0 first)
             return
+        if args != "0" and self.version != "master" and self._deinitialised and int(args) != self._last_role:
+            self._error()  # before master the docs name only AT+RST for a new role
+            return
+        if args == "0" and self.role:
+            self._deinitialised, self._last_role = True, self.role
         self.role = int(args)
         if self.role == 0:
             self.scanning = False

@@ -69,12 +69,13 @@ DEFAULT_NAMESPACE_FILTER = {Dialect.EMBED: [C209_NAMESPACE]}
 
 _IDENTITY = {
     Dialect.V1_0: ('"NINA-B4-DF"', '"1.0.2-001"', '"u-connectLocate","1.0.2-001","NINA-B4"'),
-    Dialect.V1_2: ("NINA-B411-40B", '"1.2.0-005"', '"u-connectLocate","1.2.0-005","NINA-B411"'),
-    Dialect.V2: ("NINA-B411-40B", '"2.1.0-010"', '"u-connectLocate","2.1.0-010","NINA-B411"'),
-    Dialect.EMBED: ("NINA-B411-40B", '"1.0.0-026"', '"u-locateEmbed","1.0.0-026","NINA-B411"'),
+    Dialect.V1_2: ('"NINA-B411-40B"', '"1.2.0-005"', '"u-connectLocate","1.2.0-005","NINA-B411"'),
+    Dialect.V2: ('"NINA-B411-40B"', '"2.1.0-010"', '"u-connectLocate","2.1.0-010","NINA-B411"'),
+    Dialect.EMBED: ('"NINA-B411-40B"', '"1.0.0-026"', '"u-locateEmbed","1.0.0-026","NINA-B411"'),
 }
-"""AT+GMM, AT+GMR, ATI9 per dialect. *Assumed*: no public capture shows an anchor's strings; only
-1.0's "NINA-B4-DF" and the ordering code are documented. Hosts tell u-locateEmbed by ATI9."""
+"""AT+GMM, AT+GMR, ATI9 per dialect, quoted as u-blox's C209 tag answers AT+GMM (c209-aoa-tag
+src/at_host.c). *Assumed*: no public capture shows an anchor's strings; "NINA-B4-DF" is the
+module name in UG-R02's tables, and the ordering code is documented. Hosts tell u-locateEmbed by ATI9."""
 
 TAG_LIMIT = {Dialect.V1_0: 5, Dialect.V1_2: 20, Dialect.V2: 20, Dialect.EMBED: 20}
 
@@ -403,10 +404,7 @@ class XplrAoaFirmware:
             reserved = _clamp(round(adv.rssi2_dbm), -127, 20)  # 1.0: the 2nd polarisation
         else:
             reserved = RESERVED[tag.seq % len(RESERVED)]  # "reserved" from 1.2 on; real lines: -43, 6, 8
-        if self.dialect in (Dialect.V1_0, Dialect.V1_2):
-            channel = 37 + tag.seq % 3  # legacy advertising channels
-        else:
-            channel = (tag.seq * 11) % 37  # periodic advertising hops the data channels
+        channel = 37 + tag.seq % 3  # every dialect: UG-R10 §6 shows 10-field lines on 37-39 too
         if cfg[7] == 1:  # undocumented $MEAS text format, emulated so hosts can detect it
             self._emit(f"\r\n$MEAS,{azimuth},{elevation},{rssi1},{reserved},{channel},{timestamp},0,0\r\n".encode())
             return

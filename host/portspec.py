@@ -51,9 +51,12 @@ def _flow(text: str) -> str:
 
 
 def _tags(text: str) -> tuple[str, ...]:
+    if text.lower() == "none":  # no filter: the XPLR-AOA's stored one is cleared
+        return ()
     tags = tuple(t.upper() for t in text.split("+") if t)
     if not tags or not all(TAG_ID.fullmatch(t) for t in tags):
-        raise ValueError("12-hex-digit tag ids joined by +, e.g. tags=CCF9578E0D8A+CCF9578E0D8B")
+        raise ValueError("12-hex-digit tag ids joined by +, e.g. tags=CCF9578E0D8A+CCF9578E0D8B, "
+                         "or tags=none to clear the board's filter")
     return tags
 
 
@@ -236,6 +239,8 @@ class PortSpec:
 def _text(value: Any) -> str:
     """A setting as the spec text writes it; a list's items are joined whatever their type
     (a config's ``baud = [1, 2]`` is then refused by the setting's own check, not a TypeError)."""
+    if value == ():
+        return "none"  # tags=none
     return "+".join(map(str, value)) if isinstance(value, tuple) else str(value)
 
 

@@ -1,12 +1,19 @@
 """Fail fast: watch the drivers a command or a homing run uses and end it, with a message
 naming the device, when one cannot go on -- its port never opened, its set-up failed on a port
 that said nothing, it was not ready within its deadline (the device table's ``setup_timeout_s`` for its kind, or the
-spec's ``timeout=``), or several tags are in view and none was chosen."""
+spec's ``timeout=``), or several tags are in view and none was chosen.
+
+A deadline counts from the device's first bytes, or from its port's open while it says
+nothing -- only a port whose open has not returned (a ROS 2 base's returns at its first
+odometry) is timed from the start: on a loaded machine the time before a device's first answer
+is the machine's, not the device's. A port that stays silent still fails fast, through its
+driver's own first set-up command."""
 
 from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 
 from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.drivers.common import Driver
@@ -37,7 +44,8 @@ def live(drivers: list[Driver]) -> dict[Driver, float]:
 
 
 def ready(driver: Driver) -> bool:
-    return driver.state == "streaming" if isinstance(driver, AoaDriver) else driver.connected.is_set()
+    """Set up (a kind with set-up commands), or open (one without)."""
+    return driver.state == "streaming" if driver.sets_up else driver.connected.is_set()
 
 
 def hopeless(driver: Driver) -> bool:
@@ -47,15 +55,17 @@ def hopeless(driver: Driver) -> bool:
     return driver.state == "setup_failed" and driver.port.counters.get("bytes_in", 0) == 0
 
 
-async def supervise(deadlines: dict[Driver, float]) -> None:
+async def supervise(deadlines: dict[Driver, float], *, clock: Callable[[], float] = time.monotonic,
+                    period: float = 0.05) -> None:
     """Raise PortError or DeviceNotReady as soon as a driver cannot go on; runs until cancelled
-    (returns at once when there is nothing to watch, e.g. a replay)."""
+    (returns at once when there is nothing to watch, e.g. a replay). ``clock`` must be the
+    drivers' own (:attr:`Driver.contact_clock`)."""
     if not deadlines:
         return
-    start = time.monotonic()
     waiting = dict(deadlines)
+    start = clock()
     while True:
-        await asyncio.sleep(0.05)
+        await asyncio.sleep(period)
         for driver in deadlines:
             if driver.error is not None:
                 if isinstance(driver.error, PortError):
@@ -66,11 +76,17 @@ async def supervise(deadlines: dict[Driver, float]) -> None:
             if isinstance(driver, AoaDriver) and driver.ambiguous_tags:
                 raise DeviceNotReady(f"{driver.port.name}: {driver.problem}")
         for driver, limit in list(waiting.items()):
+            since = start if driver.contact_at is None else driver.contact_at
             if ready(driver):
                 del waiting[driver]
-            elif hopeless(driver) or time.monotonic() - start > limit:
+            elif hopeless(driver) or clock() - since > limit:
                 why = getattr(driver, "problem", None) or f"still {driver.state}"
+                if driver.opened_at is not None and driver.port.counters.get("bytes_in", 0) == 0 \
+                        and driver.state != "setup_failed":
+                    raise DeviceNotReady(f"{driver.port.name} ({driver.kind}) said nothing within {limit:g} s of its "
+                                         f"port opening: {driver.problem or driver.silent_hint()}")
                 if driver.state == "setup_failed":
                     raise DeviceNotReady(f"{driver.port.name} ({driver.kind}): set-up failed: {why}")
-                raise DeviceNotReady(f"{driver.port.name} ({driver.kind}) was not ready within {limit:g} s: {why}; "
+                raise DeviceNotReady(f"{driver.port.name} ({driver.kind}) was not ready within {limit:g} s of its "
+                                     f"first answer: {why}; "
                                      "a longer wait: timeout=SECONDS in its port spec")

@@ -13,8 +13,10 @@ Set-up (docs/hardware.md explains each command): ``AT`` until the board answers;
 ``AT+UDFENABLE=0``, so a board that still streams from an earlier run stops crowding the link
 (u-blox's own clients do the same); identify the firmware with ``AT+GMM``, ``AT+GMR`` and
 ``ATI9`` -- an identification that fails only costs the guess (1.2, the common dialect, until
-the ``+UUDF`` field count says otherwise); read each wanted ``AT+UDFCFG``/``AT+UDFFILT`` and
-write those that differ and that the family accepts; if something was written, ``AT&W``, read
+the ``+UUDF`` field count says otherwise); read each wanted ``AT+UDFCFG`` and the stored tag
+filter (``AT+UDFFILT=2``, read at every set-up: a filter an earlier ``tags=`` or another program
+stored outlives them, and a board that reports one tag only must say so) and write those that
+differ and that the family accepts (``tags=none`` clears the filter); if something was written, ``AT&W``, read
 back, and ``AT+CPWROFF`` when the family applies settings at restart (1.x), the tag filter
 changed (no source says it applies at once, so it is treated as applying at restart on every
 family), or the board still reports the old value; then ``AT+UDFENABLE=1``. With an on-board tag
@@ -62,6 +64,8 @@ def replayed_without_set_up(port: Any) -> bool:
 FLOW_HINT = "check the RTS/CTS wiring, or try flow=none in the port spec (e.g. /dev/ttyUSB0,flow=none)"
 SILENT_HINT = ("the tag is not advertising (battery, or asleep), or the tag and anchor firmware "
                "generations do not match; see docs/hardware.md, troubleshooting")
+STORED_FILTER_HINT = ("the board's stored tag filter lets only {ids} through (tags=none in the port spec "
+                      "clears it; tags=ID sets another)")
 NAMESPACE_HINT = ("; u-locateEmbed reports only tags whose Eddystone namespace is NINA-B4TAG "
                   "(4E494E412D4234544147, the C209's): advertise that namespace, or clear the board's "
                   "filter with AT+UDFFILT=1,1, AT&W, AT+CPWROFF")
@@ -90,12 +94,14 @@ class AoaSetup:
     the only tag heard, or report the tags heard (:attr:`AoaDriver.ambiguous_tags`) and keep
     holding. None: pass every tag on (listen, capture)."""
     probe_baud: bool = False
+    clear_filter: bool = False
+    """Clear the tag filter stored on the board (``tags=none``)."""
 
     def with_tags(self, tags: tuple[str, ...] | frozenset[str]) -> AoaSetup:
         """Home on ``tags``: the board's own instance filter (so other tags stop crowding the
-        link) and the host filter as a backstop."""
+        link) and the host filter as a backstop; no tags: clear the board's filter."""
         wanted = tuple(sorted({t.upper() for t in tags}))
-        return replace(self, instance_filter=wanted, host_filter=frozenset(wanted))
+        return replace(self, instance_filter=wanted, host_filter=frozenset(wanted), clear_filter=not wanted)
 
 
 class TimedAngle(NamedTuple):
@@ -105,12 +111,20 @@ class TimedAngle(NamedTuple):
     event: AngleEvent
 
 
+def filter_ids(info: list[str]) -> tuple[str, ...]:
+    """The ids of a ``+UDFFILT:<type>[,"<id>"...]`` read-back (none: no filter)."""
+    line = next((i for i in info if i.startswith("+UDFFILT:")), "")
+    return tuple(i.strip('"').upper() for i in line.partition(":")[2].split(",")[1:] if i.strip('"'))
+
+
 def identify_dialect(model: str, version: str, software: str) -> Dialect:
     """AT+GMM / AT+GMR / ATI9 answers -> the +UUDF dialect (docs/protocol.md); the common
-    dialect (1.2) when the answers say nothing."""
+    dialect (1.2) when the answers say nothing. Answers are taken quoted or not (u-blox's tag
+    quotes AT+GMM; no anchor capture is public), the model as a whole word: a C209 tag's
+    "NINA-B4-TAG" or a "NINA-B4-DF-TAG" build is no 1.0 anchor."""
     if "locateembed" in software.lower():
         return Dialect.EMBED
-    if "NINA-B4-DF" in model:
+    if model.strip().strip('"') == "NINA-B4-DF":
         return Dialect.V1_0
     digits = version.strip('"').split(".")[0]
     if digits.isdigit() and int(digits) >= 2:
@@ -147,12 +161,13 @@ def looks_binary(data: bytes, chain: int = 3) -> bool:
 
 class AoaDriver(Driver):
     kind = "xplr-aoa"
+    sets_up = True
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> AoaDriver:
         """``tags=`` sets the board's tag filter and the host's, ``timeout=`` bounds each set-up command."""
         setup = options.pop("setup", AoaSetup())
-        if spec.tags:
+        if "tags" in spec.settings:  # tags=none: () -- clear the board's filter
             setup = setup.with_tags(spec.tags)
         if spec.timeout:
             setup = replace(setup, command_timeout=spec.timeout)
@@ -166,6 +181,9 @@ class AoaDriver(Driver):
         self.matcher = CommandMatcher()
         self.dialect: Dialect | None = None
         self.identity: dict[str, str] = {}
+        self.board_filter: tuple[str, ...] | None = None
+        """The tag ids the board's stored filter lets through (() none; None: not read yet, or
+        the firmware has no AT+UDFFILT)."""
         self.counters.update(setups=0, reboots=0, retries=0, filtered=0, held=0, baud_mismatch=0, binary_output=0,
                              unknown_output=0, config_skipped=0, restarts=0, silent=0, board_filter_leaks=0,
                              binary_events=0)
@@ -193,6 +211,10 @@ class AoaDriver(Driver):
             self._feed_binary(data, t_host)
         for item in self.decoder.feed(data):
             kind = item.kind
+            if kind == "drop" and self._binary is None and looks_binary(bytes(self._recent)):
+                self._binary_output(t_host)  # explained once, at the first frames
+            if kind == "drop" and self._binary is not None:
+                continue  # binary output is decoded; the text decoder's drops are only counted
             if not (kind == "angle" and self.chosen and item.instance_id not in self.chosen):
                 self.emit(t_host, item)  # another tag's angles are counted (filtered), not shown
             if kind == "drop":
@@ -305,16 +327,29 @@ class AoaDriver(Driver):
             return response
         raise CommandFailed(f"{command.text}: no answer after {tries} tries ({timeout:g} s each)")
 
-    async def _wake(self) -> None:
-        """AT until the board answers: it ignores the host for a second after +STARTUP."""
+    async def _wake(self, probe: bool = True) -> None:
+        """AT until the board answers: it ignores the host for a second after +STARTUP. A quiet
+        board at another rate answers nothing: with ``probe_baud``, AT at each documented rate."""
         tries = max(1, round(self.setup.wake_timeout / 0.25))
         self.problem = f"waiting for an answer to AT; if none comes, {FLOW_HINT}"
         try:
             await self.command(c.at(), timeout=0.25, tries=tries, through_restart=True)
         except CommandFailed:
+            if probe and self.setup.probe_baud and await self._probe():
+                return await self._wake(probe=False)
             hint = FLOW_HINT if self.port.counters["bytes_in"] == 0 else (
                 "bytes arrive but no answer: is this an XPLR-AOA, at this baud rate?")
+            if self.setup.probe_baud:
+                hint += f"; it answered at none of {', '.join(map(str, c.BAUD_RATES))} baud"
+            else:
+                hint += "; a board at another rate stays quiet: " + self._other_rates()
             raise CommandFailed(f"no answer to AT within {self.setup.wake_timeout:g} s: {hint}") from None
+
+    def _other_rates(self) -> str:
+        """How to give the board's rate, never suggesting the one the host already uses."""
+        others = [b for b in c.BAUD_RATES if b != self.port.baud]
+        return (f"give its rate with baud= in the port spec (it documents {', '.join(map(str, others))} besides "
+                f"{self.port.baud}), or use --probe-baud to try each")
 
     # -- set-up -----------------------------------------------------------------------
     async def session(self) -> None:
@@ -391,14 +426,27 @@ class AoaDriver(Driver):
             if (await self.command(c.read_config(tag))).info != [c.config_answer(tag, value)]:
                 await self.command(c.set_config(tag, value, fam))
                 written[tag] = value
-        if self.setup.instance_filter:
-            wanted_ids = [i.upper() for i in self.setup.instance_filter]
-            answer = "+UDFFILT:2" + "".join(f',"{i}"' for i in wanted_ids)
-            if (await self.command(c.read_filter(c.FILTER_INSTANCE))).info != [answer]:
-                await self.command(c.set_filter(c.FILTER_INSTANCE, c.FILTER_CLEAR))
-                await self.command(c.set_filter(c.FILTER_INSTANCE, c.FILTER_APPEND, tuple(wanted_ids)))
-                written["filter"] = answer
+        stored = await self._read_board_filter()
+        wanted: tuple[str, ...] | None = tuple(i.upper() for i in self.setup.instance_filter) \
+            if self.setup.instance_filter else () if self.setup.clear_filter else None
+        if wanted is not None and stored is not None and stored != wanted:
+            await self.command(c.set_filter(c.FILTER_INSTANCE, c.FILTER_CLEAR))
+            if wanted:
+                await self.command(c.set_filter(c.FILTER_INSTANCE, c.FILTER_APPEND, wanted))
+            written["filter"] = "+UDFFILT:2" + "".join(f',"{i}"' for i in wanted)
+            self.board_filter = wanted
+        elif stored:
+            log.warning("%s: %s", self.port.name, STORED_FILTER_HINT.format(ids=", ".join(stored)))
         return written
+
+    async def _read_board_filter(self) -> tuple[str, ...] | None:
+        """The stored instance-id filter; None when the firmware refuses to tell."""
+        try:
+            self.board_filter = filter_ids((await self.command(c.read_filter(c.FILTER_INSTANCE))).info)
+        except CommandFailed as exc:
+            log.warning("%s: %s; the board's tag filter is unknown", self.port.name, exc)
+            self.board_filter = None
+        return self.board_filter
 
     async def _watch_silence(self) -> None:
         """Streaming, AT works, yet no +UUDF: say the likely reasons once per silence."""
@@ -416,6 +464,8 @@ class AoaDriver(Driver):
                 warned = True
                 self.counters["silent"] += 1
                 hint = SILENT_HINT + (NAMESPACE_HINT if self.dialect is Dialect.EMBED else "")
+                if self.board_filter:
+                    hint = STORED_FILTER_HINT.format(ids=", ".join(self.board_filter)) + "; or " + hint
                 self.problem = f"no +UUDF for {self.setup.silence_timeout:g} s although the board answers: {hint}"
                 log.warning("%s: %s", self.port.name, self.problem)
 
@@ -425,18 +475,8 @@ class AoaDriver(Driver):
             await asyncio.sleep(0.25)
             garbage = self.port.counters["bytes_in"] - self._bytes_at_valid
             if garbage > 64 and time.monotonic() - self._last_valid > self.setup.garbage_timeout:
-                if looks_binary(bytes(self._recent)):
-                    self.counters["binary_output"] += 1
-                    self.state = "binary_output"
-                    self.problem = ("the board writes u-locateEmbed binary output (AT+UDFCFG=7,2), not +UUDF "
-                                    "lines: decoding only its azimuth is vouched for (docs/protocol.md); set "
-                                    "AT+UDFCFG=7,0 for +UUDF lines (add 7: 0 to the AoA set-up, or send it, "
-                                    "AT&W, AT+CPWROFF)")
-                    log.error("%s: %s", self.port.name, self.problem)
-                    self._binary = BinaryDecoder()
-                    self._feed_binary(bytes(self._recent), time.monotonic())
-                    self._last_valid = time.monotonic()
-                    self._bytes_at_valid = self.port.counters["bytes_in"]
+                if self._binary is None and looks_binary(bytes(self._recent)):
+                    self._binary_output(time.monotonic())
                     continue
                 if len(self._unknown_lines) >= 3:  # well-formed lines: the baud rate is right
                     self.counters["unknown_output"] += 1
@@ -452,13 +492,26 @@ class AoaDriver(Driver):
                 self.counters["baud_mismatch"] += 1
                 self.state = "baud_mismatch"
                 self.problem = (f"only garbage for {self.setup.garbage_timeout:g} s at {self.port.baud} baud: "
-                                "the board probably runs at another rate (AT+UMRS); give the board's rate in "
-                                "the port spec, e.g. /dev/ttyUSB0,baud=1000000, or use --probe-baud to try every rate it documents")
+                                f"the board probably runs at another rate (AT+UMRS); {self._other_rates()}")
                 log.error("%s: %s", self.port.name, self.problem)
                 if self.setup.probe_baud and await self._probe():
                     self._needs_setup.set()
                 self._last_valid = time.monotonic()
                 self._bytes_at_valid = self.port.counters["bytes_in"]
+
+    def _binary_output(self, t_host: float) -> None:
+        """u-locateEmbed binary frames recognised: say so once, decode them from now on."""
+        self.counters["binary_output"] += 1
+        self.state = "binary_output"
+        self.problem = ("the board writes u-locateEmbed binary output (AT+UDFCFG=7,2), not +UUDF "
+                        "lines: decoding only its azimuth is vouched for (docs/protocol.md); set "
+                        "AT+UDFCFG=7,0 for +UUDF lines (add 7: 0 to the AoA set-up, or send it, "
+                        "AT&W, AT+CPWROFF); the text decoder's drops are counted from now on, not shown")
+        log.error("%s: %s", self.port.name, self.problem)
+        self._binary = BinaryDecoder()
+        self._feed_binary(bytes(self._recent), t_host)
+        self._last_valid = time.monotonic()
+        self._bytes_at_valid = self.port.counters["bytes_in"]
 
     async def _probe(self) -> bool:
         """Try every documented rate until the board answers AT.
@@ -466,7 +519,9 @@ class AoaDriver(Driver):
         An ERROR counts: our AT at the wrong rates reached the board as garbage and may prefix
         its line buffer; any final code proves the link works at this rate.
         """
-        for baud in c.BAUD_RATES:
+        tried = self.port.baud
+        for baud in sorted(c.BAUD_RATES, key=lambda b: b == tried):  # the rate in use was tried already
+            log.info("%s: probing: AT at %d baud", self.port.name, baud)
             self.port.set_baud(baud)
             self.matcher.cancel()
             try:
@@ -480,9 +535,11 @@ class AoaDriver(Driver):
             if not response.restarted:  # OK or ERROR: either way the board understood us
                 log.warning("%s: the board answers at %d baud", self.port.name, baud)
                 return True
+        self.port.set_baud(tried)
         return False
 
     def health(self) -> dict[str, Any]:
         return {**super().health(), "dialect": self.dialect.value if self.dialect else None,
+                "board_filter": None if self.board_filter is None else ",".join(self.board_filter),
                 "problem": self.problem, "queued": len(self.out), "queue_dropped": self.out.dropped,
                 **{f"decoder.{k}": v for k, v in self.decoder.counters.items()}}

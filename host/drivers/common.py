@@ -134,6 +134,9 @@ class Driver:
     """
 
     kind = "device"  # the device table's name for what it drives (rfhoming.protocol.devices)
+    sets_up = False
+    """Whether it is ready only once its set-up commands succeeded (state ``streaming``), not
+    as soon as its port is open."""
 
     def __init__(self, port: HostPort, *, reconnect: bool = True, out: BoundedStream[Any] | None = None,
                  queue_size: int = 1000) -> None:
@@ -153,6 +156,21 @@ class Driver:
         self.error: Exception | None = None
         """Why :meth:`run` ended with an exception (e.g. a port that never opened), for a
         supervisor that does not await the task itself."""
+        self.contact_clock: Callable[[], float] = time.monotonic
+        self.last_item: float | None = None
+        """When the last reading arrived (monotonic), for :meth:`watch_quiet`."""
+        self.streaming_at = 0.0
+        self.opened_at: float | None = None
+        """When the port last opened (``clock``); None before the first open."""
+        self.answered_at: float | None = None
+        """When the first bytes came after that open; None while the port has said nothing."""
+
+    @property
+    def contact_at(self) -> float | None:
+        """Where a set-up deadline starts: the device's first bytes, or the open while it is
+        silent (None before the open) -- not the moment the program started, which a loaded
+        machine stretches."""
+        return self.answered_at if self.answered_at is not None else self.opened_at
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> Driver:
@@ -193,6 +211,30 @@ class Driver:
     async def _set_up(self) -> None:
         raise NotImplementedError
 
+    def silent_hint(self) -> str:
+        """What to check when the port says nothing at all."""
+        return "is this the right port, and the device's baud rate?"
+
+    async def watch_quiet(self, timeout: float, what: str, hint: Callable[[], str]) -> None:
+        """Set up (``streaming``), yet no ``what`` for ``timeout`` s: say in ``problem`` (and the
+        log, once per silence; counter ``silent``) why that may be. Subclasses stamp
+        ``last_item`` and ``streaming_at``."""
+        warned = False
+        while True:
+            await asyncio.sleep(min(0.5, timeout / 4))
+            if self.state != "streaming":
+                continue
+            quiet = time.monotonic() - max(self.last_item or 0.0, self.streaming_at)
+            if quiet < timeout:
+                if warned and self.problem and self.problem.startswith(f"no {what}"):
+                    self.problem = None  # items again
+                warned = False
+            elif not warned:
+                warned = True
+                self.counters["silent"] = self.counters.get("silent", 0) + 1
+                self.problem = f"no {what} for {timeout:g} s although it is set up: {hint()}"
+                log.warning("%s: %s", self.port.name, self.problem)
+
     async def run(self) -> None:
         """Open, read and route until cancelled; reconnect when the device goes away.
         The port is closed when this ends, however it ends."""
@@ -224,6 +266,7 @@ class Driver:
             if not first:
                 self.counters["reconnects"] += 1
             first = False
+            self.opened_at, self.answered_at = self.contact_clock(), None
             self.connected.set()
             reader = asyncio.create_task(self._read())
             setup = asyncio.create_task(self.session())
@@ -252,6 +295,8 @@ class Driver:
         recording = getattr(self.port, "is_file", False)  # a file can wait for its consumers; a live port cannot
         while True:
             chunk = await self.port.read()
+            if self.answered_at is None:
+                self.answered_at = self.contact_clock()
             start = time.perf_counter()
             with contextlib.ExitStack() as keeping:
                 for stream in self.consumers if recording else ():

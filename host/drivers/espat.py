@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,6 +27,7 @@ UNIT_MS = 0.625
 NO_BLE_HINT = ("this ESP-AT build has no Bluetooth LE commands (the default ESP32-C2 firmware has none: "
                "build the ESP32C2-2MB-BLE variant, ESP-AT docs 'Bluetooth LE AT Commands')")
 BUSY_RETRY_S = 0.1
+RESTART_TIMEOUT_S = 5.0
 
 
 
@@ -42,6 +44,8 @@ class EspAtSetup:
     node_id: int = 0  # the readings' node_id (ESP-AT has none of its own)
     command_timeout: float = 2.0
     retries: int = 2
+    silence_timeout: float = 10.0
+    """Scanning without one report this long: say why that may be."""
 
     def __post_init__(self) -> None:
         if not 2.5 <= self.window_ms <= self.interval_ms <= 10_240:
@@ -68,6 +72,7 @@ def setup_from_spec(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
 
 class EspAtDriver(Driver):
     kind = "esp-at"
+    sets_up = True
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> EspAtDriver:
@@ -78,15 +83,17 @@ class EspAtDriver(Driver):
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
         self.decoder = EspAtDecoder()
-        self.counters.update(setups=0, reboots=0, retries=0, scans_done=0)
+        self.counters.update(setups=0, reboots=0, retries=0, scans_done=0, silent=0)
         self._answer: asyncio.Future[list[Any]] | None = None
         self._lines: list[Any] = []
         self.counters.update(busy=0)
+        self._booted = asyncio.Event()
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
         for item in self.decoder.feed(data):
             self.emit(t_host, item)
             if item.kind == "scan_report":
+                self.last_item = time.monotonic()
                 self.out.put(BleRssi(t_host, self.setup.node_id, item.address, item.rssi_dbm))
             elif item.kind == "info":
                 self._lines.append(item)
@@ -94,7 +101,9 @@ class EspAtDriver(Driver):
                 if self._answer is not None and not self._answer.done():
                     self._answer.set_result([*self._lines, item])
                 self._lines = []
-            elif item.kind == "event" and item.what == "ready" and self.state == "streaming":
+            elif item.kind == "event" and item.what == "ready" and self.state != "streaming":
+                self._booted.set()
+            elif item.kind == "event" and item.what == "ready":
                 self.counters["reboots"] += 1
                 log.warning("%s: the board restarted (ready); setting it up again", self.port.name)
                 self._needs_setup.set()
@@ -123,11 +132,28 @@ class EspAtDriver(Driver):
                 raise CommandFailed(f"{text} answered ERROR")
             return answer
         raise CommandFailed(f"{text}: no answer after {self.setup.retries + 1} tries "
-                            f"({self.setup.command_timeout:g} s each); is it an ESP32 with ESP-AT at this baud rate?")
+                            f"({self.setup.command_timeout:g} s each); {self.silent_hint()}")
+
+    def silent_hint(self) -> str:
+        return ("is it an ESP32 with ESP-AT at this baud rate, and is this its AT UART? ESP-AT takes commands on a "
+                "separate UART, not on the USB port used for flashing (docs/hardware.md, ESP32 with ESP-AT)")
 
     async def session(self) -> None:
-        """Set the board up after every open and every reboot."""
-        await self.keep_set_up()
+        """Set the board up after every open and every reboot; say so when nothing arrives."""
+        quiet = asyncio.create_task(self.watch_quiet(self.setup.silence_timeout, "+BLESCAN report", self._quiet_hint))
+        try:
+            await self.keep_set_up()
+        finally:
+            quiet.cancel()
+
+    def _quiet_hint(self) -> str:
+        s = self.setup
+        hint = "no Bluetooth LE advertiser in range"
+        if s.filter_mac or s.filter_name:
+            hint += f", or none matches the scan's filter ({'mac=' + s.filter_mac if s.filter_mac else 'adname=' + str(s.filter_name)})"
+        if self.counters["scans_done"]:
+            hint += "; the board's scan ended (+BLESCANDONE): a scan with a duration stops"
+        return hint
 
     async def _set_up(self) -> None:
         self.state = "setting_up"
@@ -137,8 +163,8 @@ class EspAtDriver(Driver):
         except CommandFailed:
             raise CommandFailed(f"AT+BLEINIT? answered ERROR: {NO_BLE_HINT}") from None
         role = next((i.value for i in answer if i.name == "BLEINIT"), "0")
-        if role not in ("0", "1", "3"):  # a server role cannot become a client without a deinit
-            await self.command("AT+BLEINIT=0")
+        if role not in ("0", "1", "3"):  # a server cannot become a client without a restart (3.2; master
+            await self._restart()       # also allows AT+BLEINIT=0 first)
             role = "0"
         if role == "0":
             await self.command("AT+BLEINIT=1")
@@ -151,7 +177,17 @@ class EspAtDriver(Driver):
             await self.command(text)
         self.counters["setups"] += 1
         self.problem = None
-        self.state = "streaming"
+        self.state, self.streaming_at = "streaming", time.monotonic()
+
+    async def _restart(self) -> None:
+        """``AT+RST``, then wait for ``ready``: every version documents it as the way to a new role."""
+        self._booted.clear()
+        await self.command("AT+RST")
+        try:
+            async with asyncio.timeout(RESTART_TIMEOUT_S):
+                await self._booted.wait()
+        except TimeoutError:
+            raise CommandFailed(f"no ready within {RESTART_TIMEOUT_S:g} s of AT+RST") from None
 
     def health(self) -> dict[str, Any]:
         return {**super().health(), "queued": len(self.out), "queue_dropped": self.out.dropped,

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -79,6 +80,8 @@ class HciSetup:
     content: str | None = None  # "ibeacon" or "eddystone"
     node_id: int = 0
     command_timeout: float = 2.0
+    silence_timeout: float = 10.0
+    """Scanning without one advertising report this long: say why that may be."""
 
     def __post_init__(self) -> None:
         if not 2.5 <= self.window_ms <= self.interval_ms <= 10_240:
@@ -111,6 +114,7 @@ def setup_from_spec(spec: PortSpec, setup: HciSetup | None = None) -> HciSetup:
 
 class HciDriver(Driver):
     kind = "hci"
+    sets_up = True
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> HciDriver:
@@ -127,7 +131,7 @@ class HciDriver(Driver):
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
         self.splitter = H4Splitter(h4.TO_HOST)
-        self.counters.update(setups=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0,
+        self.counters.update(setups=0, silent=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0,
                              fragments=0, truncated=0, partial_dropped=0,
                              **{"drop.not_event": 0, "drop.malformed": 0, "drop.error": 0})
         self._partial: dict[tuple, tuple[Any, bytearray]] = {}  # fragments of extended reports, by advertiser
@@ -204,6 +208,7 @@ class HciDriver(Driver):
 
     def _report(self, report: Any, data: bytes, extended: bool, t_host: float) -> None:
         self.counters["reports"] += 1
+        self.last_item = time.monotonic()
         address = address_text(report.address)
         self.emit(t_host, Advertisement(address, report.address_type, report.rssi, extended, data))
         if report.rssi == RSSI_NOT_AVAILABLE:
@@ -222,8 +227,8 @@ class HciDriver(Driver):
             async with asyncio.timeout(self.setup.command_timeout):
                 event = await future
         except TimeoutError:
-            raise CommandFailed(f"{command.name}: no answer in {self.setup.command_timeout:g} s; is this an HCI "
-                                "controller (H4) at this baud rate?") from None
+            raise CommandFailed(f"{command.name}: no answer in {self.setup.command_timeout:g} s; "
+                                f"{self.silent_hint()}") from None
         finally:
             self._pending = None
         params = getattr(event, "return_parameters", event)
@@ -233,8 +238,21 @@ class HciDriver(Driver):
         return params
 
     async def session(self) -> None:
-        """Set the controller up after every open and every reset."""
-        await self.keep_set_up()
+        """Set the controller up after every open and every reset; say so when nothing arrives."""
+        quiet = asyncio.create_task(self.watch_quiet(self.setup.silence_timeout, "advertising report", self._quiet_hint))
+        try:
+            await self.keep_set_up()
+        finally:
+            quiet.cancel()
+
+    def silent_hint(self) -> str:
+        return getattr(self.port, "firmware_hint", None) or "is this an HCI controller (H4) at this baud rate?"
+
+    def _quiet_hint(self) -> str:
+        return getattr(self.port, "firmware_hint", None) or (
+            "no Bluetooth LE advertiser in range (mac=, adname= and content= filter on the host: they do not "
+            "silence the controller); a USB dongle whose vendor firmware was not loaded may scan without hearing "
+            "(docs/hardware.md)")
 
     async def _set_up(self) -> None:
         s = self.setup
@@ -261,12 +279,50 @@ class HciDriver(Driver):
             await self.command(hci.HCI_LE_Set_Scan_Enable_Command(
                 le_scan_enable=1, filter_duplicates=int(s.filter_duplicates)))
         self.counters["setups"] += 1
-        self.state, self.problem = "streaming", None
+        self.state, self.problem, self.streaming_at = "streaming", None, time.monotonic()
 
     def health(self) -> dict[str, Any]:
         return {**super().health(), "extended": self.extended, "queued": len(self.out),
                 "queue_dropped": self.out.dropped, "problem": self.problem,
                 **{f"h4.{k}": v for k, v in self.splitter.counters.items()}}
+
+
+def explain_open_error(spec: str, exc: BaseException) -> str:
+    """What bumble (libusb, via usb1) raised when opening ``spec`` -> one line that says what to do."""
+    text = str(exc)
+    if "LIBUSB_ERROR_ACCESS" in text:
+        return (f"no permission to open the USB Bluetooth dongle {spec} ({text}): give your user access with a udev "
+                "rule (docs/hardware.md, USB Bluetooth dongles), or try once with sudo")
+    if "LIBUSB_ERROR_BUSY" in text or "LIBUSB_ERROR_OTHER" in text:
+        return (f"the USB Bluetooth dongle {spec} is held by another driver ({text}): usually the kernel's btusb; "
+                "release it (sudo rmmod btusb, or unbind the one dongle) or use hci-socket:0 instead "
+                "(docs/hardware.md, USB Bluetooth dongles)")
+    if "LIBUSB_ERROR_NO_DEVICE" in text or "LIBUSB_ERROR_NOT_FOUND" in text or "device not found" in text:
+        return (f"no USB Bluetooth dongle at {spec} ({text}): is it plugged in? `bumble-usb-probe` lists the ones "
+                "bumble sees")
+    return f"bumble could not open {spec}: {text}"
+
+
+VENDOR_FIRMWARE = {
+    "rtk": ("Realtek", "BUMBLE_RTK_FIRMWARE_DIR", "/lib/firmware/rtl_bt", "bumble-rtk-fw-download", "bumble-rtk-util"),
+    "intel": ("Intel", "BUMBLE_INTEL_FIRMWARE_DIR", "/lib/firmware/intel", "bumble-intel-fw-download",
+              "bumble-intel-util"),
+}
+
+
+def firmware_hint(spec: str, vendor_id: int | None, product_id: int | None) -> str | None:
+    """For a USB dongle whose chip runs only once its vendor firmware is loaded (Realtek, Intel:
+    bumble's driver tables), how to load it; None for any other."""
+    from bumble.drivers import intel, rtk
+
+    ids = (vendor_id, product_id)
+    vendor = "rtk" if ids in rtk.RTK_USB_PRODUCTS else "intel" if ids in intel.INTEL_USB_PRODUCTS else None
+    if vendor is None:
+        return None
+    name, env, linux_dir, download, util = VENDOR_FIRMWARE[vendor]
+    return (f"{spec} is a {name} dongle ({vendor_id:04X}:{product_id:04X}), which needs its vendor firmware loaded "
+            f"before it scans: `{download}` fetches it (bumble looks in ${env}, its data folder and {linux_dir}), "
+            f"then `{util} load {spec}` loads it (docs/hardware.md)")
 
 
 class BumbleTransportPort(HostPort):
@@ -277,6 +333,7 @@ class BumbleTransportPort(HostPort):
     def __init__(self, spec: str, *, name: str | None = None, taps: list[Tap] | None = None) -> None:
         super().__init__(spec, name=name, taps=taps)
         self._bumble: Any = None
+        self.firmware_hint: str | None = None
 
     async def open(self) -> None:
         from bumble.transport import open_transport
@@ -284,8 +341,12 @@ class BumbleTransportPort(HostPort):
         try:
             self._bumble = await open_transport(self.spec)
         except Exception as exc:  # bumble raises per-transport types  # noqa: BLE001
-            raise PortError(f"bumble could not open {self.spec}: {exc}") from None
+            raise PortError(explain_open_error(self.spec, exc)) from None
         self._transport = self._bumble  # is_open and _lost() look at it
+        metadata = getattr(self._bumble.source, "metadata", None) or {}
+        self.firmware_hint = firmware_hint(self.spec, metadata.get("vendor_id"), metadata.get("product_id"))
+        if self.firmware_hint:
+            log.warning("%s", self.firmware_hint)
         self._gone = asyncio.Event()
         self._queue = asyncio.Queue()
         self._backlog = 0
