@@ -250,7 +250,6 @@ def worker(run: str, seed: int, out: Path, usage_file: str | None) -> dict[str, 
 
     from rfhoming import demo
     from rfhoming.host import site as sites
-    from rfhoming.host.homing import assembly
     from rfhoming.host.homing.assembly import Device, Homing
     from rfhoming.host.homing.config import Config
 
@@ -272,7 +271,13 @@ def worker(run: str, seed: int, out: Path, usage_file: str | None) -> dict[str, 
                 config = demo.trilat_config(config, truth, None)
             plan = demo.plan(endpoints, out, config)
         cpu0, wall0 = _cpu_now(usage_file, [os.getpid(), proc.pid]), time.monotonic()
-        outcome = asyncio.run(asyncio.wait_for(demo.home(plan, out), config.loop.max_time_s + 60))
+        try:
+            outcome = asyncio.run(asyncio.wait_for(demo.home(plan, out), config.loop.max_time_s + 60))
+        except TimeoutError:  # the loop stalled so long that its robot-time limit never came
+            return {"run": run, "success": False, "reason": f"no end in {config.loop.max_time_s + 60:g} s of wall time",
+                    "stale_stops": None, "latency_ms_p50": None, "latency_ms_p99": None, "loop_stall_ms_max": None,
+                    "loop_stall_ms_p99": None, "simulated_time_s": None, "wall_s": round(time.monotonic() - wall0, 2),
+                    "cpu_s": round(_cpu_now(usage_file, [os.getpid(), proc.pid]) - cpu0, 2), "cpu_s_per_sim_s": None}
         cpu = _cpu_now(usage_file, [os.getpid(), proc.pid]) - cpu0
         wall = time.monotonic() - wall0
     finally:
@@ -281,7 +286,7 @@ def worker(run: str, seed: int, out: Path, usage_file: str | None) -> dict[str, 
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
-    summary = demo.summarise(outcome, truth, outcome.links)
+    summary = demo.summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
     summary.update({k: v for k, v in outcome.summary().items() if k.startswith("loop_stall") and k not in summary})
     sim = summary["simulated_time_s"]
     return {"run": run, "success": summary["success"], "reason": summary["reason"],
