@@ -2,15 +2,15 @@
 
 Each run is a real homing at robot time (the emulator's ``--speed 1``, as ``rfhoming demo
 --speed 1`` runs it: the emulator in its own process on ptys, the host's one run assembly on
-the paths it printed); the anchors run is ``rfhoming emulate kit-home --speed 1`` with
-``rfhoming run --controller anchors --site docs/sites/kit-home.toml`` (its ports rewritten to
-the run's own folder). The runs are s0-open, s0-house, s1-dock, s2-a ... s2-e, s3-arena with
+the paths it printed); the anchors run is ``rfhoming emulate kit-home --speed 1`` with the
+anchors homing ``rfhoming run --controller anchors --site docs/sites/kit-home.toml`` makes (the
+site's ports rewritten to the run's own folder). The runs are s0-open, s0-house, s1-dock, s2-a ... s2-e, s3-arena with
 each BLE receiver it serves (esp32, esp-at, hci) and kit-home/anchors.
 
 Host and emulator of each run share one CPU quota (``--quotas``, in % of one core):
 
 - ``cgroup-v1``: a cpu cgroup under /sys/fs/cgroup/cpu with ``cpu.cfs_period_us`` 10000 and
-  ``cpu.cfs_quota_us`` quota x 100 (25 % -> 2500 us of CPU each 10 ms), and a cpuacct cgroup
+  ``cpu.cfs_quota_us`` 100 x the quota (25 % -> 2500 us of CPU each 10 ms), and a cpuacct cgroup
   for the CPU it used. Needs root.
 - ``cgroup-v2``: the same in the unified hierarchy (``cpu.max`` "2500 10000"), where it has
   the cpu controller.
