@@ -418,7 +418,13 @@ def main(argv: list[str] | None = None) -> int:
     kind = choose(args.mechanism)
     if kind in (CgroupV1, CgroupV2) and not kind.usable():
         p.error(f"--mechanism {args.mechanism}: cannot write its cgroup files (run as root, or use duty)")
-    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    terminated = []
+
+    def on_term(*_: object) -> None:
+        terminated.append(True)
+        raise KeyboardInterrupt  # the same clean-up as Ctrl-C
+
+    signal.signal(signal.SIGTERM, on_term)
     out = args.out or Path(tempfile.mkdtemp(prefix="rfhoming-budget-"))
     load0 = os.getloadavg()
     rows = []
@@ -433,6 +439,11 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(row)
     except KeyboardInterrupt:
         print("[budget] interrupted; its cgroups are removed", file=sys.stderr)
+        if terminated:  # cleaned up: now end as SIGTERM ends a process
+            if args.out is None:
+                shutil.rmtree(out, ignore_errors=True)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
         return 130
     finally:
         if args.out is None:

@@ -47,7 +47,8 @@ def test_verdicts_follow_the_targets() -> None:
 
 
 @pytest.mark.skipif(not os.access(CPU / "cpu.cfs_quota_us", os.W_OK), reason="needs root and cgroup v1's cpu controller")
-def test_ctrl_c_ends_the_run_and_removes_its_cgroups() -> None:
+@pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, -signal.SIGTERM)])
+def test_ctrl_c_and_sigterm_end_the_run_and_remove_its_cgroups(sig: int, status: int) -> None:
     proc = subprocess.Popen([sys.executable, str(BENCH), "--runs", "s2-a", "--quotas", "25", "--mechanism", "cgroup-v1"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     group = CPU / f"rfhoming-budget-{proc.pid}"
@@ -57,11 +58,11 @@ def test_ctrl_c_ends_the_run_and_removes_its_cgroups() -> None:
             assert proc.poll() is None and time.monotonic() < end, proc.stderr.read() if proc.poll() is not None else ""
             time.sleep(0.05)
         inside = [int(p) for p in (group / "cgroup.procs").read_text().split()]
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         _, stderr = proc.communicate(timeout=60)
     finally:
         proc.kill()
-    assert proc.returncode == 130, stderr
+    assert proc.returncode == status and "Traceback" not in stderr, stderr
     assert not group.exists() and not (Path("/sys/fs/cgroup/cpuacct") / group.name).exists()
     for pid in inside:
         assert not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]
