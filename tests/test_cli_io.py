@@ -28,7 +28,7 @@ class Lines:
     """A child's JSON lines, read in a thread; every wait has a deadline (a hang guard only:
     what the test waits for is what the child printed, not how long it took)."""
 
-    def __init__(self, proc: subprocess.Popen, deadline_s: float = 120.0) -> None:
+    def __init__(self, proc: subprocess.Popen, deadline_s: float = 300.0) -> None:
         self.items: list[dict] = []
         self.end = time.monotonic() + deadline_s
         self._queue: queue.Queue[str | None] = queue.Queue()
@@ -42,7 +42,9 @@ class Lines:
     def until(self, done) -> bool:
         """Read until ``done(items)`` or the end of the output; True if done."""
         while not done(self.items):
-            line = self._queue.get(timeout=max(0.0, self.end - time.monotonic()))
+            left = self.end - time.monotonic()
+            assert left > 0, f"a hang guard: {len(self.items)} lines, the last {self.items[-3:]}"
+            line = self._queue.get(timeout=left)
             if line is None:
                 return False
             if line.strip():
@@ -50,23 +52,24 @@ class Lines:
         return True
 
 
-def streaming_after_setups(n: int, angles: int = 50):
-    """The AoA set up ``n`` times (its ``AT+UDFENABLE=1`` echoed), then ``angles`` angles."""
-    def done(items: list[dict]) -> bool:
-        enables = [k for k, i in enumerate(items) if i["kind"] == "echo" and i["text"] == "AT+UDFENABLE=1"]
-        return len(enables) >= n and sum(i["kind"] == "angle" for i in items[enables[n - 1]:]) >= angles
-    return done
+def set_up_after_the_reboot(items: list[dict], angles: int = 50) -> bool:
+    """The board's ``+STARTUP`` (the reboot), then its set-up's ``AT+UDFENABLE=1``, then ``angles`` angles."""
+    boot = next((k for k, i in enumerate(items) if i["kind"] == "startup"), None)
+    enable = None if boot is None else next(
+        (k for k, i in enumerate(items[boot:], boot) if i["kind"] == "echo" and i["text"] == "AT+UDFENABLE=1"), None)
+    return enable is not None and sum(i["kind"] == "angle" for i in items[enable:]) >= angles
 
 
 @pytest.mark.slow
 def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None:
-    """The unplug and the reboot follow the host (after its set-up, once the board has sent 6000
-    bytes -- about 2 s of angles -- since its last command), and capture runs until it has seen its
-    third set-up: a loaded machine only makes it slower."""
+    """The unplug and the reboot follow the host: each once the board has sent 20,000 bytes (about
+    7 s of angles) since the host's last command -- its set-up done, unless it stalled that long
+    between two commands -- and capture runs until it has set the rebooted board up: a loaded
+    machine only makes it slower."""
     emulator = subprocess.Popen(
         [*RFHOMING, "emulate", "s0-open", "--seed", "4", "--link-dir", str(tmp_path),
-         "--fault", "unplug@aoa:after_bytes=6000,for=1", "--fault", "reboot@aoa:after_bytes=6000"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+         "--fault", "unplug@aoa:after_bytes=20000,for=1", "--fault", "reboot@aoa:after_bytes=20000"],
+        stdout=subprocess.PIPE, stderr=(tmp_path / "emulator.log").open("w"), text=True)
     capture, log = tmp_path / "run.pcapng", tmp_path / "capture.log"
     try:
         endpoints = {e["device"]: e for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}
@@ -76,7 +79,7 @@ def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None
                  "-o", str(capture), "--show", "--json"], stdout=subprocess.PIPE, stderr=stderr, text=True)
         try:
             out = Lines(proc)
-            assert out.until(streaming_after_setups(3)), log.read_text()
+            assert out.until(set_up_after_the_reboot), log.read_text()
             proc.send_signal(signal.SIGINT)
             out.until(lambda items: False)  # to its end: the counters
             status = proc.wait(timeout=30)
