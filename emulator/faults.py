@@ -8,9 +8,15 @@ Spec syntax (``rfhoming emulate --fault``): ``KIND[@DEVICE][:key=value,...]``; w
 | ber | rate | flips each bit the device sends or receives with probability ``rate`` |
 | drop | rate | drops each byte with probability ``rate`` |
 | garbage | every, len | a burst of ``len`` random bytes every ``every`` seconds |
-| unplug | at, for | the endpoint disappears at ``at`` s for ``for`` s (a pty comes back at its path) |
-| reboot | at | the device restarts at ``at`` s (the AoA board prints +STARTUP again) |
-| baud | at, rate | the device's UART moves to ``rate`` at ``at`` s (the host sees garbage) |
+| unplug | at or after_bytes, for | the endpoint disappears at ``at`` s for ``for`` s (a pty comes back at its path) |
+| reboot | at or after_bytes | the device restarts at ``at`` s (the AoA board prints +STARTUP again) |
+| baud | at or after_bytes, rate | the device's UART moves to ``rate`` at ``at`` s (the host sees garbage) |
+
+``after_bytes=N`` instead of ``at=S`` fires on what the host did, not on the clock: once the host
+has written to the device and the device has then sent N bytes without another write from the
+host (set up, then streaming). A device's ``after_bytes`` faults fire in the order given, each
+waiting for a write from the host after the one before (after an unplug: its reconnection).
+A device the host keeps writing to (a base under a loop's commands) never reaches N.
 """
 
 from __future__ import annotations
@@ -21,8 +27,10 @@ import numpy as np
 
 from rfhoming.protocol.errors import Error
 
-KINDS = {"ber": {"rate"}, "drop": {"rate"}, "garbage": {"every", "len"}, "unplug": {"at", "for"},
-         "reboot": {"at"}, "baud": {"at", "rate"}}
+KINDS = {"ber": {"rate"}, "drop": {"rate"}, "garbage": {"every", "len"}, "unplug": {"at", "after_bytes", "for"},
+         "reboot": {"at", "after_bytes"}, "baud": {"at", "after_bytes", "rate"}}
+WHEN = {"at", "after_bytes"}
+"""A one-off fault's trigger: a simulated time, or a count of bytes sent after the host's last write."""
 
 
 class FaultError(Error, ValueError):
@@ -50,7 +58,9 @@ class Fault:
                 params[key] = float(value)
             except ValueError:
                 raise FaultError(f"{key}={value!r} is not a number in {spec!r}") from None
-        missing = KINDS[kind] - set(params) - ({"for"} if kind == "unplug" else set())
+        if KINDS[kind] >= WHEN and len(WHEN & set(params)) != 1:
+            raise FaultError(f"fault {kind} needs one of at=S or after_bytes=N in {spec!r}")
+        missing = KINDS[kind] - set(params) - WHEN - {"for"}
         if missing:
             raise FaultError(f"fault {kind} needs {sorted(missing)} in {spec!r}")
         return cls(kind, device or None, params)

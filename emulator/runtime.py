@@ -81,6 +81,8 @@ class Emulator:
         self._timed = sorted(
             [(f.params["at"], f) for f in self.faults if "at" in f.params], key=lambda x: x[0]
         )
+        self._triggered = {d: _HostTrigger([f for f in self.faults if "after_bytes" in f.params and f.hits(d.name)])
+                           for d in self.devices}
         self._replugs: list[tuple[float, DeviceRunner]] = []
         self._next_truth = 0.0
         self._next_control = self.control_period_s
@@ -175,16 +177,21 @@ class Emulator:
         while self._timed and self._timed[0][0] <= self.t:
             _, fault = self._timed.pop(0)
             for d in self.devices:
-                if not fault.hits(d.name):
-                    continue
-                if fault.kind == "unplug":
-                    await d.link.unplug()
-                    self._replugs.append((self.t + fault.params.get("for", math.inf), d))
-                    self._replugs.sort(key=lambda x: x[0])
-                elif fault.kind == "reboot":
-                    d.reboot(self.t)
-                elif fault.kind == "baud":
-                    d.forced_baud = int(fault.params["rate"])
+                if fault.hits(d.name):
+                    await self._fire(fault, d)
+        for d, trigger in self._triggered.items():
+            if (fault := trigger.due(d.link.counters)) is not None:
+                await self._fire(fault, d)
+
+    async def _fire(self, fault: Fault, d: DeviceRunner) -> None:
+        if fault.kind == "unplug":
+            await d.link.unplug()
+            self._replugs.append((self.t + fault.params.get("for", math.inf), d))
+            self._replugs.sort(key=lambda x: x[0])
+        elif fault.kind == "reboot":
+            d.reboot(self.t)
+        elif fault.kind == "baud":
+            d.forced_baud = int(fault.params["rate"])
 
     def write_truth(self) -> None:
         """One truth line now (also called by in-process users for the final pose)."""
@@ -242,6 +249,27 @@ class Emulator:
             except TimeoutError:
                 self.counters["lockstep_timeouts"] += 1
         base.commanded.clear()
+
+
+class _HostTrigger:
+    """A device's ``after_bytes`` faults, in order: each is armed by a write from the host (after
+    the fault before it fired) and fires once the device has sent ``after_bytes`` since the
+    host's last write -- so it follows the host's progress, however slow the machine."""
+
+    def __init__(self, faults: list[Fault]) -> None:
+        self.faults = faults
+        self.armed = False
+        self.rx = self.tx_mark = 0
+
+    def due(self, counters: dict[str, int]) -> Fault | None:
+        if not self.faults:
+            return None
+        if counters["rx_bytes"] != self.rx:  # the host wrote: count from here
+            self.rx, self.tx_mark, self.armed = counters["rx_bytes"], counters["tx_bytes"], True
+        if not self.armed or counters["tx_bytes"] - self.tx_mark < self.faults[0].params["after_bytes"]:
+            return None
+        self.armed = False
+        return self.faults.pop(0)
 
 
 @contextlib.asynccontextmanager

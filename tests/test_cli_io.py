@@ -4,9 +4,11 @@ an unplug/replug and a reboot, and `capture` + `replay` reproduce the same decod
 from __future__ import annotations
 
 import json
+import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -22,25 +24,72 @@ def lines(text: str) -> list[dict]:
     return [json.loads(line) for line in text.splitlines() if line.strip()]
 
 
+class Lines:
+    """A child's JSON lines, read in a thread; every wait has a deadline (a hang guard only:
+    what the test waits for is what the child printed, not how long it took)."""
+
+    def __init__(self, proc: subprocess.Popen, deadline_s: float = 300.0) -> None:
+        self.items: list[dict] = []
+        self.end = time.monotonic() + deadline_s
+        self._queue: queue.Queue[str | None] = queue.Queue()
+        threading.Thread(target=self._pump, args=(proc.stdout,), daemon=True).start()
+
+    def _pump(self, stream) -> None:
+        for line in stream:
+            self._queue.put(line)
+        self._queue.put(None)
+
+    def until(self, done) -> bool:
+        """Read until ``done(items)`` or the end of the output; True if done."""
+        while not done(self.items):
+            left = self.end - time.monotonic()
+            assert left > 0, f"a hang guard: {len(self.items)} lines, the last {self.items[-3:]}"
+            line = self._queue.get(timeout=left)
+            if line is None:
+                return False
+            if line.strip():
+                self.items.append(json.loads(line))
+        return True
+
+
+def set_up_after_the_reboot(items: list[dict], angles: int = 50) -> bool:
+    """The board's ``+STARTUP`` (the reboot), then its set-up's ``AT+UDFENABLE=1``, then ``angles`` angles."""
+    boot = next((k for k, i in enumerate(items) if i["kind"] == "startup"), None)
+    enable = None if boot is None else next(
+        (k for k, i in enumerate(items[boot:], boot) if i["kind"] == "echo" and i["text"] == "AT+UDFENABLE=1"), None)
+    return enable is not None and sum(i["kind"] == "angle" for i in items[enable:]) >= angles
+
+
 @pytest.mark.slow
 def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None:
+    """The unplug and the reboot follow the host: each once the board has sent 20,000 bytes (about
+    7 s of angles) since the host's last command -- its set-up done, unless it stalled that long
+    between two commands -- and capture runs until it has set the rebooted board up: a loaded
+    machine only makes it slower."""
     emulator = subprocess.Popen(
         [*RFHOMING, "emulate", "s0-open", "--seed", "4", "--link-dir", str(tmp_path),
-         # the unplug comes after capture's start-up and sniffing, even on a loaded machine
-         "--fault", "unplug@aoa:at=3.5,for=1", "--fault", "reboot@aoa:at=6"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+         "--fault", "unplug@aoa:after_bytes=20000,for=1", "--fault", "reboot@aoa:after_bytes=20000"],
+        stdout=subprocess.PIPE, stderr=(tmp_path / "emulator.log").open("w"), text=True)
+    capture, log = tmp_path / "run.pcapng", tmp_path / "capture.log"
     try:
         endpoints = {e["device"]: e for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}
-        capture = tmp_path / "run.pcapng"
-        live = subprocess.run(
-            [*RFHOMING, "capture", endpoints["aoa"]["path"], f"base:{endpoints['base']['path']}",
-             "-o", str(capture), "--duration", "8", "--show", "--json"],
-            capture_output=True, text=True, timeout=60)
+        with open(log, "w") as stderr:
+            proc = subprocess.Popen(
+                [*RFHOMING, "capture", endpoints["aoa"]["path"], f"base:{endpoints['base']['path']}",
+                 "-o", str(capture), "--show", "--json"], stdout=subprocess.PIPE, stderr=stderr, text=True)
+        try:
+            out = Lines(proc)
+            assert out.until(set_up_after_the_reboot), log.read_text()
+            proc.send_signal(signal.SIGINT)
+            out.until(lambda items: False)  # to its end: the counters
+            status = proc.wait(timeout=30)
+        finally:
+            proc.kill()
     finally:
         emulator.send_signal(signal.SIGINT)
         emulator.wait(timeout=10)
-    assert live.returncode == 0, live.stderr
-    items = lines(live.stdout)
+    assert status == 0, log.read_text()
+    items = out.items
     counters = {c["device"]: c for c in items if c["kind"] == "counters"}
     aoa = counters[endpoints["aoa"]["path"]]
     assert aoa["disconnects"] == 1 and aoa["reconnects"] == 1 and aoa["reboots"] == 1

@@ -188,7 +188,9 @@ def test_lockstep_needs_a_base() -> None:
 
 @pytest.mark.parametrize(
     ("spec", "words"),
-    [("nope", "unknown fault"), ("ber:x=1", "takes"), ("unplug:for=1", "needs \\['at'\\]"), ("drop:rate=a", "not a number")],
+    [("nope", "unknown fault"), ("ber:x=1", "takes"), ("unplug:for=1", "needs one of at=S or after_bytes=N"),
+     ("reboot:at=1,after_bytes=10", "needs one of"), ("baud:after_bytes=10", "needs \\['rate'\\]"),
+     ("drop:rate=a", "not a number")],
 )
 def test_fault_specs_are_checked(spec: str, words: str) -> None:
     with pytest.raises(FaultError, match=words):
@@ -224,6 +226,25 @@ async def test_reboot_prints_startup_mid_session() -> None:
     await em.run(2.0)
     kinds = [i.kind for i in UConnectDecoder().feed(await drain(em.device("aoa").link.host))]
     assert kinds.count("startup") == 2 and kinds.index("startup", 1) > 10
+    await em.close()
+
+
+async def test_after_bytes_faults_follow_the_host_not_the_clock() -> None:
+    """``after_bytes``: nothing happens until the host writes, however long the world runs; then
+    the reboot comes after that many bytes, and the next waits for the host's next write."""
+    em = make(faults=[Fault.parse("reboot@aoa:after_bytes=2000"), Fault.parse("reboot@aoa:after_bytes=2000")])
+    await em.start()
+    aoa = em.device("aoa").link
+    await em.run(5.0)
+    quiet = await drain(aoa.host)
+    assert quiet.count(b"+STARTUP") == 1 and len(quiet) > 4000  # the clock alone would have fired twice
+    for _ in range(2):
+        aoa.host.write(b"AT\r\n")
+        await em.run(5.0)
+        after = await drain(aoa.host)
+        assert after.count(b"+STARTUP") == 1 and after.index(b"+STARTUP") >= 2000
+    await em.run(5.0)
+    assert (await drain(aoa.host)).count(b"+STARTUP") == 0  # both fired: nothing more
     await em.close()
 
 

@@ -35,6 +35,8 @@ examples:
 
 faults (repeatable): KIND[@DEVICE][:key=value,...]
   ber:rate=R  drop:rate=R  garbage:every=S,len=N  unplug:at=S,for=S  reboot:at=S  baud:at=S,rate=B
+  after_bytes=N instead of at=S: once the host has written to the device (set it up) and the
+  device has sent N bytes since, whatever the clock says -- e.g. unplug@aoa:after_bytes=4000,for=1
 """
 
 
