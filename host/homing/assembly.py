@@ -35,6 +35,7 @@ from rfhoming.host.homing.loop import (
     Outcome,
     RunLog,
 )
+from rfhoming.host.homing.planner import Planner
 from rfhoming.host.homing.s1_dock import DockController
 from rfhoming.host.homing.s2_rss import RssController
 from rfhoming.host.homing.s3_trilat import TrilatController
@@ -114,6 +115,7 @@ class Homing:
     probe_baud: bool = False  # an XPLR-AOA sending garbage is probed at every documented rate
     baud: int | None = None  # defaults for specs that give none
     flow: str | None = None
+    planner: Planner | None = None  # the grid's path planner (host/homing/planner.py); None: libtcod's A*
 
 
 def sensor_role(plan: Homing) -> str | None:
@@ -372,7 +374,7 @@ def build(plan: Homing) -> Assembled:
     runlog.listeners += [sink.on_runlog for sink in plan.sinks]
     for _, driver, _ in built:
         driver.listeners += [sink.on_item for sink in plan.sinks]
-    loop = HomingLoop(base, sensors, controller, plan.config, runlog, inputs)
+    loop = HomingLoop(base, sensors, controller, plan.config, runlog, inputs, plan.planner)
     for sink in plan.sinks:
         sink.watch(loop)
         sink.show_anchors(plan.config.trilat.anchors if plan.controller == "trilat" else {})
