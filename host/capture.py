@@ -10,6 +10,7 @@ any time holds a whole header.
 from __future__ import annotations
 
 import asyncio
+import json
 import time
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -19,6 +20,7 @@ from rfhoming.protocol import devices, pcapng
 FLUSH_INTERVAL = 1.0
 DISCONNECTED = "disconnected"
 SNIFFED = "sniffed"  # bytes seen while the protocol was sniffed: in the file, not for the driver
+NOTE = "rfhoming-note"  # what the host did on the wall clock that a replay must repeat: not for the driver
 
 
 class CaptureWriter:
@@ -73,6 +75,17 @@ class CaptureWriter:
             flag = pcapng.INBOUND if direction == "in" else pcapng.OUTBOUND
             self._file.write(pcapng.packet(iface, t, data, flag, self._comments.pop(port, "")))
         self.packets += 1
+        self._schedule_flush()
+
+    def note(self, port: str, t: float, record: dict[str, Any]) -> None:
+        """A fact of the run that its bytes cannot show (a plan that took effect late, on the
+        wall clock), on ``port``'s interface, for a replay to repeat."""
+        if self._file.closed:
+            return
+        iface = self._ids.get(port)
+        if iface is None:
+            iface = self._interface(port)
+        self._file.write(pcapng.packet(iface, t, json.dumps(record).encode(), pcapng.OUTBOUND, NOTE))
         self._schedule_flush()
 
     def _schedule_flush(self) -> None:

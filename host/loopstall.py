@@ -13,8 +13,10 @@ from __future__ import annotations
 import asyncio
 import time
 from collections import deque
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Awaitable, Callable
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 THRESHOLD_MS = 25.0
 """A callback running longer than this is reported, with what it was."""
@@ -106,3 +108,9 @@ class StallMonitor:
         p99 = late[min(len(late) - 1, int(0.99 * len(late)))] if late else 0.0
         return {"loop_stall_ms_max": round(max(self.late_max_ms, self.longest_callback_ms), 1),
                 "loop_stall_ms_p99": round(p99, 1)}
+
+
+async def watching(awaitable: Awaitable[T], monitor: StallMonitor) -> T:
+    """``awaitable``'s result, with ``monitor`` measuring the loop while it runs."""
+    async with monitor:
+        return await awaitable

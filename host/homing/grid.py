@@ -63,8 +63,12 @@ class OccupancyGrid:
         xs = ((pose.x + steps * cos - self.x0) / r).astype(int)
         ys = ((pose.y + steps * sin - self.y0) / r).astype(int)
         along = (steps < reach[:, None] - r / 2) & (xs >= 0) & (xs < n) & (ys >= 0) & (ys < n)
-        beam = np.broadcast_to(np.arange(len(ranges))[:, None], xs.shape)
-        crossed = np.unique(beam[along] * (n * n) + xs[along] * n + ys[along]) % (n * n)
+        key = xs * n + ys
+        # a straight beam crosses each cell in one run of samples: a sample in another cell than
+        # the one before it is a new cell (no sort, where np.unique took a fifth of a house run)
+        new = np.ones(key.shape, bool)
+        new[:, 1:] = key[:, 1:] != key[:, :-1]
+        crossed = key[along & new]
         self.misses += np.bincount(crossed, minlength=n * n).reshape(n, n).astype(np.int32)
         hit = np.isfinite(ranges) & (ranges <= p.max_range)
         if hit.any():

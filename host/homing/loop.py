@@ -143,7 +143,8 @@ class HomingLoop:
     depend on the bytes alone and a replay reproduces them exactly."""
 
     def __init__(self, base: BaseDriver, sensors: list[Driver], controller: Controller, config: Config,
-                 runlog: RunLog, inputs: BoundedStream[Any], planner: Planner | None = None) -> None:
+                 runlog: RunLog, inputs: BoundedStream[Any], planner: Planner | None = None,
+                 plans_taken: dict[float, float] | None = None) -> None:
         assert all(d.out is inputs for d in (base, *sensors)), "every driver hands its items to the loop's stream"
         self.base, self.sensors, self.config = base, sensors, config
         self.controller = controller
@@ -166,7 +167,8 @@ class HomingLoop:
         self._next_plan = 0.0
         self._last_request = -math.inf
         self._next_integrate = 0.0
-        self.scheduler = PlanScheduler(planner or TcodPlanner(), config.plan.latency_s, config.plan.wait)
+        self.scheduler = PlanScheduler(planner or TcodPlanner(), config.plan.latency_s, config.plan.wait, plans_taken)
+        self.note: Callable[[dict[str, Any]], None] | None = None  # a run's capture keeps what replays must repeat
         self.plans = 0
         self.plans_late = 0
         self.stalls = StallMonitor(on_stall=self._on_stall)
@@ -231,8 +233,8 @@ class HomingLoop:
         return not math.isinf(self.config.loop.odometry_wall_timeout_s)
 
     def _on_stall(self, took_ms: float, ran: str) -> None:
-        log.warning("event loop blocked %.0f ms by %s", took_ms, ran)
         if self._wall_time_matters():
+            log.warning("event loop blocked %.0f ms by %s", took_ms, ran)
             self.log.write("stall", self.t, ms=round(took_ms, 1), ran=ran)
 
     def _raise_if_a_driver_died(self) -> None:
@@ -265,8 +267,6 @@ class HomingLoop:
             if isinstance(item, Scan):
                 self._on_scan(item)
             elif isinstance(item, Pose2D):
-                if self.scheduler.must_wait(self._robot_time(item)):
-                    await self.scheduler.ready()
                 outcome = self._on_odometry(item)
                 if outcome is not None:
                     return outcome
@@ -335,11 +335,6 @@ class HomingLoop:
             return None
         self.next_control += self.config.loop.control_period_s
         return self._control(odo)
-
-    def _robot_time(self, odo: Pose2D) -> float:
-        """The robot time ``odo`` will bring (:meth:`_advance_clock`)."""
-        t = odo.t_robot + self.clock_offset
-        return t if self.t0 is None or t >= self.t else self.t + ODOMETRY_PERIOD_S
 
     def _advance_clock(self, odo: Pose2D) -> None:
         """Robot time from the base's clock, continued across a base reset (its clock runs from
@@ -443,11 +438,13 @@ class HomingLoop:
         return None
 
     def _take_plan(self, t: float) -> None:
-        """The pending plan, at its robot time: its path, or (live, not done yet) late."""
+        """The pending plan, at its robot time: its path, or (live, not done yet) late. In
+        lockstep and replays (``plan.wait``) this waits for it, blocking: an in-process world
+        steps on while the host's loop is idle, so the loop must not yield here."""
         request = self.scheduler.due(t)
         if request is None:
             return
-        if not request.future.done():
+        if not request.future.done() and not self.scheduler.wait:
             if not request.late:
                 request.late = True
                 self.plans_late += 1
@@ -464,6 +461,8 @@ class HomingLoop:
         self._path = None if cells is None else [self.grid.centre(c) for c in cells]
         self.log.write("plan", t, cells=len(cells or ()), goal=_round(request.goal), asked=round(request.t, 4),
                        **({"late": True} if request.late else {}))
+        if request.late and self.note is not None:  # when, on the wall clock: the replay takes it then too
+            self.note({"plan_asked": round(request.t, 4), "plan_taken": round(t, 4)})
 
     def _age_factor(self, age: float) -> float:
         """1 for data younger than slow_after_s, falling linearly to 0 at the stale timeout."""

@@ -15,7 +15,6 @@ wait: it keeps controlling on the old path and counts the plan as late.
 
 from __future__ import annotations
 
-import asyncio
 import concurrent.futures
 from dataclasses import dataclass
 from typing import Protocol
@@ -98,8 +97,11 @@ class Request:
 class PlanScheduler:
     """At most one plan in flight, computed in a worker thread, taken at its robot time."""
 
-    def __init__(self, planner: Planner, latency_s: float, wait: bool) -> None:
+    def __init__(self, planner: Planner, latency_s: float, wait: bool, taken: dict[float, float] | None = None) -> None:
+        """``taken``: when each plan of a live run took effect, by the robot time it was asked
+        for (rounded to 0.1 ms, as the run log): a replay takes a plan that was late then."""
         self.planner, self.latency_s, self.wait = planner, latency_s, wait
+        self.taken = taken or {}
         self.pending: Request | None = None
         self._pool: concurrent.futures.ThreadPoolExecutor | None = None
 
@@ -108,15 +110,8 @@ class PlanScheduler:
         if self._pool is None:
             self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="planner")
         future = self._pool.submit(self.planner, costs, start, goal_cell)
-        self.pending = Request(t, t + self.latency_s, goal, map_version, future)
-
-    def must_wait(self, t: float) -> bool:
-        """Whether the loop, about to reach robot time ``t``, must first wait for the plan."""
-        return self.wait and self.pending is not None and t + 1e-9 >= self.pending.due and not self.pending.future.done()
-
-    async def ready(self) -> None:
-        assert self.pending is not None
-        await asyncio.wrap_future(self.pending.future)
+        due = self.taken.get(round(t, 4), t + self.latency_s)
+        self.pending = Request(t, due, goal, map_version, future)
 
     def due(self, t: float) -> Request | None:
         """The pending plan if its robot time has come (done or not)."""
