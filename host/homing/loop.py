@@ -444,7 +444,7 @@ class HomingLoop:
         request = self.scheduler.due(t)
         if request is None:
             return
-        if not request.future.done() and not self.scheduler.wait:
+        if not request.ready(t) and (not self.scheduler.wait or request.taken_at is not None):
             if not request.late:
                 request.late = True
                 self.plans_late += 1

@@ -91,7 +91,14 @@ class Request:
     goal: tuple[float, float]
     map_version: int
     future: concurrent.futures.Future[list[Cell] | None]
+    taken_at: float | None = None  # a replay: when the live run took it (it was late then)
     late: bool = False
+
+    def ready(self, t: float) -> bool:
+        """Whether the plan may be taken at robot time ``t`` (its due time has come)."""
+        if self.taken_at is not None:  # the live run's own rounding, as the run log and the note
+            return round(t, 4) >= self.taken_at
+        return self.future.done()
 
 
 class PlanScheduler:
@@ -110,8 +117,7 @@ class PlanScheduler:
         if self._pool is None:
             self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="planner")
         future = self._pool.submit(self.planner, costs, start, goal_cell)
-        due = self.taken.get(round(t, 4), t + self.latency_s)
-        self.pending = Request(t, due, goal, map_version, future)
+        self.pending = Request(t, t + self.latency_s, goal, map_version, future, self.taken.get(round(t, 4)))
 
     def due(self, t: float) -> Request | None:
         """The pending plan if its robot time has come (done or not)."""
