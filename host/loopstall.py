@@ -72,7 +72,7 @@ class StallMonitor:
         if loop in _watched:  # one monitor per loop: a nested run is measured by the outer one
             return _watched[loop]
         _watched[loop] = self
-        asyncio.Handle._run = _timed_run  # type: ignore[method-assign]
+        asyncio.Handle._run = _timed_run  # type: ignore[method-assign,assignment]
         self._task = asyncio.create_task(self._beat(), name="loop-stall heartbeat")
         return self
 

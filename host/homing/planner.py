@@ -52,12 +52,13 @@ class TcodPlanner:
 
 def straighten(cost: np.ndarray, path: np.ndarray) -> np.ndarray:
     """The path with its zigzags pulled straight: from each corner, the farthest later cell that
-    a straight line reaches through cells no costlier than the stretch of path it replaces (so
-    a shortcut never cuts a corner the search went round), then cell by cell along it. This is
-    what the old search's turn penalty was for: a robot steering at a point ahead on a
-    staircase path wobbles."""
+    a straight line reaches at no more cost than the stretch of path it replaces (cost summed
+    along each, per cell length), so a shortcut never cuts a corner the search went round;
+    then cell by cell along it. This is what the old search's turn penalty was for: a robot
+    steering at a point ahead on a staircase path wobbles."""
     n = len(path)
-    peak = np.maximum.accumulate  # the costliest cell of each stretch
+    step = np.hypot(*np.diff(path, axis=0).T)  # 1 or sqrt(2) cells
+    along_path = np.concatenate(([0.0], np.cumsum(cost[path[1:, 0], path[1:, 1]] * step)))
     out = [path[0]]
     i = 0
     while i < n - 1:
@@ -65,11 +66,12 @@ def straighten(cost: np.ndarray, path: np.ndarray) -> np.ndarray:
         if len(ends) == 0:
             out.append(path[i + 1])
             break
-        steps = int(2 * np.abs(ends - path[i]).max()) + 1  # half-cell samples along the longest line
-        frac = np.linspace(0.0, 1.0, steps + 1)[None, :, None]
-        along = np.rint(path[i] + frac * (ends - path[i])[:, None, :]).astype(np.intp)
-        line_max = cost[along[..., 0], along[..., 1]].max(axis=1)
-        allowed = line_max <= peak(cost[path[i + 1:, 0], path[i + 1:, 1]])[1:]
+        samples = int(2 * np.abs(ends - path[i]).max()) + 1  # half-cell samples along the longest line
+        frac = (np.arange(samples) + 0.5)[None, :, None] / samples
+        at = np.rint(path[i] + frac * (ends - path[i])[:, None, :]).astype(np.intp)
+        length = np.hypot(*(ends - path[i]).T)
+        line = cost[at[..., 0], at[..., 1]].mean(axis=1) * length
+        allowed = line <= along_path[i + 2:] - along_path[i] + 1e-9
         j = i + 1 if not allowed.any() else i + 2 + int(np.flatnonzero(allowed)[-1])
         out.extend(_cells_between(path[i], path[j]))
         i = j
