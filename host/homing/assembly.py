@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import time
 import tomllib
 from collections.abc import Callable, Sequence
@@ -314,7 +315,8 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
         site = sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record["site"] else None
     except tomllib.TOMLDecodeError as exc:
         raise CaptureFormatError(0, f"{path}: its run record's site file is not TOML ({exc})") from None
-    taken = {n["plan_asked"]: n["plan_taken"] for n in notes(path) if "plan_asked" in n}
+    taken = {n["plan_asked"]: math.inf if n["plan_taken"] is None else n["plan_taken"]  # the last note of each
+             for n in notes(path) if "plan_asked" in n}
     return Homing(controller or record["controller"], roles,
                   (config if config is not None else from_tables(record["config"], f"{path}: the recorded config"))
                   .for_lockstep(),

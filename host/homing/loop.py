@@ -451,6 +451,8 @@ class HomingLoop:
                 log.warning("plan asked at %.2f s not done by its robot time %.2f s: steering on the old path",
                             request.t, request.due)
                 self.log.write("event", t, what="plan late", asked=round(request.t, 4))
+                if self.note is not None:  # not taken yet: a run that ends now never took it
+                    self.note({"plan_asked": round(request.t, 4), "plan_taken": None})
             return
         self.scheduler.pending = None
         cells = request.future.result()

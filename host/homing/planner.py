@@ -93,7 +93,7 @@ class Request:
     goal: tuple[float, float]
     map_version: int
     future: concurrent.futures.Future[list[Cell] | None]
-    taken_at: float | None = None  # a replay: when the live run took it (it was late then)
+    taken_at: float | None = None  # a replay: when the live run took it (it was late then; inf: never)
     late: bool = False
 
     def ready(self, t: float) -> bool:
