@@ -84,7 +84,7 @@ class PlanSettings:
     enabled: bool = setting(True)  # plan on an occupancy grid whenever the base sends range scans
     replan_s: float = setting(1.0, low=0, above=True, high=60, unit=S)  # at most one plan asked for this often
     # a plan asked for at robot time t takes effect at t + latency_s, whatever the wall clock did
-    latency_s: float = setting(0.3, low=0, high=10, unit=S)
+    latency_s: float = setting(0.1, low=0, high=10, unit=S)
     goal_moved_m: float = setting(0.5, low=0, high=100, unit=M)  # re-plan when the goal moved this far
     strayed_m: float = setting(0.6, low=0, above=True, high=100, unit=M)  # ... or the robot is this far off the path
     refresh_s: float = setting(5.0, low=0, above=True, high=600, unit=S)  # ... or the map changed and this long passed
@@ -264,7 +264,7 @@ release_s = 1.5          # keep the chosen side until the centre is clear this l
 [plan]                   # occupancy grid + A* (S2's full system), when the base sends scans
 enabled = true
 replan_s = 1.0           # at most one plan asked for this often (robot time)
-latency_s = 0.3          # a plan asked for at robot time t takes effect at t + latency_s
+latency_s = 0.1          # a plan asked for at robot time t takes effect at t + latency_s
 goal_moved_m = 0.5       # re-plan when the goal moved this far since the last plan,
 strayed_m = 0.6          # ... or the robot is this far from its path,
 refresh_s = 5.0          # ... or the map changed and this long passed
