@@ -15,6 +15,7 @@ Spec syntax (``rfhoming emulate --fault``): ``KIND[@DEVICE][:key=value,...]``; w
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +24,21 @@ from rfhoming.protocol.errors import Error
 
 KINDS = {"ber": {"rate"}, "drop": {"rate"}, "garbage": {"every", "len"}, "unplug": {"at", "for"},
          "reboot": {"at"}, "baud": {"at", "rate"}}
+
+MAX_TIME_S = 1e7
+"""A fault time beyond this (about four months) is a typo, and would overflow when added to."""
+
+RANGES: dict[tuple[str, str], tuple[float, float, bool, str]] = {
+    # (kind, key) -> (low, high, whole number, what it is); ``every`` at least 1 ms: bursts any
+    # closer would be all the emulator does (every=0 never ended)
+    ("ber", "rate"): (0.0, 1.0, False, "a probability per bit"),
+    ("drop", "rate"): (0.0, 1.0, False, "a probability per byte"),
+    ("garbage", "every"): (1e-3, MAX_TIME_S, False, "seconds between bursts"),
+    ("garbage", "len"): (1, 65536, True, "bytes per burst"),
+    ("baud", "rate"): (50, 12_000_000, True, "a baud rate"),
+    ("unplug", "for"): (1e-3, MAX_TIME_S, False, "seconds unplugged; without for= it stays out"),
+}
+"""Each key's range; ``at`` (seconds of simulated time) is 0 to MAX_TIME_S."""
 
 
 class FaultError(Error, ValueError):
@@ -46,10 +62,7 @@ class Fault:
             key, eq, value = item.partition("=")
             if not eq or key not in KINDS[kind]:
                 raise FaultError(f"fault {kind} takes {sorted(KINDS[kind])}, got {item!r} in {spec!r}")
-            try:
-                params[key] = float(value)
-            except ValueError:
-                raise FaultError(f"{key}={value!r} is not a number in {spec!r}") from None
+            params[key] = _value(kind, key, value, spec)
         missing = KINDS[kind] - set(params) - ({"for"} if kind == "unplug" else set())
         if missing:
             raise FaultError(f"fault {kind} needs {sorted(missing)} in {spec!r}")
@@ -57,6 +70,19 @@ class Fault:
 
     def hits(self, device: str) -> bool:
         return self.device is None or self.device == device
+
+
+def _value(kind: str, key: str, text: str, spec: str) -> float:
+    """``text`` as a number within the key's range; FaultError saying the range otherwise."""
+    low, high, whole, what = RANGES.get((kind, key), (0.0, MAX_TIME_S, False, "seconds of simulated time"))
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not low <= value <= high or (whole and not value.is_integer()):  # NaN fails the range too
+        number = "a whole number" if whole else "a number"
+        raise FaultError(f"{key}={text!r} in {spec!r}: expected {number} from {low:g} to {high:g} ({what})")
+    return value
 
 
 class ByteFaults:
