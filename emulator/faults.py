@@ -15,7 +15,6 @@ Spec syntax (``rfhoming emulate --fault``): ``KIND[@DEVICE][:key=value,...]``; w
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -75,12 +74,13 @@ class Fault:
 def _value(kind: str, key: str, text: str, spec: str) -> float:
     """``text`` as a number within the key's range; FaultError saying the range otherwise."""
     low, high, whole, what = RANGES.get((kind, key), (0.0, MAX_TIME_S, False, "seconds of simulated time"))
+    number = "a whole number" if whole else "a number"
     try:
         value = float(text)
     except ValueError:
-        value = math.nan
+        raise FaultError(f"{key}={text!r} in {spec!r} is not a number: expected {number} from {low:g} to {high:g} "
+                         f"({what})") from None
     if not low <= value <= high or (whole and not value.is_integer()):  # NaN fails the range too
-        number = "a whole number" if whole else "a number"
         raise FaultError(f"{key}={text!r} in {spec!r}: expected {number} from {low:g} to {high:g} ({what})")
     return value
 
