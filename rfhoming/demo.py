@@ -247,7 +247,7 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     try:
         if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
             config = trilat_config(config, truth, target)
-        outcome = asyncio.run(asyncio.wait_for(home(plan(endpoints, out, config, tuple(sinks)), out),
+        outcome = asyncio.run(asyncio.wait_for(_home_beside(proc, plan(endpoints, out, config, tuple(sinks)), out),
                                                config.loop.max_time_s + 60))
     except BaseException:
         stop_emulator(proc, grace_s=INTERRUPTED_GRACE_S)
@@ -258,6 +258,16 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
         shutil.rmtree(link_dir, ignore_errors=True)
     summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
     return _finish(summary, out)
+
+
+async def _home_beside(emulator: subprocess.Popen, plan: Homing, out: Path) -> Outcome:
+    """``home``; when it is cancelled (Ctrl-C, SIGTERM) the emulator is told at once, so that it
+    closes while the host does."""
+    try:
+        return await home(plan, out)
+    except asyncio.CancelledError:
+        emulator.send_signal(signal.SIGINT)
+        raise
 
 
 def _finish(summary: dict[str, Any], out: Path) -> dict[str, Any]:

@@ -156,8 +156,13 @@ def _add_site(sub: argparse._SubParsersAction) -> None:
     add_parsers(sub)
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+def _as_ctrl_c(signum: int, frame: object) -> None:
+    """SIGTERM handled as SIGINT is: inside asyncio.run, its handler cancels the main task (which
+    nothing can swallow, unlike a KeyboardInterrupt raised in a finaliser); elsewhere Python's
+    raises KeyboardInterrupt. Where SIGINT is ignored (a background job), KeyboardInterrupt."""
+    if signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.SIG_DFL, None):
+        raise KeyboardInterrupt
+    signal.raise_signal(signal.SIGINT)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -167,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     and stops the children it started (its default action would leave them running)."""
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
-    before = signal.signal(signal.SIGTERM, _interrupt)
+    before = signal.signal(signal.SIGTERM, _as_ctrl_c)
     try:
         return args.func(args)
     except BrokenPipeError:  # e.g. piped into head
