@@ -16,8 +16,10 @@ import concurrent.futures as cf
 import importlib
 import importlib.util
 import json
+import multiprocessing
 import logging
 import os
+import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -92,8 +94,13 @@ def executor(workers: int, dask_address: str | None) -> Iterator[cf.Executor | N
     if workers <= 1:
         yield None
         return
-    with cf.ProcessPoolExecutor(max_workers=workers) as pool:
+    with cf.ProcessPoolExecutor(max_workers=workers, initializer=_terminated_by_sigterm) as pool:
         yield pool
+
+
+def _terminated_by_sigterm() -> None:
+    """A worker ends at SIGTERM (terminate()), whatever handler it inherited from its parent."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _key(job: Job) -> str:
@@ -155,4 +162,7 @@ def _run(jobs: list[Job], workers: int, dask_address: str | None, finished: Call
             except BaseException:
                 for f in futures:
                     f.cancel()
+                if isinstance(pool, cf.ProcessPoolExecutor):  # Ctrl-C, SIGTERM: the running jobs end too
+                    for child in multiprocessing.active_children():
+                        child.terminate()
                 raise

@@ -32,6 +32,23 @@ KINDS = {"ber": {"rate"}, "drop": {"rate"}, "garbage": {"every", "len"}, "unplug
 WHEN = {"at", "after_bytes"}
 """A one-off fault's trigger: a simulated time, or a count of bytes sent after the host's last write."""
 
+MAX_TIME_S = 1e7
+"""A fault time beyond this (about four months) is a typo, and would overflow when added to."""
+
+RANGES: dict[tuple[str, str], tuple[float, float, bool, str]] = {
+    # (kind, key) -> (low, high, whole number, what it is); ``every`` at least 1 ms: bursts any
+    # closer would be all the emulator does (every=0 never ended)
+    ("ber", "rate"): (0.0, 1.0, False, "a probability per bit"),
+    ("drop", "rate"): (0.0, 1.0, False, "a probability per byte"),
+    ("garbage", "every"): (1e-3, MAX_TIME_S, False, "seconds between bursts"),
+    ("garbage", "len"): (1, 65536, True, "bytes per burst"),
+    ("baud", "rate"): (50, 12_000_000, True, "a baud rate"),
+    ("unplug", "for"): (1e-3, MAX_TIME_S, False, "seconds unplugged; without for= it stays out"),
+    **{(kind, "after_bytes"): (1, 1e12, True, "bytes sent after the host's last write")
+       for kind in ("unplug", "reboot", "baud")},
+}
+"""Each key's range; ``at`` (seconds of simulated time) is 0 to MAX_TIME_S."""
+
 
 class FaultError(Error, ValueError):
     pass
@@ -54,10 +71,7 @@ class Fault:
             key, eq, value = item.partition("=")
             if not eq or key not in KINDS[kind]:
                 raise FaultError(f"fault {kind} takes {sorted(KINDS[kind])}, got {item!r} in {spec!r}")
-            try:
-                params[key] = float(value)
-            except ValueError:
-                raise FaultError(f"{key}={value!r} is not a number in {spec!r}") from None
+            params[key] = _value(kind, key, value, spec)
         if KINDS[kind] >= WHEN and len(WHEN & set(params)) != 1:
             raise FaultError(f"fault {kind} needs one of at=S or after_bytes=N in {spec!r}")
         missing = KINDS[kind] - set(params) - WHEN - {"for"}
@@ -67,6 +81,20 @@ class Fault:
 
     def hits(self, device: str) -> bool:
         return self.device is None or self.device == device
+
+
+def _value(kind: str, key: str, text: str, spec: str) -> float:
+    """``text`` as a number within the key's range; FaultError saying the range otherwise."""
+    low, high, whole, what = RANGES.get((kind, key), (0.0, MAX_TIME_S, False, "seconds of simulated time"))
+    number = "a whole number" if whole else "a number"
+    try:
+        value = float(text)
+    except ValueError:
+        raise FaultError(f"{key}={text!r} in {spec!r} is not a number: expected {number} from {low:g} to {high:g} "
+                         f"({what})") from None
+    if not low <= value <= high or (whole and not value.is_integer()):  # NaN fails the range too
+        raise FaultError(f"{key}={text!r} in {spec!r}: expected {number} from {low:g} to {high:g} ({what})")
+    return value
 
 
 class ByteFaults:

@@ -98,6 +98,9 @@ class HostPort:
         self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0,
                          "disconnects": 0, "dropped_bytes": 0}
         self._transport: serial_asyncio_fast.SerialTransport | None = None
+        self._opened_at = 0.0
+        self.short_lived = 0
+        """Connections in a row that ended within STABLE_S of opening (0 once one lasts)."""
         self._gone = asyncio.Event()
         self._queue: asyncio.Queue[Chunk | None] = asyncio.Queue()
         self._backlog = 0
@@ -121,6 +124,7 @@ class HostPort:
         self._gone = asyncio.Event()
         self._queue = asyncio.Queue()
         self._backlog = 0
+        self._opened_at = time.monotonic()
         self.counters["opens"] += 1
 
     def set_baud(self, baud: int) -> None:
@@ -145,7 +149,14 @@ class HostPort:
     def _lost(self, exc: Exception | None) -> None:
         if self._transport is not None:
             self.counters["disconnects"] += 1
-            log.warning("%s: disconnected (%s)", self.name, exc or "closed")
+            lived = time.monotonic() - self._opened_at
+            self.short_lived = self.short_lived + 1 if lived < STABLE_S else 0
+            if self.short_lived <= 1:  # once per streak of connections that drop at once
+                log.warning("%s: disconnected (%s)%s", self.name, exc or "closed", "" if not self.short_lived else
+                            f" {lived:.1f} s after opening; reopened with back-off up to {REOPEN_LONGEST_S:g} s while "
+                            "it keeps dropping at once (another program holding the device?); counted, not logged again")
+            else:
+                log.debug("%s: disconnected (%s), %d in a row", self.name, exc or "closed", self.short_lived)
             for tap in self.taps:
                 tap(self.name, "lost", self.clock(), b"")
         self._transport = None
@@ -188,7 +199,21 @@ class HostPort:
                     await self._gone.wait()
 
 
-async def reopen(port: HostPort, *, first: float = 0.2, longest: float = 5.0,
+STABLE_S = 5.0
+"""A connection that ends sooner than this after opening is part of a streak of drops: the
+driver backs off before the next reopen, and only the streak's first drop is logged."""
+REOPEN_FIRST_S = 0.2
+REOPEN_LONGEST_S = 5.0
+
+
+def flapping_delay(short_lived: int) -> float:
+    """Seconds to wait before reopening after ``short_lived`` connections in a row dropped at
+    once: 0 after one that lasted, then 0.2 s doubling to 5 s (a device that accepts and drops,
+    such as an endpoint another client holds, would otherwise be reopened in a busy loop)."""
+    return 0.0 if short_lived <= 0 else min(REOPEN_FIRST_S * 2 ** min(short_lived - 1, 16), REOPEN_LONGEST_S)
+
+
+async def reopen(port: HostPort, *, first: float = REOPEN_FIRST_S, longest: float = REOPEN_LONGEST_S,
                  attempts: int | None = None) -> None:
     """Open ``port``, retrying with doubling back-off until it works (or ``attempts`` run out).
     A device path that has vanished (unplugged) is watched instead and reopened as soon as it

@@ -50,14 +50,35 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
         cmd.append(f"--target={target}")  # "=": a negative X would read as an option
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     endpoints: dict[str, dict] = {}
-    while len(endpoints) < 2:
-        line = proc.stdout.readline()
-        if not line:
-            why = proc.stderr.read().strip().splitlines() or [f"it exited with status {proc.wait()}"]
-            raise DemoError(f"the emulator did not start: {why[-1]}")
-        endpoint = json.loads(line)
-        endpoints[endpoint["type"]] = endpoint
+    try:
+        while len(endpoints) < 2:
+            line = proc.stdout.readline()
+            if not line:
+                why = proc.stderr.read().strip().splitlines() or [f"it exited with status {proc.wait()}"]
+                raise DemoError(f"the emulator did not start: {why[-1]}")
+            endpoint = json.loads(line)
+            endpoints[endpoint["type"]] = endpoint
+    except BaseException:  # Ctrl-C or SIGTERM while it starts: it goes too
+        stop_emulator(proc, grace_s=INTERRUPTED_GRACE_S)
+        raise
     return proc, endpoints
+
+
+INTERRUPTED_GRACE_S = 1.0
+"""After Ctrl-C or SIGTERM the emulator has this long to close before it is killed: the demo and
+every child it started are gone within 2 s."""
+
+
+def stop_emulator(proc: subprocess.Popen, grace_s: float) -> None:
+    """Ctrl-C to the emulator (it closes its links and writes the last truth line), then kill it
+    if it has not gone within ``grace_s``."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 def plan(endpoints: dict[str, dict], out: Path, config: Config, sinks: tuple = ()) -> Homing:
@@ -228,17 +249,27 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     try:
         if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
             config = trilat_config(config, truth, target)
-        outcome = asyncio.run(asyncio.wait_for(home(plan(endpoints, out, config, tuple(sinks)), out),
+        outcome = asyncio.run(asyncio.wait_for(_home_beside(proc, plan(endpoints, out, config, tuple(sinks)), out),
                                                config.loop.max_time_s + 60))
+    except BaseException:
+        stop_emulator(proc, grace_s=INTERRUPTED_GRACE_S)
+        raise
+    else:
+        stop_emulator(proc, grace_s=10)
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
         shutil.rmtree(link_dir, ignore_errors=True)
     summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
     return _finish(summary, out)
+
+
+async def _home_beside(emulator: subprocess.Popen, plan: Homing, out: Path) -> Outcome:
+    """``home``; when it is cancelled (Ctrl-C, SIGTERM) the emulator is told at once, so that it
+    closes while the host does."""
+    try:
+        return await home(plan, out)
+    except asyncio.CancelledError:
+        emulator.send_signal(signal.SIGINT)
+        raise
 
 
 def _finish(summary: dict[str, Any], out: Path) -> dict[str, Any]:

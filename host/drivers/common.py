@@ -16,6 +16,7 @@ from rfhoming.host.ports import (
     EndOfInput,
     HostPort,
     PortError,
+    flapping_delay,
     Tap,
     reopen,
 )
@@ -283,6 +284,7 @@ class Driver:
                 reader.cancel()
             if not self.reconnect:
                 return
+            await asyncio.sleep(flapping_delay(getattr(self.port, "short_lived", 0)))
 
     def drain(self) -> None:
         """At shutdown: decode what arrived but was not read yet, so nothing that a capture

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from rfhoming.campaigns.runner import Campaign, CampaignError, run_jobs
-from rfhoming.cli.args import positive_int
+from rfhoming.cli.args import dask_address, output_folder, runs, seed, workers
 
 REGISTRY = {  # name -> "module:attribute", imported only when run
     "s0-table3": "rfhoming.campaigns.s0:TABLE3_CAMPAIGN",
@@ -51,12 +51,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("campaign", help="reproduce a seed paper's results over many seeded runs",
                        description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("name", choices=sorted(REGISTRY), metavar="NAME", help="one of: " + ", ".join(REGISTRY))
-    p.add_argument("--runs", type=positive_int, help="how many runs; what a run is depends on the campaign (see below)")
-    p.add_argument("--seed", type=int, default=0, help="campaign seed; every job derives its own (default 0)")
-    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
+    p.add_argument("--runs", type=runs, help="how many runs; what a run is depends on the campaign (see below)")
+    p.add_argument("--seed", type=seed, default=0, help="campaign seed; every job derives its own (default 0)")
+    p.add_argument("--workers", type=workers, default=min(os.cpu_count() or 1, workers.high),
                    help="local worker processes (default: all cores; 1 runs inline)")
-    p.add_argument("--dask", metavar="ADDRESS", help="run the jobs on the Dask scheduler at ADDRESS instead")
-    p.add_argument("--out", type=Path, help="output directory (default: ./rfhoming-NAME-runsN-seedS, named for the run; "
+    p.add_argument("--dask", type=dask_address, metavar="ADDRESS", help="run the jobs on the Dask scheduler at ADDRESS instead")
+    p.add_argument("--out", type=output_folder, help="output directory (default: ./rfhoming-NAME-runsN-seedS, named for the run; "
                    "docs/results to refresh the repository's committed tables)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

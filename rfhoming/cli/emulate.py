@@ -9,11 +9,10 @@ import json
 import math
 import signal
 import sys
-from pathlib import Path
 
 from typing import Any
 
-from rfhoming.cli.args import nonnegative_float, output_file, positive_float, xy
+from rfhoming.cli.args import duration, fault, nonempty, output_file, path, seed, speed, xy
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import BLE_RECEIVERS, ScenarioError, load, presets
@@ -43,27 +42,27 @@ faults (repeatable): KIND[@DEVICE][:key=value,...]
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("emulate", help="run an emulated world with devices on ptys or TCP",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scenario", help=f"a preset ({', '.join(presets())}) or a .toml file")
+    p.add_argument("scenario", type=nonempty, help=f"a preset ({', '.join(presets())}) or a .toml file")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true", help="a pseudo-terminal per device (default)")
     where.add_argument("--tcp", action="store_true", help="TCP on 127.0.0.1 per device")
     pace = p.add_mutually_exclusive_group()
-    pace.add_argument("--speed", type=nonnegative_float, default=1.0, help="simulated seconds per wall second (default 1; 0 = as fast as possible)")
+    pace.add_argument("--speed", type=speed, default=1.0, help="simulated seconds per wall second (default 1; 0 = as fast as possible)")
     pace.add_argument("--lockstep", action="store_true", help="advance a control period only after the host's velocity command")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random stream (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of every random stream (default 0)")
     p.add_argument("--target", type=xy, help="first target's position X,Y in metres, e.g. --target=-3.5,2 "
                    "(default: the scenario's, random per seed)")
     p.add_argument("--receiver", choices=BLE_RECEIVERS,
                    help="serve every BLE RSSI receiver as this device: esp32 (rfhoming frames), esp-at "
                    "(Espressif's AT firmware) or hci (a Bluetooth controller over H4, needs rfhoming[hci])")
     p.add_argument("--aoa-preset", type=int, choices=range(1, 6), help="S0 Table 2 noise configuration 1-5")
-    p.add_argument("--fault", action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
+    p.add_argument("--fault", type=fault, action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
     p.add_argument("--truth", type=output_file, help="write the true robot pose and target positions as JSON lines")
-    p.add_argument("--duration", type=positive_float, help="stop after this many simulated seconds")
+    p.add_argument("--duration", type=duration, help="stop after this many simulated seconds")
     p.add_argument("--robot", type=ros2_robot, metavar="ros2[:domain=N,ns=NS,discovery=subnet,stamped=1]",
                    help="the robot base as a ROS 2 robot over DDS (/odom, /scan, /tf out, /cmd_vel in), not a "
                         "serial port; this machine only unless discovery=subnet (docs/hardware.md, Robots)")
-    p.add_argument("--link-dir", type=Path, help="directory for the pty symlinks (default: a new temp dir)")
+    p.add_argument("--link-dir", type=path, help="directory for the pty symlinks (default: a new temp dir)")
     p.set_defaults(func=cmd_emulate)
 
 

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
-from rfhoming.cli.args import output_file
+from rfhoming.cli.args import output_file, path
 from rfhoming.protocol.errors import Error
 
 PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
@@ -59,9 +58,9 @@ def cmd_export(args: argparse.Namespace) -> int:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="a run log and/or capture -> MCAP with ROS 2 messages",
                        description=EXPORT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("run", type=Path, metavar="RUN", help="the run log (run.jsonl), or a pcapng capture alone")
-    p.add_argument("--capture", type=Path, help="the run's pcapng capture (odometry, scans, raw readings)")
+    p.add_argument("run", type=path, metavar="RUN", help="the run log (run.jsonl), or a pcapng capture alone")
+    p.add_argument("--capture", type=path, help="the run's pcapng capture (odometry, scans, raw readings)")
     p.add_argument("-o", "--output", type=output_file, required=True, help="MCAP file to write")
-    p.add_argument("--config", type=Path, help="the run's TOML config, for where the sensors sit on the robot "
+    p.add_argument("--config", type=path, help="the run's TOML config, for where the sensors sit on the robot "
                    "([mounting]; default: all at its centre)")
     p.set_defaults(func=cmd_export)

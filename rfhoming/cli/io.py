@@ -10,10 +10,9 @@ import logging
 import signal
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
-from rfhoming.cli.args import nonnegative_float, output_file, positive_float, positive_int
+from rfhoming.cli.args import baud, delay, duration, nonempty, output_file, path, speed
 from rfhoming.cli.live import add_foxglove_option, add_ros2_option, start_foxglove, start_ros2
 from rfhoming.host import losses
 from rfhoming.host.capture import CaptureWriter, describe_dialects
@@ -246,9 +245,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                            "pcapng file (one interface per device; opens in tshark/Wireshark).\n\n"
                            "example:\n  rfhoming capture /tmp/rfhoming-x/aoa base:/tmp/rfhoming-x/base -o run.pcapng",
                            formatter_class=raw)
-        p.add_argument("ports", nargs="+", metavar="PORT", help=ENDPOINT_HELP)
+        p.add_argument("ports", type=nonempty, nargs="+", metavar="PORT", help=ENDPOINT_HELP)
         add_port_defaults(p)
-        p.add_argument("--duration", type=positive_float, help="stop after this many seconds")
+        p.add_argument("--duration", type=duration, help="stop after this many seconds")
         p.add_argument("--json", action="store_true", help="one JSON object per item")
         add_ros2_option(p, "the decoded readings")
         if name == "capture":
@@ -261,17 +260,17 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("replay", help="replay a pcapng capture through the drivers, or on ptys",
                        description=REPLAY_HELP, formatter_class=raw)
-    p.add_argument("capture", type=Path, help="the pcapng file (from rfhoming capture or run --capture)")
-    p.add_argument("--speed", type=nonnegative_float, default=0.0, help="1 = recorded pace, 0 = as fast as possible (default)")
+    p.add_argument("capture", type=path, help="the pcapng file (from rfhoming capture or run --capture)")
+    p.add_argument("--speed", type=speed, default=0.0, help="1 = recorded pace, 0 = as fast as possible (default)")
     p.add_argument("--json", action="store_true", help="one JSON object per item")
     p.add_argument("--pty", action="store_true", help="serve the capture on pseudo-terminals")
     p.add_argument("--partial", action="store_true",
                    help="on a malformed block, replay what was readable before it instead of refusing")
-    p.add_argument("--link-dir", type=Path, help="with --pty: directory for the pty symlinks")
-    p.add_argument("--start-delay", type=nonnegative_float, default=1.0,
+    p.add_argument("--link-dir", type=path, help="with --pty: directory for the pty symlinks")
+    p.add_argument("--start-delay", type=delay, default=1.0,
                    help="with --pty: seconds to wait before playing, so consumers can open the ptys (default 1)")
     p.add_argument("--run", action="store_true", help="run the recorded homing loop again on the capture's bytes")
-    p.add_argument("--config", type=Path, help="with --run: this config instead of the recorded one")
+    p.add_argument("--config", type=path, help="with --run: this config instead of the recorded one")
     p.add_argument("--controller", choices=CONTROLLERS, help="with --run: this controller instead of the recorded one")
     p.add_argument("--log", type=output_file, help="with --run: write the replayed run log here")
     p.set_defaults(func=cmd_replay)
@@ -279,7 +278,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 def add_port_defaults(p: argparse.ArgumentParser) -> None:
     """--baud, --flow and --probe-baud: defaults for every port whose spec does not set its own."""
-    p.add_argument("--baud", type=positive_int, metavar="RATE",
+    p.add_argument("--baud", type=baud, metavar="RATE",
                    help="serial rate for ports whose spec gives no baud= (default 115200)")
     p.add_argument("--flow", choices=("auto", "rtscts", "none"),
                    help="RTS/CTS for ports whose spec gives no flow=: auto (default) = on for the XPLR-AOA "

@@ -12,7 +12,7 @@ import time
 from collections.abc import Iterable
 from typing import Any, TextIO
 
-from rfhoming.cli.args import nonnegative_float
+from rfhoming.cli.args import delay, nonempty, tcp_port
 from rfhoming.host.drivers.robot_base import BaseDriver
 from rfhoming.host.portspec import PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
@@ -30,10 +30,10 @@ WAIT_S = 60.0
 
 def add_watch_options(p: argparse.ArgumentParser) -> None:
     """The demo's options for a person watching: wait for the viewer, stay up after the run."""
-    p.add_argument("--wait-viewer", type=nonnegative_float, default=WAIT_S, metavar="S",
+    p.add_argument("--wait-viewer", type=delay, default=WAIT_S, metavar="S",
                    help=f"with --foxglove: start the run when a viewer subscribes, or after S seconds "
                    f"(default {WAIT_S:g}; 0 = at once)")
-    p.add_argument("--linger", type=nonnegative_float, default=math.inf, metavar="S",
+    p.add_argument("--linger", type=delay, default=math.inf, metavar="S",
                    help="with --foxglove: keep the view up S seconds after the run (default: until Ctrl-C)")
 
 
@@ -61,7 +61,7 @@ def linger(view: Any, seconds: float, out: TextIO = sys.stderr) -> None:
 
 
 def add_foxglove_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--foxglove", nargs="?", const=DEFAULT_PORT, type=int, metavar="PORT", help=FOXGLOVE_HELP)
+    p.add_argument("--foxglove", nargs="?", const=DEFAULT_PORT, type=tcp_port, metavar="PORT", help=FOXGLOVE_HELP)
 
 
 def start_foxglove(args: argparse.Namespace, command: str, out: TextIO = sys.stderr, host: str = "127.0.0.1") -> Any:
@@ -94,7 +94,7 @@ BASE_TOPICS = frozenset({"/odom", "/scan", "/tf"})
 
 
 def add_ros2_option(p: argparse.ArgumentParser, what: str) -> None:
-    p.add_argument("--ros2", nargs="?", const="", metavar="domain=N[,discovery=subnet]",
+    p.add_argument("--ros2", type=nonempty, nargs="?", const="", metavar="domain=N[,discovery=subnet]",
                    help=f"publish {what} live on ROS 2 domain N (default 0): the MCAP recording's topics and "
                         "types, REP 105 frames, stamped on this host's clock; the loop's commands on "
                         "/rfhoming/cmd_vel; this machine only unless discovery=subnet; needs the ros and ros2 extras")

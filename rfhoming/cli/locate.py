@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.cli.args import output_file, positive_float
+from rfhoming.cli.args import accel_psd, duration, from_spec, height_sigma, output_file, path, rate_hz, tag_height
 from rfhoming.cli.io import _run_until, add_port_defaults
 from rfhoming.host import losses
 from rfhoming.cli.live import add_ros2_option, ros2_publisher
@@ -378,20 +378,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             ("locate", "positions of tags from a site's fixed AoA anchors", LOCATE_HELP),
             ("calibrate", "fit each fixed anchor's angle corrections from known points", CALIBRATE_HELP)):
         p = sub.add_parser(name, help=helptext, description=description, formatter_class=raw)
-        p.add_argument("site", type=Path, help="site file (TOML): anchors, their poses and ports, tags")
-        p.add_argument("--from", dest="sources", action="append", metavar="SPEC",
+        p.add_argument("site", type=path, help="site file (TOML): anchors, their poses and ports, tags")
+        p.add_argument("--from", dest="sources", type=from_spec, action="append", metavar="SPEC",
                        help="read these ports instead of the site's (repeatable), e.g. capture:run.pcapng")
-        p.add_argument("--duration", type=positive_float, help="stop after this many seconds (a capture ends by itself)")
+        p.add_argument("--duration", type=duration, help="stop after this many seconds (a capture ends by itself)")
         add_port_defaults(p)
         if name == "locate":
             p.add_argument("--capture", type=output_file, help="also record every anchor's bytes to this pcapng file")
             p.add_argument("-o", "--output", type=output_file, help="write the JSON lines here instead of stdout")
-            p.add_argument("--rate", type=positive_float, help="positions per second per tag (default: the site's rate_hz)")
+            p.add_argument("--rate", type=rate_hz, help="positions per second per tag (default: the site's rate_hz)")
             p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
             p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
                            help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
                                 "pair updates the track as it arrives (more accurate, ~3x the CPU: docs/BENCHMARKS.md)")
-            p.add_argument("--accel-psd", type=positive_float, default=1.0,
+            p.add_argument("--accel-psd", type=accel_psd, default=1.0,
                            help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
             p.add_argument("--smooth", action="store_true",
                            help="recordings only (--from capture:): RTS-smooth each tag's fixes over the whole "
@@ -399,7 +399,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--loss", choices=("huber", "cauchy"), default="huber",
                            help="the fix's robust loss: huber (default; one bad anchor left out) or cauchy "
                                 "(every anchor kept, each down-weighted by its miss)")
-            p.add_argument("--height-sigma", type=positive_float, metavar="M",
+            p.add_argument("--height-sigma", type=height_sigma, metavar="M",
                            help="a tag's known height is a prior of this sigma (m), not a constraint")
             from rfhoming.cli.site import add_worker_arguments
 
@@ -408,7 +408,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                "PointStamped on /rfhoming/tag_<ID>/pose and /point, in map)")
             p.set_defaults(func=cmd_locate)
         else:
-            p.add_argument("--points", type=Path, help="TOML: [points] TAGID = [x, y, z] and/or [[dwell]] tables")
+            p.add_argument("--points", type=path, help="TOML: [points] TAGID = [x, y, z] and/or [[dwell]] tables")
             p.add_argument("--self", dest="self_calibrate", action="store_true",
                            help="no known points: fit each anchor's azimuth scale and bias from tags moving over "
                                 "the whole room (give the recordings with --from capture:FILE)")
@@ -418,7 +418,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                            help="the boards' angle model; auto (default): with --points the one with the smaller "
                                 "residual, with --self each anchor's winner on held-out epochs (spherical, cone, "
                                 "each with |azimuth| compression) if it beats the site file's by 3 percent")
-            p.add_argument("--height", type=positive_float, metavar="M",
+            p.add_argument("--height", type=tag_height, metavar="M",
                            help="--self: the height (m) of tags the site file gives none (else free about 1 m); "
                                 "elevation is fitted only from tags of known height")
             p.add_argument("--dry-run", action="store_true", help="report the fit, leave the site file alone")

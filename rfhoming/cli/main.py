@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import signal
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
 from rfhoming import __version__
+from rfhoming.cli.args import nonempty
 from rfhoming.cli.export import add_parser as add_export_parser
 from rfhoming.cli.io import add_parsers as add_io_parsers
 from rfhoming.cli.io import configure_logging
@@ -112,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="uconnect: XPLR-AOA u-connectLocate text; frames: rfhoming's COBS binary records (nodes and the "
         "robot base); the older names ublox-aoa and rss still work",
     )
-    decode.add_argument("file", nargs="?", default="-", help="input file, or - for stdin")
+    decode.add_argument("file", type=nonempty, nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=cmd_decode)
     dissector = sub.add_parser(
         "dissector",
@@ -120,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
         description=DISSECTOR_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    dissector.add_argument("-o", "--output", default="-", help="file to write (default: stdout)")
+    dissector.add_argument("-o", "--output", type=nonempty, default="-", help="file to write (default: stdout)")
     dissector.set_defaults(func=cmd_dissector)
     add_run_parsers(sub)
     add_io_parsers(sub)
@@ -154,12 +156,23 @@ def _add_site(sub: argparse._SubParsersAction) -> None:
     add_parsers(sub)
 
 
+def _as_ctrl_c(signum: int, frame: object) -> None:
+    """SIGTERM handled as SIGINT is: inside asyncio.run, its handler cancels the main task (which
+    nothing can swallow, unlike a KeyboardInterrupt raised in a finaliser); elsewhere Python's
+    raises KeyboardInterrupt. Where SIGINT is ignored (a background job), KeyboardInterrupt."""
+    if signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.SIG_DFL, None):
+        raise KeyboardInterrupt
+    signal.raise_signal(signal.SIGINT)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command. An rfhoming.Error (a port, a spec, a config, a file the user gave) or an
     OSError is one line and exit 2; anything else is a bug: one line saying so, exit 1, and
-    the traceback with --debug."""
+    the traceback with --debug. SIGTERM ends a command as Ctrl-C does, so that its clean-up runs
+    and stops the children it started (its default action would leave them running)."""
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
+    before = signal.signal(signal.SIGTERM, _as_ctrl_c)
     try:
         return args.func(args)
     except BrokenPipeError:  # e.g. piped into head
@@ -181,6 +194,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rfhoming {args.command}: internal error, a bug in rfhoming {__version__} ({type(exc).__name__}: "
               f"{exc}); please report it with the output of the same command run with --debug", file=sys.stderr)
         return 1
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 def serve_capture_on_ptys(args: argparse.Namespace) -> int:

@@ -9,7 +9,7 @@ import json
 import sys
 from pathlib import Path
 
-from rfhoming.cli.args import nonnegative_float, output_file, xy
+from rfhoming.cli.args import nonempty, output_file, output_folder, path, seed, speed, xy
 from rfhoming.cli.io import add_port_defaults
 from rfhoming.cli.live import (
     ExtraMissing,
@@ -245,11 +245,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     raw = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser("demo", help="emulator + host: a full homing run, a summary and a plot",
                        description=DEMO_HELP, formatter_class=raw)
-    p.add_argument("--scenario", default="s0-open", help="scenario preset (default s0-open)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the world (default 1)")
+    p.add_argument("--scenario", type=nonempty, default="s0-open", help="scenario preset (default s0-open)")
+    p.add_argument("--seed", type=seed, default=1, help="seed of the world (default 1)")
     p.add_argument("--target", type=xy, help="tag position X,Y, e.g. --target=-6,4 (default: random per seed)")
-    p.add_argument("--out", type=Path, default=Path("rfhoming-demo"), help="output folder (default ./rfhoming-demo)")
-    p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
+    p.add_argument("--out", type=output_folder, default=Path("rfhoming-demo"), help="output folder (default ./rfhoming-demo)")
+    p.add_argument("--config", type=path, help="TOML config (see rfhoming config --print-default)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--receiver", choices=("esp32", "esp-at", "hci"),
                    help="s3-arena: the robot's BLE RSSI receiver -- esp32 (rfhoming frames, default), esp-at "
@@ -257,7 +257,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
     p.add_argument("--in-process", action="store_true",
                    help="the emulator in this process on its byte pipe: the same summary for the same seed")
-    p.add_argument("--speed", type=nonnegative_float, metavar="N", help="simulated seconds per wall second (0: lockstep, as "
+    p.add_argument("--speed", type=speed, metavar="N", help="simulated seconds per wall second (0: lockstep, as "
                    "fast as the host answers); default 1 with --foxglove, else 0")
     add_foxglove_option(p)
     add_watch_options(p)
@@ -265,24 +265,24 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
                        description=RUN_HELP, formatter_class=raw)
-    p.add_argument("--aoa", metavar="SPEC", help="the XPLR-AOA, for --controller aoa and dock: a port spec "
+    p.add_argument("--aoa", type=nonempty, metavar="SPEC", help="the XPLR-AOA, for --controller aoa and dock: a port spec "
                    "WHERE[,baud=,flow=,tags=] (e.g. /dev/ttyUSB0,baud=1000000); settings it leaves out come "
                    "from the config's [devices.aoa]")
-    p.add_argument("--rss", metavar="SPEC", help="the four-dish AT86RF212 node, for --controller rss")
-    p.add_argument("--ble", metavar="SPEC", help="the BLE RSSI receiver, for --controller trilat: an ESP32 "
+    p.add_argument("--rss", type=nonempty, metavar="SPEC", help="the four-dish AT86RF212 node, for --controller rss")
+    p.add_argument("--ble", type=nonempty, metavar="SPEC", help="the BLE RSSI receiver, for --controller trilat: an ESP32 "
                    "scanner (rss-node:PATH), an ESP32 with ESP-AT (esp-at:PATH) or an HCI controller (hci:usb:0)")
-    p.add_argument("--base", metavar="SPEC", help="the robot base (e.g. /dev/ttyACM0,baud=115200)")
+    p.add_argument("--base", type=nonempty, metavar="SPEC", help="the robot base (e.g. /dev/ttyACM0,baud=115200)")
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
                         "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
                         "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal), "
                         "anchors (fixed XPLR-AOA anchors of --site locate the robot's own tag and the target's)")
-    p.add_argument("--tag", action="append", default=[], metavar="ID",
+    p.add_argument("--tag", type=nonempty, action="append", default=[], metavar="ID",
                    help="the tag to home on (12 hex digits; repeat or join with + for several ids of one "
                         "target). Without it, run listens for 2 s and homes on the only tag in view, or "
                         "stops and lists the tags it hears. Same as tags= in the --aoa spec")
-    p.add_argument("--site", type=Path, help="site file for --controller anchors (see rfhoming locate --help)")
-    p.add_argument("--config", type=Path, help="TOML config (see rfhoming config --print-default)")
+    p.add_argument("--site", type=path, help="site file for --controller anchors (see rfhoming locate --help)")
+    p.add_argument("--config", type=path, help="TOML config (see rfhoming config --print-default)")
     add_port_defaults(p)
     p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command")
     p.add_argument("--capture", type=output_file, help="pcapng capture of every byte")
@@ -294,5 +294,5 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("config", help="print the default config, or check a config file")
     group = p.add_mutually_exclusive_group(required=True)
     group.add_argument("--print-default", action="store_true", help="print the commented default TOML")
-    group.add_argument("--check", type=Path, metavar="FILE", help="check a config file")
+    group.add_argument("--check", type=path, metavar="FILE", help="check a config file")
     p.set_defaults(func=cmd_config)

@@ -7,7 +7,7 @@ import asyncio
 import json
 import sys
 
-from rfhoming.cli.args import output_file, positive_float, positive_int
+from rfhoming.cli.args import duration, nonempty, output_file, queue_lines, tcp_port
 from rfhoming.cli.io import (
     ENDPOINT_HELP,
     _run_until,
@@ -100,15 +100,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("serve", help="own the devices and serve their items to many clients (gpsd-style)",
                        description=SERVE_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("ports", nargs="+", metavar="PORT", help=ENDPOINT_HELP)
+    p.add_argument("ports", type=nonempty, nargs="+", metavar="PORT", help=ENDPOINT_HELP)
     add_port_defaults(p)
-    p.add_argument("--bind", action="append", metavar="ADDR",
+    p.add_argument("--bind", type=nonempty, action="append", metavar="ADDR",
                    help="address to listen on (default 127.0.0.1; repeat for several, 0.0.0.0 for all)")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"TCP port (default {DEFAULT_PORT}; 0 = any free)")
-    p.add_argument("--queue", type=positive_int, default=QUEUE_LINES, metavar="LINES",
+    p.add_argument("--port", type=tcp_port, default=DEFAULT_PORT, help=f"TCP port (default {DEFAULT_PORT}; 0 = any free)")
+    p.add_argument("--queue", type=queue_lines, default=QUEUE_LINES, metavar="LINES",
                    help=f"items held for a slow client before its newest are dropped (default {QUEUE_LINES})")
     p.add_argument("-o", "--output", type=output_file, help="also capture every byte of the devices to this pcapng file")
-    p.add_argument("--duration", type=positive_float, help="stop after this many seconds")
+    p.add_argument("--duration", type=duration, help="stop after this many seconds")
     add_foxglove_option(p)
     add_ros2_option(p, "the devices' readings")
     p.set_defaults(func=cmd_serve)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
 import threading
@@ -17,7 +18,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rfhoming.cli.args import nonnegative_float, positive_float
+from rfhoming.cli.args import broker_url, bus_name, duration, flush_s, nonempty, path, rate_hz, reorder_s, seed
 from rfhoming.cli.io import add_port_defaults
 from rfhoming.host import site as site_file
 from rfhoming.host.site import Anchor, Site
@@ -65,6 +66,10 @@ def emulated_site(name: str, seed: int) -> Site:
 
 def resolve_site(text: str, seed: int) -> Site:
     return site_file.load(text) if Path(text).suffix == ".toml" else emulated_site(text, seed)
+
+
+STOP_CHECK_S = 0.2
+"""How long a gateway waits on its socket before it looks at the stop event again."""
 
 
 def _stop_on_signals() -> threading.Event:
@@ -150,10 +155,12 @@ def _emulated_gateways(args: argparse.Namespace) -> int:
     start = t0 = time.time()  # at once, broker or not: what it cannot take waits in the buffer
     cpu0 = time.process_time()
     behind = 0
+    end = math.inf if args.duration is None else start + args.duration
     try:
-        while not stop.is_set() and (args.duration is None or t0 < start + args.duration):
-            while (left := t0 + args.flush - time.time()) > 0 and not stop.is_set():
-                pub.service(left)
+        while not stop.is_set() and t0 < end:
+            # the socket served in slices, so that --duration and a signal end the wait promptly
+            while (left := min(t0 + args.flush, end) - time.time()) > 0 and not stop.is_set():
+                pub.service(min(left, STOP_CHECK_S))
             t1 = time.time() if args.duration is None else min(time.time(), start + args.duration)
             for g, (t, a, k, az, el) in sc.columns(t0, t1).items():
                 gw = gws[g]
@@ -211,31 +218,31 @@ def cmd_worker(args: argparse.Namespace) -> int:
 def add_worker_arguments(p: argparse.ArgumentParser) -> None:
     """The worker's options on ``locate`` (used with --from mqtt:// only)."""
     w = p.add_argument_group("site worker (with --from mqtt://BROKER[/PARTITIONS])", WORKER_HELP)
-    w.add_argument("--id", default="w1", help="this worker's name among the site's workers (default w1)")
-    w.add_argument("--reorder", type=nonnegative_float, default=0.02, metavar="S",
+    w.add_argument("--id", type=bus_name, default="w1", help="this worker's name among the site's workers (default w1)")
+    w.add_argument("--reorder", type=reorder_s, default=0.02, metavar="S",
                    help="seconds a tick waits for late batches (default 0.02)")
-    w.add_argument("--seed", type=int, default=1, help="an emulated site's seed (default 1)")
-    w.add_argument("--ca", metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
+    w.add_argument("--seed", type=seed, default=1, help="an emulated site's seed (default 1)")
+    w.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     g = sub.add_parser("gateway", help="a site gateway: its anchors' angle events to an MQTT broker",
                        description=GATEWAY_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    g.add_argument("--device", action="append", metavar="SPEC",
+    g.add_argument("--device", type=nonempty, action="append", metavar="SPEC",
                    help="an anchor's port, e.g. xplr-aoa:/dev/ttyUSB0 (repeatable; docs/usage.md, port specs)")
-    g.add_argument("--site", type=Path, metavar="FILE", help="a site file: its anchors' ports (unless --device), "
+    g.add_argument("--site", type=path, metavar="FILE", help="a site file: its anchors' ports (unless --device), "
                    "its name for the topics")
-    g.add_argument("--emulate", metavar="site-NxM", help="every gateway of an emulated site (e.g. site-64x1000)")
-    g.add_argument("--broker", required=True, metavar="URL", help="mqtt://HOST[:PORT][/PARTITIONS] (mqtts:// = TLS)")
-    g.add_argument("--site-name", help="the SITE of the topics (default: the site file's or scenario's name)")
-    g.add_argument("--name", help="this gateway's name on the bus (default: the host name)")
-    g.add_argument("--seed", type=int, default=1, help="--emulate: the scenario's seed (default 1)")
-    g.add_argument("--tag-rate", type=positive_float, default=10.0, metavar="HZ",
+    g.add_argument("--emulate", type=nonempty, metavar="site-NxM", help="every gateway of an emulated site (e.g. site-64x1000)")
+    g.add_argument("--broker", type=broker_url, required=True, metavar="URL", help="mqtt://HOST[:PORT][/PARTITIONS] (mqtts:// = TLS)")
+    g.add_argument("--site-name", type=bus_name, help="the SITE of the topics (default: the site file's or scenario's name)")
+    g.add_argument("--name", type=bus_name, help="this gateway's name on the bus (default: the host name)")
+    g.add_argument("--seed", type=seed, default=1, help="--emulate: the scenario's seed (default 1)")
+    g.add_argument("--tag-rate", type=rate_hz, default=10.0, metavar="HZ",
                    help="--emulate: each tag's rate (default 10)")
-    g.add_argument("--flush", type=positive_float, default=0.02, metavar="S",
+    g.add_argument("--flush", type=flush_s, default=0.02, metavar="S",
                    help="seconds between a gateway's batches (default 0.02)")
-    g.add_argument("--duration", type=positive_float, help="stop after this many seconds")
-    g.add_argument("--ca", metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
+    g.add_argument("--duration", type=duration, help="stop after this many seconds")
+    g.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
     add_port_defaults(g)
     g.set_defaults(func=cmd_gateway)
 
