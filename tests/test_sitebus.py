@@ -654,6 +654,27 @@ def test_a_batch_the_decoder_passes_but_numpy_refuses_is_counted_not_raised(monk
     assert worker.counters["unfed"] == 1 and worker.engine.counters["events"] == 4
 
 
+def test_a_stream_of_new_gateway_names_does_not_grow_the_worker(monkeypatch) -> None:
+    """A gateway name is whatever a batch says: a worker keeps the clock offset and sequence
+    numbers of MAX_GATEWAYS at most, forgetting the one heard from least lately (counted), and
+    still takes every batch. Old code: one entry per name ever seen, without end (about 5 kB
+    of offset samples each: a million names of garbage, gigabytes)."""
+    import rfhoming.host.sitebus as bus
+
+    monkeypatch.setattr(bus, "MAX_GATEWAYS", 8, raising=False)
+    sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
+    worker = _worker(sc)
+    a = sc.anchors[0].id
+    worker._inbox.extend((10.0, "rfhoming/w/angles/0", sitebus.encode_angles(f"gw{k}", 0, 10.0, 0.0,
+                                                                             [(10.0, a, "T1", 5, 5)]))
+                         for k in range(50))
+    worker._drain()
+    assert worker.counters["batches"] == 50 and worker.engine.counters["events"] == 50
+    assert len(worker._min_delay) <= 8 and len(worker._seq) <= 8
+    assert list(worker._min_delay) == [f"gw{k}" for k in range(42, 50)]  # the most lately heard kept
+    assert worker.counters["gateways_forgotten"] == 42
+
+
 @pytest.mark.skipif(not PASSWD, reason="mosquitto_passwd not installed (Debian's mosquitto package)")
 @needs_broker
 def test_a_refused_login_is_tried_again_with_back_off(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
