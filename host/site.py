@@ -68,14 +68,24 @@ class Calibration:
     az_compression: float = 0.0
 
     def correct(self, azimuth_deg: float, elevation_deg: float) -> tuple[float, float]:
-        """The true (azimuth, elevation) of reported ones: compress() inverted by Newton steps
-        (monotonic on +-90 for |c| < 1/3, which the limits keep)."""
+        """The true (azimuth, elevation) of reported ones (compress() undone: :func:`uncompress`)."""
         u = (azimuth_deg - self.az_bias_deg) / self.az_scale
-        a, c = u, self.az_compression
-        if c:
-            for _ in range(4):
-                a -= (a * (1 - c * (a / 90) ** 2) - u) / (1 - 3 * c * (a / 90) ** 2)
+        a = float(uncompress(u, self.az_compression)) if self.az_compression else u
         return a, (elevation_deg - self.el_bias_deg) / self.el_scale
+
+
+def uncompress(u: Any, c: float) -> Any:
+    """The true azimuth(s) (degrees, a float or an array) whose ``compress`` is ``u``, by Newton
+    steps (compress is monotonic on +-90 for |c| < 1/3, which the limits keep). compress maps +-90
+    to +-90 (1 - c): a reading beyond that (noise at the edge of a board that reads short) has no
+    true azimuth on the board's half-space and is taken as +-90 -- Newton from there runs off
+    past 90 degrees, or back toward the middle."""
+    edge = 90.0 * (1.0 - c)
+    u = np.clip(u, -edge, edge)
+    a = u
+    for _ in range(6):  # 1e-9 deg at the limits' c = +-0.3, from a = u
+        a = a - (a * (1 - c * (a / 90) ** 2) - u) / (1 - 3 * c * (a / 90) ** 2)
+    return np.clip(a, -90.0, 90.0)
 
 
 @dataclass(frozen=True)

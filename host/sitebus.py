@@ -46,6 +46,11 @@ INBOX_MESSAGES = 100_000
 OFFSET_SAMPLES = 200
 """Batches per gateway over which the worker takes the minimum delay (its clock-offset estimate)."""
 
+MAX_GATEWAYS = 4096
+"""Gateways a worker keeps a clock offset and sequence numbers of; past it the one heard from
+least lately is forgotten (counted): a gateway name is whatever a message says, and a stream of
+new ones (garbage, or a gateway renamed at each start) must not grow the worker without end."""
+
 
 READ_BURST = 1000
 """Packets :meth:`Publisher.service` reads at most per call (paho's own loop reads one)."""
@@ -372,7 +377,8 @@ class Worker:
         self.latencies: collections.deque[float] = collections.deque(maxlen=200_000)
         self.tick_late: collections.deque[float] = collections.deque(maxlen=200_000)
         self.counters = {"batches": 0, "events": 0, "bad_payload": 0, "unfed": 0, "lost_batches": 0,
-                         "inbox_dropped": 0, "positions": 0, "other_partition": 0, "handovers": 0}
+                         "inbox_dropped": 0, "positions": 0, "other_partition": 0, "handovers": 0,
+                         "gateways_forgotten": 0}
         self._me = sitebus.workers_topic(site.name, worker_id)
         self.pub = Publisher(broker, f"rfhoming-worker-{worker_id}", will=(self._me, b"offline"), ca_file=ca_file,
                              threaded=False)
@@ -437,14 +443,16 @@ class Worker:
                 continue
             self.counters["batches"] += 1
             key = (batch.gateway, topic)
-            last = self._seq.get(key)
+            last = self._seq.pop(key, None)
             if last is not None and batch.seq > last + 1:
                 self.counters["lost_batches"] += batch.seq - last - 1
-            self._seq[key] = batch.seq
+            self._seq[key] = batch.seq  # (re)inserted: the dicts run from least to most lately heard
             # clock: worker time = gateway time + the least (receive - sent) seen lately, which is the
             # true offset plus the least network delay (NTP's minimum filter; docs/protocol.md)
-            delays = self._min_delay.setdefault(batch.gateway, collections.deque(maxlen=OFFSET_SAMPLES))
+            delays = self._min_delay.pop(batch.gateway, None) or collections.deque(maxlen=OFFSET_SAMPLES)
+            self._min_delay[batch.gateway] = delays
             delays.append(recv - (batch.sent - batch.offset_s))
+            self._forget_gateways()
             batches.append(batch)
             bases.append(batch.t0 + min(delays) - batch.offset_s)
         if not batches:
@@ -463,6 +471,15 @@ class Worker:
                         "dropped a batch of %s the decoder passed (%s: %s); further ones are counted", batch.gateway,
                         type(exc).__name__, exc)
                     self.counters["unfed"] += 1
+
+    def _forget_gateways(self) -> None:
+        """Past MAX_GATEWAYS, forget the gateway heard from least lately (its offset and sequences)."""
+        while len(self._min_delay) > MAX_GATEWAYS:
+            gone = next(iter(self._min_delay))
+            del self._min_delay[gone]
+            self.counters["gateways_forgotten"] += 1
+        while len(self._seq) > MAX_GATEWAYS * max(1, len(self.owned)):
+            del self._seq[next(iter(self._seq))]
 
     def _feed(self, batches: list[sitebus.AngleBatch], bases: list[float]) -> None:
         sizes = np.array([len(b.dt_us) for b in batches])

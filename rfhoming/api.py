@@ -259,9 +259,9 @@ class Devices(Generic[ItemT]):
                 async for got in self.stream():
                     while not self._hand_over(out, got):
                         await asyncio.sleep(HAND_OVER_WAIT)
-                out.put(("end", None))
+                await self._hand_last(out, ("end", None))
             except BaseException as exc:  # handed to the caller's thread below
-                out.put(("error", exc))
+                await self._hand_last(out, ("error", exc))
 
         def run() -> None:
             self._loop = asyncio.new_event_loop()
@@ -295,6 +295,18 @@ class Devices(Generic[ItemT]):
                 return False
             self.dropped += 1
         return True
+
+    async def _hand_last(self, out: queue.Queue[tuple[str, Any]], last: tuple[str, Any]) -> None:
+        """The end (or the error) for a caller who still reads; nothing for one who has left
+        (``close``): a full queue would otherwise hold this thread, and its devices, forever."""
+        while True:
+            try:
+                out.put_nowait(last)
+                return
+            except queue.Full:
+                if self._stop is not None and self._stop.is_set():
+                    return
+                await asyncio.sleep(HAND_OVER_WAIT)
 
     def close(self) -> None:
         """Stop the stream and close the devices (also on leaving ``with``)."""

@@ -13,6 +13,7 @@ import math
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import numpy as np
 import pytest
 
 import rfhoming
+import rfhoming.api
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.estimation.anchors3d import board_angles
@@ -185,3 +187,34 @@ def test_a_gateway_on_a_capture_publishes_every_event(long_capture, tmp_path):
     finally:
         broker.terminate()
         broker.wait(30)
+
+
+def test_leaving_a_capture_early_ends_its_thread(tmp_path, monkeypatch):
+    """A caller who stops reading while its queue is full (a recording waits for it, so it is
+    full whenever the caller is the slower) must not leave the devices' thread blocked on that
+    queue. Old code: the pump's blocking put of the end never returned; close() waited its 5 s,
+    and the thread (with the capture open) was left behind for good."""
+    monkeypatch.setattr(rfhoming.api, "QUEUE_SIZE", 20)
+    path = tmp_path / "short.pcapng"
+    writer = CaptureWriter(path)
+    writer.describe("a", kind="xplr-aoa")
+    for k in range(500):
+        writer.tap("a", "in", 1000 + k * 0.01, f'+UUDF:CCF9578E0D8A,-42,{k % 90},10,-43,37,"A","",{k}\r\n'.encode())
+    writer.close()
+    devices = rfhoming.open(f"capture:{path}", kinds={"angle"})
+    full = threading.Event()
+    hand_over = devices._hand_over
+
+    def watched(out, got):
+        taken = hand_over(out, got)
+        if not taken:
+            full.set()  # the caller's queue is full: the recording waits for the caller
+        return taken
+
+    devices._hand_over = watched
+    for _ in devices:
+        assert full.wait(60), "the caller's queue never filled"
+        break
+    assert devices._thread is not None
+    devices._thread.join(timeout=30)  # a generous bound: the fixed code ends at once
+    assert not devices._thread.is_alive()

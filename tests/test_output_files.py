@@ -34,6 +34,12 @@ class FullDisk(io.RawIOBase):
     def writable(self) -> bool:
         return True
 
+    def seekable(self) -> bool:  # as a file on a disk is (the mcap writer asks where it is)
+        return True
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return self._file.seek(offset, whence)
+
     def write(self, data) -> int:
         if len(data) > self.room:
             raise OSError(errno.ENOSPC, "No space left on device")
@@ -157,3 +163,38 @@ def test_a_run_log_on_a_full_disk(tmp_path):
     log = RunLog(open(FULL, "w"))
     with pytest.raises(outputs.WriteFailed, match="cannot write /dev/full: No space left on device; nothing of it"):
         log.write("event", 0.0)
+
+
+def test_a_live_recording_on_a_full_disk_stops_feeding_the_mcap_writer(tmp_path, caplog):
+    """A run goes on when its MCAP cannot be written; the recorder must then hand the mcap
+    writer nothing more. Old code: every later message went into the writer's open chunk (which
+    its failed write never reset) and every second's flush compressed that ever-growing chunk
+    again: memory without bound and a loop that slows for the rest of the run. The close ends
+    without raising and the messages are counted as skipped."""
+    pytest.importorskip("mcap_ros2")
+    from rfhoming.host.export.recorder import McapRecorder
+
+    recorder = McapRecorder(FullDisk(tmp_path / "run.mcap", 20_000), clock="host")
+    handed = {"add_message": 0, "flush": 0}
+    for name in handed:
+        real = getattr(recorder.writer, name)
+
+        def counting(*args, _real=real, _name=name, **kwargs):
+            handed[_name] += 1
+            return _real(*args, **kwargs)
+
+        setattr(recorder.writer, name, counting)
+    record = {"kind": "measurement", "source": "aoa", "theta": 0.3, "azimuth": 12, "rssi": -50}
+    with caplog.at_level(logging.ERROR):
+        k = 0
+        while recorder.write_error is None:
+            recorder.on_runlog({**record, "t": k * 0.01})
+            k += 1
+            assert k < 100_000, "the file never filled"
+        handed_at_error = dict(handed)
+        for j in range(k, k + 2000):  # 20 s more of the run
+            recorder.on_runlog({**record, "t": j * 0.01})
+        assert handed == handed_at_error
+        recorder.close()  # ends the run's recording without raising
+    assert recorder.summary()["skipped"]["write error"] >= 2000
+    assert sum("cannot write" in r.getMessage() for r in caplog.records) == 1

@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,7 @@ from rfhoming.emulator.site import SiteScenario, SiteScenarioError
 from rfhoming.host.estimation.anchors3d import Degenerate, locate, make_ray, rotation
 from rfhoming.host.estimation.batch import BatchLocator, fix_batch
 from rfhoming.host.locate import Locator
-from rfhoming.host.site import Anchor, Site
+from rfhoming.host.site import Anchor, Calibration, Site
 from rfhoming.protocol import sitebus
 from rfhoming.protocol.uconnect.items import AngleEvent
 
@@ -224,6 +225,30 @@ def test_batch_locator_equals_the_per_tag_locator() -> None:
     truth = sc.truth(t)
     err = [np.linalg.norm(f.fix.point - truth[int(tag[1:])]) for tag, f in mine.items()]
     assert np.median(err) < 0.5
+
+
+def test_batch_locator_corrects_compression_as_the_per_tag_locator() -> None:
+    """A site calibrated with |azimuth| compression (calibrate --self writes it): a worker's
+    BatchLocator places the tags where locate's Locator does. Old code: BatchLocator applied
+    each anchor's scale and bias but not its compression, so a worker's positions differed."""
+    sc = SiteScenario(8, 20, seed=5, clock_spread_s=0.0)
+    cal = Calibration(az_scale=1.05, az_bias_deg=2.0, az_compression=0.2)
+    site = _site(sc)
+    site = replace(site, anchors=tuple(replace(a, calibration=cal) for a in site.anchors))
+    rows = sorted(r for rs in sc.events(10.0, 12.0).values() for r in rs)
+    loc = Locator(site, track=False, reorder_s=0.0)
+    ref = []
+    for t, a, tag, az, el in rows:
+        ref += loc.feed(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0))
+    ref += loc.flush()
+    batch = BatchLocator(site)
+    batch.feed(rows)
+    t = sorted({p.t for p in ref})[-3]
+    mine = {f.tag: f for f in batch.tick(t)}
+    theirs = {p.tag: p for p in ref if p.t == t}
+    assert set(mine) == set(theirs) and len(mine) == 20
+    for tag, p in theirs.items():
+        np.testing.assert_allclose(mine[tag].fix.point, p.point, atol=1e-6)
 
 
 # -- against a real broker -----------------------------------------------------------------------------
@@ -645,6 +670,27 @@ def test_a_batch_the_decoder_passes_but_numpy_refuses_is_counted_not_raised(monk
     worker._drain()
     assert worker.counters["batches"] == 3 and worker.counters["bad_payload"] == 1
     assert worker.counters["unfed"] == 1 and worker.engine.counters["events"] == 4
+
+
+def test_a_stream_of_new_gateway_names_does_not_grow_the_worker(monkeypatch) -> None:
+    """A gateway name is whatever a batch says: a worker keeps the clock offset and sequence
+    numbers of MAX_GATEWAYS at most, forgetting the one heard from least lately (counted), and
+    still takes every batch. Old code: one entry per name ever seen, without end (about 5 kB
+    of offset samples each: a million names of garbage, gigabytes)."""
+    import rfhoming.host.sitebus as bus
+
+    monkeypatch.setattr(bus, "MAX_GATEWAYS", 8, raising=False)
+    sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
+    worker = _worker(sc)
+    a = sc.anchors[0].id
+    worker._inbox.extend((10.0, "rfhoming/w/angles/0", sitebus.encode_angles(f"gw{k}", 0, 10.0, 0.0,
+                                                                             [(10.0, a, "T1", 5, 5)]))
+                         for k in range(50))
+    worker._drain()
+    assert worker.counters["batches"] == 50 and worker.engine.counters["events"] == 50
+    assert len(worker._min_delay) <= 8 and len(worker._seq) <= 8
+    assert list(worker._min_delay) == [f"gw{k}" for k in range(42, 50)]  # the most lately heard kept
+    assert worker.counters["gateways_forgotten"] == 42
 
 
 @pytest.mark.skipif(not PASSWD, reason="mosquitto_passwd not installed (Debian's mosquitto package)")

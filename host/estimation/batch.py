@@ -27,7 +27,7 @@ from rfhoming.host.estimation.anchors3d import (
     locate,
     make_ray,
 )
-from rfhoming.host.site import Site
+from rfhoming.host.site import Site, uncompress
 
 SYSTEMATIC = 0.6
 """As host/locate.py: the part of an angle's error (of sigma_deg) a median does not average away."""
@@ -175,6 +175,7 @@ class BatchLocator:
         cal = [a.calibration if calibrated else None for a in anchors]
         self._bias = np.array([[c.az_bias_deg, c.el_bias_deg] if c else [0.0, 0.0] for c in cal])
         self._scale = np.array([[c.az_scale, c.el_scale] if c else [1.0, 1.0] for c in cal])
+        self._compression = np.array([c.az_compression if c else 0.0 for c in cal])
         self.two_sided = np.array([a.two_sided for a in anchors], bool)
         self.tag_index: dict[str, int] = {}
         self.tags: list[str] = []
@@ -277,6 +278,9 @@ class BatchLocator:
         self.counters["events"] += len(pid)
         ai = self._panchor[pid]
         ang = (np.stack([az, el], 1) - self._bias[ai]) / self._scale[ai]
+        compressed = self._compression[ai] != 0  # as Calibration.correct, so a worker places tags as locate does
+        if compressed.any():
+            ang[compressed, 0] = uncompress(ang[compressed, 0], self._compression[ai][compressed])
         # the slot of each event: its pair's next, plus its rank among the batch's events of that pair
         order = np.argsort(pid, kind="stable")
         sp = pid[order]

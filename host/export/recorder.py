@@ -43,6 +43,7 @@ inbound bytes go through the same decoders as live.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import json
 import logging
@@ -141,6 +142,8 @@ class McapRecorder(Sink):
                 self.write_error = exc
                 log.error("MCAP %s: cannot write: %s; %s; later messages are counted as skipped",
                           self.path, exc.strerror or exc, KEPT)
+                self.skipped["write error"] += len(self._held)  # never written now (_write)
+                self._held.clear()
             self.skipped["write error"] += 1
             return
         if not self.skipped[f"unwritable {kind}"]:
@@ -249,6 +252,9 @@ class McapRecorder(Sink):
     def _write(self, t: float, topic: str, typename: str, message: dict[str, Any], device: str = "") -> None:
         if self._closed:
             return
+        if self.write_error is not None:  # the mcap writer keeps what it failed to write: give it nothing more
+            self.skipped["write error"] += 1
+            return
         if not self._static_written:
             self._static_written = True
             self._write(t, *rosmsgs.transforms("/tf_static", t, self.static_transforms()))
@@ -292,18 +298,26 @@ class McapRecorder(Sink):
     def flush(self) -> None:
         """Finish the open chunk and hand the file everything so far: a crash after this loses
         nothing before it."""
-        self.writer.flush()  # ends the chunk (mcap >= 1.6)
+        if self.write_error is None:  # after one, the writer's chunk holds the failed write: not again
+            self.writer.flush()  # ends the chunk (mcap >= 1.6)
 
     def close(self) -> None:
+        """The held messages and the summary written, the file closed; after a write error only
+        closed (what is on disk stays as it is: KEPT)."""
         if self._closed:
             return
         self._closed = True
         try:
-            self._release(math.inf)
-            self.writer.finish()
+            if self.write_error is None:
+                self._release(math.inf)
+                self.writer.finish()
         finally:
             if self._file is not None:
-                self._file.close()
+                if self.write_error is None:
+                    self._file.close()
+                else:
+                    with contextlib.suppress(OSError):  # its buffer cannot be written either
+                        self._file.close()
 
     def summary(self) -> dict[str, Any]:
         return {"messages": sum(self.counts.values()), "topics": dict(sorted(self.counts.items())),
