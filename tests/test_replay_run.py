@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from stalls import reproducible
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -124,7 +125,7 @@ def test_a_run_takes_its_devices_from_a_capture_by_role(tmp_path: Path) -> None:
     done = rfhoming("run", "--aoa", f"capture:{capture}", "--base", f"capture:{capture},device=base",
                     "--log", str(tmp_path / "again.jsonl"))
     assert done.returncode == 0, done.stderr
-    assert (tmp_path / "again.jsonl").read_text() == (tmp_path / "run.jsonl").read_text()
+    assert reproducible((tmp_path / "again.jsonl").read_text()) == reproducible((tmp_path / "run.jsonl").read_text())
     wrong = rfhoming("run", "--aoa", f"capture:{capture},device=nope", "--base", f"capture:{capture}")
     assert wrong.returncode == 2 and "no device 'nope'" in wrong.stderr and "aoa" in wrong.stderr
     swapped = rfhoming("run", "--aoa", f"capture:{capture},device=base", "--base", f"capture:{capture}")
@@ -142,4 +143,4 @@ def test_a_run_with_spec_settings_replays_to_the_same_run_log(tmp_path: Path) ->
     assert run.returncode == 0, run.stderr
     done, log = replayed(tmp_path / "again.pcapng")
     assert json.loads(done.stdout)["replay"]["diverged"] == 0, done.stderr
-    assert log == (tmp_path / "again.jsonl").read_text().splitlines()
+    assert reproducible("\n".join(log)) == reproducible((tmp_path / "again.jsonl").read_text())
