@@ -161,10 +161,13 @@ def test_every_item_carries_its_wire_bytes(emulator) -> None:
     got = list(rfhoming.read(f"xplr-aoa:{emulator['aoa']}", f"base:{emulator['base']}", duration=2.0))
     angles = [g for g in got if g.kind == "angle"]
     records = [g for g in got if g.device == emulator["base"]]
-    assert angles and records and all(g.raw for g in got)
+    assert angles and records and all(g.raw for g in got), [g for g in got if not g.raw][:3]
     dialect = Dialect("1.2")
-    # +UUDF:...\r\n: the URC's line; the blank line the board sends before it is no item's
-    assert all(b"\r\n" + g.raw == encode_angle_event(g.item, dialect) for g in angles)
+    # +UUDF:...\r\n: the URC's line; the blank line the board sends before it is no item's. A line
+    # is handed on at its \r: when the read ends there, its \n comes with the next read's bytes
+    bad = [(g.raw, encode_angle_event(g.item, dialect)) for g in angles
+           if g.raw.removesuffix(b"\n") != encode_angle_event(g.item, dialect)[2:].removesuffix(b"\n")]
+    assert not bad, bad[:2]
     assert all(g.raw == encode_frame(g.item) for g in records)  # 00 | COBS | 00
 
 
