@@ -213,7 +213,7 @@ def _terminate_and_check_no_child_survives(proc: subprocess.Popen, children: lis
         code = proc.wait(timeout=60)
         _, alive = psutil.wait_procs(children, timeout=30)
         assert not alive, f"left behind: {alive}"
-        assert code == 130  # ended as by Ctrl-C: its clean-up ran
+        assert code == 128 + signal.SIGTERM  # ended as by Ctrl-C (its clean-up ran), said as SIGTERM
     finally:
         for p in [proc, *children]:
             with contextlib.suppress(psutil.NoSuchProcess, ProcessLookupError):

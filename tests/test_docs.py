@@ -147,7 +147,7 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
                 except subprocess.TimeoutExpired:
                     os.killpg(proc.pid, signal.SIGTERM)
                 out, err = proc.communicate(timeout=60)
-                assert proc.returncode in (0, -signal.SIGTERM) and "Traceback" not in err, \
+                assert proc.returncode in (0, -signal.SIGTERM, 128 + signal.SIGTERM) and "Traceback" not in err, \
                     f"{command!r} failed ({proc.returncode}): {err[-2000:]}"
                 continue
             done = subprocess.run(["bash", "-c", f"set -o pipefail; {command}"], cwd=cwd, env=env(), text=True,

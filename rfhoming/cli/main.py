@@ -156,10 +156,16 @@ def _add_site(sub: argparse._SubParsersAction) -> None:
     add_parsers(sub)
 
 
+_terminated = False
+"""SIGTERM came: the command then ends with 128 + SIGTERM, as a shell reports a process it ended."""
+
+
 def _as_ctrl_c(signum: int, frame: object) -> None:
     """SIGTERM handled as SIGINT is: inside asyncio.run, its handler cancels the main task (which
     nothing can swallow, unlike a KeyboardInterrupt raised in a finaliser); elsewhere Python's
     raises KeyboardInterrupt. Where SIGINT is ignored (a background job), KeyboardInterrupt."""
+    global _terminated
+    _terminated = True
     if signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.SIG_DFL, None):
         raise KeyboardInterrupt
     signal.raise_signal(signal.SIGINT)
@@ -174,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.verbose)
     before = signal.signal(signal.SIGTERM, _as_ctrl_c)
     try:
-        return args.func(args)
+        code: int = args.func(args)
+        return 128 + signal.SIGTERM if _terminated and code == 130 else code
     except BrokenPipeError:  # e.g. piped into head
         sys.stderr.close()
         return 0
@@ -186,8 +193,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rfhoming {args.command}: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"rfhoming {args.command}: interrupted", file=sys.stderr)
-        return 130
+        print(f"rfhoming {args.command}: {'terminated' if _terminated else 'interrupted'}", file=sys.stderr)
+        return 128 + signal.SIGTERM if _terminated else 130
     except Exception as exc:
         if args.debug:
             raise
