@@ -210,7 +210,7 @@ def test_an_emulated_house_run_reads_in_order_with_scans_in_range(tmp_path: Path
     with AnyReader([path]) as reader:
         scans = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages() if c.topic == "/scan"]
         qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
-    assert len(scans) > 100
+    assert len(scans) > 20  # the whole run: one scan every 0.1 s of it
     for scan in scans:
         assert all(scan.range_min <= r <= scan.range_max for r in scan.ranges if math.isfinite(r))
         assert scan.range_min > 0 and scan.scan_time > 0

@@ -55,7 +55,8 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
         listener = subprocess.Popen([sys.executable, str(Path(__file__).with_name("ros2_listener.py")), str(domain),
                                      "120"], stdin=subprocess.PIPE, stdout=heard_file, text=True)
         silent = rfhoming("run", "--aoa", aoa, "--base", f"ros2:domain={domain + 1},timeout=2")
-        assert silent.returncode == 2 and silent.stderr.strip().count("\n") == 0, silent.stderr
+        said = [line for line in silent.stderr.splitlines() if "event loop blocked" not in line]  # the loop's own
+        assert silent.returncode == 2 and len(said) == 1, silent.stderr  # measure of a stall, logged as it happens
         assert "/odom" in silent.stderr and "not ready" in silent.stderr
         # Ctrl-C while driving: three zero commands go out before rfhoming exits
         interrupted = subprocess.Popen([sys.executable, "-m", "rfhoming", "run", "--aoa", aoa, "--base",
