@@ -160,9 +160,11 @@ def _run(jobs: list[Job], workers: int, dask_address: str | None, finished: Call
                 for future in cf.as_completed(futures):
                     finished(future.result())
             except BaseException:
-                for f in futures:
-                    f.cancel()
                 if isinstance(pool, cf.ProcessPoolExecutor):  # Ctrl-C, SIGTERM: the running jobs end too
                     for child in multiprocessing.active_children():
-                        child.terminate()
+                        child.terminate()  # the pool then fails its futures (cancelling them first made
+                    # Python 3.11's pool manager raise InvalidStateError, a traceback, when workers died)
+                else:
+                    for f in futures:
+                        f.cancel()
                 raise
