@@ -650,7 +650,7 @@ for report in session:  # gpsd's standard loop, dispatching on class as its clie
     if report['class'] == 'TPV':
         continue
     seen.append(report['class'])
-    if report['class'] == 'ANGLE' and 'POLL' not in seen:
+    if {'ANGLE', 'ODOMETRY'} <= set(seen) and 'POLL' not in seen:  # ask once both kinds have come
         session.send("?POLL;")
     if report['class'] == 'POLL':
         break
