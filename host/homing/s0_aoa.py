@@ -7,8 +7,9 @@ Estimates:
 - vector goal: g = r + d(cos α, sin α), α = θr + θs; reported as the time-weighted mean of the
   last 20 raw vector goals, w_k = exp(−(k−1)/τ), τ = 10 readings (the paper leaves τ open;
   at the board's 50 Hz that is 0.2 s, and the weights still reach across the whole buffer).
-- parallax goal: the first two readings whose rays cross well (baseline ≥ 0.3 m, ≥ 3° apart)
-  give it; afterwards each reading moves it onto its ray by k (Kohonen update). The paper's
+- parallax goal: the first two readings whose rays cross well (baseline ≥ 0.3 m, ≥ 3° apart,
+  and, ours, at least one baseline ahead of both sensors: rays that meet at a sensor are bearing
+  noise, and a goal on the robot would fold every later reading onto the wrong side) give it; afterwards each reading moves it onto its ray by k (Kohonen update). The paper's
   k = 0.8 is per reading of its simulation; at 50 Hz, k = 0.3 per reading moves as far in 0.1 s
   (1 − 0.7⁵ ≈ 0.83) and averages five times as many rays.
 - hybrid: err = |g_p − g_v| / (½(d_p + d_v)); below 0.3 report g_p; otherwise z-test the new
@@ -129,9 +130,9 @@ class S0Homing:
         return min((front, back), key=lambda a: abs(wrap_rad(a - reference)))
 
     def _goal_bearing(self, pose: Pose) -> float | None:
-        goal = self.reported if self.reported is not None else None
-        if goal is None:
-            return self._last_theta_world
+        goal = self.reported
+        if goal is None or math.hypot(goal[0] - pose.x, goal[1] - pose.y) < self.params.min_baseline:
+            return self._last_theta_world  # a goal on the robot tells no bearing
         return math.atan2(goal[1] - pose.y, goal[0] - pose.x)
 
     def on_reading(self, t: float, pose: Pose, theta_s: float, distance: float) -> None:
@@ -220,6 +221,10 @@ class S0Homing:
                               math.sin(math.radians(p.min_crossing_deg)))
         except Degenerate:
             self._first = _Ray(pose.x, pose.y, alpha)  # slide the baseline forward
+            return
+        if min(math.dist(point, (first.x, first.y)), math.dist(point, (pose.x, pose.y))) < p.min_baseline:
+            # rays that meet at a sensor: bearing noise, not parallax (the goal would sit on the robot)
+            self._first = _Ray(pose.x, pose.y, alpha)
             return
         self.g_p = point
 
