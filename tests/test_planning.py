@@ -123,6 +123,24 @@ def test_sectors_and_avoidance_rules() -> None:
     assert emergency.adjust(Decision(0.6, 0.0, (5, 0), False, "homing"), 0.0, emergency_only=True).v == 0.6
 
 
+def side_scan(right: float, beams: int = 181) -> Scan:
+    """Open ahead and to the left, something ``right`` metres away on the right (-90° to -40°)."""
+    angles = np.linspace(-math.pi / 2, math.pi / 2, beams)
+    return Scan(0.0, -math.pi / 2, math.pi / (beams - 1),
+                tuple(right if a < math.radians(-40) else None for a in angles))
+
+
+def test_a_turn_in_place_beside_an_obstacle_is_left_alone() -> None:
+    """A round base turning in place brings nothing nearer: the side rule steers only a robot
+    that drives forward (forbidding the turn wedged the house demo between a chair and a wall)."""
+    avoid = ObstacleAvoidance()
+    avoid.on_scan(side_scan(0.3))
+    turn = avoid.adjust(Decision(0.0, -1.2, (0, -5), False, "homing"), 0.0)
+    assert (turn.v, turn.w, turn.note) == (0.0, -1.2, "homing")  # toward the goal, behind on the right
+    drive = avoid.adjust(Decision(0.5, -0.2, (5, -1), False, "homing"), 0.1)
+    assert drive.w >= 0.5 and drive.note == "too close on the right"  # driving on: steer away
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [4, 7])
 async def test_s0_homes_through_the_house(seed: int) -> None:
