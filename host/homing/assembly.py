@@ -32,13 +32,13 @@ from rfhoming.host.drivers.robot_base import BaseDriver
 from rfhoming.host.homing.anchors import AnchorsController
 from rfhoming.host.homing.config import Config, from_tables, to_tables
 from rfhoming.host.homing.loop import (
-    AoaController,
     Controller,
     HomingLoop,
     Outcome,
     RunLog,
 )
 from rfhoming.host.homing.planner import Planner
+from rfhoming.host.homing.s0_aoa import AoaController
 from rfhoming.host.homing.s1_dock import DockController
 from rfhoming.host.homing.s2_rss import RssController
 from rfhoming.host.homing.s3_trilat import TrilatController
@@ -77,7 +77,8 @@ def _anchors(config: Config, site: Site | None) -> Controller:
 
 
 METHODS: dict[str, Method] = {
-    "aoa": Method("S0: XPLR-AOA bearings and RSSI ranges", "aoa", lambda c, s: AoaController(c)),
+    "aoa": Method("S0: XPLR-AOA bearings and RSSI ranges", "aoa",
+                  lambda c, s: AoaController(c.s0, c.mounting.to_robot, c.calibration.model)),
     "dock": Method("S1: docking on the station's AoA/RSSI of the robot's tag", "aoa", lambda c, s: DockController(c.s1)),
     "rss": Method("S2: four dishes and a particle filter", "rss", lambda c, s: RssController(c.s2)),
     "trilat": Method("S3: trilateration on BLE beacons at known places", "ble", lambda c, s: TrilatController(c.trilat)),

@@ -41,7 +41,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import IO, Any
 
-from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host import outputs
 from rfhoming.host.losses import with_losses
@@ -50,8 +49,7 @@ from rfhoming.host.homing.avoidance import ObstacleAvoidance
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.grid import OccupancyGrid, lookahead
 from rfhoming.host.homing.planner import Planner, PlanScheduler, TcodPlanner
-from rfhoming.host.homing.s0_aoa import S0Homing
-from rfhoming.host.homing.types import Controller, ControllerDefaults, Decision, Pose
+from rfhoming.host.homing.types import Controller, Decision, Pose
 from rfhoming.host.loopstall import StallMonitor
 from rfhoming.host.ports import PortError
 from rfhoming.protocol import devices
@@ -116,39 +114,6 @@ class RunLog:
             self.written += 1
         for listener in self.listeners:
             listener(record)
-
-
-class AoaController(ControllerDefaults):
-    """S0 behind the loop's interface: board azimuth -> θs (mounting), RSSI -> distance."""
-
-    source = "aoa"
-
-    def __init__(self, config: Config) -> None:
-        self.config = config
-        self.s0 = S0Homing(config.s0)
-
-    @property
-    def phase(self) -> str:
-        return self.s0.phase
-
-    @property
-    def reported(self) -> Any:
-        return self.s0.reported
-
-    def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
-        if not isinstance(item, TimedAngle):
-            return None
-        event = item.event
-        theta_s = self.config.mounting.to_robot(event.azimuth)
-        distance = float(self.config.calibration.model.distance(event.rssi1))
-        self.s0.on_reading(t, pose, theta_s, distance)
-        return {"azimuth": event.azimuth, "rssi": event.rssi1, "theta_s": round(theta_s, 4), "distance": round(distance, 3)}
-
-    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
-        return self.s0.decide(pose, steer_to)
-
-    def estimate(self) -> dict[str, Any]:
-        return {"goal": _round(self.s0.reported), "g_p": _round(self.s0.g_p), "g_v": _round(self.s0.g_v)}
 
 
 class HomingLoop:

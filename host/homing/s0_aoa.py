@@ -48,13 +48,17 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
+from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update
 from rfhoming.host.estimation.fixed import wrap_rad
+from rfhoming.host.estimation.ranging import LogDistance
 from rfhoming.host.estimation.ray_fusion import RayRangeFusion
 from rfhoming.host.homing.schema import DEG, M_S, RAD_S, M, S, setting
-from rfhoming.host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -290,3 +294,41 @@ def _plus(sums: tuple[float, float, float, float], x: float, y: float) -> tuple[
 
 def _minus(sums: tuple[float, float, float, float], x: float, y: float) -> tuple[float, float, float, float]:
     return sums[0] - x, sums[1] - y, sums[2] - x * x, sums[3] - y * y
+
+
+class AoaController(ControllerDefaults):
+    """S0 behind the loop's interface: board azimuth -> θs (the mounting's ``to_robot``), RSSI ->
+    distance (the calibration's model)."""
+
+    source = "aoa"
+
+    def __init__(self, params: S0Params, to_robot: Callable[[float], float], ranging: LogDistance) -> None:
+        self.to_robot, self.ranging = to_robot, ranging
+        self.s0 = S0Homing(params)
+
+    @property
+    def phase(self) -> str:
+        return self.s0.phase
+
+    @property
+    def reported(self) -> Any:
+        return self.s0.reported
+
+    def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
+        if not isinstance(item, TimedAngle):
+            return None
+        event = item.event
+        theta_s = self.to_robot(event.azimuth)
+        distance = float(self.ranging.distance(event.rssi1))
+        self.s0.on_reading(t, pose, theta_s, distance)
+        return {"azimuth": event.azimuth, "rssi": event.rssi1, "theta_s": round(theta_s, 4), "distance": round(distance, 3)}
+
+    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
+        return self.s0.decide(pose, steer_to)
+
+    def estimate(self) -> dict[str, Any]:
+        return {"goal": _round(self.s0.reported), "g_p": _round(self.s0.g_p), "g_v": _round(self.s0.g_v)}
+
+
+def _round(v: tuple[float, float] | None) -> list[float] | None:
+    return None if v is None else [round(float(x), 4) for x in v]
