@@ -30,6 +30,7 @@ byte-in -> command-out latency of every command.
 from __future__ import annotations
 
 import asyncio
+import gc
 import contextlib
 import json
 import logging
@@ -191,6 +192,11 @@ class HomingLoop:
         return min(a * (math.sqrt(lag * lag + 2 * cfg.stop_within_m / a) - lag), cfg.stop_within_m / (lag + ramp / 2))
 
     async def run(self) -> Outcome:
+        # start-up's garbage goes now, not as a pause mid-run, and what start-up built (modules,
+        # drivers, maps) is left out of the collections during the run: a full collection
+        # over it took tens of milliseconds, a stall the control period feels
+        gc.collect()
+        gc.freeze()
         tasks = [asyncio.create_task(self.base.run())] + [asyncio.create_task(s.run()) for s in self.sensors]
         self._tasks = tasks
         try:
@@ -203,6 +209,7 @@ class HomingLoop:
                     self.log.write("stall", self.t, **outcome.stalls, over_threshold=stalls.over_count)
                 return outcome
         finally:
+            gc.unfreeze()  # collectable again once the run ends (a campaign worker runs many)
             self.scheduler.close()
             for task in tasks:
                 task.cancel()
