@@ -10,10 +10,25 @@ import argparse
 import logging
 import signal
 import sys
+from typing import Any
 
-from rfhoming import __version__
 from rfhoming.cli.parsers import campaign, decode, emulate, export, gateway, io, locate, run, serve
 from rfhoming.protocol.errors import Error
+
+
+class _Version(argparse._VersionAction):
+    """--version, with the version read only when asked for (rfhoming.__version__ is lazy)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        self.version = f"rfhoming {_installed()}"
+        super().__call__(parser, namespace, values, option_string)
+
+
+def _installed() -> str:
+    from rfhoming import __version__
+
+    return __version__
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -23,8 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an internal error (for a bug report)")
-    parser.add_argument("--version", action="version", version=f"rfhoming {__version__}",
-                        help="print the installed version and exit")
+    parser.add_argument("--version", action=_Version, help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     decode.add_parsers(sub)
     run.add_parsers(sub)
@@ -85,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if args.debug:
             raise
-        print(f"rfhoming {args.command}: internal error, a bug in rfhoming {__version__} ({type(exc).__name__}: "
+        print(f"rfhoming {args.command}: internal error, a bug in rfhoming {_installed()} ({type(exc).__name__}: "
               f"{exc}); please report it with the output of the same command run with --debug", file=sys.stderr)
         return 1
     finally:
