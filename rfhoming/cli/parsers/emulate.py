@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from importlib import resources
+import os
+from importlib.util import find_spec
 from typing import Any
 
 from rfhoming.cli.args import duration, fault, nonempty, output_file, path, seed, speed, xy
@@ -15,9 +16,11 @@ holds them equal), named here so that building the parsers loads neither."""
 
 
 def presets() -> list[str]:
-    """emulator/scenario.py's presets (a test holds them equal), without loading the emulator."""
-    return sorted(p.name[:-5] for p in resources.files("rfhoming.emulator.scenarios").iterdir()
-                  if p.name.endswith(".toml"))
+    """emulator/scenario.py's presets (a test holds them equal), without loading the emulator or
+    importlib.resources (which costs --version a fifth of its time)."""
+    spec = find_spec("rfhoming.emulator.scenarios")
+    folders = spec.submodule_search_locations if spec is not None else None
+    return sorted(name[:-5] for folder in folders or () for name in os.listdir(folder) if name.endswith(".toml"))
 
 
 HELP = """\
