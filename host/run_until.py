@@ -9,6 +9,7 @@ import json
 import logging
 import signal
 from collections.abc import Iterable
+from typing import Any
 
 from rfhoming.host import losses
 from rfhoming.host.drivers.common import Driver
@@ -29,7 +30,7 @@ async def log_health(drivers: list[Driver]) -> None:
             log.info("health %s", json.dumps(h))
 
 
-async def run_until(drivers: list[Driver], duration: float | None, extra: Iterable[asyncio.Task] = ()) -> None:
+async def run_until(drivers: list[Driver], duration: float | None, extra: Iterable[asyncio.Task[Any]] = ()) -> None:
     """Run the drivers until ``duration`` or Ctrl-C; a driver that cannot go on (a port that
     never opened, a set-up that failed or timed out) ends it with PortError/DeviceNotReady.
     ``extra`` tasks are cancelled with the drivers; the drivers' ports are closed at the end."""
@@ -39,6 +40,7 @@ async def run_until(drivers: list[Driver], duration: float | None, extra: Iterab
     tasks.append(asyncio.create_task(log_health(drivers)))
     tasks.append(asyncio.create_task(losses.watch(lambda: health(drivers))))
     main = asyncio.current_task()
+    assert main is not None, "run_until is awaited in a task"
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, main.cancel)

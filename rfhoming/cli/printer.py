@@ -5,12 +5,12 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TextIO
 
 from rfhoming.protocol.jsonable import as_dict
 
 
-def printer(json_lines: bool, out=sys.stdout) -> Callable[[str, float, Any], None]:
+def printer(json_lines: bool, out: TextIO = sys.stdout) -> Callable[[str, float, Any], None]:
     def show(device: str, t: float, item: Any) -> None:
         if json_lines:
             out.write(json.dumps({"device": device, "t": t, **as_dict(item)}) + "\n")
