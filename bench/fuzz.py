@@ -774,9 +774,9 @@ class FilesTarget:
 
 
 def _points(path: Path) -> Any:
-    from rfhoming.cli.locate import _load_points
+    from rfhoming.host.points_file import load_points
 
-    return _load_points(path)
+    return load_points(path)
 
 
 def _config(path: Path) -> Any:

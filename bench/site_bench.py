@@ -30,7 +30,7 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from rfhoming.cli.site import emulated_site  # noqa: E402
+from rfhoming.cli.commands.worker import emulated_site  # noqa: E402
 from rfhoming.emulator.site import SiteScenario  # noqa: E402
 from rfhoming.host.estimation.batch import BatchLocator  # noqa: E402
 from rfhoming.host.locate import Locator  # noqa: E402

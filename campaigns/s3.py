@@ -102,74 +102,104 @@ def jobs(runs: int, seed: int) -> list[Job]:
     return out
 
 
+FILTERS = ("raw", "median", "ema", "kalman")
+METHODS = ("trilateration", "multilateration")
+
+
 def report(rows: list[dict[str, Any]]) -> Report:
     filt = next(r for r in rows if r["kind"] == "filters")
-    names = ("raw", "median", "ema", "kalman")
-    lines = [[f"{d:g}", TABLE1_STD[i], *(filt[n][i] for n in names)] for i, d in enumerate(TABLE1_D)]
+    md = _filters_section(filt)
+    fixes = [r for r in rows if r["kind"] == "fix"]
+    summary: dict[str, Any] = {"filters_std_db": {n: filt[n] for n in FILTERS}, "arenas": {}}
+    for arena in ARENAS:
+        entries = [_point_entry(fixes, p, xy, arena) for p, xy in enumerate(POINTS)]
+        summary["arenas"][arena] = _arena_summary(entries)
+        md += _arena_section(arena, entries)
+    paper_wins = sum(1 for t, m in PAPER_POINT_CM.values() if t < m)
+    md += _comparison_table(summary, paper_wins)
+    summary["paper_trilateration_better_at"] = paper_wins
+    return Report(summary, md, {"s3-arena.png": lambda path: _plot(path, filt, summary)})
+
+
+def _filters_section(filt: dict[str, Any]) -> str:
+    """Table I's RSSI spread at each distance after each filter, beside the paper's."""
+    lines = [[f"{d:g}", TABLE1_STD[i], *(filt[n][i] for n in FILTERS)] for i, d in enumerate(TABLE1_D)]
     md = "RSSI std (dB) at each Table I distance, 500 samples, after each filter:\n\n"
     md += table(["distance m", "paper raw std", "ours raw", "median(5)", "EMA 1/8", "Kalman"], lines)
     md += (f"\n\nPaper: Kalman-filtered std {PAPER_KALMAN_STD[0]}–{PAPER_KALMAN_STD[1]} dB; ours "
            f"{min(filt['kalman']):.3f}–{max(filt['kalman']):.3f} dB.\n\n")
-    fixes = [r for r in rows if r["kind"] == "fix"]
-    summary: dict[str, Any] = {"filters_std_db": {n: filt[n] for n in names}, "arenas": {}}
-    methods = ("trilateration", "multilateration")
-    for arena in ARENAS:
-        plines, entries = [], []
-        for p, xy in enumerate(POINTS):
-            rs = [r for r in fixes if r["point"] == p and r["arena"] == arena]
-            entry: dict[str, Any] = {"point": xy, "fixes": len(rs)}
-            for m in methods:
-                v = 100 * np.array([r[f"{m}_m"] for r in rs if r[f"{m}_m"] is not None])
-                entry[m] = {"median_cm": round(float(np.median(v)), 1), "p10_cm": round(float(np.percentile(v, 10)), 1),
-                            "p90_cm": round(float(np.percentile(v, 90)), 1)} if len(v) else None
-            entries.append(entry)
-            paper = PAPER_POINT_CM[xy]
-            plines.append([f"({xy[0]:g}, {xy[1]:g})", entry["fixes"], paper[0],
-                           *(f"{e['median_cm']} ({e['p10_cm']}–{e['p90_cm']})" if e else None
-                             for e in [entry["trilateration"]]), paper[1],
-                           *(f"{e['median_cm']} ({e['p10_cm']}–{e['p90_cm']})" if e else None
-                             for e in [entry["multilateration"]])])
-        wins = sum(1 for e in entries if e["trilateration"] and e["multilateration"]
-                   and e["trilateration"]["median_cm"] < e["multilateration"]["median_cm"])
-        medians = {m: [e[m]["median_cm"] for e in entries if e[m]] for m in methods}
-        summary["arenas"][arena] = {"points": entries, "trilateration_better_at": wins,
-                                    **{m: {"min_cm": min(medians[m]), "max_cm": max(medians[m]),
-                                           "mean_cm": round(float(np.mean(medians[m])), 1)} for m in methods}}
-        md += (f"Arena {arena} (beacons at its corners): position error (cm) per test point, one fix = 5 s of "
-               f"Kalman-filtered RSSI per beacon; ours: median (10th–90th percentile) over the fixes:\n\n")
-        md += table(["point m", "fixes", "paper trilateration", "ours trilateration (3 strongest)",
-                     "paper multilateration", "ours multilateration (all 4)"], plines)
-        md += "\n\n"
-    paper_wins = sum(1 for t, m in PAPER_POINT_CM.values() if t < m)
-    md += table(["source", "trilateration range over points cm", "multilateration range cm",
-                 "points where trilateration is better"],
-                [["paper (one measurement per point)", "–".join(map(str, PAPER_ERROR_CM["trilateration"])),
-                  "–".join(map(str, PAPER_ERROR_CM["multilateration"])), f"{paper_wins}/9"]]
-                + [[f"ours, arena {a} (medians per point)",
-                    f"{summary['arenas'][a]['trilateration']['min_cm']}–{summary['arenas'][a]['trilateration']['max_cm']}",
-                    f"{summary['arenas'][a]['multilateration']['min_cm']}–{summary['arenas'][a]['multilateration']['max_cm']}",
-                    f"{summary['arenas'][a]['trilateration_better_at']}/9"] for a in ARENAS])
-    summary["paper_trilateration_better_at"] = paper_wins
+    return md
 
-    def plot(path):
-        fig, axes = figure(path, 2)
-        for n in names:
-            axes[0].plot(TABLE1_D, filt[n], marker="o", label=n)
-        axes[0].set_xlabel("distance (m)")
-        axes[0].set_title("RSSI std after filtering (dB)")
-        axes[0].legend()
-        x = np.arange(len(POINTS))
-        first = summary["arenas"][next(iter(ARENAS))]["points"]
-        for i, m in enumerate(("trilateration", "multilateration")):
-            axes[1].bar(x + (i - 0.5) * 0.4, [e[m]["median_cm"] if e[m] else np.nan for e in first], 0.4, label=f"ours {m}")
-            axes[1].plot(x, [PAPER_POINT_CM[p][i] for p in POINTS], "o" if i == 0 else "s", color="k",
-                         label=f"paper {m}", mfc="none" if i else "k")
-        axes[1].set_xticks(x, [f"{p[0]:g},{p[1]:g}" for p in POINTS], rotation=45)
-        axes[1].set_title(f"error per test point, arena {next(iter(ARENAS))} (cm)")
-        axes[1].legend(fontsize=7)
-        save(fig, path)
 
-    return Report(summary, md, {"s3-arena.png": plot})
+def _point_entry(fixes: list[dict[str, Any]], p: int, xy: tuple[float, float], arena: Any) -> dict[str, Any]:
+    """One test point of one arena: its fixes, and each method's error percentiles (cm)."""
+    rs = [r for r in fixes if r["point"] == p and r["arena"] == arena]
+    entry: dict[str, Any] = {"point": xy, "fixes": len(rs)}
+    for m in METHODS:
+        v = 100 * np.array([r[f"{m}_m"] for r in rs if r[f"{m}_m"] is not None])
+        entry[m] = {"median_cm": round(float(np.median(v)), 1), "p10_cm": round(float(np.percentile(v, 10)), 1),
+                    "p90_cm": round(float(np.percentile(v, 90)), 1)} if len(v) else None
+    return entry
+
+
+def _arena_summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per method the range and mean of the points' medians, and where trilateration wins."""
+    wins = sum(1 for e in entries if e["trilateration"] and e["multilateration"]
+               and e["trilateration"]["median_cm"] < e["multilateration"]["median_cm"])
+    medians = {m: [e[m]["median_cm"] for e in entries if e[m]] for m in METHODS}
+    return {"points": entries, "trilateration_better_at": wins,
+            **{m: {"min_cm": min(medians[m]), "max_cm": max(medians[m]),
+                   "mean_cm": round(float(np.mean(medians[m])), 1)} for m in METHODS}}
+
+
+def _spread(e: dict[str, Any] | None) -> str | None:
+    return f"{e['median_cm']} ({e['p10_cm']}–{e['p90_cm']})" if e else None
+
+
+def _arena_section(arena: Any, entries: list[dict[str, Any]]) -> str:
+    """The arena's table: each test point's error, ours beside the paper's."""
+    plines = []
+    for entry in entries:
+        xy = entry["point"]
+        paper = PAPER_POINT_CM[xy]
+        plines.append([f"({xy[0]:g}, {xy[1]:g})", entry["fixes"], paper[0], _spread(entry["trilateration"]),
+                       paper[1], _spread(entry["multilateration"])])
+    md = (f"Arena {arena} (beacons at its corners): position error (cm) per test point, one fix = 5 s of "
+          f"Kalman-filtered RSSI per beacon; ours: median (10th–90th percentile) over the fixes:\n\n")
+    md += table(["point m", "fixes", "paper trilateration", "ours trilateration (3 strongest)",
+                 "paper multilateration", "ours multilateration (all 4)"], plines)
+    return md + "\n\n"
+
+
+def _comparison_table(summary: dict[str, Any], paper_wins: int) -> str:
+    """The paper's error ranges and ours per arena, and where trilateration was better."""
+    return table(["source", "trilateration range over points cm", "multilateration range cm",
+                  "points where trilateration is better"],
+                 [["paper (one measurement per point)", "–".join(map(str, PAPER_ERROR_CM["trilateration"])),
+                   "–".join(map(str, PAPER_ERROR_CM["multilateration"])), f"{paper_wins}/9"]]
+                 + [[f"ours, arena {a} (medians per point)",
+                     f"{summary['arenas'][a]['trilateration']['min_cm']}–{summary['arenas'][a]['trilateration']['max_cm']}",
+                     f"{summary['arenas'][a]['multilateration']['min_cm']}–{summary['arenas'][a]['multilateration']['max_cm']}",
+                     f"{summary['arenas'][a]['trilateration_better_at']}/9"] for a in ARENAS])
+
+
+def _plot(path, filt: dict[str, Any], summary: dict[str, Any]) -> None:
+    fig, axes = figure(path, 2)
+    for n in FILTERS:
+        axes[0].plot(TABLE1_D, filt[n], marker="o", label=n)
+    axes[0].set_xlabel("distance (m)")
+    axes[0].set_title("RSSI std after filtering (dB)")
+    axes[0].legend()
+    x = np.arange(len(POINTS))
+    first = summary["arenas"][next(iter(ARENAS))]["points"]
+    for i, m in enumerate(("trilateration", "multilateration")):
+        axes[1].bar(x + (i - 0.5) * 0.4, [e[m]["median_cm"] if e[m] else np.nan for e in first], 0.4, label=f"ours {m}")
+        axes[1].plot(x, [PAPER_POINT_CM[p][i] for p in POINTS], "o" if i == 0 else "s", color="k",
+                     label=f"paper {m}", mfc="none" if i else "k")
+    axes[1].set_xticks(x, [f"{p[0]:g},{p[1]:g}" for p in POINTS], rotation=45)
+    axes[1].set_title(f"error per test point, arena {next(iter(ARENAS))} (cm)")
+    axes[1].legend(fontsize=7)
+    save(fig, path)
 
 
 CAMPAIGN = Campaign("s3-arena", "S3: RSSI filters on Table I's noise; trilateration vs multilateration",

@@ -11,7 +11,14 @@ is best effort); /cmd_vel is read with ROS 2's default QoS, as geometry_msgs/Twi
 
 import asyncio
 import math
+from collections.abc import Callable
 from typing import Any
+
+from cyclonedds.core import DDSException, Listener, Qos
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader, InvalidSample
+from cyclonedds.topic import Topic
 
 from rfhoming.emulator.links import Link
 from rfhoming.protocol import ros2
@@ -23,6 +30,35 @@ COMMAND_TIMEOUT_MS = 500  # *assumed*: a ROS 2 base stops this long after its la
 
 def _stamp(t_us: int) -> dds.Time:
     return dds.Time(*ros2.Stamp.of(t_us / 1e6))
+
+
+def _join(domain: int, discovery: str) -> tuple[Domain | None, DomainParticipant]:
+    """A participant on ``domain``, the domain configured as the host configures it (loopback
+    only unless ``subnet``) unless this process made it already (the host, in-process)."""
+    xml = dds.config(domain, discovery)
+    made = None
+    try:
+        made = Domain(domain, xml) if xml else None
+        return made, DomainParticipant(domain)
+    except DDSException as exc:
+        if made is None and exc.code == DDSException.DDS_RETCODE_PRECONDITION_NOT_MET:
+            return None, DomainParticipant(domain)
+        raise dds.DdsError(f"cannot join ROS 2 domain {domain} ({exc})") from None
+
+
+def _writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos) -> DataWriter:
+    return DataWriter(dp, Topic(dp, ros2.dds_topic(topic), dds.TYPES[ros_type]), qos=qos)
+
+
+def _reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable[[Any], None], qos: Qos) -> DataReader:
+    """A reader of a ROS topic; ``on_sample`` is called on Cyclone's listener thread."""
+    def on_data(r: DataReader) -> None:
+        for sample in r.take(64):
+            if not isinstance(sample, InvalidSample):  # a writer gone (disposed, unregistered): no data
+                on_sample(sample)
+
+    return DataReader(dp, Topic(dp, ros2.dds_topic(topic), dds.TYPES[ros_type]), qos=qos,
+                      listener=Listener(on_data_available=on_data))
 
 
 class Ros2Link(Link):
@@ -47,11 +83,11 @@ class Ros2Link(Link):
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        dp = dds.participant(self.domain, self.discovery)
-        self._odom = dds.writer(dp, self._name("odom"), ros2.ODOMETRY, dds.SENSOR_QOS)
-        self._scan = dds.writer(dp, self._name("scan"), ros2.LASER_SCAN, dds.SENSOR_QOS)
-        self._tf = dds.writer(dp, self._name("tf"), dds.TF, dds.DEFAULT_QOS)
-        self._cmd = dds.reader(dp, self._name("cmd_vel"), ros2.TWIST_STAMPED if self.stamped else ros2.TWIST,
+        self._domain, dp = _join(self.domain, self.discovery)  # the domain object kept: it holds the configuration
+        self._odom = _writer(dp, self._name("odom"), ros2.ODOMETRY, dds.SENSOR_QOS)
+        self._scan = _writer(dp, self._name("scan"), ros2.LASER_SCAN, dds.SENSOR_QOS)
+        self._tf = _writer(dp, self._name("tf"), dds.TF, dds.DEFAULT_QOS)
+        self._cmd = _reader(dp, self._name("cmd_vel"), ros2.TWIST_STAMPED if self.stamped else ros2.TWIST,
                                self._from_dds, dds.DEFAULT_QOS)
         self._entities = [self._odom, self._scan, self._tf, self._cmd]
         self.plugged = True

@@ -230,16 +230,9 @@ def assign_dwells(events: Sequence[tuple[float, AngleEvent]], points: list[Point
     return out, report
 
 
-def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]],
-              points: dict[str, tuple[float, float, float]] | list[Point], *, azimuth_only: bool = False,
-              angle_model: str = "auto") -> list[AnchorFit]:
-    """Fit every anchor of ``site`` from angle events of tags at known ``points`` (tag -> x, y,
-    z, or :class:`Point` s with time windows); ``angle_model`` "auto" picks the model with the
-    smaller residual over all anchors. CalibrationError names an anchor that saw too few points
-    or whose fit would leave the site file's limits."""
-    events = list(events)
-    if isinstance(points, dict):
-        points = [Point(tag, tuple(map(float, p))) for tag, p in points.items()]  # type: ignore[misc]
+def _samples(events: list[tuple[float, AngleEvent]], points: list[Point]) -> dict[tuple[str, int], list[tuple[int, int]]]:
+    """(anchor id, point index) -> the (azimuth, elevation) of every event of the point's tag
+    within its time window (seconds from the first event)."""
     t0 = events[0][0] if events else 0.0
     samples: dict[tuple[str, int], list[tuple[int, int]]] = {}
     by_tag: dict[str, list[int]] = {}
@@ -250,27 +243,43 @@ def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]],
             p = points[i]
             if p.start_s is None or p.start_s <= t - t0 <= p.end_s:
                 samples.setdefault((event.anchor_id, i), []).append((event.azimuth, event.elevation))
+    return samples
+
+
+def _fit_one(anchor: Anchor, samples: dict[tuple[str, int], list[tuple[int, int]]], points: list[Point], model: str,
+             azimuth_only: bool) -> AnchorFit:
+    """One anchor's fit in one angle model, from the median angles of each point it saw."""
+    seen = [(i, v) for (a, i), v in sorted(samples.items()) if a == anchor.id and len(v) >= MIN_EVENTS]
+    if len(seen) < 3:
+        raise CalibrationError(
+            f"anchor {anchor.name} ({anchor.id}) saw {len(seen)} known point(s) with {MIN_EVENTS}+ "
+            "angles each; it needs 3 or more: record longer or add points it sees")
+    pts = np.array([points[i].position for i, _ in seen], float)
+    measured = np.array([(statistics.median(a for a, _ in v), statistics.median(e for _, e in v))
+                         for _, v in seen])
+    return fit_anchor(replace(anchor, calibration=Calibration()), pts, measured, model=model,
+                      azimuth_only=azimuth_only)
+
+
+def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]],
+              points: dict[str, tuple[float, float, float]] | list[Point], *, azimuth_only: bool = False,
+              angle_model: str = "auto") -> list[AnchorFit]:
+    """Fit every anchor of ``site`` from angle events of tags at known ``points`` (tag -> x, y,
+    z, or :class:`Point` s with time windows); ``angle_model`` "auto" picks the model with the
+    smaller residual over all anchors. CalibrationError names an anchor that saw too few points
+    or whose fit would leave the site file's limits."""
+    events = list(events)
+    if isinstance(points, dict):
+        points = [Point(tag, tuple(map(float, p))) for tag, p in points.items()]  # type: ignore[misc]
+    samples = _samples(events, points)
     models = ANGLE_MODELS if angle_model == "auto" else (angle_model,)
     per_model: dict[str, list[AnchorFit]] = {}
     errors: dict[str, CalibrationError] = {}
     for model in models:
-        fits = []
         try:
-            for anchor in site.anchors:
-                seen = [(i, v) for (a, i), v in sorted(samples.items()) if a == anchor.id and len(v) >= MIN_EVENTS]
-                if len(seen) < 3:
-                    raise CalibrationError(
-                        f"anchor {anchor.name} ({anchor.id}) saw {len(seen)} known point(s) with {MIN_EVENTS}+ "
-                        "angles each; it needs 3 or more: record longer or add points it sees")
-                pts = np.array([points[i].position for i, _ in seen], float)
-                measured = np.array([(statistics.median(a for a, _ in v), statistics.median(e for _, e in v))
-                                     for _, v in seen])
-                fits.append(fit_anchor(replace(anchor, calibration=Calibration()), pts, measured, model=model,
-                                       azimuth_only=azimuth_only))
+            per_model[model] = [_fit_one(anchor, samples, points, model, azimuth_only) for anchor in site.anchors]
         except CalibrationError as exc:
             errors[model] = exc
-            continue
-        per_model[model] = fits
     if not per_model:
         raise next(iter(errors.values()))
     total = {m: math.sqrt(sum(f.rms_after_deg**2 for f in fits) / len(fits)) for m, fits in per_model.items()}

@@ -1,14 +1,17 @@
 """The port a ROS 2 robot base is reached by: DDS samples as sample records, HostPort-shaped
-(the DDS entities and types: rfhoming.protocol.ros2dds)."""
+(joining the domain: rfhoming.host.dds; the types: rfhoming.protocol.ros2dds)."""
 
 import asyncio
 import time
 from typing import Any
 
+from cyclonedds.pub import DataWriter
+
+from rfhoming.host.dds import participant, reader, writer
 from rfhoming.host.drivers.ros2_base import Topics
 from rfhoming.host.ports import Chunk, Disconnected, PortError, Tap
 from rfhoming.protocol import ros2
-from rfhoming.protocol.ros2dds import TYPES, DataWriter, DdsError, participant, reader, writer
+from rfhoming.protocol.ros2dds import TYPES, DdsError
 
 MAX_QUEUED = 2000  # samples not yet read by the driver; beyond, new ones are dropped (counted)
 

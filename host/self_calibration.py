@@ -506,23 +506,56 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
     _check_coverage(ep, anchors)
     base_free, held = _observable(ep, n_a)
     site_models = [a.angle_model for a in anchors]
-    if models == "site":
-        candidates = [("site", site_models, False), ("site+compression", site_models, True)]
-    else:
-        candidates = [(m + ("+compression" if comp else ""), [m] * n_a, comp) for m, comp in CANDIDATES]
+    candidates = _candidates(models, site_models, n_a)
     # the uncalibrated site, scored on every epoch (each is held out of the fits that score it)
     plain = _Model(site, site_models, np.zeros((n_a, 5), bool))
     progress(f"{n_e} epochs, {FOLDS} folds; the uncalibrated site")
     r0, miss0, _ = _score(plain, plain.base, ep)
-    scores: dict[str, dict[str, float]] = {a.name: {} for a in anchors}
+    scores = _model_scores(site, candidates, base_free, ep, progress)
+    chosen_models, chosen_comp = _choose(anchors, scores, candidates, models, site_models)
+    free = base_free.copy()
+    free[:, 2] = chosen_comp
+    for k in range(n_a):
+        if not chosen_comp[k]:
+            held[k]["az_compression"] = "the angle model without compression won on held-out epochs"
+    cv = _final_fit(site, chosen_models, free, held, ep, progress)
+    sd = _jackknife(cv.folds)
+    p = _fit(_Model(site, chosen_models, free), _thin(ep))
+    held_out = HeldOut(_rms(r0, r0), _rms(cv.r, cv.r), _rms(miss0, r0), _rms(cv.miss, cv.r))
+    fits = [_anchor_fit(k, a, p, sd, free, ep, cv, r0, chosen_models[k], held[k]) for k, a in enumerate(anchors)]
+    return SelfCalibration(fits, n_e, held_out.az_rms_before_deg, held_out.az_rms_after_deg, held_out,
+                           _verdict(held_out), scores)
+
+
+Candidate = tuple[str, list[str], bool]
+"""A candidate calibration: its label, each anchor's angle model, whether |azimuth| compression is fitted."""
+
+
+def _candidates(models: str, site_models: list[str], n_a: int) -> list[Candidate]:
+    if models == "site":
+        return [("site", site_models, False), ("site+compression", site_models, True)]
+    return [(m + ("+compression" if comp else ""), [m] * n_a, comp) for m, comp in CANDIDATES]
+
+
+def _model_scores(site: Site, candidates: list[Candidate], base_free: np.ndarray, ep: _Epochs,
+                  progress: Callable[[str], None]) -> dict[str, dict[str, float]]:
+    """Anchor name -> candidate label -> its azimuth rms (deg) on held-out epochs."""
+    scores: dict[str, dict[str, float]] = {a.name: {} for a in site.anchors}
     for label, names, comp in candidates:
         progress(f"; {label}")
         free = base_free.copy()
         free[:, 2] = comp
         cv = _cross_validate(_Model(site, names, free), ep, progress)
-        for k, a in enumerate(anchors):
+        for k, a in enumerate(site.anchors):
             mine = cv.row_a == k
             scores[a.name][label] = round(_rms(cv.r[mine], cv.r[mine]), 3)
+    return scores
+
+
+def _choose(anchors: list[Anchor], scores: dict[str, dict[str, float]], candidates: list[Candidate], models: str,
+            site_models: list[str]) -> tuple[list[str], list[bool]]:
+    """Each anchor's angle model and compression: its best candidate, if that beats the site's
+    by MODEL_MARGIN, else the site's."""
     chosen_models, chosen_comp = [], []
     for k, a in enumerate(anchors):
         own = scores[a.name]
@@ -532,11 +565,13 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
         label, names, comp = next(c for c in candidates if c[0] == pick)
         chosen_models.append(names[k])
         chosen_comp.append(comp)
-    free = base_free.copy()
-    free[:, 2] = chosen_comp
-    for k in range(n_a):
-        if not chosen_comp[k]:
-            held[k]["az_compression"] = "the angle model without compression won on held-out epochs"
+    return chosen_models, chosen_comp
+
+
+def _final_fit(site: Site, chosen_models: list[str], free: np.ndarray, held: list[dict[str, str]], ep: _Epochs,
+               progress: Callable[[str], None]) -> _CrossValidated:
+    """The chosen models cross-validated, holding (in ``free`` and ``held``) what the data do
+    not determine and fitting again, at most twice."""
     progress("; final")
     cv = _cross_validate(_Model(site, chosen_models, free), ep, progress)
     for _ in range(2):  # hold what the data do not determine, and fit again
@@ -545,27 +580,30 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
         progress("; refit")
         cv = _cross_validate(_Model(site, chosen_models, free), ep, progress)
     progress("; on every epoch\n")
-    sd = _jackknife(cv.folds)
-    p = _fit(_Model(site, chosen_models, free), _thin(ep))
-    held_out = HeldOut(_rms(r0, r0), _rms(cv.r, cv.r), _rms(miss0, r0), _rms(cv.miss, cv.r))
-    fits = []
-    for k, a in enumerate(anchors):
-        cal = Calibration(0.0, float(math.exp(p[k, 0])), float(p[k, 1]), float(math.exp(p[k, 3])), float(p[k, 4]),
-                          float(p[k, 2]))
-        sigma = {NAMES[j]: round(float(sd[k, j] * (math.exp(p[k, j]) if j in (0, 3) else 1.0)), 4)
-                 for j in range(5) if free[k, j]}
-        mine_before, mine_after = ep.row_a == k, cv.row_a == k
-        fits.append(AnchorFit(a.name, cal, int(mine_before.sum()), _rms(r0[mine_before], r0[mine_before]),
-                              _rms(cv.r[mine_after], cv.r[mine_after]), chosen_models[k], sigma, held[k]))
+    return cv
+
+
+def _anchor_fit(k: int, a: Anchor, p: np.ndarray, sd: np.ndarray, free: np.ndarray, ep: _Epochs, cv: _CrossValidated,
+                r0: np.ndarray, model: str, held: dict[str, str]) -> AnchorFit:
+    """Anchor ``k``'s calibration from the fit on every epoch ``p``, with its standard deviations
+    and its held-out azimuth rms before and after."""
+    cal = Calibration(0.0, float(math.exp(p[k, 0])), float(p[k, 1]), float(math.exp(p[k, 3])), float(p[k, 4]),
+                      float(p[k, 2]))
+    sigma = {NAMES[j]: round(float(sd[k, j] * (math.exp(p[k, j]) if j in (0, 3) else 1.0)), 4)
+             for j in range(5) if free[k, j]}
+    mine_before, mine_after = ep.row_a == k, cv.row_a == k
+    return AnchorFit(a.name, cal, int(mine_before.sum()), _rms(r0[mine_before], r0[mine_before]),
+                     _rms(cv.r[mine_after], cv.r[mine_after]), model, sigma, held)
+
+
+def _verdict(held_out: HeldOut) -> str:
     if held_out.improves:
-        verdict = (f"held-out azimuth rms {held_out.az_rms_before_deg:.2f} -> {held_out.az_rms_after_deg:.2f} deg, "
-                   f"ray miss {held_out.miss_before_m:.3f} -> {held_out.miss_after_m:.3f} m")
-    else:
-        verdict = (f"not written: on held-out epochs it does not beat the uncalibrated site (azimuth rms "
-                   f"{held_out.az_rms_before_deg:.2f} -> {held_out.az_rms_after_deg:.2f} deg, ray miss "
-                   f"{held_out.miss_before_m:.3f} -> {held_out.miss_after_m:.3f} m; {MIN_GAIN:.0%} cut needed): "
-                   "walk the tags over more of the room, or calibrate on known points (--points)")
-    return SelfCalibration(fits, n_e, held_out.az_rms_before_deg, held_out.az_rms_after_deg, held_out, verdict, scores)
+        return (f"held-out azimuth rms {held_out.az_rms_before_deg:.2f} -> {held_out.az_rms_after_deg:.2f} deg, "
+                f"ray miss {held_out.miss_before_m:.3f} -> {held_out.miss_after_m:.3f} m")
+    return (f"not written: on held-out epochs it does not beat the uncalibrated site (azimuth rms "
+            f"{held_out.az_rms_before_deg:.2f} -> {held_out.az_rms_after_deg:.2f} deg, ray miss "
+            f"{held_out.miss_before_m:.3f} -> {held_out.miss_after_m:.3f} m; {MIN_GAIN:.0%} cut needed): "
+            "walk the tags over more of the room, or calibrate on known points (--points)")
 
 
 def _show(j: int, value: float) -> str:

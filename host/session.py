@@ -149,7 +149,7 @@ async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, 
 
 def serve_driver(spec: PortSpec, **options: Any) -> Driver:
     """A client of ``rfhoming serve`` (``serve://HOST:PORT``, ``device=`` keeps one device)."""
-    from rfhoming.host.serve import ServeDriver
+    from rfhoming.host.drivers.serve_client import ServeDriver
 
     where = spec.where.removeprefix("//")
     if not where.rpartition(":")[2].isdigit():

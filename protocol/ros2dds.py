@@ -1,7 +1,9 @@
 """ROS 2 over DDS with the Cyclone DDS Python binding: the message types as IDL, ROS 2's QoS
-profiles and a loopback-only domain by default. Shared by the ROS 2 base's port
-(rfhoming.host.ros2dds) and the emulated ROS 2 robot (rfhoming.emulator.ros2robot); the only
-module of this layer that touches a network, imported only where DDS is used (the ros2 extra).
+profiles and the loopback-only domain configuration used by default. Shared by the ROS 2 base's
+port (rfhoming.host.ros2dds) and the emulated ROS 2 robot (rfhoming.emulator.ros2robot);
+imported only where DDS is used (the ros2 extra). Like the rest of this layer it does no I/O:
+joining a domain and its readers and writers are rfhoming.host.dds (and the emulator's own,
+emulator/ros2robot.py).
 
 The IDL types follow ros2/common_interfaces field for field under ROS 2's DDS names
 (rfhoming.protocol.ros2), so ROS 2 nodes on either default middleware (rmw_fastrtps,
@@ -16,25 +18,15 @@ participant uses the loopback interface only, no multicast, unicast discovery to
 
 # no `from __future__ import annotations`: cyclonedds reads the IDL fields' annotations at run time
 
-import logging
-import threading
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
-from cyclonedds.core import Listener, Policy, Qos
-from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.core import Policy, Qos
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint32
-from cyclonedds.pub import DataWriter
-from cyclonedds.sub import DataReader, InvalidSample
-from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from rfhoming.protocol import ros2
 from rfhoming.protocol.errors import Error
-
-log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -168,44 +160,3 @@ def config(domain: int, discovery: str = "localhost") -> str | None:
 
 class DdsError(Error):
     """A DDS domain that cannot be joined; the message says which and why."""
-
-
-_participants: dict[int, tuple[Domain | None, DomainParticipant, str]] = {}
-_lock = threading.Lock()
-
-
-def participant(domain: int, discovery: str = "localhost") -> DomainParticipant:
-    """One participant per domain per process (two ports on a domain share it, as rclpy's
-    nodes share a context). A domain is opened with one discovery range for the process."""
-    with _lock:
-        held = _participants.get(domain)
-        if held is not None:
-            if held[2] != discovery:
-                raise DdsError(f"ROS 2 domain {domain} is already open with discovery={held[2]} in this process")
-            return held[1]
-        xml = config(domain, discovery)
-        try:
-            dom = Domain(domain, xml) if xml else None
-            dp = DomainParticipant(domain)
-        except Exception as exc:  # cyclonedds raises DDSException with a return code
-            raise DdsError(f"cannot join ROS 2 domain {domain} ({exc})") from None
-        _participants[domain] = (dom, dp, discovery)
-        return dp
-
-
-def reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable[[Any], None],
-           qos: Qos = SENSOR_QOS) -> DataReader:
-    """A reader of a ROS topic; ``on_sample`` is called on Cyclone's listener thread."""
-    def on_data(r: DataReader) -> None:
-        for sample in r.take(64):
-            if not isinstance(sample, InvalidSample):  # a writer gone (disposed, unregistered): no data
-                on_sample(sample)
-
-    return DataReader(dp, Topic(dp, ros2.dds_topic(topic), TYPES[ros_type]), qos=qos,
-                      listener=Listener(on_data_available=on_data))
-
-
-def writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos = DEFAULT_QOS) -> DataWriter:
-    return DataWriter(dp, Topic(dp, ros2.dds_topic(topic), TYPES[ros_type]), qos=qos)
-
-

@@ -7,7 +7,6 @@ imported on first use, so ``import rfhoming.protocol`` stays as light as the dec
 """
 
 from importlib import import_module
-from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # what _API loads on first use, for type checkers (tests/test_typing.py holds them equal)
@@ -29,10 +28,19 @@ if TYPE_CHECKING:  # what _API loads on first use, for type checkers (tests/test
 
     parse_spec = _parse
 
-try:
-    __version__ = version("rfhoming")
-except PackageNotFoundError:  # run from a source tree that was never installed
-    __version__ = "0+unknown"
+__version__: str  # read on first use (_version): the package metadata is not free
+
+
+def _version() -> str:
+    """The installed version, read when first asked for (``rfhoming.__version__``): the package
+    metadata costs a command that never shows it about as much as the decoders do."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("rfhoming")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "0+unknown"
+
 
 _API = {  # public name -> the module that holds it
     "open": "rfhoming.api", "read": "rfhoming.api", "Devices": "rfhoming.api", "Received": "rfhoming.api",
@@ -49,6 +57,9 @@ __all__ = ["__version__", *_API]
 if not TYPE_CHECKING:  # hidden from type checkers, so that they flag a misspelt name
 
     def __getattr__(name: str) -> Any:
+        if name == "__version__":
+            globals()["__version__"] = found = _version()
+            return found
         where = _API.get(name)
         if where is None:
             raise AttributeError(f"module 'rfhoming' has no attribute {name!r}")

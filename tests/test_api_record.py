@@ -272,7 +272,7 @@ def test_items_from_rfhoming_serve_come_without_device_bytes() -> None:
     """A serve client's items are the server's JSON, not the device's bytes: raw is empty,
     and tracking it does not fail (serve is no kind of the device table)."""
     from rfhoming.host.ports import HostPort
-    from rfhoming.host.serve import ServeDriver
+    from rfhoming.host.drivers.serve_client import ServeDriver
     from rfhoming.reader import track
 
     driver = ServeDriver(HostPort("socket://127.0.0.1:9", name="serve"))

@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rfhoming.campaigns import kinematic, s0, s1, s3, s4
-from rfhoming.cli.campaign import REGISTRY, load
+from rfhoming.cli.commands.campaign import REGISTRY, load
 from rfhoming.campaigns.runner import Job, run_jobs
 from rfhoming.cli.main import main
 from rfhoming.emulator.scenario import load as scenario

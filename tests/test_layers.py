@@ -30,7 +30,7 @@ def lint(cwd: Path) -> subprocess.CompletedProcess:
 def test_import_contracts_hold_from_the_root() -> None:
     done = lint(ROOT)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "Contracts: 5 kept, 0 broken" in done.stdout
+    assert "Contracts: 6 kept, 0 broken" in done.stdout
 
 
 def test_a_wrong_arrow_breaks_a_contract(tmp_path: Path) -> None:
@@ -40,6 +40,15 @@ def test_a_wrong_arrow_breaks_a_contract(tmp_path: Path) -> None:
     (tmp_path / "rfhoming" / "host" / "wrong_arrow.py").write_text("from rfhoming.emulator import scenario\n")
     done = lint(tmp_path)
     assert done.returncode != 0 and "rfhoming.host.wrong_arrow -> rfhoming.emulator" in done.stdout
+
+
+def test_a_command_importing_another_breaks_a_contract(tmp_path: Path) -> None:
+    """Commands are thin apps over the library: one command module importing another is caught."""
+    shutil.copytree(ROOT / "rfhoming", tmp_path / "rfhoming", ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    (tmp_path / "rfhoming" / "cli" / "commands" / "wrong_arrow.py").write_text("from rfhoming.cli.commands import decode\n")
+    done = lint(tmp_path)
+    assert done.returncode != 0 and "rfhoming.cli.commands.wrong_arrow -> rfhoming.cli.commands.decode" in done.stdout
 
 
 @pytest.mark.parametrize("layer", LAYERS)

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 pytest.importorskip("cyclonedds")
 
+from rfhoming.host import dds as dds_io  # noqa: E402
 from rfhoming.protocol import ros2dds as dds  # noqa: E402
 from rfhoming.host.drivers.robot_base import Pose2D, Scan  # noqa: E402
 from rfhoming.host.drivers.ros2_base import Ros2BaseDriver, Topics  # noqa: E402
@@ -113,12 +114,12 @@ class Robot:
     """A ROS 2 robot played with plain cyclonedds: /odom and /scan out, /cmd_vel in."""
 
     def __init__(self, domain: int, ns: str = "", stamped: bool = False) -> None:
-        dp = dds.participant(domain)
-        self.odom = dds.writer(dp, ros2.topic_name(ns, "odom"), ros2.ODOMETRY, dds.DEFAULT_QOS)
-        self.scan = dds.writer(dp, ros2.topic_name(ns, "scan"), ros2.LASER_SCAN, dds.SENSOR_QOS)
+        dp = dds_io.participant(domain)
+        self.odom = dds_io.writer(dp, ros2.topic_name(ns, "odom"), ros2.ODOMETRY, dds.DEFAULT_QOS)
+        self.scan = dds_io.writer(dp, ros2.topic_name(ns, "scan"), ros2.LASER_SCAN, dds.SENSOR_QOS)
         self.commands: list[object] = []
         kind = ros2.TWIST_STAMPED if stamped else ros2.TWIST
-        self.reader = dds.reader(dp, ros2.topic_name(ns, "cmd_vel"), kind, self.commands.append, dds.DEFAULT_QOS)
+        self.reader = dds_io.reader(dp, ros2.topic_name(ns, "cmd_vel"), kind, self.commands.append, dds.DEFAULT_QOS)
 
     def publish(self, t: float, x: float) -> None:
         msg = dds.Odometry(dds.Header(dds.Time(*ros2.Stamp.of(t)), "odom"), "base_link")

@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given
 
 from rfhoming.host import portspec
-from rfhoming.host.serve import ServeDriver
+from rfhoming.host.drivers.serve_client import ServeDriver
 from rfhoming.host.session import open_drivers
 from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.jsonable import as_dict, from_dict

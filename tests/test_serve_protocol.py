@@ -30,6 +30,7 @@ from rfhoming.emulator.scenario import load
 from rfhoming.emulator.threaded import EmulatorThread
 from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.ports import HostPort
+from rfhoming.host.drivers.serve_client import ServeDriver
 from rfhoming.host.serve import (
     BACKLOG_LINES,
     CHATTER,
@@ -38,7 +39,6 @@ from rfhoming.host.serve import (
     NOT_POLLED,
     READ_CHUNK,
     ItemServer,
-    ServeDriver,
     _Client,
 )
 from rfhoming.protocol.jsonable import as_dict, from_dict

@@ -34,7 +34,8 @@ from rosbags.typesys.base import Nodetype
 from rfhoming.host.export import frames, rosmsgs
 from rfhoming.host.export.recorder import McapRecorder
 from rfhoming.protocol import ros2
-from rfhoming.protocol.ros2dds import DEFAULT_QOS, participant
+from rfhoming.host.dds import participant
+from rfhoming.protocol.ros2dds import DEFAULT_QOS
 
 BASE = {"bool": bool, "int8": idl.int8, "uint8": idl.uint8, "byte": idl.uint8, "char": idl.uint8, "octet": idl.uint8,
         "int16": idl.int16, "uint16": idl.uint16, "int32": idl.int32, "uint32": idl.uint32, "int64": idl.int64,

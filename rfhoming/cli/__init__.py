@@ -1,1 +1,2 @@
-"""The ``rfhoming`` command line: one module per group of subcommands (see :mod:`.main`)."""
+"""The ``rfhoming`` command line: light parsers (:mod:`.parsers`), one module per command
+(:mod:`.commands`), dispatched by :mod:`.main`."""

@@ -114,9 +114,14 @@ def broker_url(text: str) -> str:
     return text
 
 
+def is_broker(spec: str) -> bool:
+    """A site bus's broker URL, not a port spec."""
+    return spec.startswith(("mqtt://", "mqtts://"))
+
+
 def from_spec(text: str) -> str:
     """locate's --from: a port spec (checked when opened), or a broker URL (checked now)."""
-    if text.startswith(("mqtt://", "mqtts://")):
+    if is_broker(text):
         return broker_url(text)
     return nonempty(text)
 

@@ -1,6 +1,7 @@
 """What the commands offer someone watching live: ``--foxglove[=PORT]``, the Foxglove view
-(run, demo, listen, serve), and ``--ros2``, the MCAP recording's topics published on ROS 2
-(run, listen, locate, serve)."""
+(run, demo, listen, serve), ``--ros2``, the MCAP recording's topics published on ROS 2
+(run, listen, locate, serve), and ``--mcap``, the same topics recorded (run, demo). The options
+themselves are rfhoming.cli.parsers.common's."""
 
 from __future__ import annotations
 
@@ -10,31 +11,16 @@ import math
 import sys
 import time
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any, TextIO
 
-from rfhoming.cli.args import delay, nonempty, tcp_port
 from rfhoming.host.drivers.robot_base import BaseDriver
 from rfhoming.host.portspec import PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.sink import Sink
 from rfhoming.protocol.errors import Error
 
-DEFAULT_PORT = 8765  # Foxglove's own default (rfhoming.host.foxglove_view.DEFAULT_PORT)
 SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]  # what the view takes (host/foxglove_front.py)
-FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {DEFAULT_PORT}, 0 = any free port) to "
-                 "Foxglove or Lichtblick (subprotocol foxglove.websocket.v1 or foxglove.sdk.v1); "
-                 "in Foxglove open a WebSocket connection to it and import the layout "
-                 "rfhoming/host/foxglove_layout.json; needs the foxglove extra")
-WAIT_S = 60.0
-
-
-def add_watch_options(p: argparse.ArgumentParser) -> None:
-    """The demo's options for a person watching: wait for the viewer, stay up after the run."""
-    p.add_argument("--wait-viewer", type=delay, default=WAIT_S, metavar="S",
-                   help=f"with --foxglove: start the run when a viewer subscribes, or after S seconds "
-                   f"(default {WAIT_S:g}; 0 = at once)")
-    p.add_argument("--linger", type=delay, default=math.inf, metavar="S",
-                   help="with --foxglove: keep the view up S seconds after the run (default: until Ctrl-C)")
 
 
 def wait_for_viewer(view: Any, seconds: float, out: TextIO = sys.stderr) -> None:
@@ -58,10 +44,6 @@ def linger(view: Any, seconds: float, out: TextIO = sys.stderr) -> None:
             time.sleep(min(0.5, max(0.0, end - time.monotonic())))
     except KeyboardInterrupt:
         pass
-
-
-def add_foxglove_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--foxglove", nargs="?", const=DEFAULT_PORT, type=tcp_port, metavar="PORT", help=FOXGLOVE_HELP)
 
 
 def start_foxglove(args: argparse.Namespace, command: str, out: TextIO = sys.stderr, host: str = "127.0.0.1") -> Any:
@@ -93,13 +75,6 @@ BASE_TOPICS = frozenset({"/odom", "/scan", "/tf"})
 """What a ROS 2 base publishes itself: not published again by --ros2 on its domain."""
 
 
-def add_ros2_option(p: argparse.ArgumentParser, what: str) -> None:
-    p.add_argument("--ros2", type=nonempty, nargs="?", const="", metavar="domain=N[,discovery=subnet]",
-                   help=f"publish {what} live on ROS 2 domain N (default 0): the MCAP recording's topics and "
-                        "types, REP 105 frames, stamped on this host's clock; the loop's commands on "
-                        "/rfhoming/cmd_vel; this machine only unless discovery=subnet; needs the ros and ros2 extras")
-
-
 def ros2_publisher(text: str, ros2_bases: Iterable[int] = (), *, source: str | None = None, site: Any = None,
                    robot: bool = True) -> Sink:
     """``--ros2 [domain=N][,discovery=subnet]``: a sink publishing on that domain. ``ros2_bases``:
@@ -129,3 +104,12 @@ def start_ros2(args: argparse.Namespace, drivers: list[Any]) -> Sink | None:
     for d in drivers:
         d.listeners.append(sink.on_item)
     return sink
+
+
+def mcap_recorder(path: Path) -> Sink:
+    """The MCAP recorder sink; an Error naming the extra when its packages are missing."""
+    try:
+        from rfhoming.host.export.recorder import McapRecorder
+    except ImportError as exc:
+        raise ExtraMissing(f"--mcap needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'") from None
+    return McapRecorder(path)

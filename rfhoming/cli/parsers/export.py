@@ -3,13 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 
 from rfhoming.cli.args import output_file, path
-from rfhoming.protocol.errors import Error
-
-PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
+from rfhoming.cli.parsers import command
 
 EXPORT_HELP = """\
 Write a run as ROS 2 messages in an MCAP file that Foxglove, rosbags and `ros2 bag` read:
@@ -30,31 +26,6 @@ examples:
 """
 
 
-def cmd_export(args: argparse.Namespace) -> int:
-    try:
-        from rfhoming.host.export.recorder import export
-    except ImportError as exc:
-        print(f"rfhoming export: needs the ros extra ({exc.name} is missing): pip install 'rfhoming[ros]'",
-              file=sys.stderr)
-        return 2
-    runlog, capture = args.run, args.capture
-    try:
-        with open(runlog, "rb") as f:
-            if f.read(4) == PCAPNG_MAGIC:  # a capture given alone
-                if capture is not None:
-                    print("rfhoming export: give the run log first and the capture with --capture", file=sys.stderr)
-                    return 2
-                runlog, capture = None, runlog
-        from rfhoming.host.homing.config import load
-
-        summary = export(args.output, runlog=runlog, capture=capture, mounting=load(args.config).mounting)
-    except (OSError, Error) as exc:
-        print(f"rfhoming export: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps({"output": str(args.output), **summary}))
-    return 0
-
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="a run log and/or capture -> MCAP with ROS 2 messages",
                        description=EXPORT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -63,4 +34,4 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=output_file, required=True, help="MCAP file to write")
     p.add_argument("--config", type=path, help="the run's TOML config, for where the sensors sit on the robot "
                    "([mounting]; default: all at its centre)")
-    p.set_defaults(func=cmd_export)
+    p.set_defaults(func=command("export"))

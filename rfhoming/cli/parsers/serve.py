@@ -3,25 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
-import json
-import sys
 
 from rfhoming.cli.args import duration, nonempty, output_file, queue_lines, tcp_port
-from rfhoming.cli.io import (
-    ENDPOINT_HELP,
-    _run_until,
-    add_port_defaults,
-)
-from rfhoming.cli.live import add_foxglove_option, add_ros2_option, start_foxglove, start_ros2
-from rfhoming.host import losses
-from rfhoming.host.capture import CaptureWriter, describe_dialects
-from rfhoming.host.loopstall import StallMonitor, watching
-from rfhoming.host.ports import PortError
-from rfhoming.host.serve import QUEUE_LINES, ItemServer
-from rfhoming.host.session import health, open_drivers
-from rfhoming.protocol.errors import Error
+from rfhoming.cli.parsers import command
+from rfhoming.cli.parsers.common import ENDPOINT_HELP, add_foxglove_option, add_port_defaults, add_ros2_option
 
+QUEUE_LINES = 1000
+"""host/serve.py's default queue (a test holds them equal), named here so that building the
+parsers does not load the server."""
 DEFAULT_PORT = 2948  # beside gpsd's 2947
 
 SERVE_HELP = f"""\
@@ -49,54 +38,6 @@ examples:
 """
 
 
-async def _serve(args: argparse.Namespace) -> int:
-    capture = CaptureWriter(args.output) if args.output else None
-    try:
-        drivers = await open_drivers(args.ports, baud=args.baud, flow=args.flow, taps=[capture.tap] if capture else [],
-                                     describe=capture.describe if capture else None)
-    except (Error, OSError) as exc:
-        print(f"rfhoming serve: {exc}", file=sys.stderr)
-        return 2
-    server = ItemServer(queue_lines=args.queue, drivers=drivers)
-    try:
-        for host in args.bind or ["127.0.0.1"]:
-            for address in await server.start(host, args.port):
-                print(json.dumps({"kind": "listening", "address": address}), flush=True)
-    except OSError as exc:
-        print(f"rfhoming serve: cannot listen on {args.bind or '127.0.0.1'} port {args.port}: {exc.strerror}; "
-              "choose another with --port", file=sys.stderr)
-        return 2
-    view = start_foxglove(args, "serve", out=sys.stdout, host=(args.bind or ["127.0.0.1"])[0])
-    for d in drivers:
-        d.listeners += [server.publish, *([view.on_item] if view else [])]
-    ros2 = start_ros2(args, drivers)
-    extra = [asyncio.create_task(describe_dialects(drivers, capture))] if capture else []
-    stalls = StallMonitor()
-    try:
-        await watching(_run_until(drivers, args.duration, extra), stalls)
-    except PortError as exc:
-        print(f"rfhoming serve: {exc}", file=sys.stderr)
-        return 2
-    finally:
-        await server.close()
-        if view is not None:
-            view.close()
-        if ros2 is not None:
-            ros2.close()
-        for h in health(drivers):
-            print(json.dumps({"kind": "counters", **h}), flush=True)
-        served = server.health()
-        print(json.dumps({"kind": "server", **served, "losses": losses.WARNINGS.check("serve", served),
-                          **stalls.summary()}), flush=True)
-        if capture is not None:
-            capture.close()
-    return 0
-
-
-def cmd_serve(args: argparse.Namespace) -> int:
-    return asyncio.run(_serve(args))
-
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("serve", help="own the devices and serve their items to many clients (gpsd-style)",
                        description=SERVE_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -111,4 +52,4 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=duration, help="stop after this many seconds")
     add_foxglove_option(p)
     add_ros2_option(p, "the devices' readings")
-    p.set_defaults(func=cmd_serve)
+    p.set_defaults(func=command("serve"))

@@ -3,21 +3,25 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
-import contextlib
-import json
-import math
-import signal
-import sys
-
+import os
+from importlib.util import find_spec
 from typing import Any
 
 from rfhoming.cli.args import duration, fault, nonempty, output_file, path, seed, speed, xy
-from rfhoming.emulator.faults import Fault, FaultError
-from rfhoming.emulator.runtime import Emulator
-from rfhoming.emulator.scenario import BLE_RECEIVERS, ScenarioError, load, presets
-from rfhoming.host import portspec
-from rfhoming.protocol.errors import Error
+from rfhoming.cli.parsers import command
+
+BLE_RECEIVERS = ("esp32", "at86rf212", "esp-at", "hci")
+"""emulator/scenario.py's BLE_RECEIVERS, the device table's boards with the "ble" role (a test
+holds them equal), named here so that building the parsers loads neither."""
+
+
+def presets() -> list[str]:
+    """emulator/scenario.py's presets (a test holds them equal), without loading the emulator or
+    importlib.resources (which costs --version a fifth of its time)."""
+    spec = find_spec("rfhoming.emulator.scenarios")
+    folders = spec.submodule_search_locations if spec is not None else None
+    return sorted(name[:-5] for folder in folders or () for name in os.listdir(folder) if name.endswith(".toml"))
+
 
 HELP = """\
 Run an emulated world and serve each device where a host opens it like real hardware:
@@ -63,7 +67,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="the robot base as a ROS 2 robot over DDS (/odom, /scan, /tf out, /cmd_vel in), not a "
                         "serial port; this machine only unless discovery=subnet (docs/hardware.md, Robots)")
     p.add_argument("--link-dir", type=path, help="directory for the pty symlinks (default: a new temp dir)")
-    p.set_defaults(func=cmd_emulate)
+    p.set_defaults(func=command("emulate"))
 
 
 def ros2_robot(text: str) -> dict[str, Any]:
@@ -71,6 +75,8 @@ def ros2_robot(text: str) -> dict[str, Any]:
     kind, _, rest = text.partition(":")
     if kind != "ros2":
         raise argparse.ArgumentTypeError(f"{text!r}: the robot can be ros2[:domain=N,ns=NS]")
+    from rfhoming.host import portspec
+
     try:
         spec = portspec.parse("ros2:" + rest)
     except portspec.PortSpecError as exc:
@@ -80,53 +86,3 @@ def ros2_robot(text: str) -> dict[str, Any]:
     return {"domain": spec.settings.get("domain", 0), "ns": str(spec.settings.get("ns", spec.where)).strip("/"),
             "discovery": spec.settings.get("discovery", "localhost"),
             "stamped": spec.settings.get("stamped", False) in (True, "1")}
-
-
-def cmd_emulate(args: argparse.Namespace) -> int:
-    target = tuple(float(v) for v in args.target.split(",")) if args.target else None
-    try:
-        scenario = load(args.scenario, seed=args.seed, target=target, aoa_preset=args.aoa_preset,
-                        receiver=args.receiver)
-        faults = [Fault.parse(spec) for spec in args.fault]
-    except (ScenarioError, FaultError) as exc:
-        print(f"rfhoming emulate: {exc}", file=sys.stderr)
-        return 2
-    if args.link_dir is not None and not args.link_dir.is_dir():
-        print(f"rfhoming emulate: --link-dir {args.link_dir} is not a directory: create it "
-              f"(mkdir -p {args.link_dir}) or leave --link-dir out for a new temporary one", file=sys.stderr)
-        return 2
-    truth = open(args.truth, "w") if args.truth else None
-    try:
-        emulator = Emulator(
-            scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
-            speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
-            faults=faults, truth=truth, link_dir=args.link_dir, robot=args.robot,
-        )
-    except Error as exc:
-        print(f"rfhoming emulate: {exc}", file=sys.stderr)
-        return 2
-    try:
-        asyncio.run(_serve(emulator, args.duration))
-    finally:
-        if truth is not None:
-            truth.close()
-    return 0
-
-
-async def _serve(emulator: Emulator, duration: float | None) -> None:
-    for endpoint in await emulator.start():
-        print(json.dumps(endpoint), flush=True)
-    loop = asyncio.get_running_loop()
-    task = asyncio.current_task()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, task.cancel)
-    try:
-        await emulator.run(duration)
-    except asyncio.CancelledError:
-        pass
-    finally:
-        await emulator.close()
-        with contextlib.suppress(OSError):
-            for d in emulator.devices:
-                if hasattr(d.link, "symlink") and d.link.symlink is not None:
-                    d.link.symlink.unlink(missing_ok=True)

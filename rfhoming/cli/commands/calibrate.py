@@ -1,0 +1,108 @@
+"""``rfhoming calibrate``: fit each fixed anchor's angle corrections, from known points or the
+anchors' own recordings (--self), and write them into the site file."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from dataclasses import replace
+from typing import Any
+
+from rfhoming.cli.site_sources import gather, load_site
+from rfhoming.host import site as sites
+from rfhoming.host.calibration import CalibrationError, assign_dwells, calibrate
+from rfhoming.host.points_file import load_points
+
+
+def run(args: argparse.Namespace) -> int:
+    site = load_site(args.site, "calibrate")
+    if site is None:
+        return 2
+    if args.self_calibrate:
+        return _self_calibrate(args, site)
+    if args.points is None:
+        print("rfhoming calibrate: give --points FILE (tags at known points) or --self (from a recording of "
+              "tags moving over the room)", file=sys.stderr)
+        return 2
+    try:
+        points = load_points(args.points)
+    except CalibrationError as exc:
+        print(f"rfhoming calibrate: {exc}", file=sys.stderr)
+        return 2
+    events: list[tuple[float, Any]] = []
+    print(f"recording angles of {len(points)} known point(s)"
+          + (f" for {args.duration:g} s" if args.duration else "") + "...", file=sys.stderr)
+    code = asyncio.run(gather("calibrate", site, args.sources, lambda t, event: events.append((t, event)),
+                             baud=args.baud, flow=args.flow, duration=args.duration))
+    if code:
+        return code
+    try:
+        points, found = assign_dwells(events, points)
+        for line in found:
+            print(line, file=sys.stderr)
+        fits = calibrate(site, events, points, azimuth_only=args.azimuth_only, angle_model=args.angle_model or "auto")
+    except CalibrationError as exc:
+        print(f"rfhoming calibrate: {exc}", file=sys.stderr)
+        return 2
+    for f in fits:
+        c = f.calibration
+        print(json.dumps({"kind": "calibration", "anchor": f.anchor, "points": f.points, "angle_model": f.angle_model,
+                          "rms_before_deg": round(f.rms_before_deg, 2), "rms_after_deg": round(f.rms_after_deg, 2),
+                          "yaw_offset_deg": round(c.yaw_offset_deg, 2), "az_scale": round(c.az_scale, 4),
+                          "az_bias_deg": round(c.az_bias_deg, 2), "el_scale": round(c.el_scale, 4),
+                          "el_bias_deg": round(c.el_bias_deg, 2),
+                          "sigma": {k: round(v, 4) for k, v in f.sigma.items()}, "held": f.held,
+                          "rms_by_model_deg": f.rms_by_model}))
+    return _write(args, {f.anchor: f.calibration for f in fits}, {f.anchor: f.angle_model for f in fits})
+
+
+def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
+    """--self: each --from recording gathered on its own (their clocks need not line up)."""
+    if args.points is not None:
+        print("rfhoming calibrate: --self fits without known points; leave out --points", file=sys.stderr)
+        return 2
+    recordings = []
+    for source in args.sources or [None]:
+        events: list[tuple[float, Any]] = []
+        code = asyncio.run(gather("calibrate", site, [source] if source else None,
+                                  lambda t, event, into=events: into.append((t, event)),
+                                  baud=args.baud, flow=args.flow, duration=args.duration))
+        if code:
+            return code
+        recordings.append(events)
+    from rfhoming.host.self_calibration import self_calibrate
+
+    models = "auto"
+    if args.angle_model in ("spherical", "cone"):
+        models = "site"
+        site = replace(site, anchors=tuple(replace(a, angle_model=args.angle_model) for a in site.anchors))
+    try:
+        result = self_calibrate(site, recordings, height=args.height, models=models,
+                                progress=lambda text: print(text, end="", file=sys.stderr, flush=True))
+    except CalibrationError as exc:
+        print(f"rfhoming calibrate: {exc}", file=sys.stderr)
+        return 2
+    print(f"self-calibration: {result.epochs} epochs; gauge: {result.gauge}", file=sys.stderr)
+    for f in result.fits:
+        c = f.calibration
+        print(json.dumps({"kind": "calibration", "anchor": f.anchor, "self": True, "epochs": f.points,
+                          "angle_model": f.angle_model, "held_out_rms_before_deg": round(f.rms_before_deg, 2),
+                          "held_out_rms_after_deg": round(f.rms_after_deg, 2), "az_scale": round(c.az_scale, 4),
+                          "az_bias_deg": round(c.az_bias_deg, 2), "az_compression": round(c.az_compression, 4),
+                          "el_scale": round(c.el_scale, 4), "el_bias_deg": round(c.el_bias_deg, 2),
+                          "sigma": f.sigma, "held": f.held, "held_out_rms_by_model_deg": result.model_scores[f.anchor]}))
+    print(f"self-calibration {result.verdict}", file=sys.stderr)
+    if not result.write:
+        return 0
+    return _write(args, {f.anchor: f.calibration for f in result.fits}, {f.anchor: f.angle_model for f in result.fits})
+
+
+def _write(args: argparse.Namespace, calibrations: dict[str, Any], models: dict[str, str]) -> int:
+    if args.dry_run:
+        print("--dry-run: the site file is unchanged", file=sys.stderr)
+        return 0
+    sites.write_calibration(args.site, calibrations, models)
+    print(f"wrote the calibration of {len(calibrations)} anchors into {args.site}", file=sys.stderr)
+    return 0

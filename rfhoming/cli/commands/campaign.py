@@ -1,0 +1,76 @@
+"""``rfhoming campaign``: run a campaign, write its JSON, Markdown table and plots."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from rfhoming.campaigns.runner import Campaign, CampaignError, run_jobs
+from rfhoming.cli.parsers.campaign import REGISTRY
+
+__all__ = ["REGISTRY", "default_folder", "load", "run"]
+
+
+def default_folder(name: str, runs: int, seed: int) -> Path:
+    """Under the current directory, named for the run (never docs/results): the same command
+    finds its own checkpoint there after a crash."""
+    return Path(f"rfhoming-{name}-runs{runs}-seed{seed}")
+
+
+def load(name: str) -> Campaign:
+    module, attribute = REGISTRY[name].split(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    campaign = load(args.name)
+    runs = args.runs if args.runs is not None else campaign.default_runs
+    if runs < 1:
+        print(f"rfhoming campaign: --runs must be at least 1 ({campaign.runs_help})", file=sys.stderr)
+        return 2
+    try:
+        campaign.check_requirements()
+    except CampaignError as exc:
+        print(f"rfhoming campaign: {exc}", file=sys.stderr)
+        return 2
+    jobs = campaign.jobs(runs, args.seed)
+    args.out = args.out or default_folder(args.name, runs, args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    checkpoint = args.out / f"{args.name}.partial.jsonl"  # finished jobs survive a crash or Ctrl-C
+    where = f"Dask at {args.dask}" if args.dask else f"{args.workers} worker(s)"
+    t0 = time.perf_counter()
+    with tqdm(total=len(jobs), desc=f"{args.name} ({where})", unit="job", disable=args.quiet,
+              file=sys.stderr, dynamic_ncols=True) as bar:
+        try:
+            rows = run_jobs(jobs, args.workers, args.dask, bar.update, checkpoint)
+        except CampaignError as exc:
+            bar.close()
+            print(f"rfhoming campaign: {exc}", file=sys.stderr)
+            return 2
+    wall = time.perf_counter() - t0
+    report = campaign.report(rows)
+    command = "rfhoming campaign " + " ".join(shlex.quote(a) for a in [args.name, "--runs", str(runs), "--seed", str(args.seed)])
+    meta = {"campaign": args.name, "command": command, "runs": runs, "seed": args.seed, "jobs": len(jobs),
+            "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
+            "machine": platform.machine()}
+    (args.out / f"{args.name}.json").write_text(json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
+    (args.out / f"{args.name}.md").write_text(
+        f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where})\n\n{report.markdown}\n")
+    for name, write in report.plots.items():
+        write(args.out / name)
+    checkpoint.unlink()
+    if args.json:
+        print(json.dumps({**meta, "summary": report.summary}, indent=1))
+    else:
+        print(report.markdown)
+        print(f"\n{len(jobs)} jobs in {wall:.1f} s; wrote {args.out}/{args.name}.json, .md"
+              + "".join(f", {p}" for p in report.plots))
+    return 0

@@ -1,0 +1,62 @@
+"""``rfhoming demo``: the emulator and the host, a full homing run, a summary and a plot."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from rfhoming.cli.live import linger, mcap_recorder, start_foxglove, wait_for_viewer
+from rfhoming.host.homing.config import load
+from rfhoming.host.portspec import PortSpecError
+
+
+def run(args: argparse.Namespace) -> int:
+    from rfhoming.demo import SUPPORTED, run_demo
+
+    if args.scenario not in SUPPORTED:
+        raise PortSpecError(f"scenario {args.scenario!r} is not wired to a controller yet; "
+                            f"choose one of {sorted(SUPPORTED)}")
+    config = load(args.config)
+    if args.receiver and args.scenario != "s3-arena":
+        raise PortSpecError("--receiver swaps the BLE RSSI receiver of --scenario s3-arena")
+    speed = args.speed if args.speed is not None else (1.0 if args.foxglove is not None else 0.0)
+    if not args.json:
+        where = "in this process" if args.in_process else "on ptys"
+        pace = "in lockstep" if speed == 0 or args.in_process else f"at {speed:g}x robot time"
+        print(f"demo: emulating {args.scenario} (seed {args.seed}) {where} {pace}; homing ...", file=sys.stderr)
+    sinks = [mcap_recorder(args.mcap)] if args.mcap else []
+    view = start_foxglove(args, "demo")
+    try:
+        wait_for_viewer(view, args.wait_viewer)
+        summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver,
+                           sinks=[*sinks, *([view] if view else [])], speed=speed, in_process=args.in_process)
+    except BaseException:
+        if view is not None:
+            view.close()
+        raise
+    finally:
+        for sink in sinks:
+            sink.close()
+    if args.mcap is not None:
+        summary["files"]["mcap"] = str(args.mcap)
+    if args.json:
+        print(json.dumps(summary), flush=True)
+    else:
+        ok = "SUCCESS" if summary["success"] else "FAILED"
+        print(f"{ok}: {summary['reason']} after {summary['simulated_time_s']} s simulated")
+        for key in ("target", "goal_position_error_m", "final_position_error_m", "path_efficiency",
+                    "net_velocity_m_s", "stale_stops", "latency_ms_p50", "latency_ms_p99", "loop_stall_ms_max",
+                    "loop_stall_ms_p99"):
+            if key in summary:
+                print(f"  {key:<24} {summary[key]}")
+        for name, counters in summary["links"].items():
+            print(f"  link {name:<19} {counters}")
+        for name, path in summary["files"].items():
+            print(f"  {name:<24} {path}", flush=True)
+    if view is not None:
+        try:
+            linger(view, args.linger)
+        finally:
+            view.close()
+    return 0 if summary["success"] else 1

@@ -1,0 +1,24 @@
+"""``rfhoming dissector``: the Wireshark Lua dissector for the binary records."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rfhoming.protocol.frames.wireshark import lua_dissector
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.output == "-":
+        sys.stdout.write(lua_dissector())
+        return 0
+    try:
+        path = Path(args.output).expanduser()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(lua_dissector())
+    except OSError as exc:
+        print(f"rfhoming dissector: cannot write {args.output}: {exc.strerror}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}", file=sys.stderr)
+    return 0

@@ -1,0 +1,66 @@
+"""``rfhoming emulate``: run a scenario and serve its devices on ptys or TCP until interrupted."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import math
+import signal
+import sys
+
+from rfhoming.emulator.faults import Fault, FaultError
+from rfhoming.emulator.runtime import Emulator
+from rfhoming.emulator.scenario import ScenarioError, load
+from rfhoming.protocol.errors import Error
+
+
+def run(args: argparse.Namespace) -> int:
+    target = tuple(float(v) for v in args.target.split(",")) if args.target else None
+    try:
+        scenario = load(args.scenario, seed=args.seed, target=target, aoa_preset=args.aoa_preset,
+                        receiver=args.receiver)
+        faults = [Fault.parse(spec) for spec in args.fault]
+    except (ScenarioError, FaultError) as exc:
+        print(f"rfhoming emulate: {exc}", file=sys.stderr)
+        return 2
+    if args.link_dir is not None and not args.link_dir.is_dir():
+        print(f"rfhoming emulate: --link-dir {args.link_dir} is not a directory: create it "
+              f"(mkdir -p {args.link_dir}) or leave --link-dir out for a new temporary one", file=sys.stderr)
+        return 2
+    truth = open(args.truth, "w") if args.truth else None
+    try:
+        emulator = Emulator(
+            scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
+            speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
+            faults=faults, truth=truth, link_dir=args.link_dir, robot=args.robot,
+        )
+    except Error as exc:
+        print(f"rfhoming emulate: {exc}", file=sys.stderr)
+        return 2
+    try:
+        asyncio.run(_serve(emulator, args.duration))
+    finally:
+        if truth is not None:
+            truth.close()
+    return 0
+
+
+async def _serve(emulator: Emulator, duration: float | None) -> None:
+    for endpoint in await emulator.start():
+        print(json.dumps(endpoint), flush=True)
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, task.cancel)
+    try:
+        await emulator.run(duration)
+    except asyncio.CancelledError:
+        pass
+    finally:
+        await emulator.close()
+        with contextlib.suppress(OSError):
+            for d in emulator.devices:
+                if hasattr(d.link, "symlink") and d.link.symlink is not None:
+                    d.link.symlink.unlink(missing_ok=True)

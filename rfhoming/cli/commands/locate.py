@@ -1,0 +1,94 @@
+"""``rfhoming locate``: tag positions from a site's fixed AoA anchors."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from typing import Any
+
+import numpy as np
+
+from rfhoming.cli.live import ros2_publisher
+from rfhoming.cli.site_sources import gather, load_site
+from rfhoming.host import losses
+from rfhoming.host import site as sites
+from rfhoming.host.locate import Locator, Position, smooth
+from rfhoming.host.loopstall import StallMonitor, watching
+
+
+def run(args: argparse.Namespace) -> int:
+    site = load_site(args.site, "locate")
+    if site is None:
+        return 2
+    if args.rate:
+        site = sites.Site(site.name, site.anchors, site.tags, args.rate, site.window_s, site.stale_s,
+                          site.sigma_deg, site.path)
+    if args.smooth and not (args.sources and all(s.startswith("capture:") for s in args.sources)):
+        print("rfhoming locate: --smooth needs a whole recording (--from capture:FILE); a live run stays causal",
+              file=sys.stderr)
+        return 2
+    print(f"rfhoming locate: {_calibration_in_use(site)}", file=sys.stderr)
+    locator = Locator(site, track=not (args.no_track or args.smooth), tracker=args.tracker,
+                      accel_psd=args.accel_psd, loss=args.loss, height_sigma=args.height_sigma)
+    # --ros2: the anchors' angles (in anchor_<id>, placed in map by /tf_static) and the fixes
+    ros2 = (ros2_publisher(args.ros2, source="anchors", site=site, robot=False)
+            if args.ros2 is not None else None)
+    out = args.output.open("w") if args.output else sys.stdout
+    per_tag: dict[str, list[float]] = {}
+    fixes: list[Position] = []
+
+    def show(positions: list[Position]) -> None:
+        if args.smooth:  # held for the smoother at the end
+            fixes.extend(positions)
+            return
+        for p in positions:
+            per_tag.setdefault(p.tag, []).append(float(np.trace(p.covariance)))
+            out.write(json.dumps({"kind": "position", **p.as_dict()}) + "\n")
+            if ros2 is not None:
+                ros2.on_position(p)
+        if positions:
+            out.flush()
+
+    def feed(t: float, event: Any) -> None:
+        if ros2 is not None:
+            ros2.on_item("", t, event)
+        show(locator.feed(t, event))
+
+    smoothed = args.smooth
+    stalls = StallMonitor()
+    code = asyncio.run(watching(gather("locate", site, args.sources, feed, locator.disconnected, baud=args.baud,
+                                       flow=args.flow, duration=args.duration, capture_to=args.capture), stalls))
+    if code:
+        return code
+    show(locator.flush())
+    if args.smooth:
+        args.smooth = False
+        show(smooth(fixes, args.accel_psd))
+    if ros2 is not None:
+        ros2.close()
+    names = {a.id: a.name for a in site.anchors}
+    summary = {"kind": "summary", "site": site.name,
+               "estimate": "smoothed (RTS over the whole recording)" if smoothed else
+               "raw fixes" if args.no_track else f"causal ({args.tracker} tracker)",
+               "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
+                        for tag, v in sorted(per_tag.items())},
+               "anchors": sorted(names.values()), **locator.counters,
+               "losses": losses.WARNINGS.check("locate", locator.counters), **stalls.summary()}
+    out.write(json.dumps(summary) + "\n")
+    if out is not sys.stdout:
+        out.close()
+    return code
+
+
+def _calibration_in_use(site: sites.Site) -> str:
+    """One line: which anchors the site file calibrates (and how much), which it leaves raw."""
+    plain = sites.Calibration()
+    done = [f"{a.name} ({a.angle_model}, az_scale {a.calibration.az_scale:.3f}, az_bias {a.calibration.az_bias_deg:+.1f} deg)"
+            for a in site.anchors if a.calibration != plain]
+    raw = [a.name for a in site.anchors if a.calibration == plain]
+    where = site.path or site.name
+    if not done:
+        return f"no calibration in {where}: angles used as the boards report them (rfhoming calibrate --help)"
+    return f"calibration from {where}: " + ", ".join(done) + (f"; uncalibrated: {', '.join(raw)}" if raw else "")

@@ -1,0 +1,86 @@
+"""``rfhoming run``: homing on a tag with real devices or emulator endpoints."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import sys
+
+from rfhoming.cli.live import mcap_recorder, ros2_publisher, start_foxglove
+from rfhoming.host import site as sites
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.homing import assembly
+from rfhoming.host.homing.assembly import CHOOSE_TAG_S, METHODS, Device, Homing, run_record
+from rfhoming.host.homing.config import Config, load
+from rfhoming.host.homing.loop import RunLog
+from rfhoming.host.portspec import SETTINGS, PortSpec, PortSpecError
+from rfhoming.host.portspec import parse as parse_spec
+from rfhoming.host.sink import Sink
+from rfhoming.host.site import Site
+
+
+def _tags(values: list[str]) -> tuple[str, ...]:
+    """--tag values (each one id or ids joined by +) -> upper-case ids; PortSpecError explains."""
+    try:
+        return tuple(dict.fromkeys(t for v in values for t in SETTINGS["tags"](v)))
+    except ValueError as exc:
+        raise PortSpecError(f"--tag takes {exc}") from None
+
+
+def _devices(args: argparse.Namespace, config: Config, role: str) -> tuple[list[Device], Site | None]:
+    """The run's devices by role: the command line's specs over the config's [devices.ROLE];
+    fixed anchors come from the site file."""
+    def spec(r: str) -> PortSpec:
+        given = getattr(args, r, None)
+        found = parse_spec(given).over(config.devices.get(r)) if given else config.devices.get(r)
+        if found is None:
+            raise PortSpecError(f"--controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)")
+        return found
+
+    site = None
+    if role == "anchor":
+        if args.site is None:
+            raise PortSpecError("--controller anchors needs --site SITE.toml (anchors, and tags with role = "
+                                "\"robot\" / \"target\")")
+        site = sites.load(args.site)
+        site.tag_with_role("robot"), site.tag_with_role("target")
+        if any(a.port is None for a in site.anchors):
+            raise sites.SiteError(f"{args.site}: every anchor needs port = \"xplr-aoa:WHERE\" for run")
+        sensors = [Device("anchor", spec=a.port) for a in site.anchors]
+    else:
+        sensors = [Device(role, spec=spec(role))]
+    return [*sensors, Device("base", spec=spec("base"))], site
+
+
+def run(args: argparse.Namespace) -> int:
+    config = load(args.config)
+    role = METHODS[args.controller].role
+    devices, site = _devices(args, config, role)
+    plan = Homing(args.controller, devices, config, site=site, tags=_tags(args.tag), choose_tag_s=CHOOSE_TAG_S,
+                  probe_baud=args.probe_baud, baud=args.baud, flow=args.flow)
+    assembly.check(plan)  # before anything is opened or created
+    with contextlib.ExitStack() as opened:  # whatever was opened is closed, however the run ends
+        sinks: list[Sink] = []
+        if args.mcap:
+            sinks.append(opened.enter_context(contextlib.closing(mcap_recorder(args.mcap))))
+        if args.ros2 is not None:
+            bases = [parse_spec(d.spec) for d in devices if d.role == "base" and d.spec is not None]
+            sinks.append(opened.enter_context(contextlib.closing(ros2_publisher(
+                args.ros2, [b.settings.get("domain", 0) for b in bases if b.kind == "ros2"]))))
+        view = start_foxglove(args, "run")
+        if view is not None:
+            sinks.append(opened.enter_context(contextlib.closing(view)))
+        plan.sinks = sinks
+        plan.runlog = RunLog(opened.enter_context(open(args.log, "w")) if args.log else None)
+        if args.capture:
+            record = run_record(plan, args.site.read_text() if site is not None else None)
+            plan.capture = opened.enter_context(contextlib.closing(CaptureWriter(args.capture, comment=record)))
+        try:
+            outcome = asyncio.run(assembly.run(plan))
+        except KeyboardInterrupt:
+            print("rfhoming run: interrupted; the base was told to stop", file=sys.stderr)
+            return 130
+    print(json.dumps(outcome.summary()))
+    return 0 if outcome.arrived else 1

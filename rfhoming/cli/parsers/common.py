@@ -1,0 +1,52 @@
+"""Options that several commands share: the ports' defaults, --foxglove, --ros2, the demo's
+watch options."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from rfhoming.cli.args import baud, delay, nonempty, tcp_port
+
+ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket://HOST:PORT or auto; KIND "
+                 "(xplr-aoa, rss-node, esp-at, hci, base) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
+                 "capture:FILE replays a recording; serve://HOST:PORT is the devices of an `rfhoming serve` "
+                 "(see docs/usage.md)")
+
+FOXGLOVE_PORT = 8765  # Foxglove's own default (rfhoming.host.foxglove_view.DEFAULT_PORT)
+FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {FOXGLOVE_PORT}, 0 = any free port) to "
+                 "Foxglove or Lichtblick (subprotocol foxglove.websocket.v1 or foxglove.sdk.v1); "
+                 "in Foxglove open a WebSocket connection to it and import the layout "
+                 "rfhoming/host/foxglove_layout.json; needs the foxglove extra")
+WAIT_S = 60.0
+
+
+def add_port_defaults(p: argparse.ArgumentParser) -> None:
+    """--baud, --flow and --probe-baud: defaults for every port whose spec does not set its own."""
+    p.add_argument("--baud", type=baud, metavar="RATE",
+                   help="serial rate for ports whose spec gives no baud= (default 115200)")
+    p.add_argument("--flow", choices=("auto", "rtscts", "none"),
+                   help="RTS/CTS for ports whose spec gives no flow=: auto (default) = on for the XPLR-AOA "
+                        "(its documented default), off for the others")
+    p.add_argument("--probe-baud", action="store_true",
+                   help="if an XPLR-AOA sends only garbage, try each rate it documents until it answers AT")
+
+
+def add_watch_options(p: argparse.ArgumentParser) -> None:
+    """The demo's options for a person watching: wait for the viewer, stay up after the run."""
+    p.add_argument("--wait-viewer", type=delay, default=WAIT_S, metavar="S",
+                   help=f"with --foxglove: start the run when a viewer subscribes, or after S seconds "
+                   f"(default {WAIT_S:g}; 0 = at once)")
+    p.add_argument("--linger", type=delay, default=math.inf, metavar="S",
+                   help="with --foxglove: keep the view up S seconds after the run (default: until Ctrl-C)")
+
+
+def add_foxglove_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--foxglove", nargs="?", const=FOXGLOVE_PORT, type=tcp_port, metavar="PORT", help=FOXGLOVE_HELP)
+
+
+def add_ros2_option(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--ros2", type=nonempty, nargs="?", const="", metavar="domain=N[,discovery=subnet]",
+                   help=f"publish {what} live on ROS 2 domain N (default 0): the MCAP recording's topics and "
+                        "types, REP 105 frames, stamped on this host's clock; the loop's commands on "
+                        "/rfhoming/cmd_vel; this machine only unless discovery=subnet; needs the ros and ros2 extras")

@@ -1,0 +1,163 @@
+"""``rfhoming locate`` (a site worker with --from mqtt://) and ``rfhoming calibrate``: tag
+positions from a site's fixed anchors."""
+
+from __future__ import annotations
+
+import argparse
+
+from rfhoming.cli.args import (
+    accel_psd,
+    bus_name,
+    duration,
+    from_spec,
+    height_sigma,
+    is_broker,
+    nonempty,
+    output_file,
+    path,
+    rate_hz,
+    reorder_s,
+    seed,
+    tag_height,
+)
+from rfhoming.cli.parsers import command
+from rfhoming.cli.parsers.common import add_port_defaults, add_ros2_option
+
+LOCATE_HELP = """\
+Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
+Every anchor's angle events are merged by host arrival time; at --rate (default: the site's
+rate_hz) each tag seen by enough fresh anchors gets a fix (3-D rays, weighted, one bad anchor
+left out) that a constant-velocity filter tracks. Output: one JSON line per position
+(kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected,
+chi2_per_dof = the fix's quality, as on the site bus), and on exit one "summary" line (its
+"estimate" says causal or smoothed). A capture of the anchors gives the same lines as the live run did; --smooth on a capture gives
+RTS-smoothed positions instead, each marked "smoothed": true.
+
+examples:
+  rfhoming locate site.toml                                # the anchors' ports from the site
+  rfhoming locate site.toml --duration 30 --capture run.pcapng
+  rfhoming locate site.toml --from capture:run.pcapng      # the same positions, from the capture
+  rfhoming locate site.toml --from capture:run.pcapng --smooth --loss cauchy   # after the fact
+  rfhoming locate site-64x1000 --from mqtt://127.0.0.1:1883/8 --id w1      # a site worker (below)
+
+the kit room of docs/sites, emulated (its first line printed, every link exists):
+  mkdir -p /tmp/rfhoming-kit
+  rfhoming emulate kit-room --link-dir /tmp/rfhoming-kit --duration 15 | { read -r _; rfhoming locate docs/sites/kit-room.toml --duration 10; }
+"""
+
+CALIBRATE_HELP = """\
+Fit each anchor's angle corrections and write them, with its angle model, into the site file's
+[anchors.NAME] tables (the rest of the file is kept as it was); report each anchor's angle
+error before and after, each fitted parameter's standard deviation, and which parameters were
+held and why (only what the points determine is fitted: e.g. no elevation when every point is
+at one height). Results stay within the site file's limits, or nothing is written.
+
+With known points (--points FILE):
+
+  [points]                           # tags that stay at one point all the recording
+  CCF9578E0C01 = [2.0, 1.5, 0.8]     # x, y, z in metres, the site's frame
+
+  [[dwell]]                          # one tag carried from point to point
+  tag = "CCF9578E0D8A"
+  position = [2.0, 1.5, 0.8]
+  from_s = 10                        # seconds from the first angle event; leave both out and
+  to_s = 40                          # the dwells (5 s or more still) are found, in order
+
+Every anchor must see three or more points (spread out, not on one line through it).
+
+Without (--self): tags walked over the whole room; each anchor's azimuth scale and bias (and
+elevation, |azimuth| compression, where the data determine them) are fitted jointly with every
+epoch's position (the scales' geometric mean is fixed to 1: an overall scale is not
+observable). The epochs are cut into 10 s blocks dealt into three folds, each scored by a fit
+of the others: the calibration is written only when it beats the uncalibrated site on these
+held-out epochs, else nothing is written and one line says why. A parameter that runs to its
+bound or that the folds do not agree on is held at its default ("held", with the reason).
+Refused when the tags did not cover the room.
+
+examples:
+  rfhoming calibrate site.toml --points points.toml --duration 20
+  rfhoming calibrate site.toml --points points.toml --from capture:cal.pcapng --dry-run
+  rfhoming calibrate site.toml --points points.toml --azimuth-only --from capture:cal.pcapng
+  rfhoming calibrate site.toml --self --from capture:walk1.pcapng --from capture:walk2.pcapng
+"""
+
+
+WORKER_HELP = """\
+With --from mqtt://BROKER[:PORT][/PARTITIONS] (mqtts:// = TLS, mqtt://user:pw@... a login),
+locate is a site worker: it subscribes to the partitions it owns among the live workers
+(rendezvous hashing; a worker that goes, its will tells the others, who take its partitions),
+measures each gateway's clock offset, fixes every tag per tick with the batched engine and
+publishes each position as JSON on rfhoming/SITE/positions/TAG; on exit it prints one "worker"
+line of counters. SITE is then a site file or an emulated site name (site-64x1000).
+
+  rfhoming locate site-64x1000 --from mqtt://127.0.0.1:1883/8 --id w1
+  rfhoming locate docs/sites/kit-room.toml --from mqtts://user:pw@broker.example/8 --ca ca.pem
+"""
+
+
+
+def _locate(args: argparse.Namespace) -> int:
+    """--from mqtt:// makes locate a site worker: the same command line, another job."""
+    worker = args.sources and any(is_broker(s) for s in args.sources)
+    return command("worker" if worker else "locate")(args)
+
+
+def add_worker_arguments(p: argparse.ArgumentParser) -> None:
+    """The worker's options on ``locate`` (used with --from mqtt:// only)."""
+    w = p.add_argument_group("site worker (with --from mqtt://BROKER[/PARTITIONS])", WORKER_HELP)
+    w.add_argument("--id", type=bus_name, default="w1", help="this worker's name among the site's workers (default w1)")
+    w.add_argument("--reorder", type=reorder_s, default=0.02, metavar="S",
+                   help="seconds a tick waits for late batches (default 0.02)")
+    w.add_argument("--seed", type=seed, default=1, help="an emulated site's seed (default 1)")
+    w.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    raw = argparse.RawDescriptionHelpFormatter
+    for name, helptext, description in (
+            ("locate", "positions of tags from a site's fixed AoA anchors", LOCATE_HELP),
+            ("calibrate", "fit each fixed anchor's angle corrections from known points", CALIBRATE_HELP)):
+        p = sub.add_parser(name, help=helptext, description=description, formatter_class=raw)
+        p.add_argument("site", type=path, help="site file (TOML): anchors, their poses and ports, tags")
+        p.add_argument("--from", dest="sources", type=from_spec, action="append", metavar="SPEC",
+                       help="read these ports instead of the site's (repeatable), e.g. capture:run.pcapng")
+        p.add_argument("--duration", type=duration, help="stop after this many seconds (a capture ends by itself)")
+        add_port_defaults(p)
+        if name == "locate":
+            p.add_argument("--capture", type=output_file, help="also record every anchor's bytes to this pcapng file")
+            p.add_argument("-o", "--output", type=output_file, help="write the JSON lines here instead of stdout")
+            p.add_argument("--rate", type=rate_hz, help="positions per second per tag (default: the site's rate_hz)")
+            p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
+            p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
+                           help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
+                                "pair updates the track as it arrives (more accurate, ~3x the CPU: docs/BENCHMARKS.md)")
+            p.add_argument("--accel-psd", type=accel_psd, default=1.0,
+                           help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
+            p.add_argument("--smooth", action="store_true",
+                           help="recordings only (--from capture:): RTS-smooth each tag's fixes over the whole "
+                                "recording; positions are labelled \"smoothed\" (not causal)")
+            p.add_argument("--loss", choices=("huber", "cauchy"), default="huber",
+                           help="the fix's robust loss: huber (default; one bad anchor left out) or cauchy "
+                                "(every anchor kept, each down-weighted by its miss)")
+            p.add_argument("--height-sigma", type=height_sigma, metavar="M",
+                           help="a tag's known height is a prior of this sigma (m), not a constraint")
+            add_worker_arguments(p)
+            add_ros2_option(p, "the anchors' angles and each tag's position (PoseWithCovarianceStamped and "
+                               "PointStamped on /rfhoming/tag_<ID>/pose and /point, in map)")
+            p.set_defaults(func=_locate)
+        else:
+            p.add_argument("--points", type=path, help="TOML: [points] TAGID = [x, y, z] and/or [[dwell]] tables")
+            p.add_argument("--self", dest="self_calibrate", action="store_true",
+                           help="no known points: fit each anchor's azimuth scale and bias from tags moving over "
+                                "the whole room (give the recordings with --from capture:FILE)")
+            p.add_argument("--azimuth-only", action="store_true",
+                           help="fit azimuth (and yaw) only; elevation keeps scale 1 and bias 0")
+            p.add_argument("--angle-model", choices=("auto", "spherical", "cone"),
+                           help="the boards' angle model; auto (default): with --points the one with the smaller "
+                                "residual, with --self each anchor's winner on held-out epochs (spherical, cone, "
+                                "each with |azimuth| compression) if it beats the site file's by 3 percent")
+            p.add_argument("--height", type=tag_height, metavar="M",
+                           help="--self: the height (m) of tags the site file gives none (else free about 1 m); "
+                                "elevation is fitted only from tags of known height")
+            p.add_argument("--dry-run", action="store_true", help="report the fit, leave the site file alone")
+            p.set_defaults(func=command("calibrate"))

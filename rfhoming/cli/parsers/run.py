@@ -1,0 +1,119 @@
+"""``rfhoming run``, ``demo`` and ``config``: homing against real devices or the emulator."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from rfhoming.cli.args import nonempty, output_file, output_folder, path, seed, speed, xy
+from rfhoming.cli.parsers import command
+from rfhoming.cli.parsers.common import (
+    add_foxglove_option,
+    add_port_defaults,
+    add_ros2_option,
+    add_watch_options,
+)
+from rfhoming.cli.parsers.io import CONTROLLERS
+
+MCAP_HELP = ("also record the run as ROS 2 messages (odometry, scans, commands, estimates, readings) in "
+             "this MCAP file, for Foxglove, rosbags or ros2 bag (needs the ros extra)")
+
+DEMO_HELP = """\
+Start the emulator in its own process on pseudo-terminals (in lockstep: its world waits
+for the host), run the host's homing loop against it until arrival or failure, and print
+a summary. It writes the trajectory plot, the capture, the run log and the truth file to
+--out; `rfhoming replay OUT/capture.pcapng --run` runs the same loop again on its bytes.
+
+What varies from run to run with the same seed: on ptys the XPLR-AOA's and the base's bytes
+reach the host in whatever order the operating system delivers two ports, so a reading
+can meet a different odometry record and the simulated time and errors move by a few
+hundredths; the latencies are wall-clock figures. --in-process joins the emulator and the
+host by the emulator's in-process byte pipe (as the campaigns run) and gives the same
+summary, line for line, for the same seed, without the latency lines.
+
+examples:
+  rfhoming demo
+  rfhoming demo --seed 7 --json
+  rfhoming demo --in-process               # the same summary for the same seed, every time
+  rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
+  rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
+  rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
+  rfhoming demo --foxglove                 # watch it live at robot time: Foxglove -> ws://127.0.0.1:8765
+"""
+
+RUN_HELP = """\
+Home on a tag with real devices or emulator endpoints. The XPLR-AOA gives bearings; the base
+takes velocity commands and gives odometry. The robot stops when data goes stale, on
+arrival, on any error and on Ctrl-C. Exit status: 0 arrived, 1 did not, 2 usage/port errors
+(a port that cannot be opened, a device not set up within its timeout=, several tags in view
+and none chosen with --tag).
+
+examples:
+  rfhoming run --aoa /dev/ttyUSB0 --base /dev/ttyACM0 --log run.jsonl --capture run.pcapng
+  rfhoming run --aoa /dev/ttyUSB0 --base /dev/ttyACM0 --tag CCF9578E0D8A
+  rfhoming run --aoa /dev/ttyUSB0,baud=1000000,tags=CCF9578E0D8A --base /dev/ttyACM0,baud=115200
+  rfhoming run --aoa socket://127.0.0.1:40123 --base socket://127.0.0.1:40124 --config robot.toml
+  rfhoming run --config robot.toml          # ports from its [devices.aoa] and [devices.base]
+  rfhoming run --config robot.toml --mcap run.mcap   # and a ROS 2 log for Foxglove / rosbags
+  rfhoming run --config robot.toml --foxglove        # and a live view in Foxglove
+  rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
+  rfhoming run --controller anchors --site site.toml --base /dev/ttyACM0
+  rfhoming run --aoa serve://127.0.0.1:2948 --base /dev/ttyACM0   # share the XPLR-AOA with viewers
+"""
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    raw = argparse.RawDescriptionHelpFormatter
+    p = sub.add_parser("demo", help="emulator + host: a full homing run, a summary and a plot",
+                       description=DEMO_HELP, formatter_class=raw)
+    p.add_argument("--scenario", type=nonempty, default="s0-open", help="scenario preset (default s0-open)")
+    p.add_argument("--seed", type=seed, default=1, help="seed of the world (default 1)")
+    p.add_argument("--target", type=xy, help="tag position X,Y, e.g. --target=-6,4 (default: random per seed)")
+    p.add_argument("--out", type=output_folder, default=Path("rfhoming-demo"), help="output folder (default ./rfhoming-demo)")
+    p.add_argument("--config", type=path, help="TOML config (see rfhoming config --print-default)")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--receiver", choices=("esp32", "esp-at", "hci"),
+                   help="s3-arena: the robot's BLE RSSI receiver -- esp32 (rfhoming frames, default), esp-at "
+                   "(ESP32 with Espressif's AT firmware) or hci (a Bluetooth controller, needs rfhoming[hci])")
+    p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
+    p.add_argument("--in-process", action="store_true",
+                   help="the emulator in this process on its byte pipe: the same summary for the same seed")
+    p.add_argument("--speed", type=speed, metavar="N", help="simulated seconds per wall second (0: lockstep, as "
+                   "fast as the host answers); default 1 with --foxglove, else 0")
+    add_foxglove_option(p)
+    add_watch_options(p)
+    p.set_defaults(func=command("demo"))
+
+    p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
+                       description=RUN_HELP, formatter_class=raw)
+    p.add_argument("--aoa", type=nonempty, metavar="SPEC", help="the XPLR-AOA, for --controller aoa and dock: a port spec "
+                   "WHERE[,baud=,flow=,tags=] (e.g. /dev/ttyUSB0,baud=1000000); settings it leaves out come "
+                   "from the config's [devices.aoa]")
+    p.add_argument("--rss", type=nonempty, metavar="SPEC", help="the four-dish AT86RF212 node, for --controller rss")
+    p.add_argument("--ble", type=nonempty, metavar="SPEC", help="the BLE RSSI receiver, for --controller trilat: an ESP32 "
+                   "scanner (rss-node:PATH), an ESP32 with ESP-AT (esp-at:PATH) or an HCI controller (hci:usb:0)")
+    p.add_argument("--base", type=nonempty, metavar="SPEC", help="the robot base (e.g. /dev/ttyACM0,baud=115200)")
+    p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
+                   help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
+                        "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
+                        "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal), "
+                        "anchors (fixed XPLR-AOA anchors of --site locate the robot's own tag and the target's)")
+    p.add_argument("--tag", type=nonempty, action="append", default=[], metavar="ID",
+                   help="the tag to home on (12 hex digits; repeat or join with + for several ids of one "
+                        "target). Without it, run listens for 2 s and homes on the only tag in view, or "
+                        "stops and lists the tags it hears. Same as tags= in the --aoa spec")
+    p.add_argument("--site", type=path, help="site file for --controller anchors (see rfhoming locate --help)")
+    p.add_argument("--config", type=path, help="TOML config (see rfhoming config --print-default)")
+    add_port_defaults(p)
+    p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command")
+    p.add_argument("--capture", type=output_file, help="pcapng capture of every byte")
+    p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
+    add_ros2_option(p, "what the run senses (a ROS 2 base's own /odom, /scan and /tf are left to it)")
+    add_foxglove_option(p)
+    p.set_defaults(func=command("run"))
+
+    p = sub.add_parser("config", help="print the default config, or check a config file")
+    group = p.add_mutually_exclusive_group(required=True)
+    group.add_argument("--print-default", action="store_true", help="print the commented default TOML")
+    group.add_argument("--check", type=path, metavar="FILE", help="check a config file")
+    p.set_defaults(func=command("config"))

@@ -1,0 +1,99 @@
+"""A site's anchors as one stream of angle events: what ``locate``, ``calibrate`` and ``gateway``
+open and read (the site file's ports, or --from / --device specs, or captures)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rfhoming.host import site as sites
+from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import AoaDriver, replayed_without_set_up
+from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.ports import PortError
+from rfhoming.host.run_until import run_until
+from rfhoming.host.session import health, open_drivers
+from rfhoming.protocol.errors import Error
+
+log = logging.getLogger(__name__)
+
+
+def load_site(path: Path, command: str) -> sites.Site | None:
+    try:
+        return sites.load(path)
+    except sites.SiteError as exc:
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return None
+
+
+def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
+    if given:
+        return given
+    missing = [a.name for a in site.anchors if a.port is None]
+    if missing:
+        raise ValueError(f"anchor(s) {', '.join(missing)} have no port in the site file: add port = "
+                         "\"xplr-aoa:WHERE\" to each, or give --from SPEC (e.g. --from capture:run.pcapng)")
+    return [a.port for a in site.anchors if a.port is not None]
+
+
+async def gather(command: str, site: sites.Site, sources: list[str] | None, on_angle: Callable[[float, Any], None],
+                 on_lost: Callable[[float, set[str]], None] = lambda t, ids: None, *, baud: int | None = None,
+                 flow: str | None = None, duration: float | None = None, capture_to: Path | None = None) -> int:
+    """Open the site's anchors (or ``sources``, locate's --from), feed every angle event to
+    ``on_angle`` in arrival order until ``duration`` or the end of a capture, and tell
+    ``on_lost`` the anchor ids of a device that went away; ``capture_to``: also record every
+    byte there. 2 on a port/capture error, said in one line naming ``command``."""
+    capture = CaptureWriter(capture_to) if capture_to else None
+    try:
+        drivers: list[Driver] = await open_drivers(_specs(site, sources), baud=baud, flow=flow,
+                                                   taps=[capture.tap] if capture else [],
+                                                   describe=capture.describe if capture else None)
+    except OSError as exc:
+        print(f"rfhoming {command}: cannot read {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2
+    except Error as exc:
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return 2
+
+    as_recorded = [d.port.name for d in drivers if isinstance(d, AoaDriver) and replayed_without_set_up(d.port)]
+    if as_recorded:
+        log.info("replayed angle streams with no set-up exchange (%s): angles taken as recorded",
+                 ", ".join(as_recorded))
+    heard: dict[str, set[str]] = {}  # device -> the anchor ids in its events
+
+    def listener(device: str, t: float, item: Any) -> None:
+        if item.kind == "angle":
+            heard.setdefault(device, set()).add(item.anchor_id)
+            on_angle(t, item)
+
+    def tap(device: str, direction: str, t: float, _data: bytes) -> None:
+        if direction == "lost":
+            on_lost(t, heard.get(device, set()))
+
+    for d in drivers:
+        d.listeners.append(listener)
+        d.port.taps.append(tap)
+    # the listener took every event already: empty the drivers' queues so they count no drops
+    drains = [asyncio.create_task(_discard(d.out)) for d in drivers if isinstance(d, AoaDriver)]
+    try:
+        await run_until(drivers, duration, drains)
+    except PortError as exc:
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        for h in health(drivers):
+            print(json.dumps({"kind": "counters", **h}), file=sys.stderr)
+        if capture is not None:
+            capture.close()
+            print(f"captured {capture.packets} chunks to {capture.path}", file=sys.stderr)
+    return 0
+
+
+async def _discard(stream: BoundedStream) -> None:
+    async for _ in stream:
+        pass
