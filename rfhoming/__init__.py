@@ -10,6 +10,10 @@ from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING, Any
 
+from rfhoming import _links
+
+_links.check()  # a checkout without symlinks: one line saying what to set
+
 if TYPE_CHECKING:  # what _API loads on first use, for type checkers (tests/test_typing.py holds them equal)
     from rfhoming.api import Devices as Devices
     from rfhoming.api import Item as Item
