@@ -48,7 +48,7 @@ def _same(valid: range | None, families=FAMILIES) -> dict[str, range | None]:
 
 
 _GUIDE = "UBX-21004616 R02 appendix A.3.3"
-_LATER = "shared/protocols.md §1 (second-hand: public clients of 2.x / u-locateEmbed)"
+_LATER = "docs/protocol.md, `AT+UDFCFG` per firmware family: assumed from public 2.x / u-locateEmbed clients ([ANTB10], [BIN])"
 
 UDFCFG: dict[int, ConfigTag] = {t.tag: t for t in (
     ConfigTag(1, "minimum interval between +UUDF events per tag, ms", _same(range(0, 10001)), 1, _GUIDE),
