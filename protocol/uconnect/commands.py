@@ -1,4 +1,4 @@
-"""Builders for every u-connectLocate command in protocols.md, and a command/answer matcher.
+"""Builders for every u-connectLocate command in docs/protocol.md §1, and a command/answer matcher.
 
 A builder validates its arguments and returns a :class:`Command`; ``Command.wire`` is what
 goes to the board (commands end in CR only). :class:`CommandMatcher` pairs one outstanding
@@ -16,7 +16,7 @@ from rfhoming.protocol.uconnect.encoder import Dialect
 from rfhoming.protocol.uconnect.items import Item
 
 BAUD_RATES = (19200, 38400, 57600, 115200, 230400, 460800, 921600, 1000000)
-"""Rates AT+UMRS accepts (protocols.md §1); also the list a host probes on garbage."""
+"""Rates AT+UMRS accepts (docs/protocol.md §1, `AT+UMRS`); also the list a host probes on garbage."""
 
 FLOW_ON = 1
 FLOW_OFF = 2
