@@ -6,9 +6,7 @@ text file holding its target, under which nothing imports; this names that inste
 ``No module named 'rfhoming.host'``. setup.py runs the same check before it builds.
 """
 
-from __future__ import annotations
-
-import os
+import os  # not pathlib: this runs on every import of rfhoming
 
 LINKS = ("protocol", "firmware", "emulator", "host", "campaigns")
 FIX = ("clone again with `git clone -c core.symlinks=true` (on Windows turn on Developer Mode first), "
