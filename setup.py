@@ -11,7 +11,15 @@ The extension is ``optional=True``: where no C compiler is found the build goes 
 the pure-Python decoders run (``python -m rfhoming.protocol.accel`` says which one is in use).
 """
 
+import runpy
+from pathlib import Path
+
 from setuptools import Extension, find_packages, setup
+
+try:  # a checkout without symlinks would build an empty wheel: say what to set instead
+    runpy.run_path(str(Path(__file__).parent / "rfhoming" / "_links.py"))["check"]()
+except ImportError as exc:
+    raise SystemExit(f"error: {exc}") from None
 
 setup(
     package_dir={"": "src"},

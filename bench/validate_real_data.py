@@ -1,10 +1,13 @@
 """What real noise does to the ranging fits, the filters and lateration.
 
-Data: ../shared/data (other teams' public recordings; never a dependency of the test suite).
-- Daniş BLE (CC0): 12 receivers, one beacon at 6 static points (hst_set_2).
-- Kołakowski BLE robot (CC BY 4.0): a tag on a robot with LiDAR-SLAM ground truth, 6 anchors.
+Data: two public recordings by other teams, never a dependency of the test suite; --data names
+the folder that holds both (their sources and layout: docs/RESULTS.md, "Estimation on real recordings").
+- danis_ble_rssi/: Daniş et al. (CC0), github.com/philotuxo/Position-Annotated-BLE-RSSI-Dataset:
+  12 receivers, one beacon at 6 static points (hst_set_2).
+- kolakowski_ble_robot/: Kołakowski (CC BY 4.0), doi:10.5281/zenodo.5457591: a tag on a robot
+  with LiDAR-SLAM ground truth, 6 anchors.
 
-    python bench/validate_real_data.py [--data ../shared/data] [--json]
+    python bench/validate_real_data.py --data DIR [--json]
 
 Prints Markdown tables (the ones in docs/RESULTS.md).
 """
@@ -267,7 +270,7 @@ def markdown(result: dict) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1].parent / "shared" / "data")
+    parser.add_argument("--data", type=Path, required=True, help="the folder holding danis_ble_rssi/ and kolakowski_ble_robot/")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     if not (args.data / "danis_ble_rssi").is_dir():

@@ -56,7 +56,7 @@ async def _record(sc: scenarios.Scenario, seed: int, duration: float) -> Recordi
 HARD_BOARDS = {"angle_model": "cone", "az_compression": 0.15, "slow_bias_deg": 2.0, "slow_bias_s": 10.0,
                "elevation_sigma_deg": 8.0}
 """The emulated anchors' harder options (emulator/anchors.py, each *assumed*): boards at least as
-hard as the real ones issue 27 describes."""
+hard as real ones were on four-anchor recordings with ground truth that the repository does not hold."""
 
 
 WALL_ROOM = {"anchor_height_m": 2.3, "tag_height_m": 1.1}

@@ -23,7 +23,7 @@ from rfhoming.host.homing.types import Pose
 
 METRICS = ("success_pct", "time_s", "net_velocity_mps", "goal_error_m", "final_error_m", "path_efficiency")
 HEADER = ["success %", "time to target s", "net velocity m/s", "goal error m", "final error m", "path efficiency"]
-TABLE3 = {  # methods.md, S0 Table 3
+TABLE3 = {  # S0's Table 3 (docs/RESULTS.md, "The seed papers' results, reproduced")
     1: (100, 14.24, 0.62, 0.05, 0.25, 0.90),
     2: (100, 12.68, 0.57, 0.05, 0.24, 0.88),
     3: (100, 12.10, 0.60, 0.06, 0.25, 0.90),

@@ -37,8 +37,8 @@ SCENARIO = "s1-dock"
 STATION_ON_MAP = (0.4, 3.6)  # S1's map-based mission stage knows where the station is
 NOISE = {"S1-like": (2.0, 1.0, 2.0), "real-data": (3.5, 4.0, 3.0)}
 """RSSI fast σ dB, per-link bias σ dB, AoA σ ° (growing toward ±90°). S1 gives no noise figure:
-"S1-like" is a mild guess, "real-data" matches the recordings in shared/data (~5 dB around
-the fit, per-link bias) and is the scenario file's own."""
+"S1-like" is a mild guess, "real-data" matches public BLE recordings (~5 dB around
+the fit, per-link bias; docs/RESULTS.md, "Estimation on real recordings") and is the scenario file's own."""
 
 
 def host_config(mode: str, seed: int, noise: str = "real-data") -> Config:

@@ -1,7 +1,7 @@
 """S4 (CTU thesis): the Monte-Carlo simulation of beacon localisation from RSSI on three moving
 receivers, EKF and UKF, and a filterpy EKF of the same model on a subsample for speed.
 
-The simulation (methods.md §S4): three receivers in a fixed formation (an L of 0.6 m sides,
+The simulation (S4, docs/RESULTS.md "The seed papers' results, reproduced"): three receivers in a fixed formation (an L of 0.6 m sides,
 centred on the path) fly a lawn-mower over the 4 × 8 m area (lanes 0.8 m apart, there and back) at
 0.2 m/s for 320 s at 10 Hz; 10 beacons per flight, uniform in the area. Each step the guidance
 commands u = (next path point − measured position); the true receivers move by u plus process

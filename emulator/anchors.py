@@ -14,8 +14,8 @@ elevation out of it. What a real board adds, drawn once per anchor from the seed
 - reflections: near a wall of the room (within ``reflection_range_m``) the board locks onto
   the tag's mirror image in that wall with a probability up to ``reflection``.
 
-Harder boards, each an option off by default (*assumed*: issue 27 reports them from real
-recordings this repository does not hold; docs/protocol.md):
+Harder boards, each an option off by default (*assumed*: seen on real four-anchor
+recordings with ground truth that this repository does not hold; no public source; docs/protocol.md):
 
 - ``angle_model = "cone"``: the board reports direction cosines along its two array axes,
   sin(az) = -u.y, sin(el) = u.z, instead of atan2 angles (the physics of a planar array);

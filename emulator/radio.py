@@ -3,7 +3,8 @@
 Received power (dBm) = tx + P0 − 10 n log10(d / d0) − L_wall · (obstacles crossed)
                        + b_link + N(0, σ_fast²) [+ Rician fading],
 with ``b_link ~ N(0, σ_link²)`` drawn once per link. The defaults give about 5.3 dB of scatter
-around the log-distance fit, like the real recordings in shared/data (5–6 dB indoors).
+around the log-distance fit, like public indoor BLE recordings (5.6 dB on Daniş et al.'s; docs/RESULTS.md,
+"Estimation on real recordings").
 
 With ``reflections`` on, each first-order reflection off a wall (emulator/multipath.py) is a
 path of its own: the same law over the image's distance, its own walls, and

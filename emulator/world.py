@@ -1,6 +1,6 @@
 """The 2-D world: the robot's true pose, radio targets, obstacles, line of sight, range scans.
 
-Frames: world x/y in metres, headings counter-clockwise from +x in radians (methods.md).
+Frames: world x/y in metres, headings counter-clockwise from +x in radians (as S0 and REP 103).
 Obstacles are polygons (a rectangle is a 4-gon); walls are thin rectangles.
 """
 

@@ -11,7 +11,7 @@ from the anchor's position with its yaw turned by the offset. What is fitted, an
   ``SAME_CORRELATION``);
 - elevation only when the points are at different heights (``MIN_HEIGHT_SPREAD_M``): with every
   point at one height the elevation scale and bias trade against the ranges and the pitch, and a
-  fit runs anywhere (issue 27). ``azimuth_only`` holds elevation at its defaults as well.
+  fit runs anywhere (on a real recording: el_scale -3.29, which the site file refuses). ``azimuth_only`` holds elevation at its defaults as well.
 
 The fit is robust (soft-L1 on 2-degree residuals: a reflected point does not drag it) and held
 inside the site file's limits (``site.CALIBRATION_LIMITS``); a parameter that ends on a limit

@@ -217,7 +217,7 @@ class _Client:
 
     def __init__(self, writer: asyncio.StreamWriter, queue_lines: int) -> None:
         self.writer = writer
-        self.peer = "%s:%s" % writer.get_extra_info("peername")[:2]
+        self.peer = ":".join(map(str, writer.get_extra_info("peername")[:2]))
         self.queue: deque[bytes | _ErrorLine] = deque()
         self.queue_lines = queue_lines
         self.queued_bytes = 0

@@ -1,4 +1,4 @@
-"""AT86RF212(B) energy detection (ED) -> dBm, keyed by PHY mode (protocols.md §2).
+"""AT86RF212(B) energy detection (ED) -> dBm, keyed by PHY mode (docs/protocol.md §3, after the AT86RF212B datasheet).
 
 Each received frame carries an ED byte: 0..84, about 1 dB a step above RSSI_BASE_VAL, which
 depends on the PHY mode (page, channel). ED 0 means "at or below the base"; 255 means "no

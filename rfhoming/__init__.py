@@ -9,6 +9,10 @@ imported on first use, so ``import rfhoming.protocol`` stays as light as the dec
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
+from rfhoming import _links
+
+_links.check()  # a checkout without symlinks: one line saying what to set
+
 if TYPE_CHECKING:  # what _API loads on first use, for type checkers (tests/test_typing.py holds them equal)
     from rfhoming.api import Devices as Devices
     from rfhoming.api import Item as Item

@@ -1,4 +1,4 @@
-"""The Python API records, carries raw bytes and reads streams the caller opened (issue 24 item 5).
+"""The Python API records, carries raw bytes and reads streams the caller opened.
 
 Checked with programs rfhoming did not write: tshark reads the API's capture (its own pcapng
 reader; every item's raw bytes are in the inbound packets it shows, in order) and pyserial

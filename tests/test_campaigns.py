@@ -65,7 +65,8 @@ def test_goal_seen_from_the_robot_cancels_odometry_drift(gx, gy, rx, ry, dx, dth
 
 
 def test_s0_method_rows_run_the_papers_estimator() -> None:
-    """Issue 16: S0's rows keep S0's k = 0.8 per reading and hybrid report, without our fusions."""
+    """S0's rows are the paper's method -- k = 0.8 per reading and the hybrid report, without our
+    fusions -- so that the tables set it beside ours, not a tuned copy."""
     for mode in ("idealised-10hz-paper", "idealised-50hz-paper"):
         params, _ = s0.PARAMS[mode]
         assert (params.k, params.close_fusion_m, params.ray_fusion) == (0.8, 0.0, False)

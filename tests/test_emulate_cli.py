@@ -91,7 +91,8 @@ PROBES = [b'AT+UDFCFG=2,"a"b"', b'AT+UDFCFG=2,"\xff"', b"AT+UDFCFG=2", b"AT+UDFC
 
 @pytest.mark.slow
 def test_hostile_at_commands_never_kill_the_emulator(tmp_path: Path) -> None:
-    """Issue 18's probes: each gets a final result code; after AT&W and AT+CPWROFF the board
+    """Lines that once crashed the board model or got no answer (a quote or a non-ASCII byte in a
+    string setting, then reads of it; an overflowed line; loose integers; non-hex tag ids): each gets a final result code; after AT&W and AT+CPWROFF the board
     boots and keeps sending angle events."""
     proc, endpoints = emulate("s0-open", "--pty", "--seed", "5", "--target", "3,2",
                               "--link-dir", str(tmp_path), devices=2)

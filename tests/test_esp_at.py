@@ -117,7 +117,7 @@ def test_a_command_before_the_previous_answer_gets_busy() -> None:
     ("3.2", "AT+BLESCAN=1,0,4,-70", None),
 ])
 def test_espressif_example_filters_per_version(version: str, scan: str, reported: set[str] | None) -> None:
-    """The filters of the BLE AT Commands page, per documented version (issue 23 item 8)."""
+    """The filters of the BLE AT Commands page, per documented version (esp-at's docs at each release tag)."""
     fw = EspAtFirmware(version)
     assert run(fw, "AT+BLEINIT=1", "AT+BLESCANPARAM=0,0,0,160,160") == [Final(True), Final(True)]
     answer = run(fw, scan)
@@ -248,7 +248,7 @@ async def _set_up(fw: EspAtFirmware) -> tuple[EspAtDriver, _Wire]:
 
 
 async def test_driver_stops_an_earlier_scan_before_its_parameters() -> None:
-    """A board still scanning from an earlier run gets AT+BLESCAN=0 first (issue 23 item 9)."""
+    """A board still scanning from an earlier run gets AT+BLESCAN=0 first: its scan may still run from an earlier run."""
     fw = EspAtFirmware()
     run(fw, "AT+BLEINIT=1", "AT+BLESCAN=1")
     _, wire = await _set_up(fw)

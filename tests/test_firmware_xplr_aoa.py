@@ -225,7 +225,7 @@ def test_tx_buffer_is_bounded() -> None:
     assert len(fw.read()) <= 8192 and fw.counters["tx_overflow"] > 0
 
 
-# -- AT syntax as the firmware documents it (issue 18, defects 1-3) ---------------------------
+# -- AT syntax as the firmware documents it: no string the board cannot print, no loose integers ---
 def finals(host: Host, line: bytes) -> list[bool]:
     """Send raw bytes; the final codes that came back (responses are not paired here)."""
     host.fw.receive(line)
@@ -318,7 +318,7 @@ def test_2x_has_a_nonzero_reserved_field_and_its_own_tags() -> None:
 
 def test_answers_queue_behind_output_already_sent() -> None:
     """A saturated 115,200 Bd link delays answers: they leave after what the board queued
-    before the command (issue 23 item 4); nothing is torn."""
+    before the command, as a serial line does; nothing is torn."""
     fw = XplrAoaFirmware(paced=True)
     fw.tick(1000)
     fw.read()
@@ -412,7 +412,7 @@ AT_WORDS = [b"AT", b"+UDFCFG", b"+UDFFILT", b"+UMRS", b"+UDFENABLE", b"=", b"?",
 @given(st.lists(st.lists(st.sampled_from(AT_WORDS) | st.binary(max_size=4), max_size=12).map(b"".join),
                 min_size=1, max_size=8))
 def test_any_command_line_gets_one_final_code_and_events_keep_coming(lines: list[bytes]) -> None:
-    """Hostile input (issue 18): whatever the lines, AT&W and a restart after them, every line
+    """Hostile input: whatever the lines, AT&W and a restart after them, every line
     gets exactly one final code and the board still encodes its events."""
     h = Host(XplrAoaFirmware(dialect=Dialect.V2))
     h.drain()

@@ -339,7 +339,7 @@ class _NoPort:
 @pytest.mark.parametrize("truncate", [False, True])
 async def test_fragmented_extended_reports_are_reassembled(truncate: bool) -> None:
     """One advertisement in several extended-report fragments is one reading, and a name in a
-    later fragment still passes adname= (issue 23 item 10; data status, Core v5.4 Vol 4 Part E 7.7.65.13)."""
+    later fragment still passes adname= (data status, Core v5.4 Vol 4 Part E 7.7.65.13)."""
     name_last = bytes.fromhex("020106") + bytes.fromhex("0303aafe") + bytes([9, 0x09]) + b"Beacon-1"
     fw = HciControllerFirmware(fragment_bytes=8, truncate=truncate)
     fw.receive(commands(hci.HCI_Reset_Command(), *MASKS, *EXTENDED))

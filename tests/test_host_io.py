@@ -199,7 +199,7 @@ async def test_binary_output_is_told_from_a_baud_mismatch(tmp_path: Path) -> Non
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.counters["binary_output"] >= 1, 15)
     assert "AT+UDFCFG=7,2" in driver.problem and driver.counters["baud_mismatch"] == 0
-    # decoded, azimuth at payload byte 6 as the public parser reads it (issue 23 item 6)
+    # decoded, azimuth at payload byte 6 as the one public parser reads it ([BIN] in docs/protocol.md)
     await until(lambda: driver.counters["binary_events"] > 5 and len(driver.out) > 0, 15)
     first = driver.out.get_nowait()
     assert first.event.instance_id in driver.tags_heard and -90 <= first.event.azimuth <= 90
@@ -223,7 +223,7 @@ def test_binary_payload_byte_6_is_the_azimuth() -> None:
 
 async def test_setup_stops_a_streaming_board_first(tmp_path: Path) -> None:
     """A board still streaming +UUDF gets AT+UDFENABLE=0 before any other set-up command, as
-    u-blox's own clients do (issue 23 item 4)."""
+    u-blox's own clients do ([AOACTL] in docs/protocol.md)."""
     em = await start(tmp_path)
     fw = em.device("aoa").firmware
     seen: list[bytes] = []

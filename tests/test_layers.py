@@ -73,7 +73,7 @@ def test_layers_install_inside_rfhoming_only(name: str) -> None:
 
 def test_tests_import_their_helpers_by_module_name() -> None:
     """``from tests.x import`` works only from the checkout's root; the suite must also run
-    against an installed wheel from anywhere (issue 12), where pytest puts tests/ on the path."""
+    against an installed wheel from anywhere (what users install is what is tested), where pytest puts tests/ on the path."""
     offenders = [p.name for p in (ROOT / "tests").glob("*.py")
                  if any(line.startswith(("from tests.", "import tests")) for line in p.read_text().splitlines())]
     assert not offenders, offenders

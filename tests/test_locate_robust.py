@@ -1,4 +1,4 @@
-"""Issue 27: the fixed-anchor localiser holds up -- the EKF recovers from a jump, calibration
+"""The fixed-anchor localiser holds up where real recordings broke it -- the EKF recovers from a jump, calibration
 writes only what its points determine and what the site file accepts, one tag carried from
 point to point calibrates, the cone angle model, robust fits, self-calibration."""
 

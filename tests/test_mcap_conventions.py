@@ -199,7 +199,7 @@ def test_an_aoa_bearing_drawn_through_tf_hits_the_tag(tmp_path: Path, yaw_deg: f
 
 @pytest.mark.slow
 def test_an_emulated_house_run_reads_in_order_with_scans_in_range(tmp_path: Path) -> None:
-    """What the issue saw in s0-house: chunks overlapping in time, /tf out of order for the
+    """What an s0-house recording showed before the fix: chunks overlapping in time, /tf out of order for the
     linear reader, scans at 8.001 m above range_max 8.0."""
     path = tmp_path / "house.mcap"
     done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--scenario", "s0-house", "--in-process", "--out",

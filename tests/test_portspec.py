@@ -137,7 +137,7 @@ def test_listen_with_tags_prints_only_the_chosen_tag(tmp_path: Path) -> None:
     counters = items[-1]
     assert len(angles) > 50, items[-1]  # the board at 1 Mbd understood the host at 1 Mbd
     assert {a["instance_id"] for a in angles} == {"CCF9578E0D8B"}  # printed: only the chosen tag
-    # tags= set the board's own filter (issue 23 item 2): the other tag stopped crowding the link,
+    # tags= set the board's own filter (AT+UDFFILT): the other tag stopped crowding the link,
     # only what was queued before the restart reached the host filter
     assert counters["filtered"] < 10 and counters["board_filter_leaks"] == 0
 

@@ -1,5 +1,5 @@
 """docs/protocol.md: every row of a device-behaviour table names its source or says *assumed*
-(issue 23's rule), and every bracketed source it uses is listed on the page."""
+(so a reader can check each one, and knows which are guesses), and every bracketed source it uses is listed on the page."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""A homing run replays from its capture (issue 26): `rfhoming replay CAPTURE --run` runs the
+"""A homing run replays from its capture: `rfhoming replay CAPTURE --run` runs the
 recorded loop again on the recorded bytes and writes the live run log line for line -- for
 every controller and every receiver, on runs made through ptys by the commands a user runs."""
 

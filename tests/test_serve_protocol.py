@@ -223,7 +223,7 @@ async def test_what_is_not_understood_gets_an_error_line_and_the_connection_stay
 
 
 async def test_ten_kilobytes_of_garbage_get_a_bounded_number_of_error_lines() -> None:
-    """The issue's hostile client: error lines, at most one per bad line and at most
+    """A hostile client's 10 kB of garbage gets error lines, at most one per bad line and at most
     ERRORS_PENDING waiting at a time (the rest counted in ``suppressed``), nothing held."""
     server = ItemServer(drivers=[aoa_driver()])
     peer = await Peer.connect(server)

@@ -1,5 +1,5 @@
 """The emulated boards against programs rfhoming did not write: plain pyserial sessions that
-follow the vendors' own bring-up (issue 23, "Independent checks").
+follow the vendors' own bring-up, so a misreading the emulator and the drivers share cannot pass.
 
 - XPLR-AOA: u-blox's clients stop the stream first (AoAController ``start()``: ``AT+UDFENABLE=0``
   "turn off everything while also checking that communication is working"; Door-Demo's Disable

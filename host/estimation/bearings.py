@@ -1,7 +1,7 @@
 """Bearings: where rays from known positions cross.
 
 Frames: world x/y in metres, bearings in radians counter-clockwise from +x (the robot heading
-plus the sensor's angle, methods.md). Used by S0's parallax homing (one moving sensor) and by
+plus the sensor's angle, as S0 writes α = θr + θs). Used by S0's parallax homing (one moving sensor) and by
 fixed multi-anchor XPLR-AOA set-ups (several sensors at once).
 """
 

@@ -1,7 +1,7 @@
 """RSSI <-> distance: the log-distance model (both ways), S3's exponential model, and the
 calibration fits (P0 with n fixed, (P0, n) by least squares, (a, b)), with residual statistics.
 
-log-distance: RSSI(d) = P0 − 10 n log10(d / d0)  (methods.md, S3's sign typo corrected)
+log-distance: RSSI(d) = P0 − 10 n log10(d / d0)  (S3's model, its sign typo corrected)
 exponential:  d = a · exp(b · RSSI)
 """
 

@@ -6,7 +6,7 @@ sensor prior σ² = σ_abs² + (σ_rel² + σ_α²) ρ², ρ the distance from r
 (floored at ``min_range_m``), the fusion is the inverse-variance weighted mean of every raw goal
 taken within ``max_range_m`` of the estimate.
 
-Why (S0 issue 16): once the robot drives straight at the goal every ray agrees and only ranges
+Why: once the robot drives straight at the goal every ray agrees and only ranges
 tell how far the goal is; S0's estimates then rest on its last few readings (Kohonen's k, a
 20-reading vector goal), while this keeps every reading of the approach. Readings from farther
 away are left out: RSSI ranges there carry biases an average cannot remove, and the

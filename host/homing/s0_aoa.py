@@ -1,4 +1,4 @@
-"""S0: homing on angle-of-arrival with the vector + parallax hybrid (methods.md §S0).
+"""S0: homing on angle-of-arrival with the vector + parallax hybrid (S0, Robotics 2023; docs/RESULTS.md).
 
 Inputs: robot pose (odometry, world frame) and XPLR-AOA readings already converted to the
 robot frame (θs CCW from the heading, radians) with an RSSI-derived distance.

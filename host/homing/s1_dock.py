@@ -1,4 +1,4 @@
-"""S1: docking on BLE RSSI and angle of arrival measured by the station (methods.md §S1).
+"""S1: docking on BLE RSSI and angle of arrival measured by the station (S1, Electronics 2026; docs/RESULTS.md).
 
 The station's array measures the robot's tag; the robot receives those readings (the emulator's
 ``dock_aoa`` device stands for that link). Filters: moving average over the last N = 10 of RSSI

@@ -1,4 +1,4 @@
-"""rfhoming's COBS-framed binary records: RSS nodes and the robot base (protocols.md §3)."""
+"""rfhoming's COBS-framed binary records: RSS nodes and the robot base (docs/protocol.md §2)."""
 
 from rfhoming.protocol.frames.codec import MAX_ENCODED, FrameDecoder, encode_frame, encode_inner
 from rfhoming.protocol.frames.records import (

@@ -1,4 +1,4 @@
-"""rfhoming's binary records, declared once with construct (protocols.md §3).
+"""rfhoming's binary records, declared once with construct (docs/protocol.md §2).
 
 These declarations are the single source of truth. From them this module derives or checks:
 

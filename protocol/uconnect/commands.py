@@ -1,4 +1,4 @@
-"""Builders for every u-connectLocate command in protocols.md, and a command/answer matcher.
+"""Builders for every u-connectLocate command in docs/protocol.md §1, and a command/answer matcher.
 
 A builder validates its arguments and returns a :class:`Command`; ``Command.wire`` is what
 goes to the board (commands end in CR only). :class:`CommandMatcher` pairs one outstanding
@@ -16,7 +16,7 @@ from rfhoming.protocol.uconnect.encoder import Dialect
 from rfhoming.protocol.uconnect.items import Item
 
 BAUD_RATES = (19200, 38400, 57600, 115200, 230400, 460800, 921600, 1000000)
-"""Rates AT+UMRS accepts (protocols.md §1); also the list a host probes on garbage."""
+"""Rates AT+UMRS accepts (docs/protocol.md §1, `AT+UMRS`); also the list a host probes on garbage."""
 
 FLOW_ON = 1
 FLOW_OFF = 2
@@ -48,7 +48,7 @@ def _same(valid: range | None, families=FAMILIES) -> dict[str, range | None]:
 
 
 _GUIDE = "UBX-21004616 R02 appendix A.3.3"
-_LATER = "shared/protocols.md §1 (second-hand: public clients of 2.x / u-locateEmbed)"
+_LATER = "docs/protocol.md, `AT+UDFCFG` per firmware family: assumed from public 2.x / u-locateEmbed clients ([ANTB10], [BIN])"
 
 UDFCFG: dict[int, ConfigTag] = {t.tag: t for t in (
     ConfigTag(1, "minimum interval between +UUDF events per tag, ms", _same(range(0, 10001)), 1, _GUIDE),
