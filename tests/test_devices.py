@@ -18,10 +18,10 @@ from rfhoming.host import portspec
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.rss import RssDriver
-from rfhoming.host.export import rosmsgs
 from rfhoming.host.replay import load_capture
 from rfhoming.host.session import driver_class, make_driver, recorded_kind
 from rfhoming.protocol import devices, pcapng
+from test_api_kinds import item_types as api_items
 
 ROOT = Path(__file__).resolve().parent.parent
 KINDS = sorted(devices.KINDS)
@@ -36,12 +36,14 @@ def test_each_kind_is_complete(name: str) -> None:
     driver = driver_class(record)
     assert issubclass(driver, Driver) and driver.kind == name
     assert set(record.roles) <= set(devices.ROLES) and record.roles
-    assert set(record.settings) <= set(portspec.SETTINGS)
-    assert set(record.topics) <= set(rosmsgs.TOPICS)
+    assert record.settings and all(callable(parse) for parse in record.settings.values())
+    assert set(driver.items) <= set(api_items()) and (record.usb is None or record.usb.vendors)
     assert record.setup_timeout_s > 0 and (record.boards or record.emulated_as)
     for board in record.boards:
         firmware = devices.load(board.firmware)
         assert inspect.isclass(firmware) and firmware.__module__.startswith("rfhoming.firmware.")
+        runner = devices.load(board.runner)
+        assert issubclass(runner, runners.DeviceRunner) and runner.board == board.name
 
 
 def test_the_emulator_has_a_runner_for_every_board_and_no_other() -> None:

@@ -27,10 +27,11 @@ from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import CHOOSE_TAG_S, METHODS, Device, Homing, replay_plan, run_record
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, load
 from rfhoming.host.homing.loop import RunLog
-from rfhoming.host.portspec import SETTINGS, PortSpec, PortSpecError
+from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.sink import Sink
 from rfhoming.host.site import Site
+from rfhoming.protocol.settings import tags as tag_ids
 
 CONTROLLERS = tuple(METHODS)
 
@@ -47,7 +48,7 @@ def cmd_config(args: argparse.Namespace) -> int:
 def _tags(values: list[str]) -> tuple[str, ...]:
     """--tag values (each one id or ids joined by +) -> upper-case ids; PortSpecError explains."""
     try:
-        return tuple(dict.fromkeys(t for v in values for t in SETTINGS["tags"](v)))
+        return tuple(dict.fromkeys(t for v in values for t in tag_ids(v)))
     except ValueError as exc:
         raise PortSpecError(f"--tag takes {exc}") from None
 
