@@ -105,7 +105,9 @@ class Emulator:
             raise ScenarioError(f"device {name!r} is of an unknown type {board!r}; the types are "
                                 f"{', '.join(devices.BOARDS)} (the device table's boards)")
         runner: type[DeviceRunner] = devices.load(found[1].runner)
-        return runner.build(name, k, link, faults, rng, options, self.scenario)
+        device = runner.build(name, k, link, faults, rng, options, self.scenario)
+        device.board = board  # a runner may build several boards that run its firmware model
+        return device
 
     @property
     def base(self) -> BaseRunner | None:

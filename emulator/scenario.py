@@ -131,7 +131,9 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
             options = dict(spec)
             kind = options.pop("type", None)
             if kind not in devices.BOARDS:  # read now: a kind added to the table is known at once
-                raise ScenarioError(f"[devices.{name}] type must be one of {tuple(devices.BOARDS)}, not {kind!r}")
+                served = devices.KINDS[kind].emulated_as if isinstance(kind, str) and kind in devices.KINDS else None
+                raise ScenarioError(f"[devices.{name}] type must be one of {tuple(devices.BOARDS)}, not {kind!r}"
+                                    + (f"; a {kind} is served by {served}" if served else ""))
             if receiver is not None and kind in BLE_RECEIVERS:
                 kind = receiver
             specs.append(DeviceSpec(name, kind, options))

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from rfhoming.emulator import devices as runners
+from rfhoming.emulator.scenario import ScenarioError, load
 from rfhoming.host import portspec
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.common import Driver
@@ -50,6 +51,16 @@ def test_the_emulator_has_a_runner_for_every_board_and_no_other() -> None:
     boards = {cls.board for cls in vars(runners).values()
               if inspect.isclass(cls) and issubclass(cls, runners.DeviceRunner) and cls.board != "device"}
     assert boards == set(devices.BOARDS)
+
+
+def test_a_kind_with_no_board_says_how_the_emulator_serves_it(tmp_path: Path) -> None:
+    served = [k for k in devices.KINDS.values() if not k.boards]
+    assert served
+    for record in served:
+        scenario = tmp_path / f"{record.name}.toml"
+        scenario.write_text(f'name = "x"\nbounds = [0, 0, 5, 5]\n[devices.robot]\ntype = "{record.name}"\n')
+        with pytest.raises(ScenarioError, match=re.escape(f"served by {record.emulated_as}")):
+            load(scenario)
 
 
 def test_every_role_defaults_to_a_kind_that_can_fill_it() -> None:

@@ -24,6 +24,7 @@ from rfhoming.host.homing.assembly import METHODS
 from rfhoming.host.session import health, open_drivers, replay_drivers
 
 from rfhoming.host.supervise import DeviceNotReady, live, supervise
+from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.jsonable import as_dict
 from rfhoming.protocol.pcapng import CaptureFormatError, Interface
@@ -32,7 +33,7 @@ log = logging.getLogger(__name__)
 CONTROLLERS = tuple(METHODS)
 
 ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket://HOST:PORT or auto; KIND "
-                 "(xplr-aoa, rss-node, esp-at, hci, base) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
+                 f"({', '.join(devices.KINDS)}) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
                  "capture:FILE replays a recording; serve://HOST:PORT is the devices of an `rfhoming serve` "
                  "(see docs/usage.md)")
 
