@@ -5,7 +5,8 @@ The XPLR-AOA sits behind an FTDI bridge (vendor 0x0403; its product id is not pu
 so does many another device (a USB-UART cable wired to an ESP32's AT UART, for one): an FTDI
 port is an XPLR-AOA only when it answers ``AT+GMM`` (or streams ``+UUDF``) as u-connectLocate
 does. ESP32 boards use a CP210x (0x10C4), a CH340/CH9102 (0x1A86) or Espressif's native USB
-(0x303A); STM32 nodes enumerate as ST's virtual COM port (0x0483:0x5740).
+(0x303A); STM32 nodes enumerate as ST's virtual COM port (0x0483:0x5740). The ids are the device
+table's: each kind's ``usb`` bridge (rfhoming.protocol.devices).
 """
 
 from __future__ import annotations

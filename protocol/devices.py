@@ -1,12 +1,17 @@
 """The device table: every device kind's facts in one record, as gpsd keeps its drivers.
 
-Each layer reads what it needs from here -- the port spec's kinds and settings
-(host/portspec.py), the driver to build (host/session.py), the set-up deadline
-(host/supervise.py), the roles a kind may fill in a homing run (host/homing/assembly.py), the
-capture's link type and the recorded kind (host/capture.py, host/session.py), the emulator's
-boards and their firmware models (emulator/devices.py). It lives in the protocol layer, which
-every other layer may import; what belongs to a higher layer (a driver, a firmware model) is
-named by its ``module:attribute`` path and loaded by that layer with :func:`load`.
+Each layer reads what it needs from here -- the port spec's kinds and each kind's settings
+with their parsers (host/portspec.py, protocol/settings.py), the driver to build and the kinds
+to sniff (host/session.py), the USB bridge ``auto`` looks for (host/discovery.py), the set-up
+deadline (host/supervise.py), the roles a kind may fill in a homing run (host/homing/assembly.py),
+the capture's link type and the recorded kind (host/capture.py, host/session.py), the emulator's
+boards, their firmware models and the runners that build them (emulator/runtime.py). What a
+kind does -- its run options, its sniffing test, the items it yields -- is its driver's
+(host/drivers/common.py ``Driver``; host/drivers/driver_proto.py is the template).
+
+The table lives in the protocol layer, which every other layer may import; what belongs to a
+higher layer (a driver, a firmware model, a runner) is named by its ``module:attribute`` path
+and loaded by that layer with :func:`load`.
 ``tests/test_devices.py`` walks the table and checks every record is complete.
 
 Old spellings (``ublox-aoa``, ``rss``, ...) are accepted as aliases with a one-line notice;
@@ -100,9 +105,8 @@ USB_STM32 = UsbBridge("stm32", ((0x0483, "STMicroelectronics virtual COM port (S
 
 @dataclass(frozen=True)
 class DeviceKind:
-    """One record of the device table: the facts the layers read. What a kind does -- decode,
-    set up, sniff, the options a homing run gives it, the items it yields -- its driver class
-    says (host/drivers/driver_proto.py lists every hook); an emulated board's runner builds it."""
+    """One record of the device table: the facts the layers read (docs/architecture.md lists
+    each field and its readers)."""
 
     name: str  # the canonical name: port spec kind, capture kind, driver kind
     title: str
