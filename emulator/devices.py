@@ -23,6 +23,7 @@ from rfhoming.emulator.radio import (
     measure_azimuth,
     power_sum_dbm,
 )
+from rfhoming.emulator.scenario import Scenario
 from rfhoming.emulator.world import Target, World
 from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
 from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware
@@ -52,6 +53,13 @@ class DeviceRunner:
         self.forced_baud: int | None = None
         self.baud = DEFAULT_BAUD  # the UART rate the device was set to (scenario option ``baud``)
         link.on_receive = self.on_host_bytes
+
+    @classmethod
+    def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+              options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
+        """The runner of a scenario's device of this board (the device table's ``Board.runner``
+        names the class); ``k``: its place among the scenario's devices, ``options``: its table's."""
+        raise NotImplementedError(f"{cls.__name__} is no board's runner")
 
     def describe(self) -> dict[str, Any]:
         """What ``rfhoming emulate`` prints of it: its board, the device kind a host names it
@@ -138,6 +146,16 @@ class AoaRunner(DeviceRunner):
     """An XPLR-AOA board on the robot (``mount_yaw_deg``) or fixed (``mount = [x, y, θ]``)."""
 
     board = "xplr-aoa"
+
+    @classmethod
+    def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+              options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
+        """A fixed anchor in 3-D where the device gives a ``position`` (emulator/anchors.py)."""
+        from rfhoming.emulator.anchors import FixedAnchorRunner  # a subclass: imported here
+
+        tag = (scenario.robot_tag, scenario.robot_tag_interval_ms) if scenario.robot_tag else None
+        runner = FixedAnchorRunner if "position" in options else AoaRunner
+        return runner(name, link, faults, rng, options, scenario.aoa, scenario.path_loss, tag)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
@@ -226,6 +244,11 @@ class Esp32Runner(DeviceRunner):
 
     board = "esp32"
 
+    @classmethod
+    def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+              options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
+        return cls(name, k + 1, link, faults, rng, scenario.path_loss)
+
     def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
                  rng: np.random.Generator, path_loss: PathLossModel) -> None:
         super().__init__(name, lambda: Esp32ScannerFirmware(node_id), link, faults, rng)
@@ -252,6 +275,11 @@ class EspAtRunner(DeviceRunner):
 
     board = "esp-at"
 
+    @classmethod
+    def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+              options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
+        return cls(name, link, faults, rng, scenario.path_loss, options)
+
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  path_loss: PathLossModel, options: dict[str, Any]) -> None:
         version = str(options.get("version", "3.2"))  # which ESP-AT documentation the board follows
@@ -275,6 +303,11 @@ class HciRunner(DeviceRunner):
     when the host's HCI commands say so. Its model needs bumble (the ``hci`` extra)."""
 
     board = "hci"
+
+    @classmethod
+    def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+              options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
+        return cls(name, link, faults, rng, scenario.path_loss, options)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  path_loss: PathLossModel, options: dict[str, Any]) -> None:
@@ -312,6 +345,11 @@ class RssRunner(DeviceRunner):
 
     board = "at86rf212"
 
+    @classmethod
+    def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+              options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
+        return cls(name, k + 1, link, faults, rng, scenario.path_loss, options)
+
     def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
                  rng: np.random.Generator, path_loss: PathLossModel, options: dict[str, Any]) -> None:
         offsets = tuple(float(v) for v in options.get("chip_offsets_db", rng.uniform(-5, 5, 4)))
@@ -348,6 +386,12 @@ class BaseRunner(DeviceRunner):
     SCAN_PERIOD_S = 0.1
     SCAN_BEAMS = 181
     SCAN_RANGE_M = 8.0
+
+    @classmethod
+    def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+              options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
+        r = scenario.world.robot
+        return cls(name, link, faults, rng, options, (r.x, r.y, r.theta), scenario.robot_radius)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], start: tuple[float, float, float], radius: float) -> None:

@@ -24,20 +24,11 @@ from typing import IO, Any
 
 import numpy as np
 
-from rfhoming.emulator.anchors import FixedAnchorRunner
-from rfhoming.emulator.devices import (
-    AoaRunner,
-    BaseRunner,
-    DeviceRunner,
-    Esp32Runner,
-    EspAtRunner,
-    HciRunner,
-    RssRunner,
-    target_positions,
-)
+from rfhoming.emulator.devices import BaseRunner, DeviceRunner, target_positions
 from rfhoming.emulator.faults import ByteFaults, Fault, FaultError
 from rfhoming.emulator.links import Link, PipeLink, PtyLink, TcpLink
 from rfhoming.emulator.scenario import Scenario, ScenarioError
+from rfhoming.protocol import devices
 
 TRANSPORTS = ("pty", "tcp", "pipe")
 SETTLE_LIMIT = 1000
@@ -109,22 +100,14 @@ class Emulator:
     def _device(self, board: str, name: str, k: int, link: Link, faults: ByteFaults,
                 rng: np.random.Generator, options: dict[str, Any]) -> DeviceRunner:
         """The runner of one of the device table's boards (a scenario device's ``type``)."""
-        sc = self.scenario
-        tag = (sc.robot_tag, sc.robot_tag_interval_ms) if sc.robot_tag else None
-        if board == "xplr-aoa" and "position" in options:  # a fixed anchor in 3-D (emulator/anchors.py)
-            return FixedAnchorRunner(name, link, faults, rng, options, sc.aoa, sc.path_loss, tag)
-        if board == "xplr-aoa":
-            return AoaRunner(name, link, faults, rng, options, sc.aoa, sc.path_loss, tag)
-        if board == "esp32":
-            return Esp32Runner(name, k + 1, link, faults, rng, sc.path_loss)
-        if board == "esp-at":
-            return EspAtRunner(name, link, faults, rng, sc.path_loss, options)
-        if board == "hci":
-            return HciRunner(name, link, faults, rng, sc.path_loss, options)
-        if board == "at86rf212":
-            return RssRunner(name, k + 1, link, faults, rng, sc.path_loss, options)
-        r = self.world.robot
-        return BaseRunner(name, link, faults, rng, options, (r.x, r.y, r.theta), sc.robot_radius)
+        found = devices.BOARDS.get(board)
+        if found is None:
+            raise ScenarioError(f"device {name!r} is of an unknown type {board!r}; the types are "
+                                f"{', '.join(devices.BOARDS)} (the device table's boards)")
+        runner: type[DeviceRunner] = devices.load(found[1].runner)
+        device = runner.build(name, k, link, faults, rng, options, self.scenario)
+        device.board = board  # a runner may build several boards that run its firmware model
+        return device
 
     @property
     def base(self) -> BaseRunner | None:

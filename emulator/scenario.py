@@ -20,7 +20,6 @@ from rfhoming.emulator.world import Obstacle, Pose, Target, World
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
 
-DEVICE_TYPES = tuple(devices.BOARDS)  # a device's ``type``: a board of the device table
 
 
 class ScenarioError(Error, ValueError):
@@ -131,8 +130,10 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
         for name, spec in raw.get("devices", {}).items():
             options = dict(spec)
             kind = options.pop("type", None)
-            if kind not in DEVICE_TYPES:
-                raise ScenarioError(f"[devices.{name}] type must be one of {DEVICE_TYPES}, not {kind!r}")
+            if kind not in devices.BOARDS:  # read now: a kind added to the table is known at once
+                served = devices.KINDS[kind].emulated_as if isinstance(kind, str) and kind in devices.KINDS else None
+                raise ScenarioError(f"[devices.{name}] type must be one of {tuple(devices.BOARDS)}, not {kind!r}"
+                                    + (f"; a {kind} is served by {served}" if served else ""))
             if receiver is not None and kind in BLE_RECEIVERS:
                 kind = receiver
             specs.append(DeviceSpec(name, kind, options))

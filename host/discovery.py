@@ -5,7 +5,8 @@ The XPLR-AOA sits behind an FTDI bridge (vendor 0x0403; its product id is not pu
 so does many another device (a USB-UART cable wired to an ESP32's AT UART, for one): an FTDI
 port is an XPLR-AOA only when it answers ``AT+GMM`` (or streams ``+UUDF``) as u-connectLocate
 does. ESP32 boards use a CP210x (0x10C4), a CH340/CH9102 (0x1A86) or Espressif's native USB
-(0x303A); STM32 nodes enumerate as ST's virtual COM port (0x0483:0x5740).
+(0x303A); STM32 nodes enumerate as ST's virtual COM port (0x0483:0x5740). The ids are the device
+table's: each kind's ``usb`` bridge (rfhoming.protocol.devices).
 """
 
 from __future__ import annotations
@@ -18,18 +19,16 @@ import serial
 from serial.tools import list_ports
 
 from rfhoming.host.ports import PortError
+from rfhoming.protocol import devices
+from rfhoming.protocol.devices import FTDI, USB_XPLR_AOA
 from rfhoming.protocol.uconnect import UConnectDecoder
 
-FTDI = 0x0403
 ASK_TIMEOUT_S = 1.5
 
-KNOWN_VENDORS: dict[int, tuple[str, str]] = {
-    0x0403: ("xplr-aoa", "FTDI USB-UART (the XPLR-AOA's bridge)"),
-    0x10C4: ("esp32", "Silicon Labs CP210x (common on ESP32 boards)"),
-    0x1A86: ("esp32", "WCH CH340/CH9102 (common on ESP32 boards)"),
-    0x303A: ("esp32", "Espressif native USB (ESP32-S3/C3)"),
-    0x0483: ("stm32", "STMicroelectronics virtual COM port (STM32 + AT86RF212 node)"),
-}
+
+def known_vendors() -> dict[int, tuple[str, str]]:
+    """USB vendor id -> (the bridge's name, what the chip is), from the device table's ``usb``."""
+    return {vid: (k.usb.name, what) for k in devices.KINDS.values() if k.usb for vid, what in k.usb.vendors}
 
 
 @dataclass(frozen=True)
@@ -63,12 +62,12 @@ def candidates(ask: Callable[[str], bool | str] = answers_as_xplr_aoa) -> list[C
     """Every serial port with USB ids, recognised or not (recognised first); an FTDI port is
     asked (``ask``) whether it is an XPLR-AOA."""
     out = []
+    vendors = known_vendors()
     for info in list_ports.comports():
-        known = KNOWN_VENDORS.get(info.vid) if info.vid is not None else None
-        if known is None and (info.manufacturer or "").upper().startswith("FTDI"):
-            known = KNOWN_VENDORS[FTDI]
+        ftdi = info.vid == FTDI or (info.vid not in vendors and (info.manufacturer or "").upper().startswith("FTDI"))
+        known = vendors.get(info.vid) if info.vid is not None else None
         ids = f"{info.vid:04X}:{info.pid:04X}" if info.vid is not None else "no USB ids"
-        if known is KNOWN_VENDORS[FTDI]:
+        if ftdi:
             known = _ftdi(ask(info.device))
         kind, reason = known if known else (None, f"unrecognised ({ids})")
         out.append(Candidate(info.device, kind, f"{reason} [{ids}]" if known else reason,
@@ -78,11 +77,11 @@ def candidates(ask: Callable[[str], bool | str] = answers_as_xplr_aoa) -> list[C
 
 def _ftdi(answer: bool | str) -> tuple[str | None, str]:
     if answer is True:
-        return "xplr-aoa", "FTDI USB-UART answering as u-connectLocate (an XPLR-AOA)"
+        return USB_XPLR_AOA.name, "FTDI USB-UART answering as u-connectLocate (an XPLR-AOA)"
     if answer is False:
         return None, ("FTDI USB-UART that does not answer as an XPLR-AOA (AT+GMM at 115200 Bd): another device, "
                       "e.g. an ESP32's AT UART -- name its kind, e.g. esp-at:PORT")
-    return "xplr-aoa", f"FTDI USB-UART (the XPLR-AOA's bridge, {answer})"
+    return USB_XPLR_AOA.name, f"FTDI USB-UART (the XPLR-AOA's bridge, {answer})"
 
 
 def resolve_auto(kind: str) -> str:

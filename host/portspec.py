@@ -22,158 +22,34 @@ followed by ``key=`` stay part of it. Unknown kinds and keys, and bad values, ra
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from rfhoming.protocol import devices
+from rfhoming.protocol import devices, settings
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.settings import Parser
 
 
 class PortSpecError(Error, ValueError):
     """A port spec that cannot be understood; the message says what is allowed."""
 
 
-TAG_ID = re.compile(r"[0-9A-F]{12}")
-FLOWS = ("rtscts", "none", "auto")
-
-
-def _baud(text: str) -> int:
-    if not text.isdigit() or not 300 <= int(text) <= 4_000_000:
-        raise ValueError("a whole number of baud from 300 to 4000000, e.g. baud=115200")
-    return int(text)
-
-
-def _flow(text: str) -> str:
-    if text not in FLOWS:
-        raise ValueError("rtscts (hardware flow control), none, or auto (on for the XPLR-AOA only)")
-    return text
-
-
-def _tags(text: str) -> tuple[str, ...]:
-    if text.lower() == "none":  # no filter: the XPLR-AOA's stored one is cleared
-        return ()
-    tags = tuple(t.upper() for t in text.split("+") if t)
-    if not tags or not all(TAG_ID.fullmatch(t) for t in tags):
-        raise ValueError("12-hex-digit tag ids joined by +, e.g. tags=CCF9578E0D8A+CCF9578E0D8B, "
-                         "or tags=none to clear the board's filter")
-    return tags
-
-
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not 0 < value < 3600:
-        raise ValueError("seconds, more than 0, e.g. timeout=5")
-    return value
-
-
-def _speed(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if value < 0:
-        raise ValueError("0 (as fast as possible) or a pace factor, e.g. speed=1")
-    return value
-
-
-def _name(text: str) -> str:
-    if not re.fullmatch(r"[A-Za-z0-9_.-]{1,32}", text):
-        raise ValueError("letters, digits, '_', '.' or '-', at most 32")
-    return text
-
-
-def _scan_ms(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not 2.5 <= value <= 10_240:
-        raise ValueError("milliseconds from 2.5 to 10240, e.g. interval=100")
-    return value
-
-
-def _yes_no(text: str) -> bool:
-    if text not in ("yes", "no", "1", "0", "true", "false"):
-        raise ValueError("yes or no")
-    return text in ("yes", "1", "true")
-
-
-def _mac(text: str) -> str:
-    if not re.fullmatch(r"[0-9A-Fa-f]{2}(:[0-9A-Fa-f]{2}){5}", text):
-        raise ValueError("an address as aa:bb:cc:dd:ee:ff, e.g. mac=24:0a:c4:96:e6:88")
-    return text.upper()
-
-
-def _device(text: str) -> str:
-    if not 1 <= len(text) <= 200:
-        raise ValueError("a device as `rfhoming replay` lists it: its path, its label or its role, e.g. device=aoa")
-    return text
-
-
-def _ad_name(text: str) -> str:
-    if not 1 <= len(text) <= 29 or '"' in text:
-        raise ValueError("an advertised local name, 1 to 29 characters, no quotes")
-    return text
-
-
-def _extended(text: str) -> str:
-    if text not in ("auto", "on", "off"):
-        raise ValueError("auto (extended scanning where the controller has it), on or off")
-    return text
-
-
-def _content(text: str) -> str:
-    if text not in ("ibeacon", "eddystone"):
-        raise ValueError("ibeacon or eddystone")
-    return text
-
-
-def _domain(text: str) -> int:
-    if not text.isdigit() or not 0 <= int(text) <= 232:
-        raise ValueError("a ROS 2 domain id, 0 to 232 (ROS_DOMAIN_ID)")
-    return int(text)
-
-
-def _ros_name(text: str) -> str:
-    if not re.fullmatch(r"/?[A-Za-z_~][A-Za-z0-9_/]*|/", text) or "//" in text:
-        raise ValueError("a ROS 2 name: letters, digits, _ and /, e.g. cmd_vel or /robot1")
-    return text
-
-
-def _discovery(text: str) -> str:
-    if text not in ("localhost", "subnet"):
-        raise ValueError("localhost (this machine only: loopback, no multicast) or subnet (the network)")
-    return text
-
-
-SETTINGS: dict[str, Callable[[str], Any]] = {
-    "baud": _baud, "flow": _flow, "name": _name, "timeout": _seconds,  # serial ports
-    "tags": _tags,  # the XPLR-AOA's tag filter
-    "active": _yes_no, "interval": _scan_ms, "window": _scan_ms, "mac": _mac, "adname": _ad_name,  # BLE scans
-    "extended": _extended, "content": _content, "dedup": _yes_no,  # HCI scans
-    "domain": _domain, "ns": _ros_name, "cmd_vel": _ros_name, "odom": _ros_name, "scan": _ros_name,  # ROS 2
-    "stamped": _yes_no, "discovery": _discovery,
+SOURCES: dict[str, Mapping[str, Parser]] = {
+    "capture": {"device": settings.device, "speed": settings.speed},  # a pcapng capture replayed as live ports
+    "serve": {"device": settings.name},  # the devices of an `rfhoming serve` at serve://HOST:PORT
 }
-"""Every setting's parser (text -> value; ValueError says what is allowed). Which settings a
-device kind takes is its record's ``settings`` in the device table."""
-
-SOURCES: dict[str, dict[str, Callable[[str], Any]]] = {
-    "capture": {"device": _device, "speed": _speed},  # a pcapng capture replayed as live ports
-    "serve": {"device": _name},  # the devices of an `rfhoming serve` at serve://HOST:PORT
-}
-"""Port spec kinds that are not devices: where recorded or shared devices come from."""
+"""Port spec kinds that are not devices: where recorded or shared devices come from. A device
+kind's settings are its record's in the device table."""
 
 
-def allowed(kind: str | None) -> dict[str, Callable[[str], Any]]:
-    """The settings a kind takes; without a kind (sniffed) any serial setting and tags."""
+def allowed(kind: str | None) -> Mapping[str, Parser]:
+    """The settings a kind takes; without a kind (sniffed) those of every kind that can be sniffed."""
     if kind in SOURCES:
         return SOURCES[kind]
-    names = devices.kind(kind, notice=False).settings if kind else devices.KINDS["xplr-aoa"].settings
-    return {name: SETTINGS[name] for name in names}
+    if kind:
+        return devices.kind(kind, notice=False).settings
+    return {key: parse for k in devices.KINDS.values() if k.sniff for key, parse in k.settings.items()}
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,7 @@ from typing import Any
 
 from rfhoming.host import portspec
 from rfhoming.host.discovery import resolve_auto
-from rfhoming.host.drivers.aoa import AoaSetup
-from rfhoming.host.drivers.common import DEFAULT_BAUD, Driver
+from rfhoming.host.drivers.common import DEFAULT_BAUD, Driver, Wiring
 from rfhoming.host.losses import with_losses
 from rfhoming.host.ports import HostPort, PortError, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
@@ -28,8 +27,6 @@ from rfhoming.host.replay import ReplayPort, Sequencer, load_capture
 from rfhoming.host.replay import describe as describe_interface
 from rfhoming.protocol import devices
 from rfhoming.protocol.devices import DeviceKind
-from rfhoming.protocol.frames import FrameDecoder
-from rfhoming.protocol.uconnect import UConnectDecoder
 
 SNIFF_SECONDS = 1.5
 
@@ -46,15 +43,15 @@ def driver_class(record: DeviceKind) -> type[Driver]:
     return cls
 
 
+def sniffable() -> list[tuple[DeviceKind, type[Driver]]]:
+    """The kinds a port's bytes can tell, with their drivers, in the order the device table's
+    ``sniff`` gives."""
+    return [(k, driver_class(k)) for k in sorted(devices.KINDS.values(), key=lambda k: k.sniff) if k.sniff]
+
+
 def what_speaks(data: bytes) -> str | None:
-    """'rss-node' if a valid frame is in ``data``, 'xplr-aoa' if a valid AT/URC line is, else None."""
-    frames = FrameDecoder().feed(data)
-    if any(r.kind != "drop" for r in frames):
-        return "rss-node"
-    lines = UConnectDecoder().feed(data)
-    if any(i.kind in ("angle", "startup", "final", "echo", "info", "tag_data") for i in lines):
-        return "xplr-aoa"
-    return None
+    """The first sniffable kind whose driver recognises ``data`` (:meth:`Driver.speaks`), else None."""
+    return next((k.name for k, cls in sniffable() if cls.speaks(data)), None)
 
 
 async def sniff(spec: PortSpec, tap: Tap) -> str:
@@ -73,16 +70,17 @@ async def sniff(spec: PortSpec, tap: Tap) -> str:
             return got
 
         data = await gather(SNIFF_SECONDS)
-        if what_speaks(data) is None:
-            port.write(b"AT\r")
+        poke = b"".join(cls.poke for _, cls in sniffable())
+        if what_speaks(data) is None and poke:
+            port.write(poke)
             data += await gather(1.0)
     finally:
         await port.close()
     found = what_speaks(data)
     if found is None:
+        named = " or ".join(f"{k.name}:{spec.where}" for k in devices.KINDS.values() if k.sniff)
         raise PortError(f"could not tell what speaks on {spec.where} ({len(data)} bytes, none valid): "
-                        f"name it, e.g. xplr-aoa:{spec.where} or rss-node:{spec.where}; if it is garbage, "
-                        "the baud rate is probably wrong (add ,baud=RATE)")
+                        f"name it, e.g. {named}; if it is garbage, the baud rate is probably wrong (add ,baud=RATE)")
     return found
 
 
@@ -108,18 +106,17 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
     elif kind is not None and spec.kind != kind:
         raise PortSpecError(f"{spec} is a {spec.kind} port where a {kind} port is wanted")
     if spec.where == "auto":
-        usb = devices.kind(spec.kind or "xplr-aoa").usb
+        usb = devices.kind(spec.kind or devices.ROLES["aoa"].default_kind).usb
         if usb is None:
             raise PortSpecError(f"{spec}: a {spec.kind} device cannot be found by auto; name it")
-        spec = replace(spec, where=resolve_auto(usb))
+        spec = replace(spec, where=resolve_auto(usb.name))
     sniffed: list[tuple[str, str, float, bytes]] = []
     if spec.kind is None:
         spec = spec.with_kind(await sniff(spec, lambda *event: sniffed.append(event)))
     if describe is not None:
         record = devices.kind(spec.kind)
-        recorded = getattr(driver_class(record), "describe_spec", None)  # e.g. a ROS 2 base's topics
         describe(spec.name or spec.where, protocol=record.protocol, kind=record.name, label=label(spec.where, spec.name),
-                 **(recorded(spec) if recorded else {}))
+                 **driver_class(record).describe_spec(spec))  # e.g. a ROS 2 base's topics
     for name, direction, t, data in sniffed:
         for tap in taps:
             tap(name, f"sniffed-{direction}", t, data)
@@ -142,7 +139,8 @@ async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, 
             drivers.append(serve_driver(spec))
             continue
         spec = await resolve(spec, baud=baud, flow=flow, taps=taps, describe=describe)
-        options = {"setup": AoaSetup(probe_baud=True)} if probe_baud and spec.kind == "xplr-aoa" else {}
+        assert spec.device is not None, spec
+        options = driver_class(spec.device).options(Wiring(probe_baud=probe_baud))
         drivers.append(make_driver(spec, list(taps), **options))
     return drivers
 

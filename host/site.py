@@ -43,9 +43,10 @@ import numpy as np
 
 from rfhoming.host import portspec
 from rfhoming.host.estimation.anchors3d import ANGLE_MODELS, rotation
-from rfhoming.host.portspec import TAG_ID, PortSpecError
+from rfhoming.host.portspec import PortSpecError
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.settings import TAG_ID
 from rfhoming.protocol.textfile import read_toml
 
 

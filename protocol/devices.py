@@ -1,12 +1,17 @@
 """The device table: every device kind's facts in one record, as gpsd keeps its drivers.
 
-Each layer reads what it needs from here -- the port spec's kinds and settings
-(host/portspec.py), the driver to build (host/session.py), the set-up deadline
-(host/supervise.py), the roles a kind may fill in a homing run (host/homing/assembly.py), the
-capture's link type and the recorded kind (host/capture.py, host/session.py), the emulator's
-boards and their firmware models (emulator/devices.py). It lives in the protocol layer, which
-every other layer may import; what belongs to a higher layer (a driver, a firmware model) is
-named by its ``module:attribute`` path and loaded by that layer with :func:`load`.
+Each layer reads what it needs from here -- the port spec's kinds and each kind's settings
+with their parsers (host/portspec.py, protocol/settings.py), the driver to build and the kinds
+to sniff (host/session.py), the USB bridge ``auto`` looks for (host/discovery.py), the set-up
+deadline (host/supervise.py), the roles a kind may fill in a homing run (host/homing/assembly.py),
+the capture's link type and the recorded kind (host/capture.py, host/session.py), the emulator's
+boards, their firmware models and the runners that build them (emulator/runtime.py). What a
+kind does -- its run options, its sniffing test, the items it yields -- is its driver's
+(host/drivers/common.py ``Driver``; host/drivers/driver_proto.py is the template).
+
+The table lives in the protocol layer, which every other layer may import; what belongs to a
+higher layer (a driver, a firmware model, a runner) is named by its ``module:attribute`` path
+and loaded by that layer with :func:`load`.
 ``tests/test_devices.py`` walks the table and checks every record is complete.
 
 Old spellings (``ublox-aoa``, ``rss``, ...) are accepted as aliases with a one-line notice;
@@ -17,11 +22,14 @@ from __future__ import annotations
 
 import importlib
 import logging
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from rfhoming.protocol import pcapng
+from rfhoming.protocol import settings as s
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.settings import Parser
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +65,7 @@ class Board:
 
     name: str
     firmware: str  # module:class in rfhoming.firmware
+    runner: str  # module:class of its emulator runner (rfhoming.emulator), built by its ``build`` classmethod
 
 
 @dataclass(frozen=True)
@@ -78,20 +87,38 @@ ROLES: dict[str, Role] = {r.name: r for r in (
 
 
 @dataclass(frozen=True)
+class UsbBridge:
+    """A USB-serial bridge a kind sits behind, for ``auto`` (host/discovery.py): its name, and
+    each USB vendor id it enumerates with and what that vendor's chip is."""
+
+    name: str
+    vendors: tuple[tuple[int, str], ...]
+
+
+FTDI = 0x0403
+USB_XPLR_AOA = UsbBridge("xplr-aoa", ((FTDI, "FTDI USB-UART (the XPLR-AOA's bridge)"),))
+USB_ESP32 = UsbBridge("esp32", ((0x10C4, "Silicon Labs CP210x (common on ESP32 boards)"),
+                                (0x1A86, "WCH CH340/CH9102 (common on ESP32 boards)"),
+                                (0x303A, "Espressif native USB (ESP32-S3/C3)")))
+USB_STM32 = UsbBridge("stm32", ((0x0483, "STMicroelectronics virtual COM port (STM32 + AT86RF212 node)"),))
+
+
+@dataclass(frozen=True)
 class DeviceKind:
-    """One record of the device table."""
+    """One record of the device table: the facts the layers read (docs/architecture.md lists
+    each field and its readers)."""
 
     name: str  # the canonical name: port spec kind, capture kind, driver kind
     title: str
     protocol: str  # a key of PROTOCOLS
-    settings: tuple[str, ...]  # port spec keys it takes (parsed by host/portspec.py SETTINGS)
+    settings: Mapping[str, Parser] = field(hash=False)  # port spec key -> its parser (protocol/settings.py)
     driver: str  # module:class of its host driver
     boards: tuple[Board, ...]  # the emulator's boards of this kind
     roles: tuple[str, ...]  # keys of ROLES
     setup_timeout_s: float  # how long it may take to open and be set up
-    usb: str | None  # what host/discovery.py calls its USB bridge, for ``auto``
-    topics: tuple[str, ...]  # the ROS 2 topics its items are exported to (host/export/rosmsgs.py)
-    sniffable: bool = False  # can be told from what the port says (a spec without KIND:)
+    usb: UsbBridge | None  # the USB bridge host/discovery.py looks for, for ``auto`` (None: no auto)
+    sniff: int = 0  # 0: never sniffed; else it can be told from what a port says (a spec without KIND:) by
+    # its driver's ``speaks``, tried in this order (lowest first: the stricter test, a checksum before a text line)
     rtscts: bool = False  # RTS/CTS flow control by default (flow=auto)
     commanded: bool = False  # its writes come from the homing loop, not its driver (a replay without
     # the loop does not wait for them)
@@ -107,37 +134,35 @@ class DeviceKind:
         return PROTOCOLS[self.protocol]
 
 
-SERIAL = ("baud", "flow", "name", "timeout")
-SCAN = ("active", "interval", "window", "mac", "adname")
+EMULATOR = "rfhoming.emulator.devices"
 
 KINDS: dict[str, DeviceKind] = {k.name: k for k in (
     DeviceKind("xplr-aoa", "u-blox XPLR-AOA direction-finding kit (u-connectLocate)", "uconnect",
-               (*SERIAL, "tags"), "rfhoming.host.drivers.aoa:AoaDriver",
-               (Board("xplr-aoa", "rfhoming.firmware.xplr_aoa:XplrAoaFirmware"),), ("aoa", "anchor"), 20.0,
-               "xplr-aoa", ("/rfhoming/aoa/angle",), sniffable=True, rtscts=True, aliases=("ublox-aoa",)),
+               {**s.SERIAL, "tags": s.tags}, "rfhoming.host.drivers.aoa:AoaDriver",
+               (Board("xplr-aoa", "rfhoming.firmware.xplr_aoa:XplrAoaFirmware", f"{EMULATOR}:AoaRunner"),),
+               ("aoa", "anchor"), 20.0, USB_XPLR_AOA, sniff=20, rtscts=True, aliases=("ublox-aoa",)),
     DeviceKind("rss-node", "rfhoming node firmware: ESP32 BLE scanner or STM32 + AT86RF212 four-dish node",
-               "frames", SERIAL, "rfhoming.host.drivers.rss:RssDriver",
-               (Board("esp32", "rfhoming.firmware.esp32_scanner:Esp32ScannerFirmware"),
-                Board("at86rf212", "rfhoming.firmware.at86rf212_node:At86rf212NodeFirmware")),
-               ("rss", "ble"), 5.0, "esp32", ("/rfhoming/ble/rssi", "/rfhoming/rss/antenna_set"), sniffable=True,
-               aliases=("rss",)),
-    DeviceKind("esp-at", "ESP32 with Espressif's ESP-AT firmware (BLE scan)", "esp-at", (*SERIAL, *SCAN),
-               "rfhoming.host.drivers.espat:EspAtDriver", (Board("esp-at", "rfhoming.firmware.esp_at:EspAtFirmware"),),
-               ("ble",), 5.0, "esp32", ("/rfhoming/ble/rssi",)),
+               "frames", s.SERIAL, "rfhoming.host.drivers.rss:RssDriver",
+               (Board("esp32", "rfhoming.firmware.esp32_scanner:Esp32ScannerFirmware", f"{EMULATOR}:Esp32Runner"),
+                Board("at86rf212", "rfhoming.firmware.at86rf212_node:At86rf212NodeFirmware", f"{EMULATOR}:RssRunner")),
+               ("rss", "ble"), 5.0, USB_ESP32, sniff=10, aliases=("rss",)),
+    DeviceKind("esp-at", "ESP32 with Espressif's ESP-AT firmware (BLE scan)", "esp-at", {**s.SERIAL, **s.SCAN},
+               "rfhoming.host.drivers.espat:EspAtDriver",
+               (Board("esp-at", "rfhoming.firmware.esp_at:EspAtFirmware", f"{EMULATOR}:EspAtRunner"),),
+               ("ble",), 5.0, USB_ESP32),
     DeviceKind("hci", "Bluetooth controller through a bumble transport (HCI advertising reports)", "h4",
-               ("name", "timeout", *SCAN, "extended", "content", "dedup"), "rfhoming.host.drivers.hci:HciDriver",
-               (Board("hci", "rfhoming.firmware.hci_controller:HciControllerFirmware"),), ("ble",), 5.0, None,
-               ("/rfhoming/ble/rssi",), extra="hci"),
-    DeviceKind("base", "rfhoming robot base (velocity commands, odometry, range scans)", "frames", SERIAL,
+               {"name": s.name, "timeout": s.seconds, **s.SCAN, **s.HCI_SCAN}, "rfhoming.host.drivers.hci:HciDriver",
+               (Board("hci", "rfhoming.firmware.hci_controller:HciControllerFirmware", f"{EMULATOR}:HciRunner"),),
+               ("ble",), 5.0, None, extra="hci"),
+    DeviceKind("base", "rfhoming robot base (velocity commands, odometry, range scans)", "frames", s.SERIAL,
                "rfhoming.host.drivers.robot_base:BaseDriver",
-               (Board("base", "rfhoming.firmware.robot_base:RobotBaseFirmware"),), ("base",), 5.0, "stm32",
-               ("/odom", "/scan", "/rfhoming/cmd_vel"), commanded=True, aliases=("robot-base",), brakes=True),
+               (Board("base", "rfhoming.firmware.robot_base:RobotBaseFirmware", f"{EMULATOR}:BaseRunner"),),
+               ("base",), 5.0, USB_STM32, commanded=True, aliases=("robot-base",), brakes=True),
     DeviceKind("ros2", "a ROS 2 robot base over DDS (nav_msgs/Odometry, sensor_msgs/LaserScan in; "
                "geometry_msgs/Twist out); WHERE is its namespace", "ros2",
-               ("name", "timeout", "domain", "ns", "cmd_vel", "odom", "scan", "stamped", "discovery"),
+               {"name": s.name, "timeout": s.seconds, **s.ROS2},
                "rfhoming.host.drivers.ros2_base:Ros2BaseDriver", (), ("base",), 10.0, None,
-               ("/odom", "/scan", "/rfhoming/cmd_vel"), commanded=True, extra="ros2",
-               emulated_as="rfhoming emulate SCENARIO --robot ros2", default_where="/"),
+               commanded=True, extra="ros2", emulated_as="rfhoming emulate SCENARIO --robot ros2", default_where="/"),
 )}
 
 BOARDS: dict[str, tuple[DeviceKind, Board]] = {b.name: (k, b) for k in KINDS.values() for b in k.boards}

@@ -18,6 +18,17 @@ def item_types() -> list[type]:
     return [named[t.__forward_arg__] if isinstance(t, typing.ForwardRef) else t for t in typing.get_args(Item)]
 
 
+def test_the_items_are_those_the_device_tables_drivers_yield() -> None:
+    """Item is written out for type checkers; it must be every item some kind's driver shows
+    (its ``items``), and a Reader's H4 packets, and nothing else."""
+    from rfhoming.host.session import driver_class
+    from rfhoming.protocol import devices
+    from rfhoming.reader import H4Packet
+
+    yielded = {t for record in devices.KINDS.values() for t in driver_class(record).items}
+    assert set(item_types()) == yielded | {H4Packet}
+
+
 def test_the_kinds_are_those_of_the_items() -> None:
     assert set(KINDS) == {t.kind for t in item_types()} and len(KINDS) == len(set(KINDS))
 

@@ -14,14 +14,15 @@ from pathlib import Path
 import pytest
 
 from rfhoming.emulator import devices as runners
+from rfhoming.emulator.scenario import ScenarioError, load
 from rfhoming.host import portspec
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.drivers.rss import RssDriver
-from rfhoming.host.export import rosmsgs
 from rfhoming.host.replay import load_capture
 from rfhoming.host.session import driver_class, make_driver, recorded_kind
 from rfhoming.protocol import devices, pcapng
+from test_api_kinds import item_types as api_items
 
 ROOT = Path(__file__).resolve().parent.parent
 KINDS = sorted(devices.KINDS)
@@ -36,18 +37,30 @@ def test_each_kind_is_complete(name: str) -> None:
     driver = driver_class(record)
     assert issubclass(driver, Driver) and driver.kind == name
     assert set(record.roles) <= set(devices.ROLES) and record.roles
-    assert set(record.settings) <= set(portspec.SETTINGS)
-    assert set(record.topics) <= set(rosmsgs.TOPICS)
+    assert record.settings and all(callable(parse) for parse in record.settings.values())
+    assert set(driver.items) <= set(api_items()) and (record.usb is None or record.usb.vendors)
     assert record.setup_timeout_s > 0 and (record.boards or record.emulated_as)
     for board in record.boards:
         firmware = devices.load(board.firmware)
         assert inspect.isclass(firmware) and firmware.__module__.startswith("rfhoming.firmware.")
+        runner = devices.load(board.runner)
+        assert issubclass(runner, runners.DeviceRunner) and runner.board == board.name
 
 
 def test_the_emulator_has_a_runner_for_every_board_and_no_other() -> None:
     boards = {cls.board for cls in vars(runners).values()
               if inspect.isclass(cls) and issubclass(cls, runners.DeviceRunner) and cls.board != "device"}
     assert boards == set(devices.BOARDS)
+
+
+def test_a_kind_with_no_board_says_how_the_emulator_serves_it(tmp_path: Path) -> None:
+    served = [k for k in devices.KINDS.values() if not k.boards]
+    assert served
+    for record in served:
+        scenario = tmp_path / f"{record.name}.toml"
+        scenario.write_text(f'name = "x"\nbounds = [0, 0, 5, 5]\n[devices.robot]\ntype = "{record.name}"\n')
+        with pytest.raises(ScenarioError, match=re.escape(f"served by {record.emulated_as}")):
+            load(scenario)
 
 
 def test_every_role_defaults_to_a_kind_that_can_fill_it() -> None:

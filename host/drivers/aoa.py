@@ -37,6 +37,7 @@ from rfhoming.host.drivers.common import (
     BoundedStream,
     CommandFailed,
     Driver,
+    Wiring,
     serial_port,
 )
 from rfhoming.host.ports import HostPort, Tap
@@ -49,7 +50,9 @@ from rfhoming.protocol.uconnect import (
     UConnectDecoder,
 )
 from rfhoming.protocol import pcapng
+from rfhoming.protocol.drop import Drop
 from rfhoming.protocol.uconnect import commands as c
+from rfhoming.protocol.uconnect.items import Echo, FinalCode, InfoLine, Startup, TagData, UnknownLine
 from rfhoming.protocol.uconnect.binary import BinaryDecoder
 
 log = logging.getLogger(__name__)
@@ -162,6 +165,21 @@ def looks_binary(data: bytes, chain: int = 3) -> bool:
 class AoaDriver(Driver):
     kind = "xplr-aoa"
     sets_up = True
+    items = (AngleEvent, TagData, Startup, Echo, InfoLine, FinalCode, UnknownLine, Drop)
+    poke = b"AT\r"  # a board that streams nothing still answers AT
+
+    @classmethod
+    def speaks(cls, data: bytes) -> bool:
+        """A u-connectLocate line is in ``data``: an event, or an answer to AT (not an unknown line)."""
+        return any(i.kind in ("angle", "startup", "final", "echo", "info", "tag_data")
+                   for i in UConnectDecoder().feed(data))
+
+    @classmethod
+    def options(cls, wiring: Wiring) -> dict[str, Any]:
+        """Tag choice and baud probing; an anchor (a site's fixed board) keeps the defaults."""
+        if wiring.role not in (None, "aoa"):
+            return {}
+        return {"setup": AoaSetup(choose_tag_s=wiring.choose_tag_s, probe_baud=wiring.probe_baud)}
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> AoaDriver:

@@ -8,8 +8,8 @@ import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Callable, Iterator
-from dataclasses import replace
-from typing import Any, Generic, TypeVar
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from rfhoming.host.ports import (
     Disconnected,
@@ -21,6 +21,9 @@ from rfhoming.host.ports import (
     reopen,
 )
 from rfhoming.host.portspec import PortSpec, PortSpecError
+
+if TYPE_CHECKING:
+    from rfhoming.host.homing.config import Config
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -125,6 +128,18 @@ class BoundedStream(Generic[T]):
             yield await self.get()
 
 
+@dataclass(frozen=True)
+class Wiring:
+    """What the program opening a driver offers it; the driver's :meth:`Driver.options` takes
+    what its kind needs. ``role``, ``config``: a homing run's (host/homing/assembly.py), None
+    outside one (``listen``, ``capture``, the Python API)."""
+
+    role: str | None = None
+    config: Config | None = None
+    choose_tag_s: float | None = None  # no tag chosen: listen this long, then home on the only one heard
+    probe_baud: bool = False  # a board sending only garbage is probed at every documented rate
+
+
 class Driver:
     """Base of the drivers: keeps the port open (re-opening with back-off) and feeds chunks.
 
@@ -138,6 +153,31 @@ class Driver:
     sets_up = False
     """Whether it is ready only once its set-up commands succeeded (state ``streaming``), not
     as soon as its port is open."""
+    items: tuple[type, ...] = ()
+    """Every type of item it shows its listeners: rfhoming.api.Item is their union (checked by
+    tests/test_api_kinds.py)."""
+    poke = b""
+    """What to say to a silent port while sniffing (its record's ``sniff`` is not 0), to make a
+    device of this kind answer."""
+
+    @classmethod
+    def speaks(cls, data: bytes) -> bool:
+        """Whether ``data``, read from a port of unknown kind, shows this kind (one whose record's ``sniff`` is not 0)."""
+        return False
+
+    @classmethod
+    def options(cls, wiring: Wiring) -> dict[str, Any]:
+        """The constructor options its kind takes from the program opening it (a run's config)."""
+        return {}
+
+    @classmethod
+    def describe_spec(cls, spec: PortSpec) -> dict[str, str]:
+        """What a capture's interface records of a spec besides its kind (a ROS 2 base's topics)."""
+        return {}
+
+    def sent(self, data: bytes) -> list[Any]:
+        """The items in bytes the host wrote to it (an export's commands from a capture)."""
+        return []
 
     def __init__(self, port: HostPort, *, reconnect: bool = True, out: BoundedStream[Any] | None = None,
                  queue_size: int = 1000) -> None:

@@ -20,7 +20,8 @@ from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver, s
 from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.ports import HostPort, Tap
 from rfhoming.host.portspec import PortSpec
-from rfhoming.protocol.espat import EspAtDecoder, Final
+from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.espat import EspAtDecoder, Event, Final, Info, ScanReport
 
 log = logging.getLogger(__name__)
 UNIT_MS = 0.625
@@ -73,6 +74,7 @@ def setup_from_spec(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
 class EspAtDriver(Driver):
     kind = "esp-at"
     sets_up = True
+    items = (ScanReport, Info, Final, Event, Drop)
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> EspAtDriver:

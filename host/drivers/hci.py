@@ -115,6 +115,7 @@ def setup_from_spec(spec: PortSpec, setup: HciSetup | None = None) -> HciSetup:
 class HciDriver(Driver):
     kind = "hci"
     sets_up = True
+    items = (Advertisement, HciPacket, Drop)
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> HciDriver:

@@ -11,8 +11,8 @@ import asyncio
 import logging
 from typing import Any, NamedTuple
 
-from rfhoming.host.drivers.common import BoundedStream, Driver
-from rfhoming.host.drivers.rss import NodeClock
+from rfhoming.host.drivers.common import BoundedStream, Driver, Wiring
+from rfhoming.host.drivers.rss import FRAME_ITEMS, NodeClock
 from rfhoming.host.ports import Disconnected, HostPort
 from rfhoming.protocol.frames import (
     FrameDecoder,
@@ -74,11 +74,18 @@ def scan_of(record: RangeScan | RangeScanV2, t_host: float = 0.0) -> Scan:
 
 class BaseDriver(Driver):
     kind = "base"
+    items = FRAME_ITEMS
+
+    @classmethod
+    def options(cls, wiring: Wiring) -> dict[str, Any]:
+        """A run's command timeout: the base stops by itself when commands stop this long."""
+        return {} if wiring.config is None else {"command_timeout_ms": wiring.config.loop.command_timeout_ms}
 
     def __init__(self, port: HostPort, *, command_timeout_ms: int = 300, reconnect: bool = True,
                  out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=500)
         self.decoder = FrameDecoder()
+        self._sent = FrameDecoder()  # what the host wrote, for an export's commands
         self.command_timeout_ms = command_timeout_ms
         self.latest: Pose2D | None = None
         self.latest_scan: Scan | None = None
@@ -98,6 +105,9 @@ class BaseDriver(Driver):
                 scan = scan_of(record, t_host)
                 self.latest_scan = scan
                 self.out.put(scan)
+
+    def sent(self, data: bytes) -> list[Any]:
+        return self._sent.feed(data)
 
     def send_velocity(self, v: float, w: float) -> bool:
         """Command (v m/s, ω rad/s); False (counted) when the base is not connected."""

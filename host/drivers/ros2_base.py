@@ -66,6 +66,10 @@ def scan_of(msg: ros2.LaserScan, t_host: float) -> Scan:
 
 class Ros2BaseDriver(BaseDriver):
     kind = "ros2"
+    items = ()  # its Pose2D and Scan are the homing loop's, not the Python API's items
+
+    def sent(self, data: bytes) -> list[Any]:
+        return []  # its Twist samples: an export's commands come from a run log
 
     def __init__(self, port: Any, *, command_timeout_ms: int = 300, reconnect: bool = True,
                  out: BoundedStream[Any] | None = None) -> None:
@@ -91,8 +95,8 @@ class Ros2BaseDriver(BaseDriver):
 
         return cls(Ros2Port(topics_of(spec), name=spec.name or spec.where, taps=taps), **options)
 
-    @staticmethod
-    def describe_spec(spec: PortSpec) -> dict[str, str]:
+    @classmethod
+    def describe_spec(cls, spec: PortSpec) -> dict[str, str]:
         """What a capture's interface records of the spec (host/session.py resolve)."""
         return topics_of(spec).recorded()
 

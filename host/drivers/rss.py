@@ -14,10 +14,12 @@ from __future__ import annotations
 from collections import deque
 from typing import Any, NamedTuple
 
-from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.common import BoundedStream, Driver, Wiring
 from rfhoming.host.ports import HostPort
 from rfhoming.protocol.at86rf212 import DEFAULT_SCALE_DB, ed_to_dbm
+from rfhoming.protocol.drop import Drop
 from rfhoming.protocol.frames import (
+    RECORD_TYPES,
     AdvReport,
     AntennaSet,
     FrameDecoder,
@@ -26,6 +28,8 @@ from rfhoming.protocol.frames import (
 )
 
 WRAP = 1 << 32
+FRAME_ITEMS: tuple[type, ...] = (*(rt.cls for rt in RECORD_TYPES.values()), Drop)
+"""What a driver of rfhoming's frames shows its listeners: every record, and what it dropped."""
 
 
 class BleRssi(NamedTuple):
@@ -107,6 +111,17 @@ class Associator:
 
 class RssDriver(Driver):
     kind = "rss-node"
+    items = FRAME_ITEMS
+
+    @classmethod
+    def speaks(cls, data: bytes) -> bool:
+        """A valid frame (its CRC right) is in ``data``."""
+        return any(r.kind != "drop" for r in FrameDecoder().feed(data))
+
+    @classmethod
+    def options(cls, wiring: Wiring) -> dict[str, Any]:
+        """A run's calibration of the AT86RF212's energy detection."""
+        return {} if wiring.config is None else {"ed_scale_db": wiring.config.calibration.ed_scale_db}
 
     def __init__(self, port: HostPort, *, ed_scale_db: float = DEFAULT_SCALE_DB, use_antenna_sets: bool = True,
                  queue_size: int = 4000, reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:

@@ -65,8 +65,8 @@ from rfhoming.host.export import frames, rosmsgs
 from rfhoming.host.replay import ReplayPort, load_capture
 from rfhoming.host.session import driver_class, recorded_kind
 from rfhoming.host.sink import Sink
+from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
-from rfhoming.protocol.frames import FrameDecoder
 from rfhoming.protocol.pcapng import OUTBOUND
 
 log = logging.getLogger(__name__)
@@ -151,28 +151,30 @@ class McapRecorder(Sink):
         self.skipped[f"unwritable {kind}"] += 1
 
     def _on_item(self, device: str, t_host: float, item: Any) -> None:
-        if isinstance(item, (Pose2D, Scan)):  # a ROS 2 base hands over the loop's items, not records
-            self._on_ros2_base(device, t_host, item)
-            return
+        """A driver's item: a robot base's odometry and scans, whether its driver shows records
+        (rfhoming's base) or the loop's Pose2D and Scan (a ROS 2 base), and the sensors' readings."""
         kind = getattr(item, "kind", None)
-        if kind == "odometry":
+        if kind == "odometry":  # on the base's clock, unwrapped as its driver does
             clock = self._clocks.setdefault(device, NodeClock())
-            self.robot_time = clock.unwrap(item.t_us) / 1e6
+            item = Pose2D(t_host, clock.unwrap(item.t_us) / 1e6, item.x_mm / 1000, item.y_mm / 1000,
+                          item.theta_urad / 1e6, item.v_mm_s / 1000, item.w_mrad_s / 1000, item.flags)
+        elif kind in ("range_scan", "range_scan_v2"):
+            item = scan_of(item, t_host)
+        if isinstance(item, Pose2D):
+            self.robot_time = item.t_robot
         t = self._time(t_host)
         if t is None:
-            if kind in ("odometry", "range_scan", "angle", "adv_report", "antenna_set", "velocity_command"):
+            if isinstance(item, (Pose2D, Scan)) or kind in ("angle", "adv_report", "antenna_set", "velocity_command"):
                 self.skipped["before odometry"] += 1
             return
-        if kind == "odometry":
-            x, y, theta = item.x_mm / 1000, item.y_mm / 1000, item.theta_urad / 1e6
+        if isinstance(item, Pose2D):
             if self._last_xy is not None:
-                self.path_m += math.dist(self._last_xy, (x, y))
-            self._last_xy = (x, y)
-            self._write(t, *rosmsgs.odometry(t, x, y, theta, item.v_mm_s / 1000, item.w_mrad_s / 1000, self.path_m),
-                        device=device)
-            self._write(t, *rosmsgs.odom_transform(t, x, y, theta))
-        elif kind in ("range_scan", "range_scan_v2"):
-            self._write(t, *rosmsgs.laser_scan(t, scan_of(item)), device=device)
+                self.path_m += math.dist(self._last_xy, (item.x, item.y))
+            self._last_xy = (item.x, item.y)
+            self._write(t, *rosmsgs.odometry(t, item.x, item.y, item.theta, item.v, item.w, self.path_m), device=device)
+            self._write(t, *rosmsgs.odom_transform(t, item.x, item.y, item.theta))
+        elif isinstance(item, Scan):
+            self._write(t, *rosmsgs.laser_scan(t, item), device=device)
         elif kind == "angle":
             self._write(t, *rosmsgs.aoa_angle(t, self._aoa_frame(item), item, *self._aoa_geometry(item)),
                         device=device)
@@ -182,23 +184,6 @@ class McapRecorder(Sink):
             self._write(t, *rosmsgs.antenna_set(t, item), device=device)
         elif kind == "velocity_command" and self.commands_from == "capture":
             self._write(t, *rosmsgs.twist(item.v_mm_s / 1000, item.w_mrad_s / 1000), device=device)
-
-    def _on_ros2_base(self, device: str, t_host: float, item: Pose2D | Scan) -> None:
-        """Odometry and scans of a ``ros2:`` base, on its header stamps as robot time."""
-        if isinstance(item, Pose2D):
-            self.robot_time = item.t_robot
-        t = self._time(t_host)
-        if t is None:
-            self.skipped["before odometry"] += 1
-            return
-        if isinstance(item, Scan):
-            self._write(t, *rosmsgs.laser_scan(t, item), device=device)
-            return
-        if self._last_xy is not None:
-            self.path_m += math.dist(self._last_xy, (item.x, item.y))
-        self._last_xy = (item.x, item.y)
-        self._write(t, *rosmsgs.odometry(t, item.x, item.y, item.theta, item.v, item.w, self.path_m), device=device)
-        self._write(t, *rosmsgs.odom_transform(t, item.x, item.y, item.theta))
 
     def _aoa_frame(self, event: Any) -> str:
         """The robot's XPLR-AOA is aoa_link; S1's is on the docking station and a fixed
@@ -340,7 +325,7 @@ def export(output: Path | str, *, runlog: Path | str | None = None, capture: Pat
     records = _read_runlog(runlog) if runlog is not None else []
     drivers, packets = _capture_drivers(capture) if capture is not None else ({}, [])
     site = recorded_site(capture) if capture is not None else None
-    has_base = runlog is not None or any(d.kind == "base" for d in drivers.values())
+    has_base = runlog is not None or any("base" in devices.kind(d.kind).roles for d in drivers.values())
     source = next((r.get("source") for r in records if r.get("kind") == "measurement"), None)
     if source is None and site is not None:  # only --controller anchors records a site
         source = "anchors"
@@ -364,13 +349,12 @@ def _feed(recorder: McapRecorder, drivers: dict[str, Driver], packets: list[tupl
           pending: deque[dict[str, Any]]) -> None:
     """The capture's packets through their drivers into ``recorder``, the run log's records
     merged in by robot time; the recorder is closed however it ends."""
-    sent = {name: FrameDecoder() for name, d in drivers.items() if d.kind == "base"}  # the commands
     for driver in drivers.values():
         driver.listeners.append(recorder.on_item)
     try:
         for name, p in packets:
-            if p.direction == OUTBOUND:
-                for record in sent[name].feed(p.data) if name in sent else ():
+            if p.direction == OUTBOUND:  # what the host sent: a base's commands
+                for record in drivers[name].sent(p.data):
                     recorder.on_item(name, p.t, record)
                 continue
             drivers[name].on_chunk(p.data, p.t)

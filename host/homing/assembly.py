@@ -26,8 +26,7 @@ from typing import Any
 from rfhoming.host import losses
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaSetup
-from rfhoming.host.drivers.common import BoundedStream, Driver
+from rfhoming.host.drivers.common import BoundedStream, Driver, Wiring
 from rfhoming.host.drivers.robot_base import BaseDriver
 from rfhoming.host.homing.anchors import AnchorsController
 from rfhoming.host.homing.config import Config, from_tables, to_tables
@@ -236,17 +235,6 @@ def _describing(capture: CaptureWriter, role: str) -> Callable[..., None]:
     return describe
 
 
-def _options(plan: Homing, device: Device, kind: str) -> dict[str, Any]:
-    """What a kind's driver is given in a homing run, by role."""
-    if kind == "base":
-        return {"command_timeout_ms": plan.config.loop.command_timeout_ms}
-    if kind == "rss-node":
-        return {"ed_scale_db": plan.config.calibration.ed_scale_db}
-    if kind == "xplr-aoa" and device.role == "aoa":
-        return {"setup": AoaSetup(choose_tag_s=plan.choose_tag_s, probe_baud=plan.probe_baud)}
-    return {}
-
-
 def _driver(plan: Homing, device: Device, inputs: BoundedStream[Any]) -> tuple[Driver, float | None]:
     """The device's driver, handing its items to ``inputs``, with its spec's settings (also on a
     port already made: a replay keeps the live run's tags= and scan settings); and its set-up
@@ -263,8 +251,9 @@ def _driver(plan: Homing, device: Device, inputs: BoundedStream[Any]) -> tuple[D
         spec = PortSpec(record.name, getattr(device.port, "name", "port"), spec.settings if spec else {})
     if plan.tags and device.role == "aoa":
         spec = replace(spec, settings={**spec.settings, "tags": tuple(dict.fromkeys((*spec.tags, *plan.tags)))})
-    driver = driver_class(record).from_spec(spec, taps, port=device.port, out=inputs,
-                                            **_options(plan, device, record.name))
+    cls = driver_class(record)
+    wiring = Wiring(device.role, plan.config, plan.choose_tag_s, plan.probe_baud)
+    driver = cls.from_spec(spec, taps, port=device.port, out=inputs, **cls.options(wiring))
     if device.port is not None and not isinstance(device.port, HostPort):
         return driver, None
     return driver, deadline(driver, spec.timeout)

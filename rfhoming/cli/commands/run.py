@@ -15,16 +15,17 @@ from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import CHOOSE_TAG_S, METHODS, Device, Homing, run_record
 from rfhoming.host.homing.config import Config, load
 from rfhoming.host.homing.loop import RunLog
-from rfhoming.host.portspec import SETTINGS, PortSpec, PortSpecError
+from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.sink import Sink
 from rfhoming.host.site import Site
+from rfhoming.protocol.settings import tags as tag_ids
 
 
 def _tags(values: list[str]) -> tuple[str, ...]:
     """--tag values (each one id or ids joined by +) -> upper-case ids; PortSpecError explains."""
     try:
-        return tuple(dict.fromkeys(t for v in values for t in SETTINGS["tags"](v)))
+        return tuple(dict.fromkeys(t for v in values for t in tag_ids(v)))
     except ValueError as exc:
         raise PortSpecError(f"--tag takes {exc}") from None
 

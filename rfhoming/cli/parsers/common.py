@@ -8,8 +8,10 @@ import math
 
 from rfhoming.cli.args import baud, delay, nonempty, tcp_port
 
+KINDS = ("xplr-aoa", "rss-node", "esp-at", "hci", "base", "ros2")
+"""The device table's kinds (a test holds them equal), named here so the parsers load no table."""
 ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket://HOST:PORT or auto; KIND "
-                 "(xplr-aoa, rss-node, esp-at, hci, base) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
+                 f"({', '.join(KINDS)}) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "
                  "capture:FILE replays a recording; serve://HOST:PORT is the devices of an `rfhoming serve` "
                  "(see docs/usage.md)")
 
