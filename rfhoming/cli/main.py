@@ -21,7 +21,7 @@ from rfhoming.cli.run import add_parsers as add_run_parsers
 from rfhoming.cli.serve import add_parser as add_serve_parser
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
-from rfhoming.protocol.jsonable import as_dict
+from rfhoming.protocol.jsonable import decoded_as_dict
 
 READ_SIZE = 65536
 
@@ -42,9 +42,9 @@ def cmd_decode(args: argparse.Namespace) -> int:
     with stream:
         for chunk in _chunks(stream):
             for item in decoder.feed(chunk):
-                out.write(json.dumps(as_dict(item)) + "\n")
-        for item in decoder.flush():
-            out.write(json.dumps(as_dict(item)) + "\n")
+                out.write(json.dumps(decoded_as_dict(item)) + "\n")
+        for item in getattr(decoder, "flush", list)():  # the text decoders hold a last unfinished line
+            out.write(json.dumps(decoded_as_dict(item)) + "\n")
     out.write(json.dumps({"kind": "counters", **dict(sorted(decoder.counters.items()))}) + "\n")
     return 0
 
@@ -109,10 +109,11 @@ def build_parser() -> argparse.ArgumentParser:
     decode.add_argument(
         "--protocol",
         required=True,
-        choices=["uconnect", "frames", "ublox-aoa", "rss"],
+        choices=[name for p in devices.PROTOCOLS.values() for name in (p.name, *p.aliases)],
         metavar="PROTOCOL",
         help="uconnect: XPLR-AOA u-connectLocate text; frames: rfhoming's COBS binary records (nodes and the "
-        "robot base); the older names ublox-aoa and rss still work",
+        "robot base); esp-at: Espressif ESP-AT text; h4: Bluetooth HCI packets over UART; ros2: one ROS 2 "
+        "sample record (as a capture's packet holds it); the older names ublox-aoa, rss and hci still work",
     )
     decode.add_argument("file", type=nonempty, nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=cmd_decode)
