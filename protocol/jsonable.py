@@ -57,3 +57,21 @@ def from_dict(fields: dict[str, Any]) -> Any:
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"fields do not make a {kind}: {exc}") from None
     raise ValueError(f"unknown item kind {kind!r}")
+
+
+H4_PACKETS = {0x01: "command", 0x02: "acl", 0x03: "sco", 0x04: "event", 0x05: "iso"}
+"""H4 indicator -> packet type (Bluetooth Core Specification v5.4, Vol 4, Part A, 2)."""
+
+
+def decoded_as_dict(item: Any) -> dict[str, Any]:
+    """:func:`as_dict`, and a JSON form for the two decoders of the device table whose items are
+    not kind-named tuples: an H4 packet (bytes: ``h4_packet`` with its type and bytes) and a
+    ROS 2 sample (``(record, message)``: ``ros2_sample`` with its topic, type and fields, or
+    ``message: null`` for a type rfhoming does not read)."""
+    if isinstance(item, (bytes, bytearray)):
+        return {"kind": "h4_packet", "type": H4_PACKETS.get(item[0], "unknown"), "raw": item.hex()}
+    if isinstance(item, tuple) and not hasattr(item, "kind") and len(item) == 2:
+        record, message = item
+        return {"kind": "ros2_sample", "topic": record.topic, "type": record.type,
+                "message": None if message is None else _plain(message)}
+    return as_dict(item)

@@ -1,12 +1,18 @@
-"""Shared test settings: hypothesis is derandomised so CI runs are reproducible.
+"""Shared test settings and rigs: hypothesis is derandomised so CI runs are reproducible, and
+the fixtures below start rfhoming commands with deadlines and a guaranteed stop (tests/rigs.py).
 
 Profiles: ``rfhoming`` (the default: derandomised, 150 examples) and ``fuzz`` (random seeds,
 20,000 examples a test) for long hunts: ``python bench/fuzz.py --hypothesis`` or
 ``RFHOMING_HYPOTHESIS_PROFILE=fuzz python -m pytest tests/test_frames.py``.
 """
 
+import contextlib
 import os
+from collections.abc import Callable, Iterator
+from typing import Any
 
+import pytest
+import rigs
 from hypothesis import HealthCheck, settings
 
 settings.register_profile(
@@ -24,3 +30,30 @@ settings.register_profile(
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile(os.environ.get("RFHOMING_HYPOTHESIS_PROFILE", "rfhoming"))
+
+
+@pytest.fixture
+def emulated() -> Iterator[Callable[..., rigs.World]]:
+    """``emulated(SCENARIO, *ARGS, link_dir=..., devices=...)`` starts ``rfhoming emulate`` and
+    returns it with its endpoints read (``world.endpoints``, ``world.path("aoa")``); every world
+    started is stopped after the test, pass or fail (SIGINT, SIGTERM, SIGKILL)."""
+    with contextlib.ExitStack() as worlds:
+        yield lambda *args, **kw: worlds.enter_context(rigs.emulate(*args, **kw))
+
+
+@pytest.fixture
+def spawn() -> Iterator[Callable[..., rigs.Child]]:
+    """``spawn(*ARGS)`` starts ``rfhoming ARGS`` in the background (``argv0=`` for another
+    program); read it with ``child.line(deadline_s)``; stopped after the test like a world."""
+    with contextlib.ExitStack() as children:
+        def start(*args: Any, argv0: list[str] = rigs.RFHOMING, **kw: Any) -> rigs.Child:
+            return children.enter_context(rigs.Child([*argv0, *map(str, args)], **kw))
+
+        yield start
+
+
+@pytest.fixture
+def cli() -> Callable[..., Any]:
+    """``cli(*ARGS, timeout_s=...)`` runs ``rfhoming ARGS`` to its end (rigs.run): a
+    CompletedProcess; past the timeout the command is killed and the test fails naming it."""
+    return rigs.run

@@ -39,7 +39,7 @@ def build_harness(cc: str, out: Path, sanitize: bool) -> Path:
     """Compile the harness with the C reference; ``sanitize``: ASan + UBSan, any report fatal."""
     flags = SANITIZE if sanitize else ["-O2"]
     subprocess.run([cc, *STRICT, *flags, f"-I{SOURCE}", "-o", str(out), str(HARNESS), str(SOURCE / "rfh_frames.c")],
-                   check=True, capture_output=True, text=True)
+                   check=True, capture_output=True, text=True, timeout=300)
     return out
 
 
@@ -47,7 +47,7 @@ def run_harness(exe: Path, inputs: list[bytes]) -> list[list[str]]:
     """Each input through a fresh C decoder; its words. A sanitizer report fails the run."""
     data = b"".join(struct.pack("<I", len(x)) + x for x in inputs)
     done = subprocess.run([str(exe)], input=data, capture_output=True,
-                          env={"ASAN_OPTIONS": "detect_leaks=0:abort_on_error=0", "UBSAN_OPTIONS": "print_stacktrace=1"})
+                          env={"ASAN_OPTIONS": "detect_leaks=0:abort_on_error=0", "UBSAN_OPTIONS": "print_stacktrace=1"}, timeout=300)
     if done.returncode != 0:
         raise AssertionError(f"the C harness exited {done.returncode}: {done.stderr.decode(errors='replace')[-3000:]}")
     lines = done.stdout.decode().split("\n")[: len(inputs)]

@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -69,21 +68,13 @@ RFHOMING = [sys.executable, "-m", "rfhoming"]
 
 
 @pytest.mark.slow
-def test_run_controller_anchors_homes_through_the_emulators_ptys(tmp_path):
+def test_run_controller_anchors_homes_through_the_emulators_ptys(tmp_path, emulated, cli):
     links = tmp_path / "links"
     links.mkdir()
     site = tmp_path / "site.toml"
     site.write_text(SITE.read_text().replace("/tmp/rfhoming-kit/", f"{links}/"))
-    emulator = subprocess.Popen([*RFHOMING, "emulate", "kit-home", "--seed", "1", "--lockstep", "--link-dir", str(links)],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        for _ in range(5):
-            json.loads(emulator.stdout.readline())
-        run = subprocess.run([*RFHOMING, "run", "--controller", "anchors", "--site", str(site),
-                              "--base", f"base:{links}/base"], capture_output=True, text=True, timeout=180)
-    finally:
-        emulator.send_signal(signal.SIGINT)
-        emulator.wait(timeout=10)
+    with emulated("kit-home", "--seed", "1", "--lockstep", link_dir=links):
+        run = cli("run", "--controller", "anchors", "--site", str(site), "--base", f"base:{links}/base", timeout_s=180)
     assert run.returncode == 0, run.stderr
     summary = json.loads(run.stdout.splitlines()[-1])
     assert summary["arrived"] and math.dist(summary["pose"][:2], (9.5, 4.2)) < 0.8

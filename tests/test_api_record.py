@@ -39,20 +39,9 @@ RSS_STREAM = ROOT / "tests" / "golden" / "rss_node_stream.raw"
 
 
 @pytest.fixture
-def emulator():
+def emulator(emulated):
     """``rfhoming emulate s0-open``: device name -> its pty path."""
-    proc = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--seed", "3"],
-                            stdout=subprocess.PIPE, text=True)
-    assert proc.stdout is not None
-    paths = {}
-    while len(paths) < 2:
-        line = proc.stdout.readline()
-        assert line, "the emulator ended before printing its devices"
-        endpoint = json.loads(line)
-        paths[endpoint["device"]] = endpoint["path"]
-    yield paths
-    proc.terminate()
-    proc.wait(timeout=30)
+    return emulated("s0-open", "--seed", "3").paths
 
 
 def tshark_packets(path: Path) -> list[tuple[str, str, bytes]]:

@@ -55,7 +55,7 @@ def test_ctrl_c_and_sigterm_end_the_run_and_remove_its_cgroups(sig: int, status:
     try:
         end = time.monotonic() + 60  # a hang guard: the test waits for the worker to be in the group
         while not (group.exists() and (group / "cgroup.procs").read_text().split()):
-            assert proc.poll() is None and time.monotonic() < end, proc.stderr.read() if proc.poll() is not None else ""
+            assert proc.poll() is None and time.monotonic() < end, proc.communicate(timeout=30)[1] if proc.poll() is not None else ""
             time.sleep(0.05)
         inside = [int(p) for p in (group / "cgroup.procs").read_text().split()]
         proc.send_signal(sig)

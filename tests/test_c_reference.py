@@ -41,7 +41,7 @@ def lib(tmp_path_factory: pytest.TempPathFactory) -> C.CDLL:
     out = tmp_path_factory.mktemp("cref") / "librfh_frames.so"
     cmd = [cc, "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O2", "-shared", "-fPIC",
            "-o", str(out), str(SOURCE / "rfh_frames.c")]
-    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    subprocess.run(cmd, check=True, capture_output=True, text=True, timeout=300)
     return C.CDLL(str(out))
 
 

@@ -61,18 +61,15 @@ def set_up_after_the_reboot(items: list[dict], angles: int = 50) -> bool:
 
 
 @pytest.mark.slow
-def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None:
+def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path, emulated) -> None:
     """The unplug and the reboot follow the host: each once the board has sent 20,000 bytes (about
     7 s of angles) since the host's last command -- its set-up done, unless it stalled that long
     between two commands -- and capture runs until it has set the rebooted board up: a loaded
     machine only makes it slower."""
-    emulator = subprocess.Popen(
-        [*RFHOMING, "emulate", "s0-open", "--seed", "4", "--link-dir", str(tmp_path),
-         "--fault", "unplug@aoa:after_bytes=20000,for=1", "--fault", "reboot@aoa:after_bytes=20000"],
-        stdout=subprocess.PIPE, stderr=(tmp_path / "emulator.log").open("w"), text=True)
     capture, log = tmp_path / "run.pcapng", tmp_path / "capture.log"
-    try:
-        endpoints = {e["device"]: e for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}
+    with emulated("s0-open", "--seed", "4", "--fault", "unplug@aoa:after_bytes=20000,for=1",
+                  "--fault", "reboot@aoa:after_bytes=20000", link_dir=tmp_path) as emulator:
+        endpoints = emulator.endpoints
         with open(log, "w") as stderr:
             proc = subprocess.Popen(
                 [*RFHOMING, "capture", endpoints["aoa"]["path"], f"base:{endpoints['base']['path']}",
@@ -85,9 +82,6 @@ def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None
             status = proc.wait(timeout=30)
         finally:
             proc.kill()
-    finally:
-        emulator.send_signal(signal.SIGINT)
-        emulator.wait(timeout=10)
     assert status == 0, log.read_text()
     items = out.items
     counters = {c["device"]: c for c in items if c["kind"] == "counters"}
@@ -103,12 +97,13 @@ def test_listen_capture_replay_through_unplug_and_reboot(tmp_path: Path) -> None
         a = [i for i in items if i["device"] == device and i["kind"] != "counters"]
         b = [i for i in replayed if i["device"] == device and i["kind"] != "counters"]
         assert a == b and len(a) > 100
-    tshark_like = subprocess.run([*RFHOMING, "replay", str(tmp_path / "missing.pcapng")], capture_output=True, text=True)
+    tshark_like = subprocess.run([*RFHOMING, "replay", str(tmp_path / "missing.pcapng")], capture_output=True, text=True,
+                                 timeout=60)
     assert tshark_like.returncode == 2 and "cannot read" in tshark_like.stderr
 
 
 @pytest.mark.slow
-def test_replay_serves_a_capture_on_ptys(tmp_path: Path) -> None:
+def test_replay_serves_a_capture_on_ptys(tmp_path: Path, spawn) -> None:
     from rfhoming.protocol import pcapng
 
     data = b'\r\n+UUDF:CCF9578E0D8A,-42,20,0,-43,37,"CCF9578E0D89","",15869\r\n'
@@ -117,9 +112,8 @@ def test_replay_serves_a_capture_on_ptys(tmp_path: Path) -> None:
     (tmp_path / "c.pcapng").write_bytes(blob)
     links = tmp_path / "links"
     links.mkdir()
-    server = subprocess.Popen([*RFHOMING, "replay", str(tmp_path / "c.pcapng"), "--pty", "--link-dir", str(links)],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    endpoint = json.loads(server.stdout.readline())
+    server = spawn("replay", tmp_path / "c.pcapng", "--pty", "--link-dir", links)
+    endpoint = server.json_line(what="the pty's endpoint")
     port = serial.Serial(endpoint["path"], 115200, timeout=0.1)
     got, end = b"", time.monotonic() + 3
     while time.monotonic() < end and got.count(b"+UUDF") < 15:

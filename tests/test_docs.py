@@ -36,6 +36,7 @@ import time
 from pathlib import Path
 
 import pytest
+import rigs
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -138,7 +139,7 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
                 proc = subprocess.Popen(["bash", "-c", f"exec {command.rstrip('&')}"], cwd=cwd, env=env(), text=True,
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
                 background.append(proc)
-                got = [proc.stdout.readline().rstrip("\n") for _ in expected]
+                got = [rigs.readline(proc, "stdout", TIMEOUT_S).rstrip("\n") for _ in expected]
                 assert matches(expected, got), f"{command!r} printed {got}, the doc shows {expected}"
                 if command.endswith("&"):
                     continue
@@ -164,7 +165,7 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
                 proc.communicate(timeout=10)
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
-                proc.communicate()
+                proc.communicate(timeout=30)
 
 
 def skip_reason(mark: str) -> str | None:

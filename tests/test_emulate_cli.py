@@ -13,27 +13,25 @@ import time
 from pathlib import Path
 
 import pytest
+import rigs
 import serial
 
 from rfhoming.protocol.frames import AntennaSet, FrameDecoder, Odometry, VelocityCommand, encode_frame
 from rfhoming.protocol.uconnect import UConnectDecoder
 
 
-def emulate(*args: str, devices: int) -> tuple[subprocess.Popen, dict[str, dict]]:
-    proc = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", *args],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    endpoints = {}
-    for _ in range(devices):
-        line = proc.stdout.readline()
-        assert line, proc.stderr.read()
-        endpoint = json.loads(line)
-        endpoints[endpoint["device"]] = endpoint
-    return proc, endpoints
+def emulate(scenario: str, *args: str, devices: int) -> tuple[rigs.World, dict[str, dict]]:
+    world = rigs.emulate(scenario, *args, devices=devices)
+    return world, world.endpoints
 
 
-def stop(proc: subprocess.Popen) -> int:
+def stop(proc: rigs.World) -> int:
+    """Ctrl-C and its exit code; stopped harder if it does not end."""
     proc.send_signal(signal.SIGINT)
-    return proc.wait(timeout=10)
+    try:
+        return proc.wait(timeout=10)
+    finally:
+        proc.stop()
 
 
 def read_for(port: serial.Serial, seconds: float) -> bytes:
@@ -138,7 +136,7 @@ def test_rss_node_and_base_over_their_framing(tmp_path: Path) -> None:
 
 def test_bad_arguments_exit_2_with_a_message() -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--target", "x"],
-                          capture_output=True, text=True, env={**os.environ})
+                          capture_output=True, text=True, env={**os.environ}, timeout=60)
     assert done.returncode == 2 and "argument --target: 'x': expected X,Y in metres" in done.stderr
 
 
@@ -176,17 +174,12 @@ def test_stopping_with_a_tcp_client_connected_prints_no_traceback() -> None:
     with socket.create_connection((host, int(port)), timeout=10) as client:
         assert client.recv(1)  # the base streams odometry: its handler is running
         code = stop(proc)
-    stderr = proc.stderr.read()
+    stderr = proc.stderr()
     assert code == 0 and "Traceback" not in stderr and "CancelledError" not in stderr, stderr
 
 
 def test_tcp_mode_prints_path_like_the_pty_mode() -> None:
     """docs/api.md reads ``["path"]``: it must work when a user switches to --tcp."""
-    proc = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--tcp", "--duration", "0.5"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        endpoint = json.loads(proc.stdout.readline())
-    finally:
-        proc.kill()
-        proc.wait(timeout=30)
+    with rigs.emulate("s0-open", "--tcp", "--duration", "0.5", devices=1) as proc:
+        endpoint = next(iter(proc.endpoints.values()))
     assert endpoint["path"].startswith("socket://127.0.0.1:") and endpoint["url"] == endpoint["path"]

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rigs
 
 pytest.importorskip("cyclonedds")
 
@@ -110,7 +111,7 @@ def test_a_fast_dds_node_decodes_what_ros2_publishes_of_a_fix_and_an_angle(built
     reader = subprocess.Popen([str(built / "reader"), str(domain), tag, "60"], stdout=subprocess.PIPE, text=True)
     publisher = Ros2Publisher(domain, source="anchors")
     try:
-        assert json.loads(reader.stdout.readline()) == {"ready": domain}
+        assert json.loads(rigs.readline(reader, "stdout", 60)) == {"ready": domain}
         end = time.monotonic() + 60  # hang guard: best effort, volatile -- published until the reader has one of each
         while reader.poll() is None and time.monotonic() < end:
             publisher.on_item("", 1.5, angle)

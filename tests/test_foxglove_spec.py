@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+import rigs
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
@@ -23,7 +24,7 @@ from test_foxglove_view import SAFETY_S, watch
 def start_demo(out: Path, *args: str) -> tuple[subprocess.Popen, str]:
     demo = subprocess.Popen([sys.executable, "-m", "rfhoming", "demo", "--out", str(out), "--foxglove=0", "--json",
                              "--linger", "0", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    first = json.loads(demo.stderr.readline())
+    first = json.loads(rigs.readline(demo, "stderr", SAFETY_S))
     assert first == {"kind": "listening", "address": first["address"],
                      "protocols": ["foxglove.websocket.v1", "foxglove.sdk.v1"]}
     return demo, first["address"]

@@ -14,6 +14,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import rigs
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
@@ -83,7 +84,7 @@ def watched_demo(out: Path, *args: str) -> tuple[dict[str, list], list[dict]]:
     demo = subprocess.Popen([sys.executable, "-m", "rfhoming", "demo", "--out", str(out), "--foxglove=0",
                              "--json", "--linger", "0", *(args or ("--speed", "0"))], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        first = json.loads(demo.stderr.readline())
+        first = json.loads(rigs.readline(demo, "stderr", SAFETY_S))
         assert first["kind"] == "listening" and first["address"].startswith("ws://127.0.0.1:")
         got = watch(first["address"])
         _, err = demo.communicate(timeout=SAFETY_S)

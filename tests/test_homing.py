@@ -276,7 +276,7 @@ def test_demo_command_succeeds_and_writes_its_files(tmp_path: Path) -> None:
 
 
 def test_config_command() -> None:
-    done = subprocess.run([sys.executable, "-m", "rfhoming", "config", "--print-default"], capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "config", "--print-default"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and done.stdout == DEFAULT_TOML
 
 

@@ -459,7 +459,7 @@ async def test_tshark_reads_a_capture(tmp_path: Path) -> None:
     path, live = await record(tmp_path, 2.0)
     done = subprocess.run(["tshark", "-r", str(path), "-T", "fields", "-e", "frame.interface_name",
                            "-e", "frame.p2p_dir", "-e", "frame.len"], capture_output=True, text=True,
-                          env={**os.environ, "HOME": str(tmp_path)})
+                          env={**os.environ, "HOME": str(tmp_path)}, timeout=120)
     assert done.returncode == 0, done.stderr
     rows = [line.split("\t") for line in done.stdout.splitlines()]
     _, packets, _ = load_capture(path)

@@ -59,7 +59,7 @@ def test_each_layer_is_a_committed_directory_symlink(layer: str) -> None:
     folder = "firmware_py" if layer == "firmware" else layer
     assert link.resolve() == (ROOT / folder).resolve()
     mode = subprocess.run(["git", "ls-files", "-s", f"rfhoming/{layer}"], cwd=ROOT, capture_output=True,
-                          text=True).stdout.split(" ")[0]
+                          text=True, timeout=60).stdout.split(" ")[0]
     assert mode in ("120000", ""), mode  # "" outside a git checkout (an sdist)
 
 
@@ -67,7 +67,7 @@ def test_each_layer_is_a_committed_directory_symlink(layer: str) -> None:
 def test_layers_install_inside_rfhoming_only(name: str) -> None:
     """Only ``rfhoming`` is importable at top level: no ``protocol``, ``host`` ... beside it."""
     done = subprocess.run([sys.executable, "-c", f"import {'firmware_py' if name == 'firmware' else name}"],
-                          cwd="/", capture_output=True, text=True)
+                          cwd="/", capture_output=True, text=True, timeout=60)
     assert done.returncode != 0 and "ModuleNotFoundError" in done.stderr
 
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import re
-import signal
 import subprocess
 import sys
 from dataclasses import replace
@@ -192,27 +191,15 @@ def _site_with_ports(tmp_path: Path, link_dir: Path) -> Path:
     return path
 
 
-def _emulate(scenario: str, link_dir: Path) -> subprocess.Popen:
-    emulator = subprocess.Popen([*RFHOMING, "emulate", scenario, "--seed", "1", "--link-dir", str(link_dir)],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    for _ in range(4):
-        json.loads(emulator.stdout.readline())
-    return emulator
-
-
 @pytest.mark.slow
-def test_locate_live_and_on_its_capture_print_the_same_positions(tmp_path):
+def test_locate_live_and_on_its_capture_print_the_same_positions(tmp_path, emulated):
     link_dir = tmp_path / "links"
     link_dir.mkdir()
     site = _site_with_ports(tmp_path, link_dir)
-    emulator = _emulate("kit-room", link_dir)
     capture = tmp_path / "run.pcapng"
-    try:
+    with emulated("kit-room", "--seed", "1", link_dir=link_dir):
         live = subprocess.run([*RFHOMING, "locate", str(site), "--duration", "5", "--capture", str(capture)],
                               capture_output=True, text=True, timeout=90)
-    finally:
-        emulator.send_signal(signal.SIGINT)
-        emulator.wait(timeout=10)
     assert live.returncode == 0, live.stderr
     replay = subprocess.run([*RFHOMING, "locate", str(site), "--from", f"capture:{capture}"],
                             capture_output=True, text=True, timeout=90)
@@ -228,17 +215,13 @@ def test_locate_live_and_on_its_capture_print_the_same_positions(tmp_path):
 
 
 @pytest.mark.slow
-def test_calibrate_writes_the_site_file_and_keeps_its_comments(tmp_path):
+def test_calibrate_writes_the_site_file_and_keeps_its_comments(tmp_path, emulated):
     link_dir = tmp_path / "links"
     link_dir.mkdir()
     site = _site_with_ports(tmp_path, link_dir)
-    emulator = _emulate("kit-room-cal", link_dir)
-    try:
+    with emulated("kit-room-cal", "--seed", "1", link_dir=link_dir):
         cal = subprocess.run([*RFHOMING, "calibrate", str(site), "--points", str(POINTS), "--duration", "5"],
                              capture_output=True, text=True, timeout=90)
-    finally:
-        emulator.send_signal(signal.SIGINT)
-        emulator.wait(timeout=10)
     assert cal.returncode == 0, cal.stderr
     report = [json.loads(line) for line in cal.stdout.splitlines()]
     assert len(report) == 4 and all(r["rms_after_deg"] < r["rms_before_deg"] for r in report)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rigs
 from stalls import reproducible
 
 import rfhoming
@@ -181,7 +182,7 @@ def test_a_gateway_on_a_capture_publishes_every_event(long_capture, tmp_path):
         batches: list[str] = []
         deadline = time.monotonic() + 120
         while len(batches) < line["published"] and time.monotonic() < deadline:
-            batches.append(sub.stdout.readline().strip())
+            batches.append(rigs.readline(sub, "stdout", max(0.0, deadline - time.monotonic())).strip())
         sub.terminate()
         heard = sum(len(sitebus.decode_angles(b.encode()).events) for b in batches if b)
         assert heard == EVENTS

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import rigs
 from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader
 from rosbags.highlevel import AnyReader, AnyReaderError
@@ -32,7 +33,7 @@ time.sleep(600)
 def killed_recording(path: Path) -> None:
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, text=True)
     try:
-        assert proc.stdout.readline().strip() == "written"
+        assert rigs.readline(proc, "stdout", 120).strip() == "written"
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=30)

@@ -8,9 +8,7 @@ surveyed pose, the rotation checked with scipy); scans carry the emulator's beam
 
 from __future__ import annotations
 
-import json
 import math
-import signal
 import subprocess
 import sys
 import tomllib
@@ -19,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rigs
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
@@ -52,17 +51,10 @@ def anchors_run(tmp: Path) -> Path:
     site = tmp / "site.toml"
     site.write_text(SITE.read_text().replace("/tmp/rfhoming-kit/", f"{links}/"))
     mcap = tmp / "anchors.mcap"
-    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "kit-home", "--seed", "1", "--lockstep",
-                                 "--link-dir", str(links)], stdout=subprocess.PIPE, text=True)
-    try:
-        for _ in range(5):  # four anchors and the base
-            json.loads(emulator.stdout.readline())
+    with rigs.emulate("kit-home", "--seed", "1", "--lockstep", link_dir=links):  # four anchors and the base
         run = subprocess.run([sys.executable, "-m", "rfhoming", "run", "--controller", "anchors", "--site", str(site),
                               "--base", f"base:{links}/base", "--mcap", str(mcap), "--capture", str(tmp / "run.pcapng")],
                              capture_output=True, text=True, timeout=300)
-    finally:
-        emulator.send_signal(signal.SIGINT)
-        emulator.wait(timeout=30)
     assert run.returncode in (0, 1), run.stderr
     return mcap
 

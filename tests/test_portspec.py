@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import rigs
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -113,24 +114,19 @@ baud = 57600
 """
 
 
-def emulate(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, dict]:
+def emulate(emulated, tmp_path: Path, *extra: str) -> rigs.World:
+    """The two-tag world (the fixture ``emulated`` stops it)."""
     scenario = tmp_path / "two-tags.toml"
     scenario.write_text(TWO_TAGS)
-    proc = subprocess.Popen([*RFHOMING, "emulate", str(scenario), "--seed", "2", "--link-dir", str(tmp_path), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    endpoints = {e["device"]: e["path"] for e in (json.loads(proc.stdout.readline()) for _ in range(2))}
-    return proc, endpoints
+    return emulated(scenario, "--seed", "2", *extra, link_dir=tmp_path)
 
 
 @pytest.mark.slow
-def test_listen_with_tags_prints_only_the_chosen_tag(tmp_path: Path) -> None:
-    proc, ports = emulate(tmp_path)
-    try:
+def test_listen_with_tags_prints_only_the_chosen_tag(tmp_path: Path, emulated) -> None:
+    with emulate(emulated, tmp_path) as world:
+        ports = world.paths
         done = subprocess.run([*RFHOMING, "listen", f"xplr-aoa:{ports['aoa']},baud=1000000,tags=CCF9578E0D8B",
                                "--duration", "4", "--json"], capture_output=True, text=True, timeout=60)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
     assert done.returncode == 0, done.stderr
     items = [json.loads(line) for line in done.stdout.splitlines()]
     angles = [i for i in items if i["kind"] == "angle"]
@@ -143,32 +139,27 @@ def test_listen_with_tags_prints_only_the_chosen_tag(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_listen_at_the_wrong_rate_sees_no_angles(tmp_path: Path) -> None:
+def test_listen_at_the_wrong_rate_sees_no_angles(tmp_path: Path, emulated) -> None:
     """The per-port rate is real: at the --baud default the same board is garbage."""
-    proc, ports = emulate(tmp_path)
-    try:
+    with emulate(emulated, tmp_path) as world:
+        ports = world.paths
         done = subprocess.run([*RFHOMING, "listen", f"xplr-aoa:{ports['aoa']}", "--duration", "3", "--json"],
                               capture_output=True, text=True, timeout=60)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
     items = [json.loads(line) for line in done.stdout.splitlines()]
     assert not [i for i in items if i["kind"] == "angle"] and items[-1].get("decoder.angle", 0) == 0
     assert items[-1]["bytes_in"] > 0  # it heard bytes, only none it could read
 
 
-def test_run_with_two_ports_at_different_rates_homes(tmp_path: Path) -> None:
-    proc, ports = emulate(tmp_path, "--lockstep", "--truth", str(tmp_path / "truth.jsonl"))
+def test_run_with_two_ports_at_different_rates_homes(tmp_path: Path, emulated) -> None:
+    world = emulate(emulated, tmp_path, "--lockstep", "--truth", str(tmp_path / "truth.jsonl"))
+    ports = world.paths
     config = tmp_path / "robot.toml"
     config.write_text("[loop]\nodometry_wall_timeout_s = inf\n"  # lockstep: wall time means nothing
                       '[devices.aoa]\nport = "xplr-aoa:' + ports["aoa"] + '"\nbaud = 1000000\n')
-    try:
+    with world:
         done = subprocess.run([*RFHOMING, "run", "--config", str(config), "--base", f"base:{ports['base']},baud=57600",
                                "--aoa", f"{ports['aoa']},tags=CCF9578E0D8A", "--flow", "rtscts"],
                               capture_output=True, text=True, timeout=110)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
     assert done.returncode == 0, done.stderr[-2000:]
     summary = json.loads(done.stdout.splitlines()[-1])
     assert summary["arrived"], summary

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import re
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -49,22 +48,16 @@ def test_a_demo_run_replays_to_the_same_run_log(tmp_path: Path, scenario: str, r
 
 
 @pytest.mark.slow
-def test_a_fixed_anchor_run_replays_to_the_same_run_log(tmp_path: Path) -> None:
+def test_a_fixed_anchor_run_replays_to_the_same_run_log(tmp_path: Path, emulated) -> None:
     links = tmp_path / "links"
     links.mkdir()
     site = tmp_path / "site.toml"
     site.write_text(re.sub(r"/tmp/rfhoming-kit/", f"{links}/", (ROOT / "docs" / "sites" / "kit-home.toml").read_text()))
     (tmp_path / "robot.toml").write_text("[loop]\nodometry_wall_timeout_s = inf  # lockstep: wall time means nothing\n")
-    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "kit-home", "--pty", "--lockstep",
-                                 "--seed", "2", "--link-dir", str(links)], stdout=subprocess.PIPE, text=True)
-    try:
-        assert emulator.stdout.readline()  # the links exist once it printed the first
+    with emulated("kit-home", "--pty", "--lockstep", "--seed", "2", link_dir=links):
         run = rfhoming("run", "--controller", "anchors", "--site", str(site), "--base", f"base:{links}/base",
                        "--config", str(tmp_path / "robot.toml"), "--capture", str(tmp_path / "run.pcapng"),
                        "--log", str(tmp_path / "run.jsonl"))
-    finally:
-        emulator.send_signal(signal.SIGINT)
-        emulator.wait(timeout=10)
     assert run.returncode == 0, run.stderr
     done, log = replayed(tmp_path / "run.pcapng")
     assert done.returncode == 0, done.stderr

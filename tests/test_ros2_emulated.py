@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+import rigs
 from mcap.reader import make_reader
 
 pytest.importorskip("cyclonedds")
@@ -31,23 +32,20 @@ def commands_heard(tmp_path: Path) -> list[tuple[float, float]]:
     return [(h["v"], h["w"]) for h in map(json.loads, lines[1:] if lines else []) if h.get("topic") == "cmd_vel"]
 
 
-def wait_for(test, what: str, proc: subprocess.Popen | None = None, seconds: float = 120.0) -> None:  # noqa: ANN001
+def wait_for(test, what: str, proc: rigs.Child | None = None, seconds: float = 120.0) -> None:  # noqa: ANN001
     end = time.monotonic() + seconds  # hang guard only
     while not test():
         assert time.monotonic() < end, f"no {what} within {seconds} s"
-        assert proc is None or proc.poll() is None, f"the run ended before {what}: {proc.stderr.read()}"
+        assert proc is None or proc.proc.poll() is None, f"the run ended before {what}: {proc.stderr()}"
         time.sleep(0.05)
 
 
 @pytest.mark.slow
-def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) -> None:
+def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path, emulated, spawn) -> None:
     domain = random.SystemRandom().randint(154, 190)  # tests/test_ros2.py random_domain says why
     truth = tmp_path / "truth.jsonl"
-    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--robot", f"ros2:domain={domain}",
-                                 "--truth", str(truth), "--link-dir", str(tmp_path)],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        endpoints = [json.loads(emulator.stdout.readline()) for _ in range(2)]
+    with emulated("s0-open", "--robot", f"ros2:domain={domain}", "--truth", str(truth), link_dir=tmp_path) as emulator:
+        endpoints = list(emulator.endpoints.values())
         base = next(e for e in endpoints if e["device"] == "base")
         assert base["kind"] == "ros2" and base["path"] == f"ros2:domain={domain}"
         aoa = next(e["path"] for e in endpoints if e["device"] == "aoa")
@@ -59,8 +57,7 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
         assert silent.returncode == 2 and len(said) == 1, silent.stderr  # measure of a stall, logged as it happens
         assert "/odom" in silent.stderr and "not ready" in silent.stderr
         # Ctrl-C while driving: three zero commands go out before rfhoming exits
-        interrupted = subprocess.Popen([sys.executable, "-m", "rfhoming", "run", "--aoa", aoa, "--base",
-                                        f"ros2:domain={domain}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        interrupted = spawn("run", "--aoa", aoa, "--base", f"ros2:domain={domain}")
         wait_for(lambda: any(c[0] > 0.2 for c in commands_heard(tmp_path)), "a moving command", interrupted)
         interrupted.send_signal(signal.SIGINT)
         interrupted.wait(timeout=60)
@@ -71,9 +68,6 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
         listener.communicate(timeout=150)  # its stdin closed: it reads what is on its way, then ends
         heard_file.close()
         heard = [json.loads(line) for line in (tmp_path / "heard.jsonl").read_text().splitlines()][1:]
-    finally:
-        emulator.send_signal(signal.SIGINT)
-        emulator.wait(timeout=30)
     # the second reader (plain cyclonedds, its own types) heard the emulated robot and rfhoming
     topics = {h["topic"] for h in heard}
     # s0-open's base has no scanner; --ros2 adds the run's target, events and the commands' mirror, not a

@@ -9,13 +9,13 @@ from __future__ import annotations
 import json
 import math
 import random
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+import rigs
 
 pytest.importorskip("cyclonedds")
 
@@ -31,28 +31,23 @@ def random_domain() -> int:
 def heard_while(domain: int, extra: list[str], command: list[str]) -> list[dict]:
     """Run ``command`` (an rfhoming command line) while the second reader listens on ``domain``
     for its usual topics and ``extra``; what it heard, one dict per sample."""
-    listener = subprocess.Popen([sys.executable, str(LISTENER), str(domain), "120", *extra], stdin=subprocess.PIPE,
-                                stdout=subprocess.PIPE, text=True)
-    try:
-        assert json.loads(listener.stdout.readline()) == {"ready": domain}
+    with rigs.Child([sys.executable, str(LISTENER), str(domain), "120", *extra], stdin=True) as listener:
+        assert json.loads(listener.line(60, "the listener's ready line")) == {"ready": domain}
         done = subprocess.run([*RFHOMING, *command], capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, done.stderr
-        out, _ = listener.communicate(timeout=60)  # stdin closed: it reads what is on its way, then ends
-    finally:
-        if listener.poll() is None:
-            listener.kill()
+        listener.proc.stdin.close()  # stdin closed: it reads what is on its way, then ends
+        listener.wait(timeout=60)
+        out = listener.stdout()
     return [json.loads(line) for line in out.splitlines()]
 
 
-def emulate(scenario: str, link_dir: Path, endpoints: int) -> tuple[subprocess.Popen, list[dict]]:
-    emulator = subprocess.Popen([*RFHOMING, "emulate", scenario, "--seed", "1", "--link-dir", str(link_dir)],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    return emulator, [json.loads(emulator.stdout.readline()) for _ in range(endpoints)]
+def emulate(scenario: str, link_dir: Path, endpoints: int) -> tuple[rigs.World, list[dict]]:
+    emulator = rigs.emulate(scenario, "--seed", "1", link_dir=link_dir, devices=endpoints)
+    return emulator, list(emulator.endpoints.values())
 
 
-def stop(emulator: subprocess.Popen) -> None:
-    emulator.send_signal(signal.SIGINT)
-    emulator.wait(timeout=30)
+def stop(emulator: rigs.World) -> None:
+    emulator.stop()
 
 
 def check_angles(heard: list[dict], frame: str) -> None:

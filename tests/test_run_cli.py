@@ -8,7 +8,6 @@ import math
 import os
 import pty
 import re
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -57,20 +56,14 @@ def rfhoming(*args: str) -> list[str]:
 
 
 @pytest.fixture
-def two_tags(tmp_path: Path):
-    """The emulator on ptys in lockstep with two tags in view; yields its truth file."""
+def two_tags(tmp_path: Path, emulated) -> Path:
+    """The emulator on ptys in lockstep with two tags in view; its truth file."""
     scenario = tmp_path / "two-tags.toml"
     scenario.write_text(TWO_TAGS)
     (tmp_path / "robot.toml").write_text(LOCKSTEP_CONFIG)
     truth = tmp_path / "truth.jsonl"
-    proc = subprocess.Popen(rfhoming("emulate", str(scenario), "--pty", "--lockstep", "--seed", "4",
-                                     "--truth", str(truth), "--link-dir", str(tmp_path)),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    for _ in range(2):
-        assert proc.stdout.readline(), proc.stderr.read()
-    yield truth
-    proc.send_signal(signal.SIGINT)
-    proc.wait(timeout=10)
+    emulated(scenario, "--pty", "--lockstep", "--seed", "4", "--truth", str(truth), link_dir=tmp_path)
+    return truth
 
 
 def run_on(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:

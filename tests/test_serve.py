@@ -8,14 +8,13 @@ from __future__ import annotations
 import json
 import signal
 import socket
-import subprocess
-import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+import rigs
 from hypothesis import given
 
 from rfhoming.host import portspec
@@ -31,30 +30,19 @@ ITEMS = 2500  # per reading client
 SAFETY_S = 120  # a bound on each blocking read, so a broken server fails the test instead of hanging it
 
 
-def start(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "rfhoming", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+def start(*args: str) -> rigs.Child:
+    return rigs.Child([*rigs.RFHOMING, *args])
 
 
 @contextmanager
-def serving_emulated_aoa(queue: int) -> Iterator[tuple[int, subprocess.Popen]]:
-    emulator = start("emulate", "s0-open", "--tcp", "--speed", "10", "--seed", "3")
-    server = None
-    try:
-        aoa = next(e for e in map(json.loads, iter(emulator.stdout.readline, "")) if e["type"] == "xplr-aoa")
-        server = start("serve", f"xplr-aoa:{aoa['url']}", "--port", "0", "--queue", str(queue), "--foxglove=0")
-        first, second = (json.loads(server.stdout.readline()) for _ in range(2))
-        assert first["kind"] == "listening" and first["address"].startswith("tcp://127.0.0.1:")  # loopback by default
-        assert second["kind"] == "listening" and second["address"].startswith("ws://127.0.0.1:")  # Foxglove too
-        yield int(first["address"].rsplit(":", 1)[1]), server
-    finally:
-        for proc in (server, emulator):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+def serving_emulated_aoa(queue: int) -> Iterator[tuple[int, rigs.Child]]:
+    with rigs.emulate("s0-open", "--tcp", "--speed", "10", "--seed", "3") as emulator:
+        aoa = next(e for e in emulator.endpoints.values() if e["type"] == "xplr-aoa")
+        with start("serve", f"xplr-aoa:{aoa['url']}", "--port", "0", "--queue", str(queue), "--foxglove=0") as server:
+            first, second = (server.json_line(SAFETY_S) for _ in range(2))
+            assert first["kind"] == "listening" and first["address"].startswith("tcp://127.0.0.1:")  # loopback by default
+            assert second["kind"] == "listening" and second["address"].startswith("ws://127.0.0.1:")  # Foxglove too
+            yield int(first["address"].rsplit(":", 1)[1]), server
 
 
 def read_lines(sock: socket.socket, want: int | None, after: str | None = None) -> list[dict]:
@@ -105,7 +93,8 @@ def test_two_readers_get_identical_streams_while_a_stalled_client_is_dropped() -
         stalled_lines = read_lines(stalled, None)  # now it reads: what was in flight, then the end
         stalled.close()
         server.send_signal(signal.SIGINT)
-        out, _ = server.communicate(timeout=30)
+        server.wait(timeout=30)
+        out = server.stdout()
 
     # from the watch reply on, every item (before it, the default watch leaves the chatter out)
     items = [[r for r in s[next(k for k, r in enumerate(s) if r["kind"] == "watch"):] if "n" in r] for s in streams]
@@ -174,25 +163,16 @@ class _NoPort:
 
 
 @pytest.mark.slow
-def test_the_homing_loop_and_a_viewer_share_one_xplr_aoa() -> None:
-    emulator = start("emulate", "s0-open", "--tcp", "--speed", "4", "--seed", "1")
-    server = run = None
-    try:
-        urls = {e["type"]: e["url"] for e in (json.loads(emulator.stdout.readline()) for _ in range(2))}
-        server = start("serve", f"xplr-aoa:{urls['xplr-aoa']}", "--port", "0")
-        port = json.loads(server.stdout.readline())["address"].rsplit(":", 1)[1]
-        with socket.create_connection(("127.0.0.1", int(port))) as viewer:
-            run = start("run", "--aoa", f"serve://127.0.0.1:{port}", "--base", f"base:{urls['base']}")
-            seen = read_lines(viewer, 200)
-            out, err = run.communicate(timeout=SAFETY_S)
-    finally:
-        for proc in (run, server, emulator):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+def test_the_homing_loop_and_a_viewer_share_one_xplr_aoa(emulated, spawn) -> None:
+    emulator = emulated("s0-open", "--tcp", "--speed", "4", "--seed", "1")
+    urls = {e["type"]: e["url"] for e in emulator.endpoints.values()}
+    server = spawn("serve", f"xplr-aoa:{urls['xplr-aoa']}", "--port", "0")
+    port = server.json_line(SAFETY_S)["address"].rsplit(":", 1)[1]
+    with socket.create_connection(("127.0.0.1", int(port))) as viewer:
+        run = spawn("run", "--aoa", f"serve://127.0.0.1:{port}", "--base", f"base:{urls['base']}")
+        seen = read_lines(viewer, 200)
+        run.wait(timeout=SAFETY_S)
+        out, err = run.stdout(), run.stderr()
     assert run.returncode == 0, err
     assert json.loads(out)["arrived"] is True
     assert sum(1 for r in seen if r["kind"] == "angle") > 100

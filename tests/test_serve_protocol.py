@@ -13,15 +13,14 @@ import asyncio
 import json
 import random
 import shutil
-import signal
 import socket
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import rigs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -549,18 +548,12 @@ def served(tmp_path_factory) -> Iterator[tuple[int, EmulatorThread]]:
     """``rfhoming serve`` on the emulated XPLR-AOA (named aoa) and base; its TCP port."""
     world = EmulatorThread(Emulator(load("s0-open", seed=3, target=(3.0, 2.0)), transport="pty", seed=3, speed=2.0,
                                     link_dir=tmp_path_factory.mktemp("kit")), SAFETY_S)
-    server = subprocess.Popen([sys.executable, "-m", "rfhoming", "serve", f"xplr-aoa:{world.endpoints['aoa']['path']},name=aoa",
-                               f"base:{world.endpoints['base']['path']},name=base", "--port", "0"],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        address = json.loads(server.stdout.readline())["address"]
-        yield int(address.rsplit(":", 1)[1]), world
+        with rigs.Child([*rigs.RFHOMING, "serve", f"xplr-aoa:{world.endpoints['aoa']['path']},name=aoa",
+                         f"base:{world.endpoints['base']['path']},name=base", "--port", "0"]) as server:
+            address = server.json_line(SAFETY_S, "the listening line")["address"]
+            yield int(address.rsplit(":", 1)[1]), world
     finally:
-        server.send_signal(signal.SIGINT)
-        try:
-            server.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            server.kill()
         world.close()
 
 
@@ -662,7 +655,7 @@ print(json.dumps({"seen": seen, "version": dict(session.version.__dict__),
 def gpsd_python() -> str | None:
     """Debian's python3 with gpsd's own client module (python3-gps; .ci/run installs it)."""
     python = shutil.which("python3", path="/usr/bin")
-    if python and subprocess.run([python, "-c", "import gps"], capture_output=True).returncode == 0:
+    if python and subprocess.run([python, "-c", "import gps"], capture_output=True, timeout=120).returncode == 0:
         return python
     return None
 

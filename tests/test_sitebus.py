@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rigs
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -502,7 +503,7 @@ def test_two_workers_split_the_site_and_one_takes_over_when_the_other_dies(broke
         for proc in procs.values():
             proc.wait(60)
     if stopped:
-        health = {n: procs[n].stdout.read().strip()[-600:] for n in ("w1", "w2", "gw")}  # type: ignore[union-attr]
+        health = {n: procs[n].communicate(timeout=30)[0].strip()[-600:] for n in ("w1", "w2", "gw")}
         tails = {n: logs[n].read_text()[-1500:] for n in logs}
         pytest.fail(f"stopped at {stopped} after {count} positions: first positions {seen}, split "
                     f"{ {k: len(v) for k, v in split.items()} }, killed at {killed_at_t}, still missing after the "
@@ -602,15 +603,11 @@ def test_a_gateway_of_real_anchors_to_a_worker(broker: int, tmp_path: Path) -> N
     links.mkdir()
     site = tmp_path / "site.toml"
     site.write_text(KIT_ROOM.read_text().replace("/tmp/rfhoming-kit/", f"{links}/"))
-    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming.cli.main", "emulate", str(still_kit_room(tmp_path)),
-                                 "--seed", "1", "--link-dir", str(links)], env=ENV, stdout=subprocess.PIPE,
-                                stderr=subprocess.DEVNULL, text=True)
+    emulator = rigs.emulate(still_kit_room(tmp_path), "--seed", "1", link_dir=links, env=ENV,
+                            argv0=[sys.executable, "-m", "rfhoming.cli.main"], devices=4)  # one line per anchor
     url = f"mqtt://127.0.0.1:{broker}/4"
-    procs: dict[str, subprocess.Popen] = {"emulator": emulator}
+    procs: dict[str, subprocess.Popen | rigs.Child] = {"emulator": emulator}
     try:
-        assert emulator.stdout is not None
-        for _ in range(4):  # one line per anchor once its link exists
-            json.loads(emulator.stdout.readline())
         sub = procs["sub"] = _sub(broker, "rfhoming/kit-room/positions/#", 30, "-W", "240")
         procs["worker"] = _cli(tmp_path / "worker.log", "locate", str(site), "--from", url, "--id", "w1")
         procs["gateway"] = _cli(tmp_path / "gateway.log", "gateway", "--site", str(site), "--broker", url,
@@ -627,7 +624,7 @@ def test_a_gateway_of_real_anchors_to_a_worker(broker: int, tmp_path: Path) -> N
     assert {p["tag"] for p in positions} <= {"CCF9578E0D8A", "CCF9578E0D8B", "CCF9578E0D8C"}
     assert all(0 <= p["x"] <= 12 and 0 <= p["y"] <= 6 and p["worker"] == "w1" for p in positions[10:]), \
         [(p["tag"], p["x"], p["y"], p["worker"]) for p in positions]
-    gateway = json.loads(procs["gateway"].stdout.read().strip().splitlines()[-1])  # type: ignore[union-attr]
+    gateway = json.loads(procs["gateway"].communicate(timeout=30)[0].strip().splitlines()[-1])  # type: ignore[union-attr]
     assert gateway["kind"] == "gateway" and gateway["name"] == "gw-kit" and gateway["events"] > 0
 
 
@@ -870,7 +867,7 @@ def test_site_bus_names_and_partitions_are_refused_in_one_line(args: list[str], 
 
 
 def _last_json(proc: subprocess.Popen) -> dict:
-    out = proc.stdout.read()  # type: ignore[union-attr]  (the process has ended)
+    out, _ = proc.communicate(timeout=30)  # the process has ended: what it printed
     return json.loads(out.strip().splitlines()[-1])
 
 

@@ -15,32 +15,24 @@ follow the vendors' own bring-up, so a misreading the emulator and the drivers s
 
 from __future__ import annotations
 
-import json
 import os
+import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+import rigs
 
 serial = pytest.importorskip("serial")
 
 RFHOMING = [sys.executable, "-m", "rfhoming"]
 
 
-def emulate(tmp_path: Path, *args: str) -> tuple[subprocess.Popen, dict[str, str]]:
-    proc = subprocess.Popen([*RFHOMING, "emulate", *args, "--seed", "1", "--link-dir", str(tmp_path)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    endpoints: dict[str, str] = {}
-    for line in proc.stdout:
-        if not line.startswith("{"):
-            break
-        entry = json.loads(line)
-        endpoints[entry["device"]] = entry.get("path") or entry.get("url", "")
-        if len(endpoints) >= 2:
-            break
-    return proc, endpoints
+def emulate(tmp_path: Path, scenario: str, *args: str) -> tuple[rigs.World, dict[str, str]]:
+    world = rigs.emulate(scenario, *args, "--seed", "1", link_dir=tmp_path)
+    return world, {name: e.get("path") or e.get("url", "") for name, e in world.endpoints.items()}
 
 
 def read_until(port: serial.Serial, token: bytes, timeout: float = 10.0) -> bytes:
@@ -70,8 +62,7 @@ def test_ublox_bring_up_with_plain_pyserial(tmp_path: Path) -> None:
         assert len(param) >= 9  # the Door-Demo's check
         assert -90 <= int(param[2]) <= 90 and param[6].strip('"')  # azimuth, anchor id
     finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+        proc.stop()
 
 
 @pytest.mark.slow
@@ -92,8 +83,7 @@ def test_espressif_ble_scan_example_with_plain_pyserial(tmp_path: Path) -> None:
         addr, rssi, adv, _rsp, addr_type = reports[0][len("+BLESCAN:"):].split(",")
         assert addr.startswith('"') and -100 < int(rssi) < 0 and bytes.fromhex(adv) and addr_type in "0123"
     finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+        proc.stop()
 
 
 @pytest.mark.slow
@@ -114,8 +104,7 @@ def test_bumble_scan_app_against_the_emulated_controller(tmp_path: Path) -> None
         except subprocess.TimeoutExpired as expired:  # it scans until stopped
             out = (expired.stdout or b"").decode() if isinstance(expired.stdout, bytes) else (expired.stdout or "")
     finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+        proc.stop()
     assert "AC:00:00:00:00:0" in out and "RSSI: -" in out and "UUID-16:FEAA" in out, out[-500:]
 
 
@@ -131,19 +120,11 @@ def session(path: str, *commands: bytes, baud: int = 115200) -> list[bytes]:
 
 def rfhoming_until(args: list[str], wanted: str, stream: str = "stderr", timeout: float = 60) -> tuple[str, str]:
     """Run rfhoming until ``wanted`` appears on ``stream`` (a hang guard bounds it), then stop it."""
-    proc = subprocess.Popen([*RFHOMING, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    seen = ""
-    deadline = time.monotonic() + timeout
-    try:
-        for line in getattr(proc, stream):
-            seen += line
-            if wanted in line:
-                break
-            assert time.monotonic() < deadline, seen[-2000:]
-    finally:
-        proc.terminate()
-        out, err = proc.communicate(timeout=30)
-    return (seen + out, err) if stream == "stdout" else (out, seen + err)
+    with rigs.Child([*RFHOMING, *args]) as proc:
+        proc.until(wanted, timeout, stream)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
+    return proc.output()
 
 
 @pytest.mark.slow
@@ -160,8 +141,7 @@ def test_a_filter_stored_by_another_program_is_reported_then_cleared(tmp_path: P
         assert " angle " in out
         assert b"+UDFFILT:2\r\n" in session(ports["aoa"], b"AT+UDFFILT=2")[0]
     finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+        proc.stop()
 
 
 @pytest.mark.parametrize("spec", ["esp-at:{}", "hci:serial:{},1000000"])
@@ -197,8 +177,7 @@ def test_probe_baud_finds_a_quiet_board_and_no_message_repeats_the_given_rate(tm
                                    "--duration", "60"], " angle ", stream="stdout")
         assert "answers at 115200 baud" in err and " angle " in out
     finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+        proc.stop()
 
 
 @pytest.mark.parametrize("dialect", ["1.0", "1.2", "2.x", "embed"])
@@ -212,8 +191,7 @@ def test_identification_strings_are_quoted(tmp_path: Path, dialect: str) -> None
     try:
         _, gmm, gmr, ati9 = session(ports["aoa"], b"AT+UDFENABLE=0", b"AT+GMM", b"AT+GMR", b"ATI9")
     finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+        proc.stop()
     for answer in (gmm, gmr, ati9):
         info = [line for line in answer.split(b"\r\n") if line and not line.startswith((b"AT", b"OK", b"+UUDF"))]
         assert info and info[-1].startswith(b'"') and info[-1].endswith(b'"'), answer

@@ -124,7 +124,7 @@ def test_tshark_with_the_dissector_shows_what_the_decoder_decodes(tmp_path: Path
     done = subprocess.run(
         ["tshark", "-X", f"lua_script:{lua}", "-r", str(path), "-T", "fields", *fields,
          "-E", "occurrence=a", "-E", "aggregator=|", "-E", "separator=/t"],
-        capture_output=True, text=True, env={**os.environ, "HOME": str(tmp_path)},
+        capture_output=True, text=True, env={**os.environ, "HOME": str(tmp_path)}, timeout=120,
     )
     assert done.returncode == 0 and "Lua" not in done.stderr, done.stderr
     shown = [

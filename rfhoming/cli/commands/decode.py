@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from typing import BinaryIO
 
 from rfhoming.protocol import devices
-from rfhoming.protocol.jsonable import as_dict
+from rfhoming.protocol.jsonable import decoded_as_dict
 
 READ_SIZE = 65536
 
@@ -30,8 +30,8 @@ def run(args: argparse.Namespace) -> int:
     with stream:
         for chunk in _chunks(stream):
             for item in decoder.feed(chunk):
-                out.write(json.dumps(as_dict(item)) + "\n")
-        for item in decoder.flush():
-            out.write(json.dumps(as_dict(item)) + "\n")
+                out.write(json.dumps(decoded_as_dict(item)) + "\n")
+        for item in getattr(decoder, "flush", list)():  # the text decoders hold a last unfinished line
+            out.write(json.dumps(decoded_as_dict(item)) + "\n")
     out.write(json.dumps({"kind": "counters", **dict(sorted(decoder.counters.items()))}) + "\n")
     return 0

@@ -7,6 +7,10 @@ import argparse
 from rfhoming.cli.args import nonempty
 from rfhoming.cli.parsers import command
 
+PROTOCOLS = ("uconnect", "ublox-aoa", "frames", "rss", "esp-at", "h4", "hci", "ros2")
+"""The device table's wire protocols and their old names (a test holds them equal), named here
+so that building the parser loads no table."""
+
 DECODE_HELP = """\
 Decode raw bytes -- a file, a raw capture of a serial port, or stdin -- and print one JSON
 object per decoded item: "kind" plus its fields, or kind "drop" with the reason. The last
@@ -40,10 +44,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     decode.add_argument(
         "--protocol",
         required=True,
-        choices=["uconnect", "frames", "ublox-aoa", "rss"],
+        choices=PROTOCOLS,
         metavar="PROTOCOL",
         help="uconnect: XPLR-AOA u-connectLocate text; frames: rfhoming's COBS binary records (nodes and the "
-        "robot base); the older names ublox-aoa and rss still work",
+        "robot base); esp-at: Espressif ESP-AT text; h4: Bluetooth HCI packets over UART; ros2: one ROS 2 "
+        "sample record (as a capture's packet holds it); the older names ublox-aoa, rss and hci still work",
     )
     decode.add_argument("file", type=nonempty, nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=command("decode"))
