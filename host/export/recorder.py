@@ -58,7 +58,8 @@ from mcap_ros2._dynamic import serialize_dynamic  # the encoder mcap_ros2's own 
 
 from rfhoming.host.capture import DISCONNECTED, SNIFFED
 from rfhoming.host.drivers.common import Driver
-from rfhoming.host.drivers.robot_base import Pose2D, Scan, scan_of
+from rfhoming.host.drivers.robot import Pose2D, Scan
+from rfhoming.host.drivers.robot_base import scan_of
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host import outputs
 from rfhoming.host.export import frames, rosmsgs
@@ -151,7 +152,7 @@ class McapRecorder(Sink):
         self.skipped[f"unwritable {kind}"] += 1
 
     def _on_item(self, device: str, t_host: float, item: Any) -> None:
-        if isinstance(item, (Pose2D, Scan)):  # a ROS 2 base hands over the loop's items, not records
+        if isinstance(item, (Pose2D, Scan)):  # a ROS 2 or MAVLink base hands over the loop's items, not records
             self._on_ros2_base(device, t_host, item)
             return
         kind = getattr(item, "kind", None)
@@ -184,7 +185,7 @@ class McapRecorder(Sink):
             self._write(t, *rosmsgs.twist(item.v_mm_s / 1000, item.w_mrad_s / 1000), device=device)
 
     def _on_ros2_base(self, device: str, t_host: float, item: Pose2D | Scan) -> None:
-        """Odometry and scans of a ``ros2:`` base, on its header stamps as robot time."""
+        """Odometry and scans of a ``ros2:`` or ``mavlink:`` base, on its own clock as robot time."""
         if isinstance(item, Pose2D):
             self.robot_time = item.t_robot
         t = self._time(t_host)
