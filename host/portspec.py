@@ -150,6 +150,12 @@ def _discovery(text: str) -> str:
     return text
 
 
+def _mav_id(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 255:
+        raise ValueError("a MAVLink system or component id, 1 to 255, e.g. sysid=1")
+    return int(text)
+
+
 SETTINGS: dict[str, Callable[[str], Any]] = {
     "baud": _baud, "flow": _flow, "name": _name, "timeout": _seconds,  # serial ports
     "tags": _tags,  # the XPLR-AOA's tag filter
@@ -157,6 +163,7 @@ SETTINGS: dict[str, Callable[[str], Any]] = {
     "extended": _extended, "content": _content, "dedup": _yes_no,  # HCI scans
     "domain": _domain, "ns": _ros_name, "cmd_vel": _ros_name, "odom": _ros_name, "scan": _ros_name,  # ROS 2
     "stamped": _yes_no, "discovery": _discovery,
+    "sysid": _mav_id, "compid": _mav_id, "arm": _yes_no, "expose": _yes_no,  # MAVLink
 }
 """Every setting's parser (text -> value; ValueError says what is allowed). Which settings a
 device kind takes is its record's ``settings`` in the device table."""
@@ -241,6 +248,8 @@ def _text(value: Any) -> str:
     (a config's ``baud = [1, 2]`` is then refused by the setting's own check, not a TypeError)."""
     if value == ():
         return "none"  # tags=none
+    if isinstance(value, bool):
+        return str(int(value))  # yes/no settings: what _yes_no reads back
     return "+".join(map(str, value)) if isinstance(value, tuple) else str(value)
 
 
