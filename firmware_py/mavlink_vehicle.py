@@ -76,9 +76,9 @@ class MavlinkVehicle:
         self.stream_since = self.stream_since if fresh and self.stream_since is not None else t
         self.setpoint_at = t
         self.counters["setpoints"] += 1
-        if message.type_mask == ml.VELOCITY_AND_YAW_RATE and message.coordinate_frame == self.autopilot.frame:
+        if message.coordinate_frame in self.autopilot.body_frames and not message.type_mask & ml.IGNORE_VELOCITY:
             self.setpoint = ml.command_of(message)
-        else:  # *assumed*: what rfhoming does not send is not modelled; the vehicle holds
+        else:  # *assumed*: position and earth-frame targets are not modelled; the vehicle holds
             self.setpoint = (0.0, 0.0)
 
     def _command(self, message: Any, t: float) -> bytes:

@@ -22,6 +22,9 @@ VELOCITY_AND_YAW_RATE = 0x05E7
 """POSITION_TARGET_TYPEMASK: velocity and yaw rate used, position, acceleration and yaw ignored
 (ArduPilot "Rover Commands in Guided Mode": Use Vel+Yaw Rate, 1511)."""
 
+IGNORE_VELOCITY = 0b11000  # POSITION_TARGET_TYPEMASK bits 3 and 4: vx, vy ignored (a rover ignores vz)
+IGNORE_YAW_RATE = 0x800  # bit 11
+
 PX4_OFFBOARD, PX4_AUTO, PX4_AUTO_LOITER = 6, 4, 3  # PX4 custom main mode / AUTO sub mode (px4_custom_mode.h)
 
 
@@ -35,6 +38,7 @@ class Autopilot:
     hold: int  # where the vehicle is left when the run ends (stopped, holding)
     manual: frozenset[int]  # a pilot is driving: rfhoming refuses to take over
     frame: int  # MAV_FRAME of body-relative velocity setpoints
+    body_frames: frozenset[int]  # the frames it reads body-relative velocity in
     stream_before_switch: bool  # setpoints must be streaming before the switch to ``guided`` (PX4)
     command_timeout_s: float  # the autopilot stops a vehicle whose setpoints stop this long (default)
     timeout_parameter: str
@@ -47,17 +51,18 @@ def _px4(main: int, sub: int = 0) -> int:
     return (main << 16) | (sub << 24)
 
 
+ARDUPILOT_BODY = frozenset({mav.MAV_FRAME_BODY_NED, mav.MAV_FRAME_BODY_OFFSET_NED})
 ARDUPILOT_ROVER = Autopilot(
     "ArduPilot Rover",
     {0: "MANUAL", 1: "ACRO", 3: "STEERING", 4: "HOLD", 5: "LOITER", 6: "FOLLOW", 7: "SIMPLE", 8: "DOCK",
      9: "CIRCLE", 10: "AUTO", 11: "RTL", 12: "SMART_RTL", 15: "GUIDED", 16: "INITIALISING"},
-    guided=15, hold=4, manual=frozenset({0, 1, 3}), frame=mav.MAV_FRAME_BODY_OFFSET_NED,
+    guided=15, hold=4, manual=frozenset({0, 1, 3}), frame=mav.MAV_FRAME_BODY_OFFSET_NED, body_frames=ARDUPILOT_BODY,
     stream_before_switch=False, command_timeout_s=3.0, timeout_parameter="GUID_TIMEOUT")
 ARDUPILOT_COPTER = Autopilot(
     "ArduPilot Copter",
     {0: "STABILIZE", 1: "ACRO", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL", 7: "CIRCLE",
      9: "LAND", 11: "DRIFT", 13: "SPORT", 14: "FLIP", 16: "POSHOLD", 17: "BRAKE"},
-    guided=4, hold=17, manual=frozenset({0, 1, 2, 5, 11, 13, 14, 16}), frame=mav.MAV_FRAME_BODY_OFFSET_NED,
+    guided=4, hold=17, manual=frozenset({0, 1, 2, 5, 11, 13, 14, 16}), frame=mav.MAV_FRAME_BODY_OFFSET_NED, body_frames=ARDUPILOT_BODY,
     stream_before_switch=False, command_timeout_s=3.0, timeout_parameter="GUID_TIMEOUT")
 PX4 = Autopilot(
     "PX4",
@@ -66,7 +71,7 @@ PX4 = Autopilot(
      _px4(PX4_OFFBOARD): "OFFBOARD", _px4(7): "STABILIZED"},
     guided=_px4(PX4_OFFBOARD), hold=_px4(PX4_AUTO, PX4_AUTO_LOITER),
     manual=frozenset({_px4(1), _px4(2), _px4(3), _px4(5), _px4(7)}), frame=mav.MAV_FRAME_BODY_NED,
-    stream_before_switch=True, command_timeout_s=1.0, timeout_parameter="COM_OF_LOSS_T")
+    body_frames=frozenset({mav.MAV_FRAME_BODY_NED}), stream_before_switch=True, command_timeout_s=1.0, timeout_parameter="COM_OF_LOSS_T")
 
 COPTERS = {mav.MAV_TYPE_QUADROTOR, mav.MAV_TYPE_HEXAROTOR, mav.MAV_TYPE_OCTOROTOR, mav.MAV_TYPE_TRICOPTER,
            mav.MAV_TYPE_COAXIAL, mav.MAV_TYPE_HELICOPTER}
@@ -132,8 +137,8 @@ def body_velocity(v: float, w: float) -> tuple[float, float, float, float]:
 
 
 def command_of(setpoint: Any) -> tuple[float, float]:
-    """A velocity setpoint as the vehicle reads it -> (v forward m/s, ω counter-clockwise rad/s)."""
-    return setpoint.vx, -setpoint.yaw_rate
+    """A body velocity setpoint as the vehicle reads it -> (v forward m/s, ω counter-clockwise rad/s)."""
+    return setpoint.vx, (0.0 if setpoint.type_mask & IGNORE_YAW_RATE else -setpoint.yaw_rate)
 
 
 class Codec:

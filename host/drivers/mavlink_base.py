@@ -76,7 +76,6 @@ class MavlinkBaseDriver(CommandedBase):
         self.speaks_first = bool(getattr(port, "speaks_first", False)
                                  or getattr(port, "description", {}).get("speaks_first") == "1")
         self.counters.update(packets=0, bad_packets=0, heartbeats=0, other_systems=0)
-        self.problem = "no HEARTBEAT from a vehicle yet"
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> MavlinkBaseDriver:
@@ -270,8 +269,9 @@ class MavlinkBaseDriver(CommandedBase):
 
     async def __aexit__(self, *exc: Any) -> None:
         """Zero velocity, then the autopilot's holding mode (the loop's own stops stay in guided mode)."""
-        driving = self.step == "driving"
+        if self.step != "driving":  # never driven (or taken over): nothing of rfhoming's to stop
+            return
         await super().__aexit__(*exc)
-        if driving and self.autopilot is not None and self.sysid is not None:
+        if self.autopilot is not None and self.sysid is not None:
             self.step = "done"
             self._send(ml.set_mode(self.sysid, self.compid or 0, self.autopilot, self.autopilot.hold))
