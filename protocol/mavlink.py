@@ -15,6 +15,8 @@ from typing import Any, NamedTuple
 
 from pymavlink.dialects.v20 import common as mav
 
+from rfhoming.protocol.errors import Error
+
 GCS_SYSTEM = 255  # a ground station's customary system id
 GCS_COMPONENT = mav.MAV_COMP_ID_ONBOARD_COMPUTER  # a companion computer driving the vehicle
 
@@ -77,7 +79,7 @@ COPTERS = {mav.MAV_TYPE_QUADROTOR, mav.MAV_TYPE_HEXAROTOR, mav.MAV_TYPE_OCTOROTO
            mav.MAV_TYPE_COAXIAL, mav.MAV_TYPE_HELICOPTER}
 
 
-class UnknownAutopilot(ValueError):
+class UnknownAutopilot(Error, ValueError):
     """A HEARTBEAT from an autopilot (or vehicle type) rfhoming does not know how to drive."""
 
 
@@ -228,6 +230,10 @@ class MavlinkDecoder:
 
     def __init__(self) -> None:
         self.codec = Codec()
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return {"bad_packets": self.codec.bad}
 
     def feed(self, data: bytes) -> list[Any]:
         return self.codec.feed(data)
