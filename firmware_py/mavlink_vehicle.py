@@ -106,11 +106,11 @@ class MavlinkVehicle:
         else:
             wanted = int(message.param2)
         if wanted not in self.autopilot.modes:
-            return mav.MAV_RESULT_FAILED
+            return int(mav.MAV_RESULT_FAILED)
         if wanted == self.autopilot.guided and self.autopilot.stream_before_switch and not self._streaming(t):
-            return mav.MAV_RESULT_TEMPORARILY_REJECTED  # PX4: no setpoint stream yet
+            return int(mav.MAV_RESULT_TEMPORARILY_REJECTED)  # PX4: no setpoint stream yet
         self.mode = wanted
-        return mav.MAV_RESULT_ACCEPTED
+        return int(mav.MAV_RESULT_ACCEPTED)
 
     def _streaming(self, t: float) -> bool:
         """PX4: setpoints coming for more than a second, the newest within the loss timeout."""

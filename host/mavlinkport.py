@@ -67,7 +67,7 @@ class MavlinkPort:
         return self._conn is not None
 
     async def open(self) -> None:
-        from pymavlink import mavutil  # the mavlink extra
+        from pymavlink import mavutil  # type: ignore[import-untyped]  # the mavlink extra
 
         self._loop = asyncio.get_running_loop()
         try:

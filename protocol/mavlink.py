@@ -13,9 +13,11 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-from pymavlink.dialects.v20 import common as mav
+from pymavlink.dialects.v20 import common as _common  # type: ignore[import-untyped]
 
 from rfhoming.protocol.errors import Error
+
+mav = _common  # the generated MAVLink 2 dialect, for the driver and the emulated vehicle
 
 GCS_SYSTEM = 255  # a ground station's customary system id
 GCS_COMPONENT = mav.MAV_COMP_ID_ONBOARD_COMPUTER  # a companion computer driving the vehicle
@@ -102,7 +104,7 @@ def armed(heartbeat: Any) -> bool:
 
 def is_vehicle(heartbeat: Any) -> bool:
     """A HEARTBEAT of a vehicle's autopilot, not of a ground station, gimbal or camera."""
-    return heartbeat.type != mav.MAV_TYPE_GCS and heartbeat.autopilot != mav.MAV_AUTOPILOT_INVALID
+    return bool(heartbeat.type != mav.MAV_TYPE_GCS and heartbeat.autopilot != mav.MAV_AUTOPILOT_INVALID)
 
 
 class PoseEnu(NamedTuple):

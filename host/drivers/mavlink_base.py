@@ -72,7 +72,7 @@ class MavlinkBaseDriver(CommandedBase):
         self._asked: int | None = None  # the command whose COMMAND_ACK the set-up waits for
         self._heartbeat_asked = False
         self._stream_from: int | None = None  # PX4: time_boot_ms of the first zero setpoint before the switch
-        self.connected = _SetUp()
+        self.connected: _SetUp = _SetUp()
         self.speaks_first = bool(getattr(port, "speaks_first", False)
                                  or getattr(port, "description", {}).get("speaks_first") == "1")
         self.counters.update(packets=0, bad_packets=0, heartbeats=0, other_systems=0)

@@ -105,7 +105,7 @@ def ros2_robot(text: str) -> dict[str, Any]:
     """``ros2[:domain=N,ns=NS,discovery=localhost|subnet,stamped=0|1]`` -> Ros2Link's arguments."""
     kind, _, rest = text.partition(":")
     if kind != "ros2":
-        raise argparse.ArgumentTypeError(f"{text!r}: the robot can be ros2[:domain=N,ns=NS]")
+        raise argparse.ArgumentTypeError(f"{text!r}: the robot can be ros2[:domain=N,ns=NS] or mavlink[:udpout:127.0.0.1:PORT][,autopilot=px4...]")
     try:
         spec = portspec.parse("ros2:" + rest)
     except portspec.PortSpecError as exc:
