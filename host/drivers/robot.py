@@ -61,11 +61,15 @@ class RobotBase(Protocol):
     port: Any  # HostPort-shaped: name, counters, taps
     out: BoundedStream[Any]
     state: str
-    connected: asyncio.Event
     counters: dict[str, int]
     listeners: list[Callable[[str, float, Any], None]]
     latest: Pose2D | None  # the newest odometry
     latest_scan: Scan | None
+
+    @property
+    def connected(self) -> asyncio.Event:
+        """Set while the base can be driven (the loop starts on it)."""
+        ...
 
     def send_velocity(self, v: float, w: float) -> bool:
         """(v m/s, ω rad/s) in base_link (REP 103 FLU); False when it could not be sent."""

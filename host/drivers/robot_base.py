@@ -10,7 +10,10 @@ from __future__ import annotations
 from typing import Any
 
 from rfhoming.host.drivers.common import BoundedStream
-from rfhoming.host.drivers.robot import SCAN_V1_RANGE_MAX as SCAN_V1_RANGE_MAX  # where older code finds them
+from rfhoming.host.drivers.robot import SCAN_PERIOD_S as SCAN_PERIOD_S  # where older code finds them
+from rfhoming.host.drivers.robot import SCAN_RANGE_MIN as SCAN_RANGE_MIN
+from rfhoming.host.drivers.robot import SCAN_TIME_INCREMENT_S as SCAN_TIME_INCREMENT_S
+from rfhoming.host.drivers.robot import SCAN_V1_RANGE_MAX as SCAN_V1_RANGE_MAX
 from rfhoming.host.drivers.robot import CommandedBase, Pose2D, Scan
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.ports import Disconnected, HostPort
