@@ -41,7 +41,8 @@ class Emulator:
                  control_period_ms: int = 100, lockstep_timeout: float = 5.0,
                  faults: list[Fault] = (), truth: IO[str] | None = None,
                  link_dir: Path | None = None, robot: dict[str, Any] | None = None) -> None:
-        """``robot``: the base as a ROS 2 robot (emulator/ros2robot.py), e.g. {"domain": 7, "ns": ""}."""
+        """``robot``: the base as a ROS 2 robot (emulator/ros2robot.py), e.g. {"domain": 7, "ns": ""}, or
+        as a MAVLink vehicle (emulator/mavlinkrobot.py), {"kind": "mavlink", "gcs": None, "options": {...}}."""
         if transport not in TRANSPORTS:
             raise ScenarioError(f"transport must be one of {TRANSPORTS}")
         self.scenario = scenario
@@ -66,7 +67,7 @@ class Emulator:
             raise FaultError(f"fault names unknown device(s) {sorted(unknown)}; this scenario has: {names}")
         for k, spec in enumerate(scenario.devices):
             rng = np.random.default_rng([seed, k])
-            link = self._ros2_link(robot) if robot is not None and spec.type == "base" else self._link(transport, spec.name)
+            link = self._robot_link(robot) if robot is not None and spec.type == "base" else self._link(transport, spec.name)
             byte_faults = ByteFaults([f for f in self.faults if f.hits(spec.name)], np.random.default_rng([seed, k, 1]))
             self.devices.append(self._device(spec.type, spec.name, k, link, byte_faults, rng, spec.options))
         self._timed = sorted(
@@ -81,7 +82,19 @@ class Emulator:
             raise ValueError("lockstep needs a robot base in the scenario: the host's velocity command is its answer")
 
     @staticmethod
-    def _ros2_link(robot: dict[str, Any]) -> Link:
+    def _robot_link(robot: dict[str, Any]) -> Link:
+        """The base's link as a robot of another kind: a MAVLink vehicle, or a ROS 2 robot."""
+        if robot.get("kind") == "mavlink":
+            try:
+                from rfhoming.emulator.mavlinkrobot import MavlinkLink  # pymavlink: the mavlink extra
+                from rfhoming.firmware.mavlink_vehicle import VehicleOptions
+            except ImportError as exc:
+                raise ScenarioError(f"--robot mavlink needs {exc.name or exc}; install it with "
+                                    "pip install 'rfhoming[mavlink]'") from None
+            try:
+                return MavlinkLink(robot.get("gcs"), VehicleOptions(**robot.get("options", {})))
+            except ValueError as exc:
+                raise ScenarioError(f"--robot mavlink: {exc}") from None
         try:
             from rfhoming.emulator.ros2robot import Ros2Link  # cyclonedds: the ros2 extra
         except ImportError as exc:

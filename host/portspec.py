@@ -117,6 +117,8 @@ def _text(value: Any) -> str:
     (a config's ``baud = [1, 2]`` is then refused by the setting's own check, not a TypeError)."""
     if value == ():
         return "none"  # tags=none
+    if isinstance(value, bool):
+        return str(int(value))  # yes/no settings: what _yes_no reads back
     return "+".join(map(str, value)) if isinstance(value, tuple) else str(value)
 
 

@@ -56,6 +56,8 @@ PROTOCOLS: dict[str, WireProtocol] = {p.name: p for p in (
                  "rfhoming.protocol.h4:H4Splitter", pcapng.LINKTYPE_H4_STREAM, ("hci",)),
     WireProtocol("ros2", "ROS 2 messages over DDS: one sample record (topic, type, CDR) per packet",
                  "rfhoming.protocol.ros2:SampleDecoder", pcapng.LINKTYPE_ROS2_SAMPLES),
+    WireProtocol("mavlink", "MAVLink 2 (and 1) packets, as each datagram or read carried them",
+                 "rfhoming.protocol.mavlink:MavlinkDecoder", pcapng.LINKTYPE_MAVLINK),
 )}
 
 
@@ -163,6 +165,12 @@ KINDS: dict[str, DeviceKind] = {k.name: k for k in (
                {"name": s.name, "timeout": s.seconds, **s.ROS2},
                "rfhoming.host.drivers.ros2_base:Ros2BaseDriver", (), ("base",), 10.0, None,
                commanded=True, extra="ros2", emulated_as="rfhoming emulate SCENARIO --robot ros2", default_where="/"),
+    DeviceKind("mavlink", "a MAVLink vehicle (ArduPilot Rover or Copter, PX4) in GUIDED/OFFBOARD; WHERE is a "
+               "pymavlink connection string (udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, a serial device)",
+               "mavlink", {"name": s.name, "timeout": s.seconds, "baud": s.baud, **s.MAVLINK},
+               "rfhoming.host.drivers.mavlink_base:MavlinkBaseDriver", (), ("base",), 10.0, None,
+               commanded=True, extra="mavlink",
+               emulated_as="rfhoming emulate SCENARIO --robot mavlink"),  # brakes: no (docs/protocol.md)
 )}
 
 BOARDS: dict[str, tuple[DeviceKind, Board]] = {b.name: (k, b) for k in KINDS.values() for b in k.boards}

@@ -121,6 +121,12 @@ def ros_name(text: str) -> str:
     return text
 
 
+def mav_id(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 255:
+        raise ValueError("a MAVLink system or component id, 1 to 255, e.g. sysid=1")
+    return int(text)
+
+
 SERIAL: dict[str, Parser] = {"baud": baud, "flow": flow, "name": name, "timeout": seconds}
 """A serial port's: its rate, flow control, a short name, the set-up commands' timeout."""
 
@@ -140,3 +146,6 @@ ROS2: dict[str, Parser] = {
                         said="localhost (this machine only: loopback, no multicast) or subnet (the network)"),
 }
 """A ROS 2 base's: its domain, namespace, topic names, Twist or TwistStamped, and DDS discovery."""
+
+MAVLINK: dict[str, Parser] = {"sysid": mav_id, "compid": mav_id, "arm": yes_no, "expose": yes_no}
+"""A MAVLink vehicle's: its ids (else from its HEARTBEAT), arming when asked, a non-loopback socket."""

@@ -7,11 +7,14 @@ own watchdog stops it if the host dies outright -- the second line of defence.
 
 from __future__ import annotations
 
-import asyncio
-import logging
-from typing import Any, NamedTuple
+from typing import Any
 
-from rfhoming.host.drivers.common import BoundedStream, Driver, Wiring
+from rfhoming.host.drivers.common import BoundedStream, Wiring
+from rfhoming.host.drivers.robot import SCAN_PERIOD_S as SCAN_PERIOD_S  # where older code finds them
+from rfhoming.host.drivers.robot import SCAN_RANGE_MIN as SCAN_RANGE_MIN
+from rfhoming.host.drivers.robot import SCAN_TIME_INCREMENT_S as SCAN_TIME_INCREMENT_S
+from rfhoming.host.drivers.robot import SCAN_V1_RANGE_MAX as SCAN_V1_RANGE_MAX
+from rfhoming.host.drivers.robot import CommandedBase, Pose2D, Scan
 from rfhoming.host.drivers.rss import FRAME_ITEMS, NodeClock
 from rfhoming.host.ports import Disconnected, HostPort
 from rfhoming.protocol.frames import (
@@ -24,41 +27,7 @@ from rfhoming.protocol.frames import (
     encode_frame,
 )
 
-log = logging.getLogger(__name__)
-
 CMD_BRAKE = 5  # node command: 1 = shed speed at the base's emergency deceleration, 0 = normal ramp
-
-
-class Pose2D(NamedTuple):
-    t_host: float
-    t_robot: float  # the base's own clock (seconds, unwrapped): the loop's time axis
-    x: float
-    y: float
-    theta: float
-    v: float
-    w: float
-    flags: int
-
-
-SCAN_V1_RANGE_MAX = 65.535  # a version-1 scan does not say its sensor's range: the record's largest
-SCAN_RANGE_MIN = 0.001  # the records' shortest range: 1 mm (0 mm means no return; docs/protocol.md, 0x22/0x23)
-SCAN_PERIOD_S = 0.1  # the emulated scanner's period (emulator BaseRunner.SCAN_PERIOD_S); *assumed* for a real base
-SCAN_TIME_INCREMENT_S = 0.0  # beams taken at one instant, as the emulated scanner casts them; *assumed* for a real one
-
-
-class Scan(NamedTuple):
-    t_host: float
-    angle_min: float  # radians, the first beam, counter-clockwise from ahead
-    angle_increment: float
-    ranges: tuple[float | None, ...]  # metres, None = no return
-    range_max: float = SCAN_V1_RANGE_MAX  # metres, the sensor's
-    range_min: float = SCAN_RANGE_MIN  # metres: a beam below it is no return
-    scan_time: float = SCAN_PERIOD_S  # seconds from one scan to the next
-    time_increment: float = SCAN_TIME_INCREMENT_S  # seconds from one beam to the next
-
-    @property
-    def angle_max(self) -> float:
-        return self.angle_min + self.angle_increment * max(0, len(self.ranges) - 1)
 
 
 def scan_of(record: RangeScan | RangeScanV2, t_host: float = 0.0) -> Scan:
@@ -72,7 +41,9 @@ def scan_of(record: RangeScan | RangeScanV2, t_host: float = 0.0) -> Scan:
     return Scan(t_host, record.angle_min_mrad / 1000, record.angle_inc_mrad / 1000, ranges)
 
 
-class BaseDriver(Driver):
+class BaseDriver(CommandedBase):
+    """rfhoming's own base over a serial port: COBS-framed records (docs/protocol.md)."""
+
     kind = "base"
     items = FRAME_ITEMS
 
@@ -83,13 +54,11 @@ class BaseDriver(Driver):
 
     def __init__(self, port: HostPort, *, command_timeout_ms: int = 300, reconnect: bool = True,
                  out: BoundedStream[Any] | None = None) -> None:
-        super().__init__(port, reconnect=reconnect, out=out, queue_size=500)
+        super().__init__(port, reconnect=reconnect, out=out)
         self.decoder = FrameDecoder()
         self._sent = FrameDecoder()  # what the host wrote, for an export's commands
         self.command_timeout_ms = command_timeout_ms
-        self.latest: Pose2D | None = None
-        self.latest_scan: Scan | None = None
-        self.counters.update(commands=0, stops=0, unsent=0, brakes=0, brakes_off=0)
+        self.watchdog = f"the base's watchdog, within {command_timeout_ms} ms"
         self._seq = 0
         self.clock = NodeClock()
 
@@ -122,10 +91,6 @@ class BaseDriver(Driver):
         self.counters["commands"] += 1
         return True
 
-    def stop(self) -> bool:
-        self.counters["stops"] += 1
-        return self.send_velocity(0.0, 0.0)
-
     def brake(self, on: bool) -> bool:
         """Brake mode on: the base sheds speed at its emergency deceleration (docs/protocol.md)."""
         self._seq = (self._seq + 1) & 0xFFFF
@@ -136,13 +101,3 @@ class BaseDriver(Driver):
             return False
         self.counters["brakes" if on else "brakes_off"] += 1
         return True
-
-    async def __aenter__(self) -> BaseDriver:
-        return self
-
-    async def __aexit__(self, *exc: Any) -> None:
-        if not self.stop() and self.port.counters["opens"]:  # a base never reached was never driven
-            log.error("%s: could not send the final stop; the base's watchdog stops it within %d ms",
-                      self.port.name, self.command_timeout_ms)
-        await asyncio.sleep(0)
-

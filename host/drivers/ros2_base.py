@@ -16,7 +16,7 @@ import math
 from typing import Any
 
 from rfhoming.host.drivers.common import BoundedStream
-from rfhoming.host.drivers.robot_base import BaseDriver, Pose2D, Scan
+from rfhoming.host.drivers.robot import CommandedBase, Pose2D, Scan
 from rfhoming.host.ports import Disconnected, PortError, Tap
 from rfhoming.host.portspec import PortSpec
 from rfhoming.protocol import ros2
@@ -64,8 +64,9 @@ def scan_of(msg: ros2.LaserScan, t_host: float) -> Scan:
                 msg.time_increment)
 
 
-class Ros2BaseDriver(BaseDriver):
+class Ros2BaseDriver(CommandedBase):
     kind = "ros2"
+    watchdog = "the ROS 2 base's own cmd_vel timeout"
     items = ()  # its Pose2D and Scan are the homing loop's, not the Python API's items
 
     def sent(self, data: bytes) -> list[Any]:
@@ -73,7 +74,8 @@ class Ros2BaseDriver(BaseDriver):
 
     def __init__(self, port: Any, *, command_timeout_ms: int = 300, reconnect: bool = True,
                  out: BoundedStream[Any] | None = None) -> None:
-        super().__init__(port, command_timeout_ms=command_timeout_ms, reconnect=reconnect, out=out)
+        super().__init__(port, reconnect=reconnect, out=out)
+        self.command_timeout_ms = command_timeout_ms  # the loop's; a ROS 2 command carries none
         self.topics: Topics = getattr(port, "topics", None) or Topics.of_settings(getattr(port, "description", {}))
         self.counters.update(samples=0, bad_samples=0, other_types=0)
         self._stamp = ros2.Stamp(0, 0)
@@ -84,7 +86,7 @@ class Ros2BaseDriver(BaseDriver):
                                                  if t.discovery == "localhost" else "?"))
 
     @classmethod
-    def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> BaseDriver:
+    def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> Ros2BaseDriver:
         if port is not None:  # a replay of a ROS 2 run: the recorded samples
             return cls(port, **options)
         try:
@@ -141,10 +143,6 @@ class Ros2BaseDriver(BaseDriver):
     def stop(self) -> bool:
         self.counters["stops"] += 1
         return all([self.send_velocity(0.0, 0.0) for _ in range(STOP_REPEATS)])
-
-    def brake(self, on: bool) -> bool:
-        self.counters["brakes" if on else "brakes_off"] += 1
-        return True
 
 
 def topics_of(spec: PortSpec) -> Topics:

@@ -58,7 +58,8 @@ from mcap_ros2._dynamic import serialize_dynamic  # the encoder mcap_ros2's own 
 
 from rfhoming.host.capture import DISCONNECTED, SNIFFED
 from rfhoming.host.drivers.common import Driver
-from rfhoming.host.drivers.robot_base import Pose2D, Scan, scan_of
+from rfhoming.host.drivers.robot import Pose2D, Scan
+from rfhoming.host.drivers.robot_base import scan_of
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host import outputs
 from rfhoming.host.export import frames, rosmsgs

@@ -27,7 +27,7 @@ from rfhoming.host import losses
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.common import BoundedStream, Driver, Wiring
-from rfhoming.host.drivers.robot_base import BaseDriver
+from rfhoming.host.drivers.robot import RobotBase
 from rfhoming.host.homing.anchors import AnchorsController
 from rfhoming.host.homing.config import Config, from_tables, to_tables
 from rfhoming.host.homing.loop import (
@@ -364,7 +364,7 @@ def build(plan: Homing) -> Assembled:
     inputs = BoundedStream[Any](INPUT_QUEUE)
     built = [(device, *_driver(plan, device, inputs)) for device in plan.devices]
     base = next(driver for device, driver, _ in built if device.role == "base")
-    assert isinstance(base, BaseDriver)
+    assert isinstance(base, RobotBase)
     sensors = [driver for device, driver, _ in built if device.role != "base"]
     controller = (METHODS[plan.controller].make(plan.config, plan.site) if isinstance(plan.controller, str)
                   else plan.controller)

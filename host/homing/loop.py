@@ -45,7 +45,7 @@ from typing import IO, Any
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host import outputs
 from rfhoming.host.losses import with_losses
-from rfhoming.host.drivers.robot_base import BaseDriver, Pose2D, Scan
+from rfhoming.host.drivers.robot import Pose2D, RobotBase, Scan
 from rfhoming.host.homing.avoidance import ObstacleAvoidance
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.grid import OccupancyGrid, lookahead
@@ -124,7 +124,7 @@ class HomingLoop:
     them so): the loop sees odometry, scans and readings in arrival order, so its decisions
     depend on the bytes alone and a replay reproduces them exactly."""
 
-    def __init__(self, base: BaseDriver, sensors: list[Driver], controller: Controller, config: Config,
+    def __init__(self, base: RobotBase, sensors: list[Driver], controller: Controller, config: Config,
                  runlog: RunLog, inputs: BoundedStream[Any], planner: Planner | None = None,
                  plans_taken: dict[float, float] | None = None) -> None:
         assert all(d.out is inputs for d in (base, *sensors)), "every driver hands its items to the loop's stream"

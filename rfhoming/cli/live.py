@@ -14,7 +14,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TextIO
 
-from rfhoming.host.drivers.robot_base import BaseDriver
+from rfhoming.host.drivers.robot import RobotBase
 from rfhoming.host.portspec import PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.sink import Sink
@@ -99,7 +99,7 @@ def start_ros2(args: argparse.Namespace, drivers: list[Any]) -> Sink | None:
     cannot start."""
     if getattr(args, "ros2", None) is None:
         return None
-    bases = [d for d in drivers if isinstance(d, BaseDriver)]
+    bases = [d for d in drivers if isinstance(d, RobotBase)]
     sink = ros2_publisher(args.ros2, [d.topics.domain for d in bases if hasattr(d, "topics")])
     for d in drivers:
         d.listeners.append(sink.on_item)

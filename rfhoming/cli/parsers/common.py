@@ -8,7 +8,7 @@ import math
 
 from rfhoming.cli.args import baud, delay, nonempty, tcp_port
 
-KINDS = ("xplr-aoa", "rss-node", "esp-at", "hci", "base", "ros2")
+KINDS = ("xplr-aoa", "rss-node", "esp-at", "hci", "base", "ros2", "mavlink")
 """The device table's kinds (a test holds them equal), named here so the parsers load no table."""
 ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket://HOST:PORT or auto; KIND "
                  f"({', '.join(KINDS)}) skips sniffing; settings baud=, flow=rtscts|none, tags=ID+ID, name=; "

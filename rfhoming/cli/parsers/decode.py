@@ -7,7 +7,7 @@ import argparse
 from rfhoming.cli.args import nonempty
 from rfhoming.cli.parsers import command
 
-PROTOCOLS = ("uconnect", "ublox-aoa", "frames", "rss", "esp-at", "h4", "hci", "ros2")
+PROTOCOLS = ("uconnect", "ublox-aoa", "frames", "rss", "esp-at", "h4", "hci", "ros2", "mavlink")
 """The device table's wire protocols and their old names (a test holds them equal), named here
 so that building the parser loads no table."""
 
@@ -48,7 +48,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         metavar="PROTOCOL",
         help="uconnect: XPLR-AOA u-connectLocate text; frames: rfhoming's COBS binary records (nodes and the "
         "robot base); esp-at: Espressif ESP-AT text; h4: Bluetooth HCI packets over UART; ros2: one ROS 2 "
-        "sample record (as a capture's packet holds it); the older names ublox-aoa, rss and hci still work",
+        "sample record (as a capture's packet holds it); mavlink: MAVLink 2 packets; the older names ublox-aoa, rss and hci still work",
     )
     decode.add_argument("file", type=nonempty, nargs="?", default="-", help="input file, or - for stdin")
     decode.set_defaults(func=command("decode"))

@@ -63,18 +63,53 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fault", type=fault, action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
     p.add_argument("--truth", type=output_file, help="write the true robot pose and target positions as JSON lines")
     p.add_argument("--duration", type=duration, help="stop after this many simulated seconds")
-    p.add_argument("--robot", type=ros2_robot, metavar="ros2[:domain=N,ns=NS,discovery=subnet,stamped=1]",
-                   help="the robot base as a ROS 2 robot over DDS (/odom, /scan, /tf out, /cmd_vel in), not a "
-                        "serial port; this machine only unless discovery=subnet (docs/hardware.md, Robots)")
+    p.add_argument("--robot", type=robot_kind, metavar="ros2[:...] | mavlink[:udpout:HOST:PORT][,...]",
+                   help="the robot base as a ROS 2 robot over DDS (ros2[:domain=N,ns=NS,discovery=subnet,stamped=1]: "
+                        "/odom, /scan, /tf out, /cmd_vel in; this machine only unless discovery=subnet), or as a "
+                        "MAVLink vehicle on UDP 127.0.0.1 (mavlink[:udpout:127.0.0.1:PORT][,autopilot=ardupilot|px4,"
+                        "vehicle=rover|copter,mode=HOLD,armed=1,prearm=fail,timeout=S]), not a serial port "
+                        "(docs/hardware.md, Robots)")
     p.add_argument("--link-dir", type=path, help="directory for the pty symlinks (default: a new temp dir)")
     p.set_defaults(func=command("emulate"))
+
+
+def robot_kind(text: str) -> dict[str, Any]:
+    """``--robot``: a ROS 2 robot or a MAVLink vehicle."""
+    return mavlink_robot(text) if text.partition(":")[0].partition(",")[0] == "mavlink" else ros2_robot(text)
+
+
+MAVLINK_ROBOT = {"autopilot": str, "vehicle": str, "mode": str, "armed": lambda v: v in ("1", "yes", "true"),
+                 "prearm": lambda v: v != "fail", "timeout": float}
+
+
+def mavlink_robot(text: str) -> dict[str, Any]:
+    """``mavlink[:udpout:HOST:PORT][,key=value...]`` -> MavlinkLink's arguments (emulator/mavlinkrobot.py)."""
+    head, *pairs = text.split(",")
+    where = head.partition(":")[2]
+    gcs = None
+    if where:
+        host, _, port = where.removeprefix("udpout:").rpartition(":")
+        if not where.startswith("udpout:") or host not in ("127.0.0.1", "localhost") or not port.isdigit():
+            raise argparse.ArgumentTypeError(f"{text!r}: the emulated vehicle sends to udpout:127.0.0.1:PORT (where "
+                                             "the ground station listens), or leave it out and connect to the vehicle")
+        gcs = ("127.0.0.1", int(port))
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        if key not in MAVLINK_ROBOT:
+            raise argparse.ArgumentTypeError(f"{text!r}: --robot mavlink takes {', '.join(MAVLINK_ROBOT)}")
+        try:
+            options[{"prearm": "prearm_ok", "timeout": "command_timeout_s"}.get(key, key)] = MAVLINK_ROBOT[key](value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: bad {key}={value!r}") from None
+    return {"kind": "mavlink", "gcs": gcs, "options": options}
 
 
 def ros2_robot(text: str) -> dict[str, Any]:
     """``ros2[:domain=N,ns=NS,discovery=localhost|subnet,stamped=0|1]`` -> Ros2Link's arguments."""
     kind, _, rest = text.partition(":")
     if kind != "ros2":
-        raise argparse.ArgumentTypeError(f"{text!r}: the robot can be ros2[:domain=N,ns=NS]")
+        raise argparse.ArgumentTypeError(f"{text!r}: the robot can be ros2[:domain=N,ns=NS] or mavlink[:udpout:127.0.0.1:PORT][,autopilot=px4...]")
     from rfhoming.host import portspec
 
     try:
