@@ -64,12 +64,16 @@ H4_PACKETS = {0x01: "command", 0x02: "acl", 0x03: "sco", 0x04: "event", 0x05: "i
 
 
 def decoded_as_dict(item: Any) -> dict[str, Any]:
-    """:func:`as_dict`, and a JSON form for the two decoders of the device table whose items are
-    not kind-named tuples: an H4 packet (bytes: ``h4_packet`` with its type and bytes) and a
-    ROS 2 sample (``(record, message)``: ``ros2_sample`` with its topic, type and fields, or
+    """:func:`as_dict`, and a JSON form for the three decoders of the device table whose items are
+    not kind-named tuples: an H4 packet (bytes: ``h4_packet`` with its type and bytes), a MAVLink
+    message (``mavlink_message`` with its type, sender and fields) and a ROS 2 sample (``(record, message)``: ``ros2_sample`` with its topic, type and fields, or
     ``message: null`` for a type rfhoming does not read)."""
     if isinstance(item, (bytes, bytearray)):
         return {"kind": "h4_packet", "type": H4_PACKETS.get(item[0], "unknown"), "raw": item.hex()}
+    if hasattr(item, "get_type") and hasattr(item, "to_dict"):  # a MAVLink message (pymavlink's)
+        fields = {k: v for k, v in item.to_dict().items() if k != "mavpackettype"}
+        return {"kind": "mavlink_message", "type": item.get_type(), "system": item.get_srcSystem(),
+                "component": item.get_srcComponent(), "fields": _plain(fields)}
     if isinstance(item, tuple) and not hasattr(item, "kind") and len(item) == 2:
         record, message = item
         return {"kind": "ros2_sample", "topic": record.topic, "type": record.type,
