@@ -5,11 +5,8 @@ emulated ArduPilot rover's mode, armed state, position and velocity change as it
 from __future__ import annotations
 
 import asyncio
-import json
 import math
 import socket
-import subprocess
-import sys
 
 import pytest
 
@@ -40,19 +37,12 @@ async def until(read, test=lambda _: True):  # noqa: ANN001, ANN201
 
 
 @pytest.mark.slow
-def test_mavsdk_sees_the_emulated_rover_obey_it(tmp_path) -> None:  # noqa: ANN001
+def test_mavsdk_sees_the_emulated_rover_obey_it(tmp_path, emulated) -> None:  # noqa: ANN001
     port = free_udp_port()
-    emulator = subprocess.Popen([sys.executable, "-m", "rfhoming", "emulate", "s0-open", "--robot",
-                                 f"mavlink:udpout:127.0.0.1:{port}", "--link-dir", str(tmp_path)],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        endpoints = [json.loads(emulator.stdout.readline()) for _ in range(2)]
-        base = next(e for e in endpoints if e["device"] == "base")
-        assert base["kind"] == "mavlink" and base["path"] == f"mavlink:udpin:127.0.0.1:{port}"
-        asyncio.run(asyncio.wait_for(_ground_station(port), DEADLINE_S))
-    finally:
-        emulator.terminate()
-        emulator.wait(timeout=30)
+    world = emulated("s0-open", "--robot", f"mavlink:udpout:127.0.0.1:{port}", link_dir=tmp_path, devices=2)
+    base = world.endpoints["base"]
+    assert base["kind"] == "mavlink" and base["path"] == f"mavlink:udpin:127.0.0.1:{port}"
+    asyncio.run(asyncio.wait_for(_ground_station(port), DEADLINE_S))
 
 
 async def _ground_station(port: int) -> None:
