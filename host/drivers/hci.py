@@ -21,7 +21,7 @@ import asyncio
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, Literal, NamedTuple
 
 from bumble import hci
 
@@ -46,10 +46,7 @@ MAX_PARTIAL = 64  # advertisers with a fragment pending; the oldest is dropped b
 MAX_AD = 1650  # the longest extended advertising data (Core v5.4 Vol 4 Part E 7.8.54)
 
 
-class Advertisement(NamedTuple):
-    """One advertising report, as ``listen`` shows it (and as listeners get it)."""
-
-    kind = "advertisement"
+class _Advertisement(NamedTuple):
     address: str  # 12 hex digits, MSB first
     address_type: int
     rssi_dbm: int  # 127 = not available
@@ -57,13 +54,23 @@ class Advertisement(NamedTuple):
     data: bytes
 
 
-class HciPacket(NamedTuple):
-    """Any other HCI packet: bumble's name for it and its bytes (H4 indicator included)."""
+class Advertisement(_Advertisement):
+    """One advertising report, as ``listen`` shows it (and as listeners get it)."""
 
-    kind = "hci"
+    __slots__ = ()
+    kind: ClassVar[Literal["advertisement"]] = "advertisement"
+
+
+class _HciPacket(NamedTuple):
     name: str
     raw: bytes
 
+
+class HciPacket(_HciPacket):
+    """Any other HCI packet: bumble's name for it and its bytes (H4 indicator included)."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["hci"]] = "hci"
 
 
 @dataclass(frozen=True)
