@@ -14,20 +14,23 @@ participant uses the loopback interface only, no multicast, unicast discovery to
 ``discovery=subnet`` leaves Cyclone's own defaults (the machine's network, multicast discovery).
 """
 
-# no `from __future__ import annotations`: cyclonedds reads the IDL fields' annotations at run time
+# no `from __future__ import annotations`: cyclonedds reads the IDL fields' annotations at run time.
+# ``sequence[T]`` and ``array[T, n]`` are written out as what they make, ``Annotated[Sequence[T], ...]``,
+# so that type checkers see a sequence too.
 
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
 from cyclonedds.core import Listener, Policy, Qos
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint32
 from cyclonedds.pub import DataWriter
-from cyclonedds.sub import DataReader, InvalidSample
+from cyclonedds.internal import InvalidSample
+from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
@@ -80,7 +83,7 @@ class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
 @dataclass
 class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
     pose: Pose = field(default_factory=Pose)
-    covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+    covariance: Annotated[Sequence[float64], array(float64, 36)] = field(default_factory=lambda: [0.0] * 36)
 
 
 @dataclass
@@ -98,7 +101,7 @@ class TwistStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TwistStamped_"
 @dataclass
 class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
     twist: Twist = field(default_factory=Twist)
-    covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+    covariance: Annotated[Sequence[float64], array(float64, 36)] = field(default_factory=lambda: [0.0] * 36)
 
 
 @dataclass
@@ -119,8 +122,8 @@ class LaserScan(IdlStruct, typename="sensor_msgs::msg::dds_::LaserScan_"):
     scan_time: float32 = 0.0
     range_min: float32 = 0.0
     range_max: float32 = 0.0
-    ranges: sequence[float32] = field(default_factory=list)
-    intensities: sequence[float32] = field(default_factory=list)
+    ranges: Annotated[Sequence[float32], sequence(float32)] = field(default_factory=list)
+    intensities: Annotated[Sequence[float32], sequence(float32)] = field(default_factory=list)
 
 
 @dataclass
@@ -138,7 +141,7 @@ class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformS
 
 @dataclass
 class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
-    transforms: sequence[TransformStamped] = field(default_factory=list)
+    transforms: Annotated[Sequence[TransformStamped], sequence(TransformStamped)] = field(default_factory=list)
 
 
 TF = "tf2_msgs/msg/TFMessage"
@@ -194,18 +197,18 @@ def participant(domain: int, discovery: str = "localhost") -> DomainParticipant:
 
 
 def reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable[[Any], None],
-           qos: Qos = SENSOR_QOS) -> DataReader:
+           qos: Qos = SENSOR_QOS) -> DataReader[Any]:
     """A reader of a ROS topic; ``on_sample`` is called on Cyclone's listener thread."""
-    def on_data(r: DataReader) -> None:
+    def on_data(r: DataReader[Any]) -> None:
         for sample in r.take(64):
             if not isinstance(sample, InvalidSample):  # a writer gone (disposed, unregistered): no data
                 on_sample(sample)
 
     return DataReader(dp, Topic(dp, ros2.dds_topic(topic), TYPES[ros_type]), qos=qos,
-                      listener=Listener(on_data_available=on_data))
+                      listener=Listener(on_data_available=on_data))  # type: ignore[no-untyped-call]  # Listener(**kwargs)
 
 
-def writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos = DEFAULT_QOS) -> DataWriter:
+def writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos = DEFAULT_QOS) -> DataWriter[Any]:
     return DataWriter(dp, Topic(dp, ros2.dds_topic(topic), TYPES[ros_type]), qos=qos)
 
 

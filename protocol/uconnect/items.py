@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal, NamedTuple
 
-from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.drop import Drop as Drop  # re-exported: an Item can be a Drop
 from rfhoming.protocol.jsonable import as_dict
 
 
