@@ -66,8 +66,9 @@ class EspAtSetup:
 def setup_from_spec(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
     """The spec's scan settings (active, interval, window, mac, adname) over ``setup``."""
     s = spec.settings
-    return scan_settings(spec, setup, filter_mac=s.get("mac", setup.filter_mac),
-                         filter_name=s.get("adname", setup.filter_name))
+    scanning: EspAtSetup = scan_settings(spec, setup, filter_mac=s.get("mac", setup.filter_mac),
+                                         filter_name=s.get("adname", setup.filter_name))
+    return scanning
 
 
 class EspAtDriver(Driver):

@@ -113,10 +113,11 @@ def setup_from_spec(spec: PortSpec, setup: HciSetup | None = None) -> HciSetup:
     """The spec's scan settings over ``setup`` (default settings if None)."""
     setup = setup or HciSetup()
     s = spec.settings
-    return scan_settings(spec, setup, extended=s.get("extended", setup.extended),
-                         filter_duplicates=s.get("dedup", setup.filter_duplicates),
-                         addresses=frozenset([s["mac"].replace(":", "")]) if "mac" in s else setup.addresses,
-                         name=s.get("adname", setup.name), content=s.get("content", setup.content))
+    scanning: HciSetup = scan_settings(spec, setup, extended=s.get("extended", setup.extended),
+                                         filter_duplicates=s.get("dedup", setup.filter_duplicates),
+                                         addresses=frozenset([s["mac"].replace(":", "")]) if "mac" in s else setup.addresses,
+                                         name=s.get("adname", setup.name), content=s.get("content", setup.content))
+    return scanning
 
 
 class HciDriver(Driver):
@@ -141,7 +142,7 @@ class HciDriver(Driver):
         self.counters.update(setups=0, silent=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0,
                              fragments=0, truncated=0, partial_dropped=0,
                              **{"drop.not_event": 0, "drop.malformed": 0, "drop.error": 0})
-        self._partial: dict[tuple, tuple[Any, bytearray]] = {}  # fragments of extended reports, by advertiser
+        self._partial: dict[tuple[Any, ...], tuple[Any, bytearray]] = {}  # fragments of extended reports, by advertiser
         self.extended: bool | None = None
         self._pending: tuple[int, asyncio.Future[Any]] | None = None
 
@@ -168,9 +169,9 @@ class HciDriver(Driver):
             self._drop("malformed", f"bumble cannot parse it: {exc}", raw, t_host)
             return
         extended = isinstance(packet, hci.HCI_LE_Extended_Advertising_Report_Event)
-        if extended or isinstance(packet, hci.HCI_LE_Advertising_Report_Event):
+        if isinstance(packet, (hci.HCI_LE_Extended_Advertising_Report_Event, hci.HCI_LE_Advertising_Report_Event)):
             for report in packet.reports:
-                whole = self._reassemble(report) if extended else (report, bytes(report.data))
+                whole: tuple[Any, bytes] | None = self._reassemble(report) if extended else (report, bytes(report.data))
                 if whole is not None:
                     self._report(*whole, extended, t_host)
             return
@@ -178,7 +179,7 @@ class HciDriver(Driver):
         if isinstance(packet, (hci.HCI_Command_Complete_Event, hci.HCI_Command_Status_Event)):
             if self._pending is not None and packet.command_opcode == self._pending[0] and not self._pending[1].done():
                 self._pending[1].set_result(packet)
-        elif packet.event_code == HARDWARE_ERROR_EVENT:
+        elif isinstance(packet, hci.HCI_Event) and packet.event_code == HARDWARE_ERROR_EVENT:
             self.counters["hardware_errors"] += 1
             log.warning("%s: controller hardware error; setting it up again", self.port.name)
             self._needs_setup.set()
@@ -241,7 +242,7 @@ class HciDriver(Driver):
         params = getattr(event, "return_parameters", event)
         status = getattr(params, "status", hci.HCI_SUCCESS)
         if status != hci.HCI_SUCCESS:
-            raise CommandFailed(f"{command.name} failed: {hci.HCI_Constant.error_name(status)}")
+            raise CommandFailed(f"{command.name} failed: {hci.HCI_Constant.error_name(status)}")  # type: ignore[no-untyped-call]  # bumble's error_name is unannotated
         return params
 
     async def session(self) -> None:

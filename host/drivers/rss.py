@@ -41,7 +41,7 @@ class AntennaPowers(NamedTuple):
     t_host: float
     node_id: int
     emitter_seq: int
-    dbm: tuple[float | None, float | None, float | None, float | None]
+    dbm: tuple[float | None, ...]  # four, in the order of the docstring
 
 
 class NodeClock:
