@@ -64,7 +64,7 @@ def candidates(ask: Callable[[str], bool | str] = answers_as_xplr_aoa) -> list[C
     asked (``ask``) whether it is an XPLR-AOA."""
     out = []
     for info in list_ports.comports():
-        known = KNOWN_VENDORS.get(info.vid) if info.vid is not None else None
+        known: tuple[str | None, str] | None = KNOWN_VENDORS.get(info.vid) if info.vid is not None else None
         if known is None and (info.manufacturer or "").upper().startswith("FTDI"):
             known = KNOWN_VENDORS[FTDI]
         ids = f"{info.vid:04X}:{info.pid:04X}" if info.vid is not None else "no USB ids"

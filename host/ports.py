@@ -130,7 +130,7 @@ class HostPort:
     def set_baud(self, baud: int) -> None:
         """Change the rate on the open port (probing, or following AT+UMRS)."""
         self.baud = baud
-        if self._transport is not None:
+        if self._transport is not None and self._transport.serial is not None:
             self._transport.serial.baudrate = baud
 
     def _received(self, data: bytes) -> None:
