@@ -3,12 +3,15 @@
 
 import asyncio
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rfhoming.host.drivers.ros2_base import Topics
 from rfhoming.host.ports import Chunk, Disconnected, PortError, Tap
 from rfhoming.protocol import ros2
-from rfhoming.protocol.ros2dds import TYPES, DataWriter, DdsError, participant, reader, writer
+from rfhoming.protocol.ros2dds import TYPES, DdsError, participant, reader, writer
+
+if TYPE_CHECKING:
+    from cyclonedds.pub import DataWriter
 
 MAX_QUEUED = 2000  # samples not yet read by the driver; beyond, new ones are dropped (counted)
 
@@ -33,7 +36,7 @@ class Ros2Port:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._odometry = asyncio.Event()
         self._entities: list[Any] = []
-        self._writer: DataWriter | None = None
+        self._writer: DataWriter[Any] | None = None
 
     @property
     def is_open(self) -> bool:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -94,7 +94,7 @@ def make_driver(spec: PortSpec, taps: list[Tap], **options: Any) -> Driver:
 
 
 async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | None = None,
-                  taps: list[Tap] = (), kind: str | None = None,
+                  taps: Sequence[Tap] = (), kind: str | None = None,
                   describe: Callable[..., None] | None = None) -> PortSpec:
     """A spec made concrete: ``auto`` found, the protocol sniffed where not given, defaults
     (``baud``, ``flow`` from the command line) under the spec's own settings.
@@ -115,6 +115,7 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
     sniffed: list[tuple[str, str, float, bytes]] = []
     if spec.kind is None:
         spec = spec.with_kind(await sniff(spec, lambda *event: sniffed.append(event)))
+    assert spec.kind is not None  # given, or sniffed just now
     if describe is not None:
         record = devices.kind(spec.kind)
         recorded = getattr(driver_class(record), "describe_spec", None)  # e.g. a ROS 2 base's topics
@@ -127,7 +128,7 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
 
 
 async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, flow: str | None = None,
-                       taps: list[Tap] = (), describe: Callable[..., None] | None = None,
+                       taps: Sequence[Tap] = (), describe: Callable[..., None] | None = None,
                        probe_baud: bool = False) -> list[Driver]:
     """Drivers for the specs (a ``capture:`` spec gives one per recorded device).
 

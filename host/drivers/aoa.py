@@ -39,7 +39,7 @@ from rfhoming.host.drivers.common import (
     Driver,
     serial_port,
 )
-from rfhoming.host.ports import HostPort, Tap
+from rfhoming.host.ports import Port, Tap
 from rfhoming.host.portspec import PortSpec
 from rfhoming.protocol.uconnect import (
     AngleEvent,
@@ -173,7 +173,7 @@ class AoaDriver(Driver):
             setup = replace(setup, command_timeout=spec.timeout)
         return cls(port or serial_port(spec, taps), setup, **options)
 
-    def __init__(self, port: HostPort, setup: AoaSetup = AoaSetup(), *, queue_size: int = 1000,
+    def __init__(self, port: Port, setup: AoaSetup = AoaSetup(), *, queue_size: int = 1000,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup

@@ -15,6 +15,7 @@ from rfhoming.host.ports import (
     Disconnected,
     EndOfInput,
     HostPort,
+    Port,
     PortError,
     flapping_delay,
     Tap,
@@ -139,7 +140,7 @@ class Driver:
     """Whether it is ready only once its set-up commands succeeded (state ``streaming``), not
     as soon as its port is open."""
 
-    def __init__(self, port: HostPort, *, reconnect: bool = True, out: BoundedStream[Any] | None = None,
+    def __init__(self, port: Port, *, reconnect: bool = True, out: BoundedStream[Any] | None = None,
                  queue_size: int = 1000) -> None:
         self.port = port
         self.reconnect = reconnect

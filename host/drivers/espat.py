@@ -18,7 +18,7 @@ from typing import Any
 
 from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver, scan_settings, serial_port
 from rfhoming.host.drivers.rss import BleRssi
-from rfhoming.host.ports import HostPort, Tap
+from rfhoming.host.ports import Port, Tap
 from rfhoming.host.portspec import PortSpec
 from rfhoming.protocol.espat import EspAtDecoder, Final
 
@@ -79,7 +79,7 @@ class EspAtDriver(Driver):
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> EspAtDriver:
         return cls(port or serial_port(spec, taps), setup_from_spec(spec, options.pop("setup", EspAtSetup())), **options)
 
-    def __init__(self, port: HostPort, setup: EspAtSetup = EspAtSetup(), *, queue_size: int = 4000,
+    def __init__(self, port: Port, setup: EspAtSetup = EspAtSetup(), *, queue_size: int = 4000,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup

@@ -27,7 +27,7 @@ from bumble import hci
 
 from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver, scan_settings
 from rfhoming.host.drivers.rss import BleRssi
-from rfhoming.host.ports import Disconnected, HostPort, PortError, Tap
+from rfhoming.host.ports import Disconnected, HostPort, Port, PortError, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.protocol import ad as adv
 from rfhoming.protocol import h4
@@ -134,7 +134,7 @@ class HciDriver(Driver):
                 raise PortSpecError(str(exc)) from None
         return cls(port, setup_from_spec(spec, options.pop("setup", None)), **options)
 
-    def __init__(self, port: HostPort, setup: HciSetup = HciSetup(), *, queue_size: int = 4000,
+    def __init__(self, port: Port, setup: HciSetup = HciSetup(), *, queue_size: int = 4000,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup

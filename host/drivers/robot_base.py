@@ -13,7 +13,7 @@ from typing import Any, NamedTuple
 
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.drivers.rss import NodeClock
-from rfhoming.host.ports import Disconnected, HostPort
+from rfhoming.host.ports import Disconnected, Port
 from rfhoming.protocol.frames import (
     FrameDecoder,
     NodeCommand,
@@ -75,7 +75,7 @@ def scan_of(record: RangeScan | RangeScanV2, t_host: float = 0.0) -> Scan:
 class BaseDriver(Driver):
     kind = "base"
 
-    def __init__(self, port: HostPort, *, command_timeout_ms: int = 300, reconnect: bool = True,
+    def __init__(self, port: Port, *, command_timeout_ms: int = 300, reconnect: bool = True,
                  out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=500)
         self.decoder = FrameDecoder()

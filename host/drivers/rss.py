@@ -15,7 +15,7 @@ from collections import deque
 from typing import Any, NamedTuple
 
 from rfhoming.host.drivers.common import BoundedStream, Driver
-from rfhoming.host.ports import HostPort
+from rfhoming.host.ports import Port
 from rfhoming.protocol.at86rf212 import DEFAULT_SCALE_DB, ed_to_dbm
 from rfhoming.protocol.frames import (
     AdvReport,
@@ -108,7 +108,7 @@ class Associator:
 class RssDriver(Driver):
     kind = "rss-node"
 
-    def __init__(self, port: HostPort, *, ed_scale_db: float = DEFAULT_SCALE_DB, use_antenna_sets: bool = True,
+    def __init__(self, port: Port, *, ed_scale_db: float = DEFAULT_SCALE_DB, use_antenna_sets: bool = True,
                  queue_size: int = 4000, reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.decoder = FrameDecoder()

@@ -102,8 +102,9 @@ class McapRecorder(Sink):
         :meth:`watch`."""
         if clock not in ("robot", "host"):
             raise ValueError(f"clock must be robot or host, not {clock!r}")
-        self._file = open(output, "wb") if isinstance(output, (str, Path)) else None
-        self.writer = Writer(self._file or output, chunk_size=CHUNK_BYTES)
+        stream = open(output, "wb") if isinstance(output, (str, Path)) else output
+        self._file = stream if stream is not output else None
+        self.writer = Writer(stream, chunk_size=CHUNK_BYTES)
         self.writer.start(profile="ros2", library="rfhoming (mcap, mcap-ros2-support)")
         self._flushed_at: tuple[float, float] | None = None  # (message time, host monotonic) of the last flush
         self.clock = clock
@@ -299,7 +300,7 @@ class McapRecorder(Sink):
         """Finish the open chunk and hand the file everything so far: a crash after this loses
         nothing before it."""
         if self.write_error is None:  # after one, the writer's chunk holds the failed write: not again
-            self.writer.flush()  # ends the chunk (mcap >= 1.6)
+            self.writer.flush()  # type: ignore[no-untyped-call]  # ends the chunk (mcap >= 1.6); unannotated there
 
     def close(self) -> None:
         """The held messages and the summary written, the file closed; after a write error only
@@ -310,7 +311,7 @@ class McapRecorder(Sink):
         try:
             if self.write_error is None:
                 self._release(math.inf)
-                self.writer.finish()
+                self.writer.finish()  # type: ignore[no-untyped-call]  # mcap leaves it unannotated
         finally:
             if self._file is not None:
                 if self.write_error is None:
@@ -398,7 +399,7 @@ def _capture_drivers(path: Path | str) -> tuple[dict[str, Driver], list[tuple[st
 
 
 def _read_runlog(path: Path | str) -> list[dict[str, Any]]:
-    records = []
+    records: list[dict[str, Any]] = []
     try:
         text = Path(path).read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
