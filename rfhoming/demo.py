@@ -188,6 +188,7 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
     """The same run with the emulator in this process on its byte pipe, in lockstep: the host
     settles after every step, so the result depends on the seed alone (as in the campaigns)."""
     from rfhoming.campaigns.closed_loop import PipePort
+    from rfhoming.emulator.links import pipe_end
     from rfhoming.emulator.runtime import Emulator
     from rfhoming.emulator.scenario import load
 
@@ -204,7 +205,7 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
         em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=truth)
         await em.start()
         world = asyncio.create_task(em.run())
-        ports = {name: PipePort(name, em.device(name).link.host) for name in (sensor, "base")}
+        ports = {name: PipePort(name, pipe_end(em.device(name).link)) for name in (sensor, "base")}
         kind = devices.BOARDS[names[sensor]][0].name
         plan = Homing(controller, [Device(role, port=ports[sensor], kind=kind), Device("base", port=ports["base"])],
                       config, sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
