@@ -97,7 +97,7 @@ BLE_RECEIVERS = tuple(name for name, (kind, _) in devices.BOARDS.items() if "ble
 """Interchangeable BLE RSSI receivers: ``receiver=`` puts one in place of the scenario's."""
 
 
-def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = None,
+def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = None,
          aoa_preset: int | None = None, receiver: str | None = None) -> Scenario:
     """Build a scenario; ``target`` overrides the first target's position, ``aoa_preset`` the
     AoA noise with S0's configuration 1–5, ``receiver`` the type of every BLE RSSI receiver."""
@@ -118,7 +118,7 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
         targets = []
         for i, t in enumerate(raw.get("targets", [])):
             if i == 0 and target is not None:
-                position = target
+                position = _point(target)
             elif t.get("position", "random") == "random":
                 position = _random_free_point(bounds, obstacles, rng)
             else:

@@ -29,6 +29,7 @@ from rfhoming.host.replay import describe as describe_interface
 from rfhoming.protocol import devices
 from rfhoming.protocol.devices import DeviceKind
 from rfhoming.protocol.frames import FrameDecoder
+from rfhoming.protocol.pcapng import CaptureFormatError
 from rfhoming.protocol.uconnect import UConnectDecoder
 
 SNIFF_SECONDS = 1.5
@@ -127,7 +128,7 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
     return spec
 
 
-async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, flow: str | None = None,
+async def open_drivers(specs: Sequence[str | PortSpec], *, baud: int | None = None, flow: str | None = None,
                        taps: Sequence[Tap] = (), describe: Callable[..., None] | None = None,
                        probe_baud: bool = False) -> list[Driver]:
     """Drivers for the specs (a ``capture:`` spec gives one per recorded device).
@@ -159,7 +160,7 @@ def serve_driver(spec: PortSpec, **options: Any) -> Driver:
                        device=spec.settings.get("device"), **options)
 
 
-def replay_drivers(spec: PortSpec, partial: Callable[[Exception], None] | None = None) -> list[Driver]:
+def replay_drivers(spec: PortSpec, partial: Callable[[CaptureFormatError], None] | None = None) -> list[Driver]:
     """One driver per device recorded in a capture (``device=`` picks one), released in the
     recorded global order; CaptureFormatError / OSError when the file cannot be read, or, given
     ``partial``, the error goes there and what came before the damage is replayed."""

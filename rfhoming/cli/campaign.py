@@ -47,7 +47,7 @@ examples:
 """
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("campaign", help="reproduce a seed paper's results over many seeded runs",
                        description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("name", choices=sorted(REGISTRY), metavar="NAME", help="one of: " + ", ".join(REGISTRY))
@@ -71,7 +71,8 @@ def default_folder(name: str, runs: int, seed: int) -> Path:
 
 def load(name: str) -> Campaign:
     module, attribute = REGISTRY[name].split(":")
-    return getattr(importlib.import_module(module), attribute)
+    campaign: Campaign = getattr(importlib.import_module(module), attribute)
+    return campaign
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:

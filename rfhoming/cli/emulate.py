@@ -39,7 +39,7 @@ faults (repeatable): KIND[@DEVICE][:key=value,...]
 """
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("emulate", help="run an emulated world with devices on ptys or TCP",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenario", type=nonempty, help=f"a preset ({', '.join(presets())}) or a .toml file")
@@ -118,6 +118,7 @@ async def _serve(emulator: Emulator, duration: float | None) -> None:
         print(json.dumps(endpoint), flush=True)
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
+    assert task is not None  # a coroutine run by asyncio.run
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, task.cancel)
     try:

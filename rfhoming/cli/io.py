@@ -9,8 +9,8 @@ import json
 import logging
 import signal
 import sys
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterable
+from typing import Any, TextIO
 
 from rfhoming.cli.args import baud, delay, duration, nonempty, output_file, path, speed
 from rfhoming.cli.live import add_foxglove_option, add_ros2_option, start_foxglove, start_ros2
@@ -37,7 +37,7 @@ ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket
                  "(see docs/usage.md)")
 
 
-def printer(json_lines: bool, out=sys.stdout) -> Callable[[str, float, Any], None]:
+def printer(json_lines: bool, out: TextIO = sys.stdout) -> Callable[[str, float, Any], None]:
     def show(device: str, t: float, item: Any) -> None:
         if json_lines:
             out.write(json.dumps({"device": device, "t": t, **as_dict(item)}) + "\n")
@@ -72,7 +72,7 @@ async def _log_health(drivers: list[Driver]) -> None:
             log.info("health %s", json.dumps(h))
 
 
-async def _run_until(drivers: list[Driver], duration: float | None, extra: list[asyncio.Task] = ()) -> None:
+async def _run_until(drivers: list[Driver], duration: float | None, extra: Iterable[asyncio.Task[Any]] = ()) -> None:
     """Run the drivers until ``duration`` or Ctrl-C; a driver that cannot go on (a port that
     never opened, a set-up that failed or timed out) ends it with PortError/DeviceNotReady."""
     tasks = [asyncio.create_task(d.run()) for d in drivers]
@@ -81,6 +81,7 @@ async def _run_until(drivers: list[Driver], duration: float | None, extra: list[
     tasks.append(asyncio.create_task(_log_health(drivers)))
     tasks.append(asyncio.create_task(losses.watch(lambda: health(drivers))))
     main = asyncio.current_task()
+    assert main is not None  # a coroutine run by asyncio.run
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, main.cancel)
@@ -230,7 +231,7 @@ with --partial, the blocks before it are replayed (exit 0) and the problem is re
 """
 
 
-def add_parsers(sub: argparse._SubParsersAction) -> None:
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     raw = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser("devices", help="list serial ports and what each seems to be",
                        description="List the serial ports this machine sees and what each probably is, from "

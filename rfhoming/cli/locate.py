@@ -160,7 +160,7 @@ async def _gather(args: argparse.Namespace, site: sites.Site, on_angle: Callable
     return 0
 
 
-async def _discard(stream: BoundedStream) -> None:
+async def _discard(stream: BoundedStream[Any]) -> None:
     async for _ in stream:
         pass
 
@@ -270,7 +270,7 @@ def _load_points(path: Path) -> list[Point]:
         extra = sorted(set(d) - {"tag", "position", "from_s", "to_s"})
         if extra:
             raise CalibrationError(f"{where} has unknown key(s) {', '.join(extra)}; known: tag, position, from_s, to_s")
-        window = [d.get("from_s"), d.get("to_s")]
+        window: list[Any] = [d.get("from_s"), d.get("to_s")]
         if window != [None, None] and not (
                 all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in window) and window[0] < window[1]):
             raise CalibrationError(f"{where}: from_s and to_s must both be given, seconds from the first angle "
@@ -329,8 +329,11 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
     recordings = []
     for source in args.sources or [None]:
         events: list[tuple[float, Any]] = []
+        def collect(t: float, event: Any, into: list[tuple[float, Any]] = events) -> None:
+            into.append((t, event))
+
         code = asyncio.run(_gather(argparse.Namespace(**{**vars(args), "sources": [source] if source else None}),
-                                   site, lambda t, event, into=events: into.append((t, event))))
+                                   site, collect))
         if code:
             return code
         recordings.append(events)
@@ -370,7 +373,7 @@ def _write(args: argparse.Namespace, calibrations: dict[str, Any], models: dict[
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     raw = argparse.RawDescriptionHelpFormatter
     for name, helptext, description in (
             ("locate", "positions of tags from a site's fixed AoA anchors", LOCATE_HELP),

@@ -135,21 +135,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _add_emulate(sub: argparse._SubParsersAction) -> None:
+def _add_emulate(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """The emulator's command; the CLI is the one host module that may wire the emulator in."""
     from rfhoming.cli.emulate import add_parser
 
     add_parser(sub)
 
 
-def _add_campaign(sub: argparse._SubParsersAction) -> None:
+def _add_campaign(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Campaigns wire the emulator and the host together in-process (the campaigns package)."""
     from rfhoming.cli.campaign import add_parser
 
     add_parser(sub)
 
 
-def _add_site(sub: argparse._SubParsersAction) -> None:
+def _add_site(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """The site bus's gateway and worker (they wire the emulated site in, as the emulator's command)."""
     from rfhoming.cli.site import add_parsers
 

@@ -225,7 +225,7 @@ def add_worker_arguments(p: argparse.ArgumentParser) -> None:
     w.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
 
 
-def add_parsers(sub: argparse._SubParsersAction) -> None:
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     g = sub.add_parser("gateway", help="a site gateway: its anchors' angle events to an MQTT broker",
                        description=GATEWAY_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     g.add_argument("--device", type=nonempty, action="append", metavar="SPEC",
