@@ -82,14 +82,14 @@ def executor(workers: int, dask_address: str | None) -> Iterator[cf.Executor | N
         except ImportError:
             raise CampaignError("--dask needs the distributed package: pip install 'rfhoming[campaign]'") from None
         try:
-            client = Client(dask_address, timeout="10s")  # type: ignore[no-untyped-call]  # distributed is unannotated
+            client = Client(dask_address, timeout="10s")
         except OSError as exc:
             raise CampaignError(f"no Dask scheduler at {dask_address} ({exc}); start one with "
                                 f"`dask scheduler` and `dask worker ADDRESS`, or drop --dask") from None
         try:
-            yield client.get_executor()  # type: ignore[no-untyped-call]
+            yield client.get_executor()
         finally:
-            client.close()  # type: ignore[no-untyped-call]
+            client.close()
         return
     if workers <= 1:
         yield None

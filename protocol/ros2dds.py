@@ -205,7 +205,7 @@ def reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable
                 on_sample(sample)
 
     return DataReader(dp, Topic(dp, ros2.dds_topic(topic), TYPES[ros_type]), qos=qos,
-                      listener=Listener(on_data_available=on_data))  # type: ignore[no-untyped-call]  # Listener(**kwargs)
+                      listener=Listener(on_data_available=on_data))
 
 
 def writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos = DEFAULT_QOS) -> DataWriter[Any]:

@@ -242,7 +242,7 @@ class HciDriver(Driver):
         params = getattr(event, "return_parameters", event)
         status = getattr(params, "status", hci.HCI_SUCCESS)
         if status != hci.HCI_SUCCESS:
-            raise CommandFailed(f"{command.name} failed: {hci.HCI_Constant.error_name(status)}")  # type: ignore[no-untyped-call]  # bumble's error_name is unannotated
+            raise CommandFailed(f"{command.name} failed: {hci.HCI_Constant.error_name(status)}")
         return params
 
     async def session(self) -> None:

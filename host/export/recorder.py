@@ -300,7 +300,7 @@ class McapRecorder(Sink):
         """Finish the open chunk and hand the file everything so far: a crash after this loses
         nothing before it."""
         if self.write_error is None:  # after one, the writer's chunk holds the failed write: not again
-            self.writer.flush()  # type: ignore[no-untyped-call]  # ends the chunk (mcap >= 1.6); unannotated there
+            self.writer.flush()  # ends the chunk (mcap >= 1.6)
 
     def close(self) -> None:
         """The held messages and the summary written, the file closed; after a write error only
@@ -311,7 +311,7 @@ class McapRecorder(Sink):
         try:
             if self.write_error is None:
                 self._release(math.inf)
-                self.writer.finish()  # type: ignore[no-untyped-call]  # mcap leaves it unannotated
+                self.writer.finish()
         finally:
             if self._file is not None:
                 if self.write_error is None:
