@@ -121,3 +121,26 @@ def test_received_to_dict_takes_items_without_a_to_dict_method() -> None:
     got = Received(1.5, "esp", ScanReport("C0FFEE000001", -61, b"\x02\x01\x06", b"", 0))
     assert got.to_dict() == {"device": "esp", "t": 1.5, "kind": "scan_report", "address": "C0FFEE000001",
                              "rssi_dbm": -61, "adv_data": "020106", "scan_rsp": "", "addr_type": 0}
+
+
+def test_every_item_kind_is_a_typed_class_attribute_that_pickles_as_before() -> None:
+    """Each item type's ``kind`` is annotated ``ClassVar[Literal[...]]`` (what lets ``match item.kind``
+    narrow), yet stays what it was: a plain string on the class and its items, not a field, and an
+    item pickles back to its own type and is as ``to_dict`` had it."""
+    import pickle
+    from typing import ClassVar, ForwardRef, Literal, get_args, get_origin, get_type_hints
+
+    from rfhoming import api
+    from rfhoming.host.drivers import hci
+
+    types = [getattr(hci, t.__forward_arg__) if isinstance(t, ForwardRef) else t for t in get_args(api.Item)]
+    assert {t.kind for t in types} == set(api.KINDS)
+    for cls in types:
+        hint = get_type_hints(cls)["kind"]
+        assert get_origin(hint) is ClassVar and get_args(hint) == (Literal[cls.kind],), (cls, hint)
+        assert isinstance(cls.__dict__.get("kind"), str) and "kind" not in cls._fields, cls
+        item = cls._make(range(len(cls._fields)))
+        again = pickle.loads(pickle.dumps(item))
+        assert type(again) is cls and again == item and again.kind == cls.kind
+        if hasattr(cls, "to_dict"):
+            assert next(iter(item.to_dict().items())) == ("kind", cls.kind)
