@@ -30,8 +30,11 @@ processes' utime+stime from /proc). Then the targets, pass/fail:
 - at 25 %: every run arrives, 0 stale stops, control p99 <= 50 ms;
 - at 100 %: control p99 <= 10 ms and loop stalls <= 20 ms.
 
-The machine's load (``os.getloadavg``) before and after is part of the report: the quota is a
-ceiling, not a reservation -- on a busy machine a run may get less. The cgroups it makes are
+The machine's load (``os.getloadavg``) before and after is part of the report. A quota alone is
+a ceiling, not a reservation: on a busy machine a run would get less, and the figures would
+measure the machine. So the cgroup also gets the scheduler's largest weight (v1 ``cpu.shares``
+262144, v2 ``cpu.weight`` 10000): the run gets its quota first, as rfhoming would on a robot
+computer whose other nodes have the rest (``--no-reserve`` leaves the default weight). The cgroups it makes are
 removed when it ends, on Ctrl-C and on SIGTERM too.
 
     python bench/budget_bench.py --json                       # everything, ~25 min
@@ -74,8 +77,9 @@ class Quota:
 
     mechanism = ""
 
-    def __init__(self, percent: float) -> None:
+    def __init__(self, percent: float, reserve: bool = True) -> None:
         self.percent = percent
+        self.reserve = reserve  # the most weight the scheduler gives: the quota is then also a reservation
 
     def admit(self, proc: subprocess.Popen) -> None:
         """Put the just-started worker (and so every child it starts later) in the quota."""
@@ -91,13 +95,15 @@ class CgroupV1(Quota):
     mechanism = "cgroup-v1"
     CPU, ACCT = Path("/sys/fs/cgroup/cpu"), Path("/sys/fs/cgroup/cpuacct")
 
-    def __init__(self, percent: float) -> None:
-        super().__init__(percent)
+    def __init__(self, percent: float, reserve: bool = True) -> None:
+        super().__init__(percent, reserve)
         self.dirs = [self.CPU / NAME] + ([self.ACCT / NAME] if self.ACCT.resolve() != self.CPU.resolve() else [])
         for d in self.dirs:
             d.mkdir()
         (self.dirs[0] / "cpu.cfs_period_us").write_text(str(PERIOD_US))
         (self.dirs[0] / "cpu.cfs_quota_us").write_text(str(round(PERIOD_US * percent / 100)))
+        if reserve:
+            (self.dirs[0] / "cpu.shares").write_text("262144")  # v1's largest
 
     @classmethod
     def usable(cls) -> bool:
@@ -117,8 +123,8 @@ class CgroupV1(Quota):
 class CgroupV2(Quota):
     mechanism = "cgroup-v2"
 
-    def __init__(self, percent: float) -> None:
-        super().__init__(percent)
+    def __init__(self, percent: float, reserve: bool = True) -> None:
+        super().__init__(percent, reserve)
         root = self.root()
         assert root is not None
         if "cpu" not in (root / "cgroup.subtree_control").read_text().split():
@@ -126,6 +132,8 @@ class CgroupV2(Quota):
         self.dirs = [root / NAME]
         self.dirs[0].mkdir()
         (self.dirs[0] / "cpu.max").write_text(f"{round(PERIOD_US * percent / 100)} {PERIOD_US}")
+        if reserve:
+            (self.dirs[0] / "cpu.weight").write_text("10000")  # v2's largest
 
     @staticmethod
     def root() -> Path | None:
@@ -156,8 +164,8 @@ class Duty(Quota):
 
     mechanism = "duty"
 
-    def __init__(self, percent: float) -> None:
-        super().__init__(percent)
+    def __init__(self, percent: float, reserve: bool = True) -> None:
+        super().__init__(percent, reserve)  # no weight to give: the duty cycle is not a reservation
         self.stop = threading.Event()
         self.thread: threading.Thread | None = None
 
@@ -314,8 +322,9 @@ def _start_kit_home(seed: int, truth: Path, out: Path) -> tuple[subprocess.Popen
 # ---------------------------------------------------------------- the bench (parent)
 
 
-def run_one(run: str, percent: float, kind: type[Quota], seed: int, out: Path) -> dict[str, Any]:
-    quota = kind(percent)
+def run_one(run: str, percent: float, kind: type[Quota], seed: int, out: Path, reserve: bool = True
+            ) -> dict[str, Any]:
+    quota = kind(percent, reserve)
     try:
         cmd = [sys.executable, __file__, "--worker", run, "--seed", str(seed), "--out", str(out)]
         if quota.usage_file() is not None:
@@ -395,6 +404,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quotas", default="25,100", help="CPU quotas in %% of one core (default 25,100)")
     p.add_argument("--mechanism", choices=["auto", "cgroup-v1", "cgroup-v2", "duty"], default="auto",
                    help="how the quota is held (default auto: cgroup v2 with cpu, else v1, else duty)")
+    p.add_argument("--no-reserve", dest="reserve", action="store_false",
+                   help="leave the cgroup the default scheduler weight (by default it gets the largest, so "
+                        "that other work on this machine does not take its quota)")
     p.add_argument("--seed", type=int, default=1, help="the worlds' seed (default 1)")
     p.add_argument("--out", type=Path, help="keep each run's capture, run log and truth here (default: a "
                    "temporary folder, removed)")
@@ -432,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
         for q in quotas:
             for run in runs:
                 print(f"[budget] {run} at {q:g} % of one core ({kind.mechanism}) ...", file=sys.stderr, flush=True)
-                row = run_one(run, q, kind, args.seed, out / f"{q:g}" / run.replace("/", "-"))
+                row = run_one(run, q, kind, args.seed, out / f"{q:g}" / run.replace("/", "-"), args.reserve)
                 row["verdict"] = verdict(row)
                 print(f"[budget]   {json.dumps({k: v for k, v in row.items() if k != 'verdict'})}",
                       file=sys.stderr, flush=True)
@@ -448,7 +460,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if args.out is None:
             shutil.rmtree(out, ignore_errors=True)
-    report = {"mechanism": kind.mechanism, "period_us": PERIOD_US if kind is not Duty else DUTY_PERIOD_S * 1e6,
+    report = {"mechanism": kind.mechanism, "reserved": args.reserve and kind is not Duty, "period_us": PERIOD_US if kind is not Duty else DUTY_PERIOD_S * 1e6,
               "targets": {f"{q}%": t for q, t in TARGETS.items()}, "seed": args.seed,
               "loadavg_before": [round(x, 2) for x in load0],
               "loadavg_after": [round(x, 2) for x in os.getloadavg()], "cpus": os.cpu_count(),

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import time
 from collections.abc import Iterator
@@ -28,6 +29,7 @@ log = logging.getLogger(__name__)
 FLUSH_INTERVAL = 1.0
 DISCONNECTED = "disconnected"
 SNIFFED = "sniffed"  # bytes seen while the protocol was sniffed: in the file, not for the driver
+NOTE = "rfhoming-note"  # what the host did on the wall clock that a replay must repeat: not for the driver
 
 
 class CaptureWriter:
@@ -93,6 +95,18 @@ class CaptureWriter:
                 self._file.write(pcapng.packet(iface, t, data, flag, self._comments.pop(port, "")))
             self.packets += 1
             self.t_last = t
+        self._schedule_flush()
+
+    def note(self, port: str, t: float, record: dict[str, Any]) -> None:
+        """A fact of the run that its bytes cannot show (a plan that took effect late, on the
+        wall clock), on ``port``'s interface, for a replay to repeat."""
+        if self._file.closed:
+            return
+        iface = self._ids.get(port)
+        if iface is None:
+            iface = self._interface(port)
+        with self._writing():
+            self._file.write(pcapng.packet(iface, t, json.dumps(record).encode(), pcapng.OUTBOUND, NOTE))
         self._schedule_flush()
 
     @contextlib.contextmanager

@@ -13,13 +13,14 @@ replayed host did not do what the live one did.
 from __future__ import annotations
 
 import asyncio
+import json
 import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from rfhoming.host.capture import DISCONNECTED, SNIFFED, parse_description
+from rfhoming.host.capture import DISCONNECTED, NOTE, SNIFFED, parse_description
 from rfhoming.host.ports import Chunk, Disconnected, EndOfInput, Tap
 from rfhoming.protocol import devices, pcapng
 
@@ -199,7 +200,8 @@ def load_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatErr
     """Interfaces, packets per interface, and the size of a torn tail (0 if the file is whole).
 
     The packets are those the live drivers handled: bytes recorded while a port's protocol was
-    sniffed (comment ``sniffed``) are in the file for the record, not replayed.
+    sniffed (comment ``sniffed``) and the host's notes (:func:`notes`) are in the file for the
+    record, not replayed.
 
     A malformed capture raises :class:`~rfhoming.protocol.pcapng.CaptureFormatError` (offset and
     problem). Given ``partial``, the error goes to it instead and everything before the bad block
@@ -225,9 +227,19 @@ def read_capture(path: Path | str, *, partial: Callable[[pcapng.CaptureFormatErr
         packets, torn = [i for i in exc.items if isinstance(i, pcapng.Packet)], len(data) - exc.offset
     per: dict[int, list[pcapng.Packet]] = {i: [] for i in range(len(interfaces))}
     for p in packets:
-        if p.comment != SNIFFED:
+        if p.comment not in (SNIFFED, NOTE):
             per[p.interface_id].append(p)
     return interfaces, per, torn, reader.comments
+
+
+def notes(path: Path | str) -> list[dict[str, Any]]:
+    """The host's notes in a capture (:meth:`~host.capture.CaptureWriter.note`), in order."""
+    reader = pcapng.Reader()
+    try:
+        _, packets, _ = pcapng.read_sections(Path(path).read_bytes(), reader)
+    except pcapng.CaptureFormatError as exc:  # a torn capture: the notes before the tear
+        packets = [i for i in exc.items if isinstance(i, pcapng.Packet)]
+    return [json.loads(p.data) for p in packets if p.comment == NOTE]
 
 
 def describe(iface: pcapng.Interface) -> dict[str, Any]:

@@ -83,3 +83,25 @@ def test_brake_mode_events_say_each_change_once_across_a_base_reset(tmp_path: Pa
     assert not any(e.startswith("brake mode") for e in after_reset), said  # re-sent, but the mode did not change
     # stale until the first reading, fresh, stale, fresh: each change said once
     assert [e for e in said if e.startswith("brake mode")] == ["brake mode on", "brake mode off"] * 2, said
+
+
+async def test_the_garbage_collector_leaves_start_up_alone_during_a_run(monkeypatch) -> None:
+    """A full collection over start-up's objects (modules, maps, drivers) stalled the real-time
+    loop for tens of milliseconds: they are frozen while a run goes, and collectable after it."""
+    import gc
+
+    from test_homing import closed_loop_scenario
+
+    from rfhoming.host.homing import loop
+
+    frozen: list[int] = []
+    control = loop.HomingLoop._control
+
+    def watched(self, *args, **kwargs):
+        frozen.append(gc.get_freeze_count())
+        return control(self, *args, **kwargs)
+
+    monkeypatch.setattr(loop.HomingLoop, "_control", watched)
+    outcome, _, _ = await closed_loop_scenario("s0-open", 1)
+    assert outcome.arrived and frozen and min(frozen) > 10_000  # every control step: start-up frozen
+    assert gc.get_freeze_count() == 0  # and given back when the run ended

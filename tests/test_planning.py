@@ -87,14 +87,22 @@ def test_astar_goes_round_a_wall_through_the_door() -> None:
     assert lookahead(path, Pose(0, 0, 0), 1.0) != path[0]
 
 
-def test_turn_cost_prefers_straight_runs() -> None:
-    def turns(turn_cost: float) -> int:
-        grid = OccupancyGrid((0.0, 0.0), GridParams(resolution=0.2, size_m=10, turn_cost=turn_cost))
-        path = grid.plan((0.0, 0.0), (3.0, 3.0))
-        steps = [(round((b[0] - a[0]) / 0.2), round((b[1] - a[1]) / 0.2)) for a, b in zip(path, path[1:])]
-        return sum(1 for a, b in zip(steps, steps[1:]) if a != b)
+def test_paths_across_open_ground_are_straight_not_staircases() -> None:
+    """What the old search's turn penalty was for: a path across open ground follows the straight
+    line to the goal (within half a cell), not a staircase or an L a robot would wobble along."""
+    grid = OccupancyGrid((0.0, 0.0), GridParams(resolution=0.2, size_m=10))
+    for goal in ((3.0, 1.0), (-2.0, 3.7), (4.0, -0.6)):
+        path = np.array(grid.plan((0.0, 0.0), goal))
+        (ax, ay), (dx, dy) = path[0], path[-1] - path[0]
+        off = np.abs(dx * (path[:, 1] - ay) - dy * (path[:, 0] - ax)) / math.hypot(dx, dy)
+        assert off.max() <= 0.1, goal
 
-    assert turns(10.0) == 1 and turns(0.0) >= 1
+
+def test_a_plan_made_a_moment_ago_is_followed_ahead_of_the_robot() -> None:
+    """The loop takes a plan some robot time after it asked: the path starts behind the robot,
+    and the point to steer to is ahead of it, not the path's first point 1 m back."""
+    path = [(x / 10, 0.0) for x in range(0, 51)]
+    assert lookahead(path, Pose(1.5, 0.0, 0.0), 0.75) == (2.3, 0.0)
 
 
 def test_sectors_and_avoidance_rules() -> None:
@@ -113,6 +121,24 @@ def test_sectors_and_avoidance_rules() -> None:
     emergency = ObstacleAvoidance()
     emergency.on_scan(wall_scan(1.0))
     assert emergency.adjust(Decision(0.6, 0.0, (5, 0), False, "homing"), 0.0, emergency_only=True).v == 0.6
+
+
+def side_scan(right: float, beams: int = 181) -> Scan:
+    """Open ahead and to the left, something ``right`` metres away on the right (-90° to -40°)."""
+    angles = np.linspace(-math.pi / 2, math.pi / 2, beams)
+    return Scan(0.0, -math.pi / 2, math.pi / (beams - 1),
+                tuple(right if a < math.radians(-40) else None for a in angles))
+
+
+def test_a_turn_in_place_beside_an_obstacle_is_left_alone() -> None:
+    """A round base turning in place brings nothing nearer: the side rule steers only a robot
+    that drives forward (forbidding the turn wedged the house demo between a chair and a wall)."""
+    avoid = ObstacleAvoidance()
+    avoid.on_scan(side_scan(0.3))
+    turn = avoid.adjust(Decision(0.0, -1.2, (0, -5), False, "homing"), 0.0)
+    assert (turn.v, turn.w, turn.note) == (0.0, -1.2, "homing")  # toward the goal, behind on the right
+    drive = avoid.adjust(Decision(0.5, -0.2, (5, -1), False, "homing"), 0.1)
+    assert drive.w >= 0.5 and drive.note == "too close on the right"  # driving on: steer away
 
 
 @pytest.mark.slow

@@ -98,4 +98,5 @@ def test_a_ros2_robot_homes_through_dds_and_its_capture_replays(tmp_path: Path) 
     done = rfhoming("replay", str(tmp_path / "run.pcapng"), "--run", "--log", str(replay_log))
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout)["replay"] == {"diverged": 0, "unanswered": 0, "first_divergence": None}
-    assert replay_log.read_text().splitlines() == (tmp_path / "run.jsonl").read_text().splitlines()
+    live = [line for line in (tmp_path / "run.jsonl").read_text().splitlines() if '"kind": "stall"' not in line]
+    assert replay_log.read_text().splitlines() == live  # all but the live loop's stalls, which wall time made

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
+import time
 import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -30,11 +32,12 @@ from rfhoming.host.drivers.robot_base import BaseDriver
 from rfhoming.host.homing.anchors import AnchorsController
 from rfhoming.host.homing.config import Config, from_tables, to_tables
 from rfhoming.host.homing.loop import (
-    AoaController,
     HomingLoop,
     Outcome,
     RunLog,
 )
+from rfhoming.host.homing.planner import Planner
+from rfhoming.host.homing.s0_aoa import AoaController
 from rfhoming.host.homing.s1_dock import DockController
 from rfhoming.host.homing.s2_rss import RssController
 from rfhoming.host.homing.s3_trilat import TrilatController
@@ -42,7 +45,7 @@ from rfhoming.host.homing.types import Controller
 from rfhoming.host.ports import HostPort, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
-from rfhoming.host.replay import ReplayPort, Sequencer, read_capture
+from rfhoming.host.replay import ReplayPort, Sequencer, notes, read_capture
 from rfhoming.host.replay import describe as describe_interface
 from rfhoming.host.session import driver_class, names_of, recorded_kind, resolve, serve_driver
 from rfhoming.host.sink import Sink
@@ -74,7 +77,8 @@ def _anchors(config: Config, site: Site | None) -> Controller:
 
 
 METHODS: dict[str, Method] = {
-    "aoa": Method("S0: XPLR-AOA bearings and RSSI ranges", "aoa", lambda c, s: AoaController(c)),
+    "aoa": Method("S0: XPLR-AOA bearings and RSSI ranges", "aoa",
+                  lambda c, s: AoaController(c.s0, c.mounting.to_robot, c.calibration.model)),
     "dock": Method("S1: docking on the station's AoA/RSSI of the robot's tag", "aoa", lambda c, s: DockController(c.s1)),
     "rss": Method("S2: four dishes and a particle filter", "rss", lambda c, s: RssController(c.s2)),
     "trilat": Method("S3: trilateration on BLE beacons at known places", "ble", lambda c, s: TrilatController(c.trilat)),
@@ -115,6 +119,8 @@ class Homing:
     probe_baud: bool = False  # an XPLR-AOA sending garbage is probed at every documented rate
     baud: int | None = None  # defaults for specs that give none
     flow: str | None = None
+    planner: Planner | None = None  # the grid's path planner (host/homing/planner.py); None: libtcod's A*
+    plans_taken: dict[float, float] = field(default_factory=dict)  # a replay: when the live run's late plans took effect
 
 
 def sensor_role(plan: Homing) -> str | None:
@@ -287,7 +293,9 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
     and ``config`` replace the recorded ones (the replay then reports where it diverged). A replay
     runs on the recorded bytes, not the wall clock, so the wall-clock odometry watchdog is off
     (``Config.for_lockstep``): a loaded machine must not change it. A live run whose watchdog
-    fired replays with a divergence from that point: the capture holds the bytes, not their silence."""
+    fired replays with a divergence from that point: the capture holds the bytes, not their silence.
+    A plan that took effect late in the live run (on the wall clock) takes effect at the same
+    robot time in the replay: the capture notes when."""
     interfaces, packets, _torn, comments = read_capture(path)
     record = _record(path, comments)
     specs: dict[str, list[str | None]] = {}
@@ -309,11 +317,13 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
         site = sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record["site"] else None
     except tomllib.TOMLDecodeError as exc:
         raise CaptureFormatError(0, f"{path}: its run record's site file is not TOML ({exc})") from None
+    taken = {n["plan_asked"]: math.inf if n["plan_taken"] is None else n["plan_taken"]  # the last note of each
+             for n in notes(path) if "plan_asked" in n}
     return Homing(controller or record["controller"], roles,
                   (config if config is not None else from_tables(record["config"], f"{path}: the recorded config"))
                   .for_lockstep(),
                   site=site, tags=tuple(record["tags"]), choose_tag_s=record["choose_tag_s"],
-                  probe_baud=record["probe_baud"])
+                  probe_baud=record["probe_baud"], plans_taken=taken)
 
 
 RECORD_KEYS: dict[str, type | tuple[type, ...]] = {"controller": str, "config": dict, "tags": list, "choose_tag_s": (float, int, type(None)),
@@ -373,7 +383,10 @@ def build(plan: Homing) -> Assembled:
     runlog.listeners += [sink.on_runlog for sink in plan.sinks]
     for _, driver, _ in built:
         driver.listeners += [sink.on_item for sink in plan.sinks]
-    loop = HomingLoop(base, sensors, controller, plan.config, runlog, inputs)
+    loop = HomingLoop(base, sensors, controller, plan.config, runlog, inputs, plan.planner, plan.plans_taken)
+    if plan.capture is not None:
+        capture, port = plan.capture, base.port.name
+        loop.note = lambda record: capture.note(port, time.time(), record)
     for sink in plan.sinks:
         sink.watch(loop)
         sink.show_anchors(plan.config.trilat.anchors if plan.controller == "trilat" else {})

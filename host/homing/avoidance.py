@@ -12,7 +12,10 @@ our reconstruction:
   and steer to the freer side unless the homing command already does (a turn in place is left
   alone: steering it away from something ahead it does not approach held the robot facing a
   sofa, turning back and forth, while the goal lay behind it);
-- a side closer than sideObsThreshold: turn away from it.
+- a side closer than sideObsThreshold while driving forward: turn away from it. A turn in
+  place is left alone here too: it brings no part of the round base nearer, and forbidding
+  it wedged the robot between a chair and a wall, turning away and back for two minutes while
+  the goal lay behind it.
 Once avoiding, the chosen side is kept until the centre has been clear for ``release_s``
 (robot time): a reactive rule that re-chooses every step dithers in front of a wall between
 the robot and its goal.
@@ -97,8 +100,8 @@ class ObstacleAvoidance:
             self._clear_since = t if self._clear_since is None else self._clear_since
             if t - self._clear_since >= p.release_s:
                 self._side = 0.0
-        if s.left < p.side_threshold:
+        if v > 0.0 and s.left < p.side_threshold:
             w, note = min(w, -p.w_turn / 2), "too close on the left"
-        if s.right < p.side_threshold:
+        if v > 0.0 and s.right < p.side_threshold:
             w, note = max(w, p.w_turn / 2), "too close on the right"
         return Decision(v, w, decision.goal, False, note)

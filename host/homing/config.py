@@ -82,7 +82,14 @@ class LoopSettings:
 @dataclass(frozen=True)
 class PlanSettings:
     enabled: bool = setting(True)  # plan on an occupancy grid whenever the base sends range scans
-    replan_s: float = setting(1.0, low=0, above=True, high=60, unit=S)
+    replan_s: float = setting(1.0, low=0, above=True, high=60, unit=S)  # at most one plan asked for this often
+    # a plan asked for at robot time t takes effect at t + latency_s, whatever the wall clock did
+    latency_s: float = setting(0.1, low=0, high=10, unit=S)
+    goal_moved_m: float = setting(0.5, low=0, high=100, unit=M)  # re-plan when the goal moved this far
+    strayed_m: float = setting(0.6, low=0, above=True, high=100, unit=M)  # ... or the robot is this far off the path
+    refresh_s: float = setting(5.0, low=0, above=True, high=600, unit=S)  # ... or the map changed and this long passed
+    # wait for a plan not done by its robot time (lockstep, replays); live, control goes on on the old path
+    wait: bool = setting(False)
     lookahead_m: float = setting(0.8, low=0, above=True, high=10, unit=M)
     integrate_s: float = setting(0.3, low=0, high=60, unit=S)  # add a scan to the map at most this often
     grid: GridParams = field(default_factory=GridParams)
@@ -108,8 +115,10 @@ class Config:
     def for_lockstep(self) -> Config:
         """This config for a simulation whose world waits for the host (lockstep). There wall
         time means nothing, so the wall-clock odometry check is off: a loaded machine must not
-        change a run. Every robot-time fail-safe stays."""
-        return replace(self, loop=replace(self.loop, odometry_wall_timeout_s=math.inf))
+        change a run. Every robot-time fail-safe stays, and the loop waits for a plan that is not
+        done by its robot time."""
+        return replace(self, loop=replace(self.loop, odometry_wall_timeout_s=math.inf),
+                       plan=replace(self.plan, wait=True))
 
 
 SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params,
@@ -254,7 +263,12 @@ release_s = 1.5          # keep the chosen side until the centre is clear this l
 
 [plan]                   # occupancy grid + A* (S2's full system), when the base sends scans
 enabled = true
-replan_s = 1.0
+replan_s = 1.0           # at most one plan asked for this often (robot time)
+latency_s = 0.1          # a plan asked for at robot time t takes effect at t + latency_s
+goal_moved_m = 0.5       # re-plan when the goal moved this far since the last plan,
+strayed_m = 0.6          # ... or the robot is this far from its path,
+refresh_s = 5.0          # ... or the map changed and this long passed
+wait = false             # wait for a late plan (lockstep, replays); live, go on on the old path
 lookahead_m = 0.8        # steer to the path point this far ahead
 integrate_s = 0.3        # add a scan to the map at most this often
 

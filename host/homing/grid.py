@@ -1,4 +1,4 @@
-"""Occupancy grid from range scans, and A* on it (S2's full system; also S0 in a house).
+"""Occupancy grid from range scans, and the costs a path is planned on (S2's full system; also S0 in a house).
 
 Grid: cells of ``resolution`` m around the start, each unknown, free or occupied. A scan marks
 the cells along each beam free and the cell it ends in occupied (hit counts beat miss counts,
@@ -6,24 +6,22 @@ so a wall seen once is not erased by one grazing beam).
 
 Costs (S2): occupied 100, free 1, unknown 2; occupied cells are first grown by the robot's
 radius (a 0.25 m robot cannot use a cell beside a wall), then each cell's cost is summed with
-its four neighbours' (S2's inflation). A*: 4-connected, Manhattan heuristic, plus
-``turn_cost`` per 90° change of direction, so plans prefer straight runs.
+its four neighbours' (S2's inflation). Paths: host/homing/planner.py.
 """
 
 from __future__ import annotations
 
-import heapq
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from rfhoming.host.drivers.robot_base import Scan
+from rfhoming.host.homing.planner import Planner, TcodPlanner
 from rfhoming.host.homing.schema import M, setting
 from rfhoming.host.homing.types import Pose
 
 UNKNOWN_COST, FREE_COST, OCCUPIED_COST = 2, 1, 100
-MOVES = ((1, 0), (0, 1), (-1, 0), (0, -1))
 
 
 @dataclass(frozen=True)
@@ -31,7 +29,6 @@ class GridParams:
     resolution: float = setting(0.15, low=0.01, high=1, unit=M)
     size_m: float = setting(40.0, low=0, above=True, high=10000, unit=M)
     robot_radius: float = setting(0.3, low=0, high=5, unit=M)
-    turn_cost: float = setting(4.0, low=0, high=1000, unit="(cost of a turn, in cells)")
     max_range: float = setting(7.5, low=0, above=True, high=100, unit=M)  # beams beyond this mark free space only
 
 
@@ -66,8 +63,12 @@ class OccupancyGrid:
         xs = ((pose.x + steps * cos - self.x0) / r).astype(int)
         ys = ((pose.y + steps * sin - self.y0) / r).astype(int)
         along = (steps < reach[:, None] - r / 2) & (xs >= 0) & (xs < n) & (ys >= 0) & (ys < n)
-        beam = np.broadcast_to(np.arange(len(ranges))[:, None], xs.shape)
-        crossed = np.unique(beam[along] * (n * n) + xs[along] * n + ys[along]) % (n * n)
+        key = xs * n + ys
+        # a straight beam crosses each cell in one run of samples: a sample in another cell than
+        # the one before it is a new cell (no sort, where np.unique took a fifth of a house run)
+        new = np.ones(key.shape, bool)
+        new[:, 1:] = key[:, 1:] != key[:, :-1]
+        crossed = key[along & new]
         self.misses += np.bincount(crossed, minlength=n * n).reshape(n, n).astype(np.int32)
         hit = np.isfinite(ranges) & (ranges <= p.max_range)
         if hit.any():
@@ -80,6 +81,16 @@ class OccupancyGrid:
 
     def known(self) -> np.ndarray:
         return (self.hits + self.misses) > 0
+
+    def blocked(self, cells: list[tuple[int, int]]) -> np.ndarray:
+        """Whether each cell is within the robot's radius of an occupied one (the costs' grown
+        obstacles), looked up around those cells alone: cheap enough after every scan."""
+        grow = int(math.ceil(self.params.robot_radius / self.params.resolution))
+        offsets = np.array([(dx, dy) for dx in range(-grow, grow + 1) for dy in range(-grow, grow + 1)
+                            if dx * dx + dy * dy <= grow * grow])
+        at = np.asarray(cells, dtype=np.intp).reshape(-1, 1, 2) + offsets[None, :, :]
+        xs, ys = at[..., 0] % self.n, at[..., 1] % self.n  # wrapped, as the costs' np.roll grows them
+        return np.asarray((self.hits[xs, ys] > self.misses[xs, ys]).any(axis=1))
 
     def costs(self) -> np.ndarray:
         occ = self.occupied()
@@ -96,45 +107,22 @@ class OccupancyGrid:
                 summed += np.roll(base, shift, axis=axis)
         return summed
 
-    def plan(self, start: tuple[float, float], goal: tuple[float, float], max_expansions: int = 200_000
+    def plan(self, start: tuple[float, float], goal: tuple[float, float], planner: Planner | None = None
              ) -> list[tuple[float, float]] | None:
-        """A* from start to goal (world coordinates); the path as cell centres, or None."""
-        cost = self.costs()
-        s, g = self.cell(*start), self.cell(*goal)
-        turn = self.params.turn_cost
-        open_: list[tuple[float, float, tuple[int, int], int]] = [(0.0, 0.0, s, -1)]
-        best = {(s, -1): 0.0}
-        parent: dict[tuple[tuple[int, int], int], tuple[tuple[int, int], int]] = {}
-        expansions = 0
-        while open_ and expansions < max_expansions:
-            _, g_cost, cell, heading = heapq.heappop(open_)
-            if cell == g:
-                path, key = [cell], (cell, heading)
-                while key in parent:
-                    key = parent[key]
-                    path.append(key[0])
-                return [self.centre(c) for c in reversed(path)]
-            if g_cost > best.get((cell, heading), math.inf):
-                continue
-            expansions += 1
-            for d, (dx, dy) in enumerate(MOVES):
-                nx, ny = cell[0] + dx, cell[1] + dy
-                if not (0 <= nx < self.n and 0 <= ny < self.n):
-                    continue
-                step = cost[nx, ny] + (turn if heading not in (-1, d) else 0.0)
-                new = g_cost + step
-                key = ((nx, ny), d)
-                if new < best.get(key, math.inf):
-                    best[key] = new
-                    parent[key] = (cell, heading)
-                    h = 5 * (abs(g[0] - nx) + abs(g[1] - ny))  # Manhattan × the least summed cell cost
-                    heapq.heappush(open_, (new + h, new, (nx, ny), d))
-        return None
+        """A path from start to goal (world coordinates) as cell centres, or None; here and now
+        (the homing loop plans in a worker thread instead: host/homing/planner.py)."""
+        cells = (planner or TcodPlanner())(self.costs(), self.cell(*start), self.cell(*goal))
+        return None if cells is None else [self.centre(c) for c in cells]
 
 
 def lookahead(path: list[tuple[float, float]], pose: Pose, distance: float = 1.0) -> tuple[float, float]:
-    """The first path point at least ``distance`` from the robot (the last one if none is)."""
-    for point in path:
-        if math.hypot(point[0] - pose.x, point[1] - pose.y) >= distance:
-            return point
-    return path[-1]
+    """The first path point at least ``distance`` from the robot after the point nearest it
+    (the last one if none is): a plan made a moment ago starts behind the robot."""
+    return path[_ahead(path, pose, distance)]
+
+
+def _ahead(path: list[tuple[float, float]], pose: Pose, distance: float) -> int:
+    d = np.hypot(np.array([p[0] for p in path]) - pose.x, np.array([p[1] for p in path]) - pose.y)
+    nearest = int(np.argmin(d))
+    beyond = np.flatnonzero(d[nearest:] >= distance)
+    return nearest + int(beyond[0]) if len(beyond) else len(path) - 1

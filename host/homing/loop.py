@@ -30,6 +30,7 @@ byte-in -> command-out latency of every command.
 from __future__ import annotations
 
 import asyncio
+import gc
 import contextlib
 import json
 import logging
@@ -41,7 +42,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import IO, Any
 
-from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host import outputs
 from rfhoming.host.losses import with_losses
@@ -49,8 +49,9 @@ from rfhoming.host.drivers.robot_base import BaseDriver, Pose2D, Scan
 from rfhoming.host.homing.avoidance import ObstacleAvoidance
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.grid import OccupancyGrid, lookahead
-from rfhoming.host.homing.s0_aoa import S0Homing
-from rfhoming.host.homing.types import Controller, ControllerDefaults, Decision, Pose
+from rfhoming.host.homing.planner import Planner, PlanScheduler, TcodPlanner
+from rfhoming.host.homing.types import Controller, Decision, Pose
+from rfhoming.host.loopstall import StallMonitor
 from rfhoming.host.ports import PortError
 from rfhoming.protocol import devices
 
@@ -70,6 +71,9 @@ class Outcome:
     stale_stops: int
     latency_ms: list[float] = field(default_factory=list)
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # each driver's health at the end, by kind
+    stalls: dict[str, Any] = field(default_factory=dict)  # the event loop's (host/loopstall.py)
+    plans: int = 0
+    plans_late: int = 0
 
     def summary(self) -> dict[str, Any]:
         lat = sorted(self.latency_ms)
@@ -78,7 +82,10 @@ class Outcome:
                 "pose": None if self.pose is None else [round(v, 4) for v in self.pose],
                 "goal": None if self.goal is None else [round(v, 4) for v in self.goal],
                 "commands": self.commands, "stale_stops": self.stale_stops,
-                "latency_ms_p50": pick(0.5), "latency_ms_p99": pick(0.99)}
+                "latency_ms_p50": pick(0.5), "latency_ms_p99": pick(0.99),
+                "loop_stall_ms_max": self.stalls.get("loop_stall_ms_max"),
+                "loop_stall_ms_p99": self.stalls.get("loop_stall_ms_p99"),
+                **({"plans": self.plans, "plans_late": self.plans_late} if self.plans else {})}
 
 
 class RunLog:
@@ -110,39 +117,6 @@ class RunLog:
             listener(record)
 
 
-class AoaController(ControllerDefaults):
-    """S0 behind the loop's interface: board azimuth -> θs (mounting), RSSI -> distance."""
-
-    source = "aoa"
-
-    def __init__(self, config: Config) -> None:
-        self.config = config
-        self.s0 = S0Homing(config.s0)
-
-    @property
-    def phase(self) -> str:
-        return self.s0.phase
-
-    @property
-    def reported(self) -> Any:
-        return self.s0.reported
-
-    def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
-        if not isinstance(item, TimedAngle):
-            return None
-        event = item.event
-        theta_s = self.config.mounting.to_robot(event.azimuth)
-        distance = float(self.config.calibration.model.distance(event.rssi1))
-        self.s0.on_reading(t, pose, theta_s, distance)
-        return {"azimuth": event.azimuth, "rssi": event.rssi1, "theta_s": round(theta_s, 4), "distance": round(distance, 3)}
-
-    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
-        return self.s0.decide(pose, steer_to)
-
-    def estimate(self) -> dict[str, Any]:
-        return {"goal": _round(self.s0.reported), "g_p": _round(self.s0.g_p), "g_v": _round(self.s0.g_v)}
-
-
 class HomingLoop:
     """The base plus its sensor drivers (one, or several fixed anchors) and a controller.
 
@@ -151,7 +125,8 @@ class HomingLoop:
     depend on the bytes alone and a replay reproduces them exactly."""
 
     def __init__(self, base: BaseDriver, sensors: list[Driver], controller: Controller, config: Config,
-                 runlog: RunLog, inputs: BoundedStream[Any]) -> None:
+                 runlog: RunLog, inputs: BoundedStream[Any], planner: Planner | None = None,
+                 plans_taken: dict[float, float] | None = None) -> None:
         assert all(d.out is inputs for d in (base, *sensors)), "every driver hands its items to the loop's stream"
         self.base, self.sensors, self.config = base, sensors, config
         self.controller = controller
@@ -166,9 +141,19 @@ class HomingLoop:
         self._planning = config.plan.enabled and controller.uses_planner
         self.grid: OccupancyGrid | None = None  # built from the first scan, if the base sends any
         self._path: list[tuple[float, float]] | None = None
+        self._path_cells: list[tuple[int, int]] = []
+        self._path_goal: tuple[float, float] | None = None
+        self._path_blocked = 0  # path cells near an obstacle when it was planned
+        self._planned_map = -1  # the map's version the path was planned on
+        self._map_version = 0  # scans integrated so far
         self._next_plan = 0.0
+        self._last_request = -math.inf
         self._next_integrate = 0.0
+        self.scheduler = PlanScheduler(planner or TcodPlanner(), config.plan.latency_s, config.plan.wait, plans_taken)
+        self.note: Callable[[dict[str, Any]], None] | None = None  # a run's capture keeps what replays must repeat
         self.plans = 0
+        self.plans_late = 0
+        self.stalls = StallMonitor(on_stall=self._on_stall)
         self.intervals: deque[float] = deque(maxlen=20)  # robot-time gaps between readings
         self._braking: bool | None = None  # base brake mode as last sent; None: unknown, send it
         self._brake_logged = False  # brake mode as the run log last said
@@ -207,17 +192,38 @@ class HomingLoop:
         return min(a * (math.sqrt(lag * lag + 2 * cfg.stop_within_m / a) - lag), cfg.stop_within_m / (lag + ramp / 2))
 
     async def run(self) -> Outcome:
+        # start-up's garbage goes now, not as a pause mid-run, and what start-up built (modules,
+        # drivers, maps) is left out of the collections during the run: a full collection
+        # over it took tens of milliseconds, a stall the control period feels
+        gc.collect()
+        gc.freeze()
         tasks = [asyncio.create_task(self.base.run())] + [asyncio.create_task(s.run()) for s in self.sensors]
         self._tasks = tasks
         try:
-            async with self.base:
+            async with self.stalls as stalls, self.base:
                 await self._base_connected(tasks[0])
                 self.base.stop()  # a known state, and the emulator's lockstep gets its first answer
-                return await self._loop()
+                outcome = await self._loop()
+                outcome.stalls = stalls.summary()
+                if self._wall_time_matters():
+                    self.log.write("stall", self.t, **outcome.stalls, over_threshold=stalls.over_count)
+                return outcome
         finally:
+            gc.unfreeze()  # collectable again once the run ends (a campaign worker runs many)
+            self.scheduler.close()
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
+
+    def _wall_time_matters(self) -> bool:
+        """False in lockstep and replays (the world waits for the host; a stall delays nothing):
+        their run logs hold what the robot did alone, the same on any machine."""
+        return not math.isinf(self.config.loop.odometry_wall_timeout_s)
+
+    def _on_stall(self, took_ms: float, ran: str) -> None:
+        if self._wall_time_matters():
+            log.warning("event loop blocked %.0f ms by %s", took_ms, ran)
+            self.log.write("stall", self.t, ms=round(took_ms, 1), ran=ran)
 
     def _raise_if_a_driver_died(self) -> None:
         """A driver whose task ended with an error ends the run with it: nothing else may be
@@ -283,6 +289,7 @@ class HomingLoop:
             if self.grid is None:
                 self.grid = OccupancyGrid((self.pose.x, self.pose.y), self.config.plan.grid)
             self.grid.integrate(self.pose, scan)
+            self._map_version += 1
 
     def _on_reading(self, item: Any) -> None:
         """A sensor reading, on the robot time of the latest odometry."""
@@ -378,20 +385,74 @@ class HomingLoop:
         return max(cfg.stale_timeout_s, cfg.stale_intervals * statistics.median(self.intervals))
 
     def _waypoint(self, t: float, pose: Pose) -> tuple[float, float] | None:
-        """With a map: re-plan to the current goal every replan_s, steer to a point ahead."""
+        """With a map: take a plan whose robot time has come, ask for one when the map or the
+        goal changed materially, and steer to a point ahead on the path."""
         goal = self.controller.reported
         if self.grid is None or goal is None or self.controller.phase != "homing":
             return None
         cfg = self.config.plan
-        if t >= self._next_plan or self._path is None:
-            self._next_plan = t + cfg.replan_s
-            self._path = self.grid.plan((pose.x, pose.y), (float(goal[0]), float(goal[1])))
-            self.plans += 1
-            if self._path is not None:
-                self.log.write("plan", t, cells=len(self._path), goal=_round(goal))
+        self._take_plan(t)
+        goal_xy = (float(goal[0]), float(goal[1]))
+        if self.scheduler.pending is None and t + 1e-9 >= self._next_plan:
+            why = self._replan_why(t, pose, goal_xy)
+            if why is not None:
+                self._next_plan = t + cfg.replan_s
+                self._last_request = t
+                self.scheduler.request(t, self.grid.costs(), self.grid.cell(pose.x, pose.y), self.grid.cell(*goal_xy),
+                                       goal_xy, self._map_version)
+                self.plans += 1
+                self.log.write("event", t, what="plan asked", why=why, due=round(t + cfg.latency_s, 4))
         if not self._path:
             return None
         return lookahead(self._path, pose, cfg.lookahead_m)
+
+    def _replan_why(self, t: float, pose: Pose, goal: tuple[float, float]) -> str | None:
+        """Why the path no longer does, or None: a material change, not every new scan."""
+        cfg, grid = self.config.plan, self.grid
+        assert grid is not None
+        if self._path_goal is None:
+            return "first"
+        if not self._path:
+            return "no path yet"
+        if math.dist(goal, self._path_goal) >= cfg.goal_moved_m:
+            return "goal moved"
+        if self._path_cells and self._planned_map != self._map_version:
+            if int(grid.blocked(self._path_cells).sum()) > self._path_blocked:
+                return "obstacle on the path"
+            if t - self._last_request >= cfg.refresh_s:
+                return "map grew"
+        if self._path and min(math.dist(p, (pose.x, pose.y)) for p in self._path) > cfg.strayed_m:
+            return "off the path"
+        return None
+
+    def _take_plan(self, t: float) -> None:
+        """The pending plan, at its robot time: its path, or (live, not done yet) late. In
+        lockstep and replays (``plan.wait``) this waits for it, blocking: an in-process world
+        steps on while the host's loop is idle, so the loop must not yield here."""
+        request = self.scheduler.due(t)
+        if request is None:
+            return
+        if not request.ready(t) and (not self.scheduler.wait or request.taken_at is not None):
+            if not request.late:
+                request.late = True
+                self.plans_late += 1
+                log.warning("plan asked at %.2f s not done by its robot time %.2f s: steering on the old path",
+                            request.t, request.due)
+                self.log.write("event", t, what="plan late", asked=round(request.t, 4))
+                if self.note is not None:  # not taken yet: a run that ends now never took it
+                    self.note({"plan_asked": round(request.t, 4), "plan_taken": None})
+            return
+        self.scheduler.pending = None
+        cells = request.future.result()
+        assert self.grid is not None
+        self._path_goal, self._planned_map = request.goal, request.map_version
+        self._path_cells = cells or []
+        self._path_blocked = int(self.grid.blocked(self._path_cells).sum()) if cells else 0
+        self._path = None if cells is None else [self.grid.centre(c) for c in cells]
+        self.log.write("plan", t, cells=len(cells or ()), goal=_round(request.goal), asked=round(request.t, 4),
+                       **({"late": True} if request.late else {}))
+        if request.late and self.note is not None:  # when, on the wall clock: the replay takes it then too
+            self.note({"plan_asked": round(request.t, 4), "plan_taken": round(t, 4)})
 
     def _age_factor(self, age: float) -> float:
         """1 for data younger than slow_after_s, falling linearly to 0 at the stale timeout."""
@@ -423,7 +484,7 @@ class HomingLoop:
         links = {(d.kind if kinds.count(d.kind) == 1 else f"{d.kind}:{d.port.name}"): with_losses(d.health())
                  for d in drivers}
         return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, list(self.latency_ms),
-                       links)
+                       links, plans=self.plans, plans_late=self.plans_late)
 
 
 def _round(v: Any) -> list[float] | None:

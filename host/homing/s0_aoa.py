@@ -7,8 +7,9 @@ Estimates:
 - vector goal: g = r + d(cos α, sin α), α = θr + θs; reported as the time-weighted mean of the
   last 20 raw vector goals, w_k = exp(−(k−1)/τ), τ = 10 readings (the paper leaves τ open;
   at the board's 50 Hz that is 0.2 s, and the weights still reach across the whole buffer).
-- parallax goal: the first two readings whose rays cross well (baseline ≥ 0.3 m, ≥ 3° apart)
-  give it; afterwards each reading moves it onto its ray by k (Kohonen update). The paper's
+- parallax goal: the first two readings whose rays cross well (baseline ≥ 0.3 m, ≥ 3° apart,
+  and, ours, at least one baseline ahead of both sensors: rays that meet at a sensor are bearing
+  noise, and a goal on the robot would fold every later reading onto the wrong side) give it; afterwards each reading moves it onto its ray by k (Kohonen update). The paper's
   k = 0.8 is per reading of its simulation; at 50 Hz, k = 0.3 per reading moves as far in 0.1 s
   (1 − 0.7⁵ ≈ 0.83) and averages five times as many rays.
 - hybrid: err = |g_p − g_v| / (½(d_p + d_v)); below 0.3 report g_p; otherwise z-test the new
@@ -47,13 +48,17 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
+from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update
 from rfhoming.host.estimation.fixed import wrap_rad
+from rfhoming.host.estimation.ranging import LogDistance
 from rfhoming.host.estimation.ray_fusion import RayRangeFusion
 from rfhoming.host.homing.schema import DEG, M_S, RAD_S, M, S, setting
-from rfhoming.host.homing.types import Decision, Pose, velocity_law
+from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose, velocity_law
 
 
 @dataclass(frozen=True)
@@ -129,9 +134,9 @@ class S0Homing:
         return min((front, back), key=lambda a: abs(wrap_rad(a - reference)))
 
     def _goal_bearing(self, pose: Pose) -> float | None:
-        goal = self.reported if self.reported is not None else None
-        if goal is None:
-            return self._last_theta_world
+        goal = self.reported
+        if goal is None or math.hypot(goal[0] - pose.x, goal[1] - pose.y) < self.params.min_baseline:
+            return self._last_theta_world  # a goal on the robot tells no bearing
         return math.atan2(goal[1] - pose.y, goal[0] - pose.x)
 
     def on_reading(self, t: float, pose: Pose, theta_s: float, distance: float) -> None:
@@ -221,6 +226,10 @@ class S0Homing:
         except Degenerate:
             self._first = _Ray(pose.x, pose.y, alpha)  # slide the baseline forward
             return
+        if min(math.dist(point, (first.x, first.y)), math.dist(point, (pose.x, pose.y))) < p.min_baseline:
+            # rays that meet at a sensor: bearing noise, not parallax (the goal would sit on the robot)
+            self._first = _Ray(pose.x, pose.y, alpha)
+            return
         self.g_p = point
 
     def _hybrid(self, pose: Pose) -> None:
@@ -285,3 +294,41 @@ def _plus(sums: tuple[float, float, float, float], x: float, y: float) -> tuple[
 
 def _minus(sums: tuple[float, float, float, float], x: float, y: float) -> tuple[float, float, float, float]:
     return sums[0] - x, sums[1] - y, sums[2] - x * x, sums[3] - y * y
+
+
+class AoaController(ControllerDefaults):
+    """S0 behind the loop's interface: board azimuth -> θs (the mounting's ``to_robot``), RSSI ->
+    distance (the calibration's model)."""
+
+    source = "aoa"
+
+    def __init__(self, params: S0Params, to_robot: Callable[[float], float], ranging: LogDistance) -> None:
+        self.to_robot, self.ranging = to_robot, ranging
+        self.s0 = S0Homing(params)
+
+    @property
+    def phase(self) -> str:
+        return self.s0.phase
+
+    @property
+    def reported(self) -> Any:
+        return self.s0.reported
+
+    def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
+        if not isinstance(item, TimedAngle):
+            return None
+        event = item.event
+        theta_s = self.to_robot(event.azimuth)
+        distance = float(self.ranging.distance(event.rssi1))
+        self.s0.on_reading(t, pose, theta_s, distance)
+        return {"azimuth": event.azimuth, "rssi": event.rssi1, "theta_s": round(theta_s, 4), "distance": round(distance, 3)}
+
+    def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
+        return self.s0.decide(pose, steer_to)
+
+    def estimate(self) -> dict[str, Any]:
+        return {"goal": _round(self.s0.reported), "g_p": _round(self.s0.g_p), "g_v": _round(self.s0.g_v)}
+
+
+def _round(v: tuple[float, float] | None) -> list[float] | None:
+    return None if v is None else [round(float(x), 4) for x in v]

@@ -25,6 +25,7 @@ from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.drivers.aoa import AoaDriver, replayed_without_set_up
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.locate import Locator, Position, smooth
+from rfhoming.host.loopstall import StallMonitor, watching
 from rfhoming.host.ports import PortError
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.errors import Error
@@ -208,7 +209,8 @@ def cmd_locate(args: argparse.Namespace) -> int:
         show(locator.feed(t, event))
 
     smoothed = args.smooth
-    code = asyncio.run(_gather(args, site, feed, locator.disconnected))
+    stalls = StallMonitor()
+    code = asyncio.run(watching(_gather(args, site, feed, locator.disconnected), stalls))
     if code:
         return code
     show(locator.flush())
@@ -224,7 +226,7 @@ def cmd_locate(args: argparse.Namespace) -> int:
                "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
                         for tag, v in sorted(per_tag.items())},
                "anchors": sorted(names.values()), **locator.counters,
-               "losses": losses.WARNINGS.check("locate", locator.counters)}
+               "losses": losses.WARNINGS.check("locate", locator.counters), **stalls.summary()}
     out.write(json.dumps(summary) + "\n")
     if out is not sys.stdout:
         out.close()

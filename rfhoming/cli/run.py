@@ -128,7 +128,8 @@ def replay_run(args: argparse.Namespace) -> int:
         print(f"rfhoming replay: the replayed loop first wrote otherwise than the recording at t = {first['t']:.6f} "
               f"on {first['device']} (wrote {first['wrote']}, the recording has {first['recorded']}); it went on "
               "from the recorded inputs", file=sys.stderr)
-    summary = {k: v for k, v in outcome.summary().items() if not k.startswith("latency_ms")}  # no wall time here
+    summary = {k: v for k, v in outcome.summary().items()
+               if not k.startswith(("latency_ms", "loop_stall_ms"))}  # no wall time here
     print(json.dumps({**summary, "replay": replay}))
     return 0 if outcome.arrived else 1
 
@@ -177,7 +178,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         ok = "SUCCESS" if summary["success"] else "FAILED"
         print(f"{ok}: {summary['reason']} after {summary['simulated_time_s']} s simulated")
         for key in ("target", "goal_position_error_m", "final_position_error_m", "path_efficiency",
-                    "net_velocity_m_s", "stale_stops", "latency_ms_p50", "latency_ms_p99"):
+                    "net_velocity_m_s", "stale_stops", "latency_ms_p50", "latency_ms_p99", "loop_stall_ms_max",
+                    "loop_stall_ms_p99"):
             if key in summary:
                 print(f"  {key:<24} {summary[key]}")
         for name, counters in summary["links"].items():

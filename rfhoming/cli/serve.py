@@ -16,6 +16,7 @@ from rfhoming.cli.io import (
 from rfhoming.cli.live import add_foxglove_option, add_ros2_option, start_foxglove, start_ros2
 from rfhoming.host import losses
 from rfhoming.host.capture import CaptureWriter, describe_dialects
+from rfhoming.host.loopstall import StallMonitor, watching
 from rfhoming.host.ports import PortError
 from rfhoming.host.serve import QUEUE_LINES, ItemServer
 from rfhoming.host.session import health, open_drivers
@@ -70,8 +71,9 @@ async def _serve(args: argparse.Namespace) -> int:
         d.listeners += [server.publish, *([view.on_item] if view else [])]
     ros2 = start_ros2(args, drivers)
     extra = [asyncio.create_task(describe_dialects(drivers, capture))] if capture else []
+    stalls = StallMonitor()
     try:
-        await _run_until(drivers, args.duration, extra)
+        await watching(_run_until(drivers, args.duration, extra), stalls)
     except PortError as exc:
         print(f"rfhoming serve: {exc}", file=sys.stderr)
         return 2
@@ -84,7 +86,8 @@ async def _serve(args: argparse.Namespace) -> int:
         for h in health(drivers):
             print(json.dumps({"kind": "counters", **h}), flush=True)
         served = server.health()
-        print(json.dumps({"kind": "server", **served, "losses": losses.WARNINGS.check("serve", served)}), flush=True)
+        print(json.dumps({"kind": "server", **served, "losses": losses.WARNINGS.check("serve", served),
+                          **stalls.summary()}), flush=True)
         if capture is not None:
             capture.close()
     return 0
