@@ -26,13 +26,14 @@ from typing import Any
 import numpy as np
 
 from rfhoming.campaigns import closed_loop
+from rfhoming.emulator.links import pipe_end
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import Scenario
 from rfhoming.emulator.world import Pose as WorldPose
 from rfhoming.emulator.world import World
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.drivers.rss import AntennaPowers
-from rfhoming.host.estimation.ranging import fit_log_distance_binned
+from rfhoming.host.estimation.ranging import LogDistance, fit_log_distance_binned
 from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import Device, Homing
 from rfhoming.host.homing.config import Config
@@ -54,7 +55,7 @@ class Fit:
     samples: int
     dish_offsets_db: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # S2: each dish's own offset
 
-    def summary(self) -> dict[str, float]:
+    def summary(self) -> dict[str, float | list[float]]:
         return {k: [round(x, 3) for x in v] if isinstance(v, tuple) else round(float(v), 3)
                 for k, v in self.__dict__.items()}
 
@@ -105,6 +106,7 @@ class Recorder(ControllerDefaults):
         if self._turns_done >= self.quarter_turns:
             return Decision(0.0, 0.0, None, True, "calibration done")
         self.phase = "turning"
+        assert self._heading is not None  # set on arrival at the stop
         error = math.remainder(self._heading + (self._turns_done + 1) * math.pi / 2 - pose.theta, 2 * math.pi)
         if abs(error) > math.radians(2):
             return Decision(0.0, max(-0.6, min(0.6, 1.5 * error)), None, False, "calibration turn")
@@ -132,7 +134,7 @@ async def _record(scenario: Scenario, seed: int, device: str, recorder: Recorder
     world = asyncio.create_task(em.run())
     try:
         def port(name: str) -> closed_loop.PipePort:
-            return closed_loop.PipePort(name, em.device(name).link.host)
+            return closed_loop.PipePort(name, pipe_end(em.device(name).link))
 
         role = "aoa" if device in ("aoa", "dock_aoa") else "rss"
         config = Config().for_lockstep()
@@ -186,6 +188,7 @@ def calibrate(scenario: Scenario, seed: int) -> Fit:
     d = np.array([s[0] for s in samples])
     rssi = np.array([s[3] for s in samples])
     fit = fit_log_distance_binned(np.maximum(d, 0.05), rssi)
+    assert isinstance(fit.model, LogDistance)
     stop_dbm = float(np.mean([s[3] for s in samples if s[2] == "dwelling"]))
     return Fit(fit.model.p0_dbm, fit.model.n, fit.rssi_residual_db or 0.0, stop_dbm, len(samples), offsets)
 

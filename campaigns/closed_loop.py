@@ -10,14 +10,14 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from rfhoming.emulator.links import PipeEnd
+from rfhoming.emulator.links import PipeEnd, pipe_end
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import Scenario
 from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import SENSORS, Device, Homing
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import Outcome, RunLog
-from rfhoming.host.ports import Chunk
+from rfhoming.host.ports import Chunk, Tap
 from rfhoming.protocol import devices
 
 
@@ -28,7 +28,7 @@ class PipePort:
         self.name = self.spec = name
         self.end = end
         self.baud = 115200
-        self.taps: list = []
+        self.taps: list[Tap] = []
         self.counters = {"bytes_in": 0, "bytes_out": 0, "chunks_in": 0, "opens": 0, "disconnects": 0, "dropped_bytes": 0}
 
     async def open(self) -> None:
@@ -91,7 +91,7 @@ class Run:
 def plan(scenario: Scenario, em: Emulator, config: Config, runlog: RunLog | None = None) -> Homing:
     """The homing run a scenario's devices call for, on the emulator's pipes."""
     def port(name: str) -> PipePort:
-        return PipePort(name, em.device(name).link.host)
+        return PipePort(name, pipe_end(em.device(name).link))
 
     names = {d.name: d.type for d in scenario.devices}
     sensor = next((name for name in SENSORS if name in names), None)

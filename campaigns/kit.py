@@ -7,10 +7,13 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from rfhoming.emulator import scenario as scenarios
+from rfhoming.emulator.anchors import FixedAnchorRunner
+from rfhoming.emulator.links import pipe_end
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.protocol.uconnect import AngleEvent, UConnectDecoder
 
@@ -26,7 +29,7 @@ class Recording:
     events: list[tuple[float, AngleEvent]]
     truth: Callable[[str, float], np.ndarray]  # (tag, t) -> (x, y, z)
     tags: list[str]
-    anchors_truth: list[dict]
+    anchors_truth: list[dict[str, Any]]
 
 
 async def _record(sc: scenarios.Scenario, seed: int, duration: float) -> Recording:
@@ -37,7 +40,7 @@ async def _record(sc: scenarios.Scenario, seed: int, duration: float) -> Recordi
     while em.t < duration:
         await em.step()
         for d in em.devices:
-            end = d.link.host
+            end = pipe_end(d.link)
             while end.pending():
                 for item in decoders[d.name].feed(await end.read()):
                     if item.kind == "angle":
@@ -50,7 +53,7 @@ async def _record(sc: scenarios.Scenario, seed: int, duration: float) -> Recordi
         x, y = target.position_at(t)
         return np.array([x, y, target.height])
 
-    return Recording(events, truth, sorted(targets), [d.truth() for d in em.devices])
+    return Recording(events, truth, sorted(targets), [d.truth() for d in em.devices if isinstance(d, FixedAnchorRunner)])
 
 
 HARD_BOARDS = {"angle_model": "cone", "az_compression": 0.15, "slow_bias_deg": 2.0, "slow_bias_s": 10.0,
@@ -67,7 +70,7 @@ height is known. The surveyed points keep their own heights."""
 
 
 def record(seed: int = 0, duration: float = 30.0, calibration: bool = False,
-           boards: dict | None = None, room: dict | None = None) -> Recording:
+           boards: dict[str, Any] | None = None, room: dict[str, Any] | None = None) -> Recording:
     """A run of the kit scenario (or, with ``calibration``, kit-room-cal: the same anchors --
     same seed, same hidden errors -- with static tags at :data:`CALIBRATION_POINTS`); ``boards``:
     error-model options set on every anchor (e.g. :data:`HARD_BOARDS`); ``room``: the room's

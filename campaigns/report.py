@@ -4,9 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 
 def mean(rows: Iterable[dict[str, Any]], key: str, digits: int = 3) -> float | None:
@@ -31,7 +35,7 @@ def failed_runs(failures: list[dict[str, Any]], describe: Callable[[dict[str, An
                                             for r in failures)
 
 
-def figure(path: Path, panels: int, width: float = 4.0):
+def figure(path: Path, panels: int, width: float = 4.0) -> tuple[Figure, Any]:
     """A matplotlib figure with ``panels`` axes side by side, non-interactive backend."""
     import matplotlib
 
@@ -42,7 +46,7 @@ def figure(path: Path, panels: int, width: float = 4.0):
     return fig, axes[0]
 
 
-def save(fig, path: Path) -> None:
+def save(fig: Figure, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
@@ -50,7 +54,7 @@ def save(fig, path: Path) -> None:
     plt.close(fig)
 
 
-def grouped_bars(ax, groups: Sequence[str], series: dict[str, Sequence[float | None]], title: str) -> None:
+def grouped_bars(ax: Axes, groups: Sequence[str], series: dict[str, Sequence[float | None]], title: str) -> None:
     """One bar per series in each group; a missing value draws no bar."""
     width = 0.8 / max(len(series), 1)
     x = np.arange(len(groups))

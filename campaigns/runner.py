@@ -125,7 +125,7 @@ def load_checkpoint(path: Path, jobs: list[Job]) -> dict[int, dict[str, Any]]:
 
 
 def run_jobs(jobs: list[Job], workers: int = os.cpu_count() or 1, dask_address: str | None = None,
-             progress: Callable[[int], None] = lambda n: None, checkpoint: Path | None = None) -> list[dict[str, Any]]:
+             progress: Callable[[int], object] = lambda n: None, checkpoint: Path | None = None) -> list[dict[str, Any]]:
     """Every job's result, in job order; ``progress(1)`` after each one finishes. With a
     ``checkpoint`` file, jobs already in it are not run again and each new result is appended."""
     results: dict[int, dict[str, Any]] = load_checkpoint(checkpoint, jobs) if checkpoint else {}

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,7 +17,7 @@ from rfhoming.campaigns import calibration, closed_loop, kinematic
 from rfhoming.campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
 from rfhoming.campaigns.runner import Campaign, Job, Report
 from rfhoming.emulator.radio import S0_PRESETS
-from rfhoming.emulator.scenario import load
+from rfhoming.emulator.scenario import Scenario, load
 from rfhoming.host.homing.config import Calibration, Config, LoopSettings
 from rfhoming.host.homing.s0_aoa import S0Params
 from rfhoming.host.homing.types import Pose
@@ -81,7 +82,7 @@ def table3_run(config: int, mode: str, target: tuple[float, float], seed: int, c
 
 
 def table3_jobs(runs: int, seed: int) -> list[Job]:
-    jobs = []
+    jobs: list[Job] = []
     for config in range(1, 6):
         for mode in MODES:
             for k, target in enumerate(targets(runs, seed)):
@@ -110,7 +111,7 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
     md = table(["config", "source", *HEADER], lines)
     md += failed_runs(failures, lambda r: f"config {r['config']} {r['mode']} target {r['target']}")
 
-    def plot(path):
+    def plot(path: Path) -> None:
         fig, axes = figure(path, 3)
         groups = [str(c) for c in range(1, 6)]
         for ax, key, i, title in ((axes[0], "goal_error_m", 3, "goal error (m)"),
@@ -131,7 +132,7 @@ HOUSE_MODES = {"rules": "S0's method: hybrid (k 0.8, no fusion), reactive rules 
 ROOMS = ((-1, -1), (1, -1), (1, 1), (-1, 1))  # the house's quadrants
 
 
-def room_point(room: int, rng: np.random.Generator, scenario) -> tuple[float, float]:
+def room_point(room: int, rng: np.random.Generator, scenario: Scenario) -> tuple[float, float]:
     """A random free point in ``room``, 0.7 m clear of walls and furniture."""
     sx, sy = ROOMS[room]
     for _ in range(1000):
@@ -204,7 +205,7 @@ def house_report(rows: list[dict[str, Any]]) -> Report:
     failures = [r for r in rows if not r["success"]]
     md += failed_runs(failures, lambda r: f"{r['mode']} seed {r['seed']} rooms {r['rooms']} target {r['target']}")
 
-    def plot(path):
+    def plot(path: Path) -> None:
         fig, axes = figure(path, 2)
         ok = [r for r in rows if r["success"] and r["mode"] == "planner"]
         axes[0].hist([r["time_s"] for r in ok], bins=20)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -133,7 +134,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
     md += ("\n\nOurs, per trial: distance to the docked pose (standoff in front of the station) and heading error.\n\n"
            + table(["source", "error to docked pose m (mean)", "max", "heading error ° (mean)", "max"], ours))
 
-    def plot(path):
+    def plot(path: Path) -> None:
         fig, axes = figure(path, 2)
         for noise, mode in ((n, m) for n in NOISE for m in MODES):
             groups = paper_metric([row for row in rows if row["mode"] == mode and row["noise"] == noise])

@@ -21,6 +21,7 @@ import io
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -97,7 +98,7 @@ def run(scenario: str, system: str, seed: int, campaign_seed: int = 0) -> dict[s
 
 
 def jobs(runs: int, seed: int) -> list[Job]:
-    out = []
+    out: list[Job] = []
     for scenario in SCENARIOS:
         for system in SYSTEMS:
             for k in range(runs):
@@ -135,7 +136,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
     failures = [r for r in rows if not r["success"]]
     md += failed_runs(failures, lambda r: f"{r['scenario'].upper()} {r['system']} seed {r['seed']}")
 
-    def plot(path):
+    def plot(path: Path) -> None:
         fig, axes = figure(path, 2)
         groups = [s.upper() for s in SCENARIOS]
         grouped_bars(axes[0], groups, {

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -158,7 +159,7 @@ def batch(index: int, seed: int, flights_: int, reference: int) -> dict[str, Any
     > 0) the filterpy EKF on the first ``reference`` beacons."""
     z, u, rssi, beacons = flights(flights_, seed)
     row: dict[str, Any] = {"beacons": len(beacons)}
-    estimates = {}
+    estimates: dict[str, np.ndarray] = {}
     for name, (kind, init) in VARIANTS.items():
         if name in SMOOTHED:
             t0 = time.perf_counter()
@@ -226,7 +227,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
     md += ("\n\nThe paper's µs per beacon-step is its total time over 10,000 beacons × 3,200 steps "
            "(S4 reports 868 s and 1658 s).")
 
-    def plot(path):
+    def plot(path: Path) -> None:
         fig, axes = figure(path, 1, width=6)
         bins = np.linspace(0, max(2.0, float(max(e.max() for e in errors.values()))), 60)
         for kind, e in errors.items():

@@ -353,7 +353,7 @@ class RssRunner(DeviceRunner):
     def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
                  rng: np.random.Generator, path_loss: PathLossModel, options: dict[str, Any]) -> None:
         offsets = tuple(float(v) for v in options.get("chip_offsets_db", rng.uniform(-5, 5, 4)))
-        kwargs = {"chip_offsets_db": offsets, "dish_diameter_m": float(options.get("dish_diameter_m", 0.3))}
+        kwargs: dict[str, Any] = {"chip_offsets_db": offsets, "dish_diameter_m": float(options.get("dish_diameter_m", 0.3))}
         super().__init__(name, lambda: At86rf212NodeFirmware(node_id, **kwargs), link, faults, rng)
         self.channel = RadioChannel(path_loss, rng)
         self.schedule = _Schedule(rng)

@@ -222,6 +222,13 @@ class PipeLink(Link):
         self.host.deliver(b"")
 
 
+def pipe_end(link: Link) -> PipeEnd:
+    """The host's end of an in-process link (an emulator started with ``transport="pipe"``)."""
+    if not isinstance(link, PipeLink):
+        raise TypeError(f"{type(link).__name__} is not an in-process link: start the emulator with transport='pipe'")
+    return link.host
+
+
 class PipeEnd:
     """The host's end of a :class:`PipeLink`; ``read()`` returns b"" while unplugged.
 

@@ -15,9 +15,12 @@ dicts, so a sample mostly costs a dict look-up; the direct path stays exact.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+
+if TYPE_CHECKING:  # world imports this module
+    from rfhoming.emulator.world import Obstacle
 
 CELL_M = 0.05
 """Receiver cell: its reflected paths are traced once, from its centre."""
@@ -41,7 +44,7 @@ class _Segment(NamedTuple):
     owner: int  # obstacle index, −1 for a bound
 
 
-def _segments(obstacles: list, bounds: tuple[float, float, float, float] | None) -> list[_Segment]:
+def _segments(obstacles: list[Obstacle], bounds: tuple[float, float, float, float] | None) -> list[_Segment]:
     out = []
     for k, o in enumerate(obstacles):
         p = o.polygon
@@ -62,7 +65,7 @@ def _segments(obstacles: list, bounds: tuple[float, float, float, float] | None)
 class Reflections:
     """The first-order reflected paths between a source and a receiver in one static world."""
 
-    def __init__(self, obstacles: list, bounds: tuple[float, float, float, float] | None) -> None:
+    def __init__(self, obstacles: list[Obstacle], bounds: tuple[float, float, float, float] | None) -> None:
         self.segments = _segments(obstacles, bounds)
         edges = [(e, k) for k, o in enumerate(obstacles) for e in o.edges()]
         self._a = np.array([e[0] for e, _ in edges], dtype=float).reshape(-1, 2)

@@ -19,6 +19,7 @@ import json
 import math
 import tempfile
 import time
+from collections.abc import AsyncIterator, Iterable
 from pathlib import Path
 from typing import IO, Any
 
@@ -39,7 +40,7 @@ class Emulator:
     def __init__(self, scenario: Scenario, *, transport: str = "pty", seed: int = 0,
                  step_ms: int = 10, speed: float = 1.0, lockstep: bool = False,
                  control_period_ms: int = 100, lockstep_timeout: float = 5.0,
-                 faults: list[Fault] = (), truth: IO[str] | None = None,
+                 faults: Iterable[Fault] = (), truth: IO[str] | None = None,
                  link_dir: Path | None = None, robot: dict[str, Any] | None = None) -> None:
         """``robot``: the base as a ROS 2 robot (emulator/ros2robot.py), e.g. {"domain": 7, "ns": ""}, or
         as a MAVLink vehicle (emulator/mavlinkrobot.py), {"kind": "mavlink", "gcs": None, "options": {...}}."""
@@ -176,8 +177,8 @@ class Emulator:
                 if fault.hits(d.name):
                     await self._fire(fault, d)
         for d, trigger in self._triggered.items():
-            if (fault := trigger.due(d.link.counters)) is not None:
-                await self._fire(fault, d)
+            if (due := trigger.due(d.link.counters)) is not None:
+                await self._fire(due, d)
 
     async def _fire(self, fault: Fault, d: DeviceRunner) -> None:
         if fault.kind == "unplug":
@@ -269,7 +270,7 @@ class _HostTrigger:
 
 
 @contextlib.asynccontextmanager
-async def running(emulator: Emulator, duration: float | None = None):
+async def running(emulator: Emulator, duration: float | None = None) -> AsyncIterator[Emulator]:
     """Start the emulator, run it in the background, and close it on exit."""
     await emulator.start()
     task = asyncio.create_task(emulator.run(duration))

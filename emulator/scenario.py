@@ -11,7 +11,7 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -77,7 +77,13 @@ def _model(cls: type, table: dict[str, Any], where: str) -> Any:
     return cls(**{k: v for k, v in table.items() if k in known})
 
 
-def _random_free_point(bounds, obstacles, rng: np.random.Generator, margin: float = 1.0) -> tuple[float, float]:
+def _point(p: Any) -> tuple[float, float]:
+    """A TOML ``[x, y]`` as floats (its length is the scenario's to get right, as before)."""
+    return cast("tuple[float, float]", tuple(map(float, p)))
+
+
+def _random_free_point(bounds: tuple[float, ...], obstacles: list[Obstacle], rng: np.random.Generator,
+                       margin: float = 1.0) -> tuple[float, float]:
     x0, y0, x1, y1 = bounds
     for _ in range(1000):
         p = (float(rng.uniform(x0 + margin, x1 - margin)), float(rng.uniform(y0 + margin, y1 - margin)))
@@ -90,7 +96,7 @@ BLE_RECEIVERS = tuple(name for name, (kind, _) in devices.BOARDS.items() if "ble
 """Interchangeable BLE RSSI receivers: ``receiver=`` puts one in place of the scenario's."""
 
 
-def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = None,
+def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = None,
          aoa_preset: int | None = None, receiver: str | None = None) -> Scenario:
     """Build a scenario; ``target`` overrides the first target's position, ``aoa_preset`` the
     AoA noise with S0's configuration 1–5, ``receiver`` the type of every BLE RSSI receiver."""
@@ -107,19 +113,19 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, float] | None = 
             if "rect" in o:
                 obstacles.append(Obstacle.rect(*map(float, o["rect"])))
             else:
-                obstacles.append(Obstacle([tuple(map(float, p)) for p in o["polygon"]]))
+                obstacles.append(Obstacle([_point(p) for p in o["polygon"]]))
         targets = []
         for i, t in enumerate(raw.get("targets", [])):
             if i == 0 and target is not None:
-                position = target
+                position = _point(target)
             elif t.get("position", "random") == "random":
                 position = _random_free_point(bounds, obstacles, rng)
             else:
-                position = tuple(map(float, t["position"]))
+                position = _point(t["position"])
             targets.append(Target(
                 id=str(t["id"]), kind=str(t["kind"]), position=position,
                 height=float(t.get("height", 0.0)),
-                path=[tuple(map(float, p)) for p in t.get("path", [])], speed=float(t.get("speed", 0.0)),
+                path=[_point(p) for p in t.get("path", [])], speed=float(t.get("speed", 0.0)),
                 interval_ms=float(t.get("interval_ms", 20.0)), jitter_ms=float(t.get("jitter_ms", 0.0)),
                 tx_power_dbm=float(t.get("tx_power_dbm", 0.0)), heading=float(t.get("heading", 0.0)),
             ))

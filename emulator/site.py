@@ -42,7 +42,8 @@ def _rotation_down(yaw_deg: float, pitch_deg: float) -> np.ndarray:
     y, p = math.radians(yaw_deg), math.radians(pitch_deg)
     rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
     ry = np.array([[math.cos(p), 0, -math.sin(p)], [0, 1, 0], [math.sin(p), 0, math.cos(p)]])
-    return rz @ ry
+    board_to_world: np.ndarray = rz @ ry
+    return board_to_world
 
 
 class SiteScenario:
@@ -126,7 +127,7 @@ class SiteScenario:
         stamp = times[e_idx] + offsets[gw]
         order = np.argsort(times[e_idx], kind="stable")
         e_idx, a_idx, gw, stamp, ang = e_idx[order], a_idx[order], gw[order], stamp[order], ang[order]
-        out = {}
+        out: dict[str, tuple[np.ndarray, ...]] = {}
         for i, g in enumerate(self.gateways):
             k = gw == i
             out[g] = (stamp[k], a_idx[k], who[e_idx[k]], ang[k, 0], ang[k, 1])

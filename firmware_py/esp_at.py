@@ -16,6 +16,7 @@ this interval (37, 38, 39 in turn), not when two packets collide, not below sens
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 
 from rfhoming.firmware.ble_scan_radio import ScanRadio, listening_channel
 from rfhoming.protocol.ad import local_name, structures
@@ -121,12 +122,12 @@ class EspAtFirmware:
         if self.echo:
             self._write(line.encode() + b"\r\n")
         name, eq, args = line.partition("=")
-        handler = {
+        handler: Callable[[], None] | None = {
             "AT": lambda: self._ok(),
             "ATE0": lambda: self._set_echo(False),
             "ATE1": lambda: self._set_echo(True),
             "AT+RST": self._reset,
-            "AT+GMR": lambda: (self._write(f"{self.VERSION}\r\n".encode()), self._ok()),
+            "AT+GMR": self._version,
             "AT+BLEINIT?": lambda: self._query("BLEINIT", str(self.role)),
             "AT+BLESCANPARAM?": lambda: self._query(
                 "BLESCANPARAM", f"{self.scan_type},0,0,{self.interval},{self.window}"),
@@ -144,6 +145,10 @@ class EspAtFirmware:
         self.echo = on
         self._ok()
 
+    def _version(self) -> None:
+        self._write(f"{self.VERSION}\r\n".encode())
+        self._ok()
+
     def _query(self, name: str, value: str) -> None:
         self._write(f"+{name}:{value}\r\n".encode())
         self._ok()
@@ -151,7 +156,7 @@ class EspAtFirmware:
     def _reset(self) -> None:
         self._ok()
         answered = bytes(self._out)
-        self.__init__(self.version)  # a reboot: every setting back to its default, then "ready"
+        type(self).__init__(self, self.version)  # a reboot: every setting back to its default, then "ready"
         self._out[:0] = answered
 
     @property

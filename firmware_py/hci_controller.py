@@ -25,7 +25,8 @@ built on first use.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, cast
 
 from bumble import hci
 from bumble.controller import Controller
@@ -98,7 +99,7 @@ class _ScanningController(Controller):
             return "masked"
         if self.filter_duplicates and address in self.reported:
             return "duplicate"
-        addr = hci.Address(address, addr_type)
+        addr = hci.Address(address, cast(hci.AddressType, addr_type))  # any int the report's field carries
         if self.extended:
             if not self.le_event_mask & LE_EXT_ADV_REPORT_BIT:
                 return "masked"
@@ -108,7 +109,7 @@ class _ScanningController(Controller):
                 chunks = [ad[i:i + self.fragment_bytes] for i in range(0, len(ad), self.fragment_bytes)] or [b""]
                 if self.truncate and len(chunks) > 1:
                     chunks = chunks[:-1]
-                statuses = [DATA_INCOMPLETE] * (len(chunks) - 1) + [DATA_TRUNCATED if self.truncate else DATA_COMPLETE]
+                statuses: Sequence[int | None] = [DATA_INCOMPLETE] * (len(chunks) - 1) + [DATA_TRUNCATED if self.truncate else DATA_COMPLETE]
             else:
                 chunks, statuses = [ad], [None]
             for chunk, status in zip(chunks, statuses):
@@ -123,8 +124,7 @@ class _ScanningController(Controller):
         else:
             if not self.le_event_mask & LE_ADV_REPORT_BIT:
                 return "masked"
-            Report = hci.HCI_LE_Advertising_Report_Event.Report
-            event = hci.HCI_LE_Advertising_Report_Event([Report(
+            event = hci.HCI_LE_Advertising_Report_Event([hci.HCI_LE_Advertising_Report_Event.Report(
                 event_type=hci.HCI_LE_Advertising_Report_Event.EventType.ADV_NONCONN_IND,
                 address_type=addr_type, address=addr, data=ad, rssi=rssi)])
         self.reported.add(address)

@@ -155,8 +155,8 @@ class _Tag:
     last_heard_ms: int
     last_event_ms: int | None = None
     seq: int = 0
-    raw_azimuths: deque = field(default_factory=lambda: deque(maxlen=3))
-    raw_elevations: deque = field(default_factory=lambda: deque(maxlen=3))
+    raw_azimuths: deque[int] = field(default_factory=lambda: deque(maxlen=3))
+    raw_elevations: deque[int] = field(default_factory=lambda: deque(maxlen=3))
 
 
 class XplrAoaFirmware:
@@ -340,10 +340,12 @@ class XplrAoaFirmware:
 
     def _udffilt(self, params: list[int | str]) -> list[str]:
         kind = params[0]
+        if not isinstance(kind, int):
+            raise KeyError(kind)  # ERROR, as for an unknown kind
         digits = {1: 20, 2: 12}[kind]  # KeyError: ERROR
         if len(params) == 1:
-            ids = "".join(f',"{i}"' for i in self.pending.filters[kind])
-            return [f"+UDFFILT:{kind}{ids}"]
+            listed = "".join(f',"{i}"' for i in self.pending.filters[kind])
+            return [f"+UDFFILT:{kind}{listed}"]
         action, ids = params[1], params[2:]
         if not all(isinstance(i, str) and len(i) == digits and is_at_string(i)
                    and all(c in "0123456789abcdefABCDEF" for c in i) for i in ids):
@@ -430,7 +432,7 @@ def _clamp(value: int, low: int, high: int) -> int:
     return low if value < low else high if value > high else value
 
 
-def _median(values: deque) -> int:
+def _median(values: deque[int]) -> int:
     ordered = sorted(values)
     return ordered[len(ordered) // 2]
 

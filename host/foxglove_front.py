@@ -72,7 +72,7 @@ class Front:
     def __init__(self, upstream: int, host: str = "127.0.0.1", port: int = 0) -> None:
         self.upstream = upstream
         self.counters = {"clients": 0, "renamed": 0, "refused": 0, "stalled": 0, "bad_handshakes": 0}
-        self._transports: set[asyncio.BaseTransport] = set()
+        self._transports: set[asyncio.WriteTransport] = set()
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="foxglove-front", daemon=True)
         self._thread.start()
@@ -122,10 +122,11 @@ class Front:
             try:
                 head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), HANDSHAKE_S)
                 request, rename = offer_sdk(head)
-                up_reader, upstream = await asyncio.wait_for(
+                up_reader, up_writer = await asyncio.wait_for(
                     asyncio.open_connection("127.0.0.1", self.upstream, limit=MAX_HEAD), HANDSHAKE_S)
-                self._transports.add(upstream.transport)
-                upstream.write(request)
+                upstream = up_writer  # closed at the end
+                self._transports.add(up_writer.transport)
+                up_writer.write(request)
                 response = await asyncio.wait_for(up_reader.readuntil(b"\r\n\r\n"), HANDSHAKE_S)
             except (asyncio.IncompleteReadError, asyncio.LimitOverrunError, TimeoutError, OSError):
                 self.counters["bad_handshakes"] += 1
@@ -134,7 +135,7 @@ class Front:
             self.counters["renamed"] += rename is not None
             writer.transport.set_write_buffer_limits(high=CLIENT_BUFFER)
             writer.write(answer_as(response, rename))
-            pipes = [asyncio.ensure_future(self._to_sdk(reader, upstream)),
+            pipes = [asyncio.ensure_future(self._to_sdk(reader, up_writer)),
                      asyncio.ensure_future(self._to_client(up_reader, writer))]
             try:
                 await asyncio.wait(pipes, return_when=asyncio.FIRST_COMPLETED)

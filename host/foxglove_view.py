@@ -94,7 +94,7 @@ class FoxgloveView(Sink):
             self._stop_server()
             raise
         self.address = f"ws://{host}:{self.front.port}"
-        ctx = {"context": self.context}
+        ctx: dict[str, Any] = {"context": self.context}
         self.tf = channels.FrameTransformsChannel("/tf", **ctx)
         self.tf_static = channels.FrameTransformsChannel("/tf_static", **ctx)
         self.pose_channel = channels.PoseInFrameChannel("/robot/pose", **ctx)

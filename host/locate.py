@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, Fix, angle_sigma_deg, locate, make_ray
+from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, Fix, Ray, angle_sigma_deg, locate, make_ray
 from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
 from rfhoming.host.site import Anchor, Calibration, Site
 from rfhoming.protocol.uconnect import AngleEvent
@@ -174,7 +174,7 @@ class Locator:
         return out
 
     # -- output ------------------------------------------------------------------------
-    def rays_at(self, tag: str, t: float) -> tuple[list, float]:
+    def rays_at(self, tag: str, t: float) -> tuple[list[Ray], float]:
         """Each fresh anchor's ray for ``tag`` at ``t`` and the mean time of the angles used."""
         rays, times = [], []
         sigma0 = self.site.sigma_deg

@@ -16,7 +16,7 @@ import errno
 import logging
 import time
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import serial
 import serial_asyncio_fast
@@ -39,6 +39,25 @@ class Chunk(NamedTuple):
 
     t: float
     data: bytes
+
+
+class Port(Protocol):
+    """What a driver uses of its port: a :class:`HostPort`, or a port standing in for one
+    (host/replay.py's ReplayPort, a TCP or ROS 2 port)."""
+
+    spec: str
+    name: str
+    baud: int
+    taps: list[Tap]
+    counters: dict[str, int]
+
+    @property
+    def is_open(self) -> bool: ...
+    async def open(self) -> None: ...
+    async def read(self) -> Chunk: ...
+    def write(self, data: bytes) -> None: ...
+    def set_baud(self, baud: int) -> None: ...
+    async def close(self) -> None: ...
 
 
 class PortError(Error):
@@ -130,7 +149,7 @@ class HostPort:
     def set_baud(self, baud: int) -> None:
         """Change the rate on the open port (probing, or following AT+UMRS)."""
         self.baud = baud
-        if self._transport is not None:
+        if self._transport is not None and self._transport.serial is not None:
             self._transport.serial.baudrate = baud
 
     def _received(self, data: bytes) -> None:
@@ -213,7 +232,7 @@ def flapping_delay(short_lived: int) -> float:
     return 0.0 if short_lived <= 0 else min(REOPEN_FIRST_S * 2 ** min(short_lived - 1, 16), REOPEN_LONGEST_S)
 
 
-async def reopen(port: HostPort, *, first: float = REOPEN_FIRST_S, longest: float = REOPEN_LONGEST_S,
+async def reopen(port: Port, *, first: float = REOPEN_FIRST_S, longest: float = REOPEN_LONGEST_S,
                  attempts: int | None = None) -> None:
     """Open ``port``, retrying with doubling back-off until it works (or ``attempts`` run out).
     A device path that has vanished (unplugged) is watched instead and reopened as soon as it

@@ -70,7 +70,8 @@ class PortSpec:
 
     @property
     def tags(self) -> tuple[str, ...]:
-        return self.settings.get("tags", ())
+        tags: tuple[str, ...] = self.settings.get("tags", ())
+        return tags
 
     @property
     def name(self) -> str | None:

@@ -106,7 +106,7 @@ class ReplayPort:
         self.baud = baud
 
     async def read(self) -> Chunk:
-        if self._holding:  # the reader is back: the chunk it had is handled
+        if self._holding and self.sequencer is not None:  # the reader is back: the chunk it had is handled
             self._holding = False
             self.sequencer.taken()
         while self._i < len(self.packets):
@@ -116,12 +116,14 @@ class ReplayPort:
                 if self.match_writes:
                     await self._await_write(p)
                 continue
-            ordered = self.sequencer is not None and not self.sequencer.free(self.name, self._i - 1)
-            if ordered:
-                await self.sequencer.turn(self.name, self._i - 1)
+            sequencer = self.sequencer if self.sequencer is not None and not self.sequencer.free(self.name, self._i - 1) \
+                else None  # this chunk waits for its turn
+            ordered = sequencer is not None
+            if sequencer is not None:
+                await sequencer.turn(self.name, self._i - 1)
             if p.comment == DISCONNECTED:
-                if ordered:
-                    self.sequencer.taken()
+                if sequencer is not None:
+                    sequencer.taken()
                 self._open = False
                 self.counters["disconnects"] += 1
                 for tap in self.taps:  # as a live port's taps hear it go

@@ -176,7 +176,8 @@ def _gather(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]]
     index = {a.id: k for k, a in enumerate(anchors)}
     raw = [replace(a, calibration=Calibration()) for a in anchors]
     rots = [a.rotation() for a in raw]
-    row_e, row_a, az, el, heights, start, fold = [], [], [], [], [], [], []
+    heights: list[float] = []
+    row_e, row_a, az, el, start, fold = [], [], [], [], [], []
     for rec in recordings:
         t0 = rec[0][0] if rec else 0.0
         for t, tag, angles in _epoch_angles(site, rec, site.window_s):
@@ -346,9 +347,9 @@ def _adjust(model: _Model, ep: _Epochs, x: np.ndarray, iterations: int = 60) -> 
             u = np.einsum("rki,rk,rkj->ij", jp, w, jp)
             g_p = np.einsum("rki,rk,rk->i", jp, w, res)
             w_rows = np.einsum("rki,rk,rkj->rij", jp, w, by_pos).reshape(len(res), -1)
-            w_e = np.zeros((n_e, n_p * 3))
-            np.add.at(w_e, ep.row_e, w_rows)
-            w_e = w_e.reshape(n_e, n_p, 3)
+            w_flat = np.zeros((n_e, n_p * 3))
+            np.add.at(w_flat, ep.row_e, w_rows)
+            w_e = w_flat.reshape(n_e, n_p, 3)
             w_vinv = np.einsum("npi,nij->npj", w_e, v_inv)
             schur = u + lam * np.diag(np.diag(u)) + 1e-9 * np.eye(n_p) - np.einsum("npj,nqj->pq", w_vinv, w_e)
             rhs = -g_p + np.einsum("npj,nj->p", w_vinv, g_e)
@@ -424,7 +425,7 @@ def _cross_validate(model: _Model, ep: _Epochs, progress: Callable[[str], None])
 
 def _jackknife(folds: list[np.ndarray]) -> np.ndarray:
     f = np.array(folds)
-    return np.sqrt((len(f) - 1) / len(f) * ((f - f.mean(axis=0)) ** 2).sum(axis=0))
+    return np.asarray(np.sqrt((len(f) - 1) / len(f) * ((f - f.mean(axis=0)) ** 2).sum(axis=0)))
 
 
 def _check_coverage(ep: _Epochs, anchors: Sequence[Anchor]) -> None:

@@ -50,7 +50,7 @@ import logging
 import socket
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from functools import cache
@@ -244,7 +244,7 @@ class ItemServer:
     :meth:`start` on)."""
 
     def __init__(self, *, queue_lines: int = QUEUE_LINES, max_drops: int | None = None,
-                 max_input: int = MAX_INPUT, max_clients: int = MAX_CLIENTS, drivers: list[Driver] = ()) -> None:
+                 max_input: int = MAX_INPUT, max_clients: int = MAX_CLIENTS, drivers: Iterable[Driver] = ()) -> None:
         self.queue_lines = queue_lines
         self.max_drops = queue_lines if max_drops is None else max_drops
         self.max_input = max_input
@@ -255,8 +255,8 @@ class ItemServer:
         self.counters = {"items": 0, "clients": 0, "disconnected_slow": 0, "dropped": 0, "disconnected_input": 0,
                          "refused": 0, "commands": 0, "bad_commands": 0, "state_changes": 0}
         self._servers: list[asyncio.Server] = []
-        self._tasks: set[asyncio.Task] = set()
-        self._follower: asyncio.Task | None = None
+        self._tasks: set[asyncio.Task[Any]] = set()
+        self._follower: asyncio.Task[Any] | None = None
 
     async def start(self, host: str = "127.0.0.1", port: int = 0) -> list[str]:
         """Listen; returns the ``tcp://HOST:PORT`` addresses."""
@@ -499,7 +499,7 @@ class ItemServer:
         raise CommandError(f"watch: no device {name!r}; the devices are {', '.join(self.devices) or 'none'}")
 
     # -- connections -----------------------------------------------------------------------
-    def _spawn(self, coro: Any) -> asyncio.Task:
+    def _spawn(self, coro: Any) -> asyncio.Task[Any]:
         task = asyncio.create_task(coro)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
@@ -655,7 +655,8 @@ def parse_commands(line: bytes) -> list[tuple[str, dict[str, Any]]]:
     if not text.startswith("?"):
         raise CommandError(f"not a command: {text[:40]!r}; send a JSON object with \"cmd\", or ?WATCH; ?POLL; "
                            "?DEVICES; ?VERSION; as gpsd takes them")
-    commands, i, decoder = [], 0, json.JSONDecoder()
+    commands: list[tuple[str, dict[str, Any]]] = []
+    i, decoder = 0, json.JSONDecoder()
     while i < len(text):
         if text[i] in "; \t\r":
             i += 1
@@ -665,7 +666,8 @@ def parse_commands(line: bytes) -> list[tuple[str, dict[str, Any]]]:
         j = i + 1
         while j < len(text) and text[j].isalpha():
             j += 1
-        name, args = text[i + 1:j], {}
+        name = text[i + 1:j]
+        args: dict[str, Any] = {}
         if j < len(text) and text[j] == "=":
             try:
                 args, j = decoder.raw_decode(text, j + 1)

@@ -31,6 +31,10 @@ class Sink:
     def show_anchors(self, anchors: dict[str, list[float]]) -> None:
         """Beacons at surveyed places (S3's ``[trilat.anchors]``), for sinks that draw them."""
 
+    def close(self) -> None:
+        """Flush and release what the sink holds (a file, a server); called once, at the end."""
+        raise NotImplementedError
+
     def _on_item(self, device: str, t_host: float, item: Any) -> None:
         raise NotImplementedError
 

@@ -274,10 +274,10 @@ def write_calibration(path: str | Path, calibrations: dict[str, Calibration],
     path = Path(path)
     doc = tomlkit.parse(path.read_text())
     for name, model in (models or {}).items():
-        doc["anchors"][name]["angle_model"] = model  # type: ignore[index]
+        doc["anchors"][name]["angle_model"] = model
     for name, cal in calibrations.items():
         table = tomlkit.table()
         for f in fields(Calibration):
             table[f.name] = round(float(getattr(cal, f.name)), 4)
-        doc["anchors"][name]["calibration"] = table  # type: ignore[index]
+        doc["anchors"][name]["calibration"] = table
     path.write_text(tomlkit.dumps(doc))

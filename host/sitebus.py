@@ -125,7 +125,7 @@ def _client(client_id: str, broker: Broker, ca_file: str | None = None) -> mqtt.
         c.username_pw_set(broker.username, broker.password)
     if broker.tls:
         c.tls_set(ca_certs=ca_file, cert_reqs=ssl.CERT_REQUIRED)
-    c.reconnect_delay_set(min_delay=RECONNECT_MIN_S, max_delay=RECONNECT_MAX_S)
+    c.reconnect_delay_set(min_delay=RECONNECT_MIN_S, max_delay=RECONNECT_MAX_S)  # type: ignore[arg-type]  # paho's ints; it waits for any number of seconds
     c.connect_timeout = CONNECT_TIMEOUT_S
     return c
 
@@ -424,7 +424,7 @@ class Worker:
             return
         if len(self._inbox) == self._inbox.maxlen:
             self.counters["inbox_dropped"] += 1
-        self._inbox.append((now, topic, msg.payload))
+        self._inbox.append((now, topic, bytes(msg.payload)))
 
     # -- the worker's own thread ----------------------------------------------------------------
     def _drain(self) -> None:

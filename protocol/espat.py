@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import re
 from collections import Counter
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, Literal, NamedTuple
 
 from rfhoming.protocol.drop import Drop
 
@@ -29,11 +29,7 @@ _ADDR = re.compile(r'"?([0-9a-fA-F]{2}(?::[0-9a-fA-F]{2}){5})"?')
 _HEX = re.compile(r'"?((?:[0-9a-fA-F]{2})*)"?')
 
 
-class ScanReport(NamedTuple):
-    """One ``+BLESCAN:`` line. ``address`` is printed MSB first, upper-case, no colons
-    (the form the S3 anchors use); ``adv_data``/``scan_rsp`` are the raw AD bytes."""
-
-    kind = "scan_report"
+class _ScanReport(NamedTuple):
     address: str
     rssi_dbm: int
     adv_data: bytes
@@ -41,25 +37,47 @@ class ScanReport(NamedTuple):
     addr_type: int
 
 
-class Final(NamedTuple):
-    kind = "final"
+class ScanReport(_ScanReport):
+    """One ``+BLESCAN:`` line. ``address`` is printed MSB first, upper-case, no colons
+    (the form the S3 anchors use); ``adv_data``/``scan_rsp`` are the raw AD bytes."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["scan_report"]] = "scan_report"
+
+
+class _Final(NamedTuple):
     ok: bool
 
 
-class Info(NamedTuple):
-    """An information line ``+NAME:value`` (e.g. ``+BLEINIT:1``)."""
+class Final(_Final):
+    """``OK`` or ``ERROR``: the end of a command's answer."""
 
-    kind = "info"
+    __slots__ = ()
+    kind: ClassVar[Literal["final"]] = "final"
+
+
+class _Info(NamedTuple):
     name: str
     value: str
 
 
-class Event(NamedTuple):
-    """``ready`` (the board booted), ``+BLESCANDONE`` (a timed scan ended) or ``echo``."""
+class Info(_Info):
+    """An information line ``+NAME:value`` (e.g. ``+BLEINIT:1``)."""
 
-    kind = "event"
+    __slots__ = ()
+    kind: ClassVar[Literal["info"]] = "info"
+
+
+class _Event(NamedTuple):
     what: str
     text: str
+
+
+class Event(_Event):
+    """``ready`` (the board booted), ``+BLESCANDONE`` (a timed scan ended) or ``echo``."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["event"]] = "event"
 
 
 def parse_scan(line: bytes) -> ScanReport | Drop:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from typing import Literal
 
 from rfhoming.protocol.errors import Error
 
@@ -158,7 +159,7 @@ class Reader:
             raise self._error from None
         return out
 
-    def _block(self) -> Interface | Packet | None | bool:
+    def _block(self) -> Interface | Packet | None | Literal[False]:
         """Consume one complete block; False if it is not complete yet."""
         kind = struct.unpack_from("<I", self._buf)[0]
         if kind == SHB:
@@ -188,7 +189,7 @@ class Reader:
             self._endian, self._section = endian, []
             self.sections += 1
             self.comments.append(_parse_options(body[16:], endian).get(OPT_COMMENT, b"").decode(errors="replace"))
-            item = None
+            item: Interface | Packet | None = None
         elif kind == IDB:
             item = self._interface(body, endian)
         elif kind == EPB:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from rfhoming.protocol.errors import Error
@@ -231,8 +232,9 @@ def encode_odometry(odo: Odometry) -> bytes:
 def decode_scan(data: bytes) -> LaserScan:
     r = _Reader(data)
     stamp, frame = r.header()
-    fields = r.take("f", 4, 7)
-    return LaserScan(stamp, frame, *fields, r.f32_seq(), r.f32_seq())
+    angle_min, angle_max, angle_increment, time_increment, scan_time, range_min, range_max = r.take("f", 4, 7)
+    return LaserScan(stamp, frame, angle_min, angle_max, angle_increment, time_increment, scan_time, range_min,
+                     range_max, r.f32_seq(), r.f32_seq())
 
 
 def encode_scan(scan: LaserScan) -> bytes:
@@ -265,7 +267,7 @@ class SampleDecoder:
     """Sample records (one per chunk, as a capture holds them) -> decoded messages; a record
     that does not parse is a counted drop, as the other decoders count theirs."""
 
-    DECODERS = {ODOMETRY: decode_odometry, LASER_SCAN: decode_scan, TWIST: decode_twist,
+    DECODERS: dict[str, Callable[[bytes], Any]] = {ODOMETRY: decode_odometry, LASER_SCAN: decode_scan, TWIST: decode_twist,
                 TWIST_STAMPED: lambda data: decode_twist(data, stamped=True)}
 
     def __init__(self) -> None:

@@ -188,14 +188,14 @@ def _whole(col: object, n: int | None, what: str, below: int) -> list[int]:
     return col
 
 
-def _seconds(raw: dict, key: str) -> float:
+def _seconds(raw: dict[str, Any], key: str) -> float:
     x = float(raw[key])
     if not abs(x) <= MAX_SECONDS:  # NaN fails it too
         raise PayloadError(f"{key} is not a number of seconds within +-{MAX_SECONDS:g}")
     return x
 
 
-def _seq(raw: dict) -> int:
+def _seq(raw: dict[str, Any]) -> int:
     x = raw["seq"]
     if type(x) is not int or not 0 <= x < MAX_SEQ:
         raise PayloadError(f"seq is not a whole number in 0..{MAX_SEQ - 1}")
@@ -209,7 +209,7 @@ def _angles(col: object, n: int, what: str) -> list[float]:
     return col
 
 
-def _names(raw: dict, key: str) -> list[str]:
+def _names(raw: dict[str, Any], key: str) -> list[str]:
     """Ids that become topic levels (a tag's position topic) or payload text: each one a level."""
     v = raw[key]
     if not isinstance(v, list) or not all(is_level(x) for x in v):
@@ -217,14 +217,14 @@ def _names(raw: dict, key: str) -> list[str]:
     return v
 
 
-def _gateway(raw: dict) -> str:
-    gw = raw["gw"]
+def _gateway(raw: dict[str, Any]) -> str:
+    gw: str = raw["gw"]
     if not is_level(gw):
         raise PayloadError(f"gw is not a gateway name (1..{MAX_ID} characters, none of / + # or NUL)")
     return gw
 
 
-def _decode_v2(raw: dict) -> AngleBatch:
+def _decode_v2(raw: dict[str, Any]) -> AngleBatch:
     anchors, tags = _names(raw, "anchors"), _names(raw, "tags")
     i, ang = raw["i"], raw["ang"]
     if not (isinstance(i, list) and len(i) == 3 and isinstance(ang, list) and len(ang) == 2):
@@ -236,7 +236,7 @@ def _decode_v2(raw: dict) -> AngleBatch:
                       _seconds(raw, "t0"), dt, a, g, _angles(ang[0], n, "azimuth"), _angles(ang[1], n, "elevation"))
 
 
-def _decode_v1(raw: dict) -> AngleBatch:
+def _decode_v1(raw: dict[str, Any]) -> AngleBatch:
     events = raw["events"]
     if not isinstance(events, list):
         raise PayloadError("events is not a list")

@@ -75,7 +75,8 @@ Item: TypeAlias = Union[
     "Advertisement", "HciPacket", H4Packet,  # HCI (H4Packet: a Reader over h4)
     Drop,
 ]
-"""Every item a device can yield; narrow it with ``isinstance`` (or ask ``open`` for one kind)."""
+"""Every item a device can yield; narrow it with ``match item.kind`` or ``isinstance`` (or ask ``open``
+for one kind)."""
 
 ItemT = TypeVar("ItemT", bound=Item, covariant=True)
 

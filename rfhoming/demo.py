@@ -38,7 +38,7 @@ SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None,
-                   receiver: str | None = None, speed: float = 0.0) -> tuple[subprocess.Popen, dict]:
+                   receiver: str | None = None, speed: float = 0.0) -> tuple[subprocess.Popen[str], dict[str, Any]]:
     """``speed`` 0: lockstep (as fast as the host answers, deterministic); else the emulator's
     ``--speed`` (1 = robot time, for a person watching)."""
     pace = ["--lockstep"] if speed == 0 else ["--speed", str(speed)]
@@ -49,7 +49,8 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
     if target:
         cmd.append(f"--target={target}")  # "=": a negative X would read as an option
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    endpoints: dict[str, dict] = {}
+    assert proc.stdout is not None and proc.stderr is not None  # both piped
+    endpoints: dict[str, dict[str, Any]] = {}
     try:
         while len(endpoints) < 2:
             line = proc.stdout.readline()
@@ -69,7 +70,7 @@ INTERRUPTED_GRACE_S = 1.0
 every child it started are gone within 2 s."""
 
 
-def stop_emulator(proc: subprocess.Popen, grace_s: float) -> None:
+def stop_emulator(proc: subprocess.Popen[str], grace_s: float) -> None:
     """Ctrl-C to the emulator (it closes its links and writes the last truth line), then kill it
     if it has not gone within ``grace_s``."""
     if proc.poll() is None:
@@ -81,7 +82,7 @@ def stop_emulator(proc: subprocess.Popen, grace_s: float) -> None:
         proc.wait()
 
 
-def plan(endpoints: dict[str, dict], out: Path, config: Config, sinks: tuple = ()) -> Homing:
+def plan(endpoints: dict[str, dict[str, Any]], out: Path, config: Config, sinks: tuple[Any, ...] = ()) -> Homing:
     """The same homing run ``rfhoming run`` makes, on the ptys the emulator printed: each
     device by its port spec (the kind it printed and its path), with a capture of every byte."""
     named = {e["device"]: e for e in endpoints.values()}
@@ -116,12 +117,12 @@ def trilat_config(config: Config, truth: Path, target: str | None) -> Config:
     return replace(config, trilat=replace(config.trilat, anchors=anchors, goal=goal))
 
 
-def read_truth(path: Path) -> tuple[dict, list[dict]]:
+def read_truth(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     lines = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     return lines[0], [line for line in lines[1:] if "t" in line]
 
 
-def summarise(outcome: Outcome, truth_path: Path, links: dict, goal: list[float] | None = None) -> dict[str, Any]:
+def summarise(outcome: Outcome, truth_path: Path, links: dict[str, Any], goal: list[float] | None = None) -> dict[str, Any]:
     header, states = read_truth(truth_path)
     target = states[-1]["targets"][0] if goal is None else {"x": goal[0], "y": goal[1]}
     start, end = states[0]["robot"], states[-1]["robot"]
@@ -186,15 +187,16 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
 
 
 async def _in_process(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-                     receiver: str | None, sinks: tuple = ()) -> tuple[Outcome, Config]:
+                     receiver: str | None, sinks: tuple[Any, ...] = ()) -> tuple[Outcome, Config]:
     """The same run with the emulator in this process on its byte pipe, in lockstep: the host
     settles after every step, so the result depends on the seed alone (as in the campaigns)."""
     from rfhoming.campaigns.closed_loop import PipePort
+    from rfhoming.emulator.links import pipe_end
     from rfhoming.emulator.runtime import Emulator
     from rfhoming.emulator.scenario import load
 
     xy = tuple(float(v) for v in target.split(",")) if target and scenario != "s3-arena" else None
-    sc = load(scenario, seed=seed, target=xy, receiver=receiver)  # type: ignore[arg-type]
+    sc = load(scenario, seed=seed, target=xy, receiver=receiver)
     if scenario == "s3-arena":
         goal = [float(v) for v in target.split(",")] if target else [4.0, 4.0]
         beacons = {t.id: list(t.position) for t in sc.world.targets}
@@ -206,7 +208,7 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
         em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=truth)
         await em.start()
         world = asyncio.create_task(em.run())
-        ports = {name: PipePort(name, em.device(name).link.host) for name in (sensor, "base")}
+        ports = {name: PipePort(name, pipe_end(em.device(name).link)) for name in (sensor, "base")}
         kind = devices.BOARDS[names[sensor]][0].name
         plan = Homing(controller, [Device(role, port=ports[sensor], kind=kind), Device("base", port=ports["base"])],
                       config, sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
@@ -225,7 +227,7 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
 
 
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-             receiver: str | None = None, sinks: list | tuple = (), speed: float = 0.0,
+             receiver: str | None = None, sinks: list[Any] | tuple[Any, ...] = (), speed: float = 0.0,
              in_process: bool = False) -> dict[str, Any]:
     """One demo run. ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that
     device; ``sinks`` (an MCAP recorder, a live view) see every item and run log record too,
@@ -262,7 +264,7 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     return _finish(summary, out)
 
 
-async def _home_beside(emulator: subprocess.Popen, plan: Homing, out: Path) -> Outcome:
+async def _home_beside(emulator: subprocess.Popen[str], plan: Homing, out: Path) -> Outcome:
     """``home``; when it is cancelled (Ctrl-C, SIGTERM) the emulator is told at once, so that it
     closes while the host does."""
     try:

@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
-from typing import NamedTuple
+from typing import ClassVar, Literal, NamedTuple
 
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
@@ -44,13 +44,16 @@ _CUTS = {"uconnect": re.compile(rb"\r\n|\r|\n"), "esp-at": re.compile(rb"\n"), "
 READ_SIZE = 4096
 
 
-class H4Packet(NamedTuple):
+class _H4Packet(NamedTuple):
+    data: bytes
+
+
+class H4Packet(_H4Packet):
     """One HCI packet as the H4 splitter cut it, indicator byte first (bumble's
     ``HCI_Packet.from_bytes`` parses it); what a Reader over ``h4`` yields."""
 
-    data: bytes
-
-    kind = "h4_packet"
+    __slots__ = ()
+    kind: ClassVar[Literal["h4_packet"]] = "h4_packet"
     to_dict = as_dict
 
 

@@ -40,7 +40,7 @@ from rfhoming.host.drivers.common import (
     Wiring,
     serial_port,
 )
-from rfhoming.host.ports import HostPort, Tap
+from rfhoming.host.ports import Port, Tap
 from rfhoming.host.portspec import PortSpec
 from rfhoming.protocol.uconnect import (
     AngleEvent,
@@ -191,7 +191,7 @@ class AoaDriver(Driver):
             setup = replace(setup, command_timeout=spec.timeout)
         return cls(port or serial_port(spec, taps), setup, **options)
 
-    def __init__(self, port: HostPort, setup: AoaSetup = AoaSetup(), *, queue_size: int = 1000,
+    def __init__(self, port: Port, setup: AoaSetup = AoaSetup(), *, queue_size: int = 1000,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
@@ -233,17 +233,17 @@ class AoaDriver(Driver):
                 self._binary_output(t_host)  # explained once, at the first frames
             if kind == "drop" and self._binary is not None:
                 continue  # binary output is decoded; the text decoder's drops are only counted
-            if not (kind == "angle" and self.chosen and item.instance_id not in self.chosen):
+            if not (item.kind == "angle" and self.chosen and item.instance_id not in self.chosen):
                 self.emit(t_host, item)  # another tag's angles are counted (filtered), not shown
             if kind == "drop":
                 continue
-            if kind == "unknown":
+            if item.kind == "unknown":
                 self._unknown_lines.append(item.text[:60])  # text, yet not +UUDF: say what it is
             else:
                 self._last_valid = time.monotonic()
                 self._bytes_at_valid = self.port.counters["bytes_in"]
                 self._unknown_lines.clear()
-            if kind == "angle":
+            if item.kind == "angle":
                 self._on_angle(item, t_host)
                 continue
             if kind == "startup":
@@ -301,6 +301,7 @@ class AoaDriver(Driver):
     def _choose(self, board_ms: int) -> bool:
         """Listening for the tags in view: True once the only one heard is chosen. Measured on
         the board's clock, so a slow host (or a lockstep world) hears the same span of air."""
+        assert self.setup.choose_tag_s is not None
         if self._choosing_since is None:
             self._choosing_since = board_ms
         if board_ms - self._choosing_since < self.setup.choose_tag_s * 1000 or self.ambiguous_tags:
@@ -427,7 +428,7 @@ class AoaDriver(Driver):
         await self._wake()
 
     async def _reads_back(self, tag: int | str, value: Any) -> bool:
-        if tag == "filter":
+        if isinstance(tag, str):  # "filter", the one setting that is not a UDFCFG tag
             return (await self.command(c.read_filter(c.FILTER_INSTANCE))).info == [value]
         return (await self.command(c.read_config(tag))).info == [c.config_answer(tag, value)]
 

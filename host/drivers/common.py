@@ -15,6 +15,7 @@ from rfhoming.host.ports import (
     Disconnected,
     EndOfInput,
     HostPort,
+    Port,
     PortError,
     flapping_delay,
     Tap,
@@ -179,7 +180,7 @@ class Driver:
         """The items in bytes the host wrote to it (an export's commands from a capture)."""
         return []
 
-    def __init__(self, port: HostPort, *, reconnect: bool = True, out: BoundedStream[Any] | None = None,
+    def __init__(self, port: Port, *, reconnect: bool = True, out: BoundedStream[Any] | None = None,
                  queue_size: int = 1000) -> None:
         self.port = port
         self.reconnect = reconnect

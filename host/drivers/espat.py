@@ -18,7 +18,7 @@ from typing import Any
 
 from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver, scan_settings, serial_port
 from rfhoming.host.drivers.rss import BleRssi
-from rfhoming.host.ports import HostPort, Tap
+from rfhoming.host.ports import Port, Tap
 from rfhoming.host.portspec import PortSpec
 from rfhoming.protocol.drop import Drop
 from rfhoming.protocol.espat import EspAtDecoder, Event, Final, Info, ScanReport
@@ -67,8 +67,9 @@ class EspAtSetup:
 def setup_from_spec(spec: PortSpec, setup: EspAtSetup) -> EspAtSetup:
     """The spec's scan settings (active, interval, window, mac, adname) over ``setup``."""
     s = spec.settings
-    return scan_settings(spec, setup, filter_mac=s.get("mac", setup.filter_mac),
-                         filter_name=s.get("adname", setup.filter_name))
+    scanning: EspAtSetup = scan_settings(spec, setup, filter_mac=s.get("mac", setup.filter_mac),
+                                         filter_name=s.get("adname", setup.filter_name))
+    return scanning
 
 
 class EspAtDriver(Driver):
@@ -80,7 +81,7 @@ class EspAtDriver(Driver):
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> EspAtDriver:
         return cls(port or serial_port(spec, taps), setup_from_spec(spec, options.pop("setup", EspAtSetup())), **options)
 
-    def __init__(self, port: HostPort, setup: EspAtSetup = EspAtSetup(), *, queue_size: int = 4000,
+    def __init__(self, port: Port, setup: EspAtSetup = EspAtSetup(), *, queue_size: int = 4000,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup

@@ -21,13 +21,13 @@ import asyncio
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, Literal, NamedTuple
 
 from bumble import hci
 
 from rfhoming.host.drivers.common import BoundedStream, CommandFailed, Driver, scan_settings
 from rfhoming.host.drivers.rss import BleRssi
-from rfhoming.host.ports import Disconnected, HostPort, PortError, Tap
+from rfhoming.host.ports import Disconnected, HostPort, Port, PortError, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.protocol import ad as adv
 from rfhoming.protocol import h4
@@ -46,10 +46,7 @@ MAX_PARTIAL = 64  # advertisers with a fragment pending; the oldest is dropped b
 MAX_AD = 1650  # the longest extended advertising data (Core v5.4 Vol 4 Part E 7.8.54)
 
 
-class Advertisement(NamedTuple):
-    """One advertising report, as ``listen`` shows it (and as listeners get it)."""
-
-    kind = "advertisement"
+class _Advertisement(NamedTuple):
     address: str  # 12 hex digits, MSB first
     address_type: int
     rssi_dbm: int  # 127 = not available
@@ -57,13 +54,23 @@ class Advertisement(NamedTuple):
     data: bytes
 
 
-class HciPacket(NamedTuple):
-    """Any other HCI packet: bumble's name for it and its bytes (H4 indicator included)."""
+class Advertisement(_Advertisement):
+    """One advertising report, as ``listen`` shows it (and as listeners get it)."""
 
-    kind = "hci"
+    __slots__ = ()
+    kind: ClassVar[Literal["advertisement"]] = "advertisement"
+
+
+class _HciPacket(NamedTuple):
     name: str
     raw: bytes
 
+
+class HciPacket(_HciPacket):
+    """Any other HCI packet: bumble's name for it and its bytes (H4 indicator included)."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["hci"]] = "hci"
 
 
 @dataclass(frozen=True)
@@ -106,10 +113,11 @@ def setup_from_spec(spec: PortSpec, setup: HciSetup | None = None) -> HciSetup:
     """The spec's scan settings over ``setup`` (default settings if None)."""
     setup = setup or HciSetup()
     s = spec.settings
-    return scan_settings(spec, setup, extended=s.get("extended", setup.extended),
-                         filter_duplicates=s.get("dedup", setup.filter_duplicates),
-                         addresses=frozenset([s["mac"].replace(":", "")]) if "mac" in s else setup.addresses,
-                         name=s.get("adname", setup.name), content=s.get("content", setup.content))
+    scanning: HciSetup = scan_settings(spec, setup, extended=s.get("extended", setup.extended),
+                                         filter_duplicates=s.get("dedup", setup.filter_duplicates),
+                                         addresses=frozenset([s["mac"].replace(":", "")]) if "mac" in s else setup.addresses,
+                                         name=s.get("adname", setup.name), content=s.get("content", setup.content))
+    return scanning
 
 
 class HciDriver(Driver):
@@ -127,7 +135,7 @@ class HciDriver(Driver):
                 raise PortSpecError(str(exc)) from None
         return cls(port, setup_from_spec(spec, options.pop("setup", None)), **options)
 
-    def __init__(self, port: HostPort, setup: HciSetup = HciSetup(), *, queue_size: int = 4000,
+    def __init__(self, port: Port, setup: HciSetup = HciSetup(), *, queue_size: int = 4000,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.setup = setup
@@ -135,7 +143,7 @@ class HciDriver(Driver):
         self.counters.update(setups=0, silent=0, reports=0, filtered=0, no_rssi=0, bad_packets=0, hardware_errors=0,
                              fragments=0, truncated=0, partial_dropped=0,
                              **{"drop.not_event": 0, "drop.malformed": 0, "drop.error": 0})
-        self._partial: dict[tuple, tuple[Any, bytearray]] = {}  # fragments of extended reports, by advertiser
+        self._partial: dict[tuple[Any, ...], tuple[Any, bytearray]] = {}  # fragments of extended reports, by advertiser
         self.extended: bool | None = None
         self._pending: tuple[int, asyncio.Future[Any]] | None = None
 
@@ -162,9 +170,9 @@ class HciDriver(Driver):
             self._drop("malformed", f"bumble cannot parse it: {exc}", raw, t_host)
             return
         extended = isinstance(packet, hci.HCI_LE_Extended_Advertising_Report_Event)
-        if extended or isinstance(packet, hci.HCI_LE_Advertising_Report_Event):
+        if isinstance(packet, (hci.HCI_LE_Extended_Advertising_Report_Event, hci.HCI_LE_Advertising_Report_Event)):
             for report in packet.reports:
-                whole = self._reassemble(report) if extended else (report, bytes(report.data))
+                whole: tuple[Any, bytes] | None = self._reassemble(report) if extended else (report, bytes(report.data))
                 if whole is not None:
                     self._report(*whole, extended, t_host)
             return
@@ -172,7 +180,7 @@ class HciDriver(Driver):
         if isinstance(packet, (hci.HCI_Command_Complete_Event, hci.HCI_Command_Status_Event)):
             if self._pending is not None and packet.command_opcode == self._pending[0] and not self._pending[1].done():
                 self._pending[1].set_result(packet)
-        elif packet.event_code == HARDWARE_ERROR_EVENT:
+        elif isinstance(packet, hci.HCI_Event) and packet.event_code == HARDWARE_ERROR_EVENT:
             self.counters["hardware_errors"] += 1
             log.warning("%s: controller hardware error; setting it up again", self.port.name)
             self._needs_setup.set()

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rfhoming.host.estimation.bearings import Degenerate
+from rfhoming.host.estimation.bearings import Degenerate as Degenerate  # re-exported: its fits raise it
 
 MIN_RANGE_M = 0.3
 """Ranges along a ray below this are treated as this (no infinite weights)."""
@@ -54,7 +54,8 @@ def rotation(yaw_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> n
     rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
     ry = np.array([[cp, 0, -sp], [0, 1, 0], [sp, 0, cp]])  # Ry(-pitch): +pitch lifts x toward z
     rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    return rz @ ry @ rx
+    board_to_world: np.ndarray = rz @ ry @ rx
+    return board_to_world
 
 
 def board_direction(azimuth_deg: float, elevation_deg: float, model: str = "spherical") -> np.ndarray:
@@ -86,8 +87,8 @@ def board_angles_many(d: np.ndarray, model: str = "spherical") -> np.ndarray:
     x, y, z = d[:, 0], d[:, 1], d[:, 2]
     if model == "cone":
         r = np.sqrt(x * x + y * y + z * z)
-        return np.degrees(np.stack([-np.arcsin(np.clip(y / r, -1, 1)), np.arcsin(np.clip(z / r, -1, 1))], axis=1))
-    return np.degrees(np.stack([-np.arctan2(y, x), np.arctan2(z, np.hypot(x, y))], axis=1))
+        return np.asarray(np.degrees(np.stack([-np.arcsin(np.clip(y / r, -1, 1)), np.arcsin(np.clip(z / r, -1, 1))], axis=1)))
+    return np.asarray(np.degrees(np.stack([-np.arctan2(y, x), np.arctan2(z, np.hypot(x, y))], axis=1)))
 
 
 def angle_sigma_deg(azimuth_deg: float, elevation_deg: float, sigma0_deg: float) -> float:

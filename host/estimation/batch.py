@@ -138,7 +138,8 @@ def _median(values: np.ndarray, count: np.ndarray) -> np.ndarray:
     statistics.median, the mean of the two middle ones for an even count."""
     ordered = np.sort(values, axis=1)
     rows = np.arange(len(count))
-    return (ordered[rows, (count - 1) // 2] + ordered[rows, count // 2]) / 2
+    middle: np.ndarray = (ordered[rows, (count - 1) // 2] + ordered[rows, count // 2]) / 2
+    return middle
 
 
 @dataclass(frozen=True)
@@ -304,10 +305,10 @@ class BatchLocator:
         last = upto.max(axis=1)
         fresh = last >= t - site.stale_s
         if only_new:
-            reported = np.array(self._reported)
+            reported_np = np.array(self._reported)
             tag_newest = np.full(len(self.tags), -np.inf)
             np.maximum.at(tag_newest, self._ptag[:n], np.where(fresh, last, -np.inf))
-            fresh &= (tag_newest > reported)[self._ptag[:n]]
+            fresh &= (tag_newest > reported_np)[self._ptag[:n]]
         fresh = np.flatnonzero(fresh)
         if len(fresh) == 0:
             return []

@@ -211,7 +211,7 @@ class CircleInitializer:
         ok = np.stack(valid, axis=1)
         n_ok = ok.sum(axis=1)
         mean_xy = np.where(n_ok[:, None] > 0, np.nansum(np.where(ok[:, :, None], pts, 0), axis=1) / np.maximum(n_ok, 1)[:, None], np.nan)
-        have = ~np.isnan(mean_xy).any(axis=1)
+        have = np.asarray(~np.isnan(mean_xy).any(axis=1))
         estimate = np.zeros((len(mean_xy), self.model.dim))
         estimate[:, :2] = np.nan_to_num(mean_xy)
         if self.model.dim == 3:

@@ -52,7 +52,7 @@ class MovingAverageFloat:
 
 
 def _div_round_np(num: np.ndarray, den: np.ndarray) -> np.ndarray:
-    return np.where(num >= 0, (num + den // 2) // den, -((-num + den // 2) // den))
+    return np.asarray(np.where(num >= 0, (num + den // 2) // den, -((-num + den // 2) // den)))
 
 
 def moving_average_batch(q8: np.ndarray, n: int = 10) -> np.ndarray:

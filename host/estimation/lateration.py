@@ -45,5 +45,5 @@ def multilaterate(anchors: np.ndarray, distances: np.ndarray) -> np.ndarray:
     b = d[1:] ** 2 - d[0] ** 2 - np.sum(p[1:] ** 2, axis=1) + np.sum(p[0] ** 2)
     if np.linalg.matrix_rank(a, tol=1e-6) < 2 or np.linalg.cond(a) > 1e6:
         raise Degenerate("the anchors are (nearly) collinear")
-    x, *_ = np.linalg.lstsq(a, b, rcond=None)
+    x: np.ndarray = np.linalg.lstsq(a, b, rcond=None)[0]
     return x

@@ -164,7 +164,7 @@ class ParticleFilter:
 
     def estimate(self) -> np.ndarray:
         """Weighted mean position (x, y)."""
-        return self.x[:2] @ self.w
+        return np.asarray(self.x[:2] @ self.w)
 
     def relative(self, robot: tuple[float, float, float]) -> tuple[float, float]:
         """(range m, bearing rad) of the estimate from the robot; the bearing is the circular

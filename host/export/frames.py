@@ -63,7 +63,7 @@ def anchor_mounts(site: Any) -> list[Transform]:
     pitch positive up), so a bearing drawn in the anchor's frame lands where the fix does."""
     if site is None:
         return []
-    return [Transform(MAP, anchor_frame(a.id), tuple(map(float, a.position)),
+    return [Transform(MAP, anchor_frame(a.id), (float(a.position[0]), float(a.position[1]), float(a.position[2])),
                       math.radians(a.yaw_deg + a.calibration.yaw_offset_deg), math.radians(a.roll_deg),
                       -math.radians(a.pitch_deg))
             for a in site.anchors]

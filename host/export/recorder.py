@@ -103,8 +103,9 @@ class McapRecorder(Sink):
         :meth:`watch`."""
         if clock not in ("robot", "host"):
             raise ValueError(f"clock must be robot or host, not {clock!r}")
-        self._file = open(output, "wb") if isinstance(output, (str, Path)) else None
-        self.writer = Writer(self._file or output, chunk_size=CHUNK_BYTES)
+        stream = open(output, "wb") if isinstance(output, (str, Path)) else output
+        self._file = stream if stream is not output else None
+        self.writer = Writer(stream, chunk_size=CHUNK_BYTES)
         self.writer.start(profile="ros2", library="rfhoming (mcap, mcap-ros2-support)")
         self._flushed_at: tuple[float, float] | None = None  # (message time, host monotonic) of the last flush
         self.clock = clock
@@ -383,7 +384,7 @@ def _capture_drivers(path: Path | str) -> tuple[dict[str, Driver], list[tuple[st
 
 
 def _read_runlog(path: Path | str) -> list[dict[str, Any]]:
-    records = []
+    records: list[dict[str, Any]] = []
     try:
         text = Path(path).read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:

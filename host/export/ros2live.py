@@ -29,7 +29,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from rosbags.typesys.base import Nodetype
+from rosbags.interfaces import Nodetype
 
 from rfhoming.host.export import frames, rosmsgs
 from rfhoming.host.export.recorder import McapRecorder
@@ -62,8 +62,8 @@ def _annotation(node: tuple[Any, Any]) -> Any:
         return idl_type(rest)
     inner, length = rest
     if kind == Nodetype.ARRAY:
-        return idl.array[_annotation(inner), length]
-    return idl.sequence[_annotation(inner)]
+        return idl.array[_annotation(inner), length]  # type: ignore[misc]  # cyclonedds builds it at run time
+    return idl.sequence[_annotation(inner)]  # type: ignore[misc]  # cyclonedds builds it at run time
 
 
 @cache
@@ -112,7 +112,7 @@ class Ros2Publisher(McapRecorder):
         self._closed = False
         self.domain = domain
         self._participant = participant(domain, discovery)
-        self._writers: dict[str, DataWriter] = {}
+        self._writers: dict[str, DataWriter[Any]] = {}
         self.skip = skip
 
     def static_transforms(self) -> list[frames.Transform]:

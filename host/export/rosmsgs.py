@@ -136,7 +136,7 @@ def yaw_quaternion(theta: float) -> dict[str, float]:
 
 
 def odometry(t: float, x: float, y: float, theta: float, v: float, w: float,
-             path_m: float = 0.0) -> tuple[str, str, dict]:
+             path_m: float = 0.0) -> tuple[str, str, dict[str, Any]]:
     """The base's odometry (metres, radians, m/s, rad/s), with the assumed covariances above
     after ``path_m`` metres driven."""
     return "/odom", ODOM, {
@@ -148,7 +148,7 @@ def odometry(t: float, x: float, y: float, theta: float, v: float, w: float,
     }
 
 
-def transforms(topic: str, t: float, tfs: list[Transform]) -> tuple[str, str, dict]:
+def transforms(topic: str, t: float, tfs: list[Transform]) -> tuple[str, str, dict[str, Any]]:
     """``/tf`` or ``/tf_static``: a tf2_msgs/TFMessage of parent -> child transforms."""
     return topic, TF, {"transforms": [
         {"header": header(t, tf.parent), "child_frame_id": tf.child,
@@ -156,12 +156,12 @@ def transforms(topic: str, t: float, tfs: list[Transform]) -> tuple[str, str, di
         for tf in tfs]}
 
 
-def odom_transform(t: float, x: float, y: float, theta: float) -> tuple[str, str, dict]:
+def odom_transform(t: float, x: float, y: float, theta: float) -> tuple[str, str, dict[str, Any]]:
     """odom -> base_link on /tf, from one odometry record."""
     return transforms("/tf", t, [Transform(ODOM_FRAME, BASE_FRAME, (x, y, 0.0), theta)])
 
 
-def laser_scan(t: float, scan: Any) -> tuple[str, str, dict]:
+def laser_scan(t: float, scan: Any) -> tuple[str, str, dict[str, Any]]:
     """A range scan (:class:`~rfhoming.host.drivers.robot_base.Scan`) in the ``laser`` frame,
     REP 117: every range within [range_min, range_max], no return or beyond range_max +inf,
     below range_min -inf; range_min, range_max, scan_time and time_increment are the sensor's."""
@@ -181,12 +181,12 @@ def rep117(r: float | None, range_min: float, range_max: float) -> float:
     return -math.inf if r < range_min else r
 
 
-def twist(v: float, w: float) -> tuple[str, str, dict]:
+def twist(v: float, w: float) -> tuple[str, str, dict[str, Any]]:
     """A velocity command (Twist has no header: the log time is its time), on :data:`COMMANDS`."""
     return COMMANDS, TWIST, {"linear": {"x": v, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": w}}
 
 
-def point(topic: str, t: float, xy: list[float], frame: str = ODOM_FRAME) -> tuple[str, str, dict]:
+def point(topic: str, t: float, xy: list[float], frame: str = ODOM_FRAME) -> tuple[str, str, dict[str, Any]]:
     return topic, POINT, {"header": header(t, frame), "point": {"x": float(xy[0]), "y": float(xy[1]), "z": 0.0}}
 
 
@@ -196,7 +196,7 @@ def tag_topic(tag: str, what: str) -> str:
     return f"/rfhoming/tag_{tag}/{what}"
 
 
-def tag_pose(t: float, tag: str, xyz: Any, covariance: Any) -> tuple[str, str, dict]:
+def tag_pose(t: float, tag: str, xyz: Any, covariance: Any) -> tuple[str, str, dict[str, Any]]:
     """A tag's fix in ``map`` with its 3×3 position covariance (m²); it has no orientation:
     identity, with UNKNOWN_VAR rotation variances."""
     cov = [0.0] * 36
@@ -210,16 +210,16 @@ def tag_pose(t: float, tag: str, xyz: Any, covariance: Any) -> tuple[str, str, d
                           "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}, "covariance": cov}}
 
 
-def tag_point(t: float, tag: str, xyz: Any) -> tuple[str, str, dict]:
+def tag_point(t: float, tag: str, xyz: Any) -> tuple[str, str, dict[str, Any]]:
     """A tag's fix in ``map`` as a point (what a viewer draws without a covariance)."""
     return tag_topic(tag, "point"), POINT, {"header": header(t, frames.MAP), "point": dict(zip("xyz", map(float, xyz)))}
 
 
-def text(topic: str, value: str) -> tuple[str, str, dict]:
+def text(topic: str, value: str) -> tuple[str, str, dict[str, Any]]:
     return topic, STRING, {"data": value}
 
 
-def aoa_angle(t: float, frame: str, e: Any, board_sign: int = -1, model: str = "spherical") -> tuple[str, str, dict]:
+def aoa_angle(t: float, frame: str, e: Any, board_sign: int = -1, model: str = "spherical") -> tuple[str, str, dict[str, Any]]:
     """A u-connectLocate AngleEvent in its board's frame, REP 103 signs (x the boresight, z up).
 
     The board's own sign (negative = tag to its left) is turned into the direction in the
@@ -237,7 +237,7 @@ def aoa_angle(t: float, frame: str, e: Any, board_sign: int = -1, model: str = "
     }
 
 
-def rssi_reading(t: float, r: Any) -> tuple[str, str, dict]:
+def rssi_reading(t: float, r: Any) -> tuple[str, str, dict[str, Any]]:
     """An AdvReport record (the address goes MSB first, as printed)."""
     return "/rfhoming/ble/rssi", RSSI, {
         "header": header(t, frames.BLE), "node_id": r.node_id, "address": r.addr[::-1].hex().upper(),
@@ -245,7 +245,7 @@ def rssi_reading(t: float, r: Any) -> tuple[str, str, dict]:
     }
 
 
-def antenna_set(t: float, r: Any) -> tuple[str, str, dict]:
+def antenna_set(t: float, r: Any) -> tuple[str, str, dict[str, Any]]:
     """An AntennaSet record."""
     return "/rfhoming/rss/antenna_set", ANTENNAS, {
         "header": header(t, frames.RSS), "node_id": r.node_id, "emitter_seq": r.emitter_seq, "channel": r.channel,
@@ -254,7 +254,7 @@ def antenna_set(t: float, r: Any) -> tuple[str, str, dict]:
     }
 
 
-def bearing(t: float, fields: dict[str, Any]) -> tuple[str, str, dict]:
+def bearing(t: float, fields: dict[str, Any]) -> tuple[str, str, dict[str, Any]]:
     """A run log measurement: S0 gives theta_s/distance, S2 theta/range, S1 azimuth/rssi only."""
     def pick(*names: str) -> float:
         for name in names:

@@ -123,4 +123,4 @@ class AnchorsController(ControllerDefaults):
         return {"robot_world": r(self.robot_world), "target_world": r(self.target_world), "goal": r(self.reported),
                 "frame_rotation_deg": None if self.transform is None else round(math.degrees(self.transform[0]), 2),
                 "map_odom": None if self.transform is None else  # world = R(yaw) odometry + (x, y): map -> odom
-                [*r(self.transform[1]), round(self.transform[0], 5)]}
+                [*(r(self.transform[1]) or []), round(self.transform[0], 5)]}

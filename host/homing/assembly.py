@@ -31,7 +31,6 @@ from rfhoming.host.drivers.robot import RobotBase
 from rfhoming.host.homing.anchors import AnchorsController
 from rfhoming.host.homing.config import Config, from_tables, to_tables
 from rfhoming.host.homing.loop import (
-    Controller,
     HomingLoop,
     Outcome,
     RunLog,
@@ -41,7 +40,8 @@ from rfhoming.host.homing.s0_aoa import AoaController
 from rfhoming.host.homing.s1_dock import DockController
 from rfhoming.host.homing.s2_rss import RssController
 from rfhoming.host.homing.s3_trilat import TrilatController
-from rfhoming.host.ports import HostPort
+from rfhoming.host.homing.types import Controller
+from rfhoming.host.ports import HostPort, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.replay import ReplayPort, Sequencer, notes, read_capture
@@ -158,7 +158,7 @@ def _kind_for(device: Device, spec: PortSpec) -> PortSpec:
 async def resolve_devices(plan: Homing) -> Homing:
     """The plan with every spec made concrete (``auto`` found, the kind fixed by the role);
     the capture, if any, is told what each port is and the role it fills."""
-    taps = [plan.capture.tap] if plan.capture else []
+    taps: list[Tap] = [plan.capture.tap] if plan.capture else []
     out = []
     for device in plan.devices:
         describe = None if plan.capture is None else _describing(plan.capture, device.role)
@@ -204,11 +204,11 @@ def _recorded(devices_: list[Device], capture: CaptureWriter | None) -> list[Dev
         for i, k in zip(indexes, picked):
             port = ReplayPort(interfaces[k].name, packets[k], sequencer=sequencer,
                               description=describe_interface(interfaces[k]))
-            kind = recorded_kind(interfaces[k]).name
+            recorded = recorded_kind(interfaces[k]).name
             if capture is not None:  # a run on recorded devices is a run: its capture replays too
                 port.taps.append(capture.tap)
-                capture.describe(port.name, kind=kind, role=devices_[i].role)
-            out[i] = replace(devices_[i], spec=None, port=port, kind=kind)
+                capture.describe(port.name, kind=recorded, role=devices_[i].role)
+            out[i] = replace(devices_[i], spec=None, port=port, kind=recorded)
     return out
 
 
@@ -239,7 +239,7 @@ def _driver(plan: Homing, device: Device, inputs: BoundedStream[Any]) -> tuple[D
     """The device's driver, handing its items to ``inputs``, with its spec's settings (also on a
     port already made: a replay keeps the live run's tags= and scan settings); and its set-up
     deadline (None: a port that needs none, the in-process pipe or a replay)."""
-    taps = [plan.capture.tap] if plan.capture else []
+    taps: list[Tap] = [plan.capture.tap] if plan.capture else []
     spec = parse_spec(device.spec) if device.spec is not None else None
     if spec is not None and spec.kind == "serve":
         served = serve_driver(spec, out=inputs)
@@ -315,7 +315,7 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
                   probe_baud=record["probe_baud"], plans_taken=taken)
 
 
-RECORD_KEYS = {"controller": str, "config": dict, "tags": list, "choose_tag_s": (float, int, type(None)),
+RECORD_KEYS: dict[str, type | tuple[type, ...]] = {"controller": str, "config": dict, "tags": list, "choose_tag_s": (float, int, type(None)),
                "probe_baud": bool, "devices": list, "site": (str, type(None))}
 
 
@@ -338,7 +338,7 @@ def _record(path: Path | str, comments: list[str]) -> dict[str, Any]:
                                     "`capture`, or of a run before rfhoming recorded them): replay its devices with "
                                     "rfhoming replay CAPTURE, without --run")
     try:
-        record = json.loads(text)
+        record: dict[str, Any] = json.loads(text)
     except ValueError as exc:
         raise CaptureFormatError(0, f"{path}: its run record is not JSON ({exc})") from None
     if record.get(RUN_RECORD) != 1:

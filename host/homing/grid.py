@@ -90,7 +90,7 @@ class OccupancyGrid:
                             if dx * dx + dy * dy <= grow * grow])
         at = np.asarray(cells, dtype=np.intp).reshape(-1, 1, 2) + offsets[None, :, :]
         xs, ys = at[..., 0] % self.n, at[..., 1] % self.n  # wrapped, as the costs' np.roll grows them
-        return (self.hits[xs, ys] > self.misses[xs, ys]).any(axis=1)
+        return np.asarray((self.hits[xs, ys] > self.misses[xs, ys]).any(axis=1))
 
     def costs(self) -> np.ndarray:
         occ = self.occupied()

@@ -101,7 +101,7 @@ class S0Homing:
     g_v: tuple[float, float] | None = None
     reported: tuple[float, float] | None = None
     phase: str = "disambiguating"
-    _raw: deque = field(init=False)  # the last ``buffer`` raw vector goals
+    _raw: deque[tuple[float, float]] = field(init=False)  # the last ``buffer`` raw vector goals
     _weights: list[float] = field(init=False)  # g_v's weights, newest first
     _fusion: RayRangeFusion | None = field(init=False)  # ours: every reading near the goal
     _sums: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # Σx, Σy, Σx², Σy² of _raw
@@ -269,12 +269,12 @@ class S0Homing:
         agree = (self.g_v is not None and self.g_p is not None
                  and math.dist(self.g_p, self.g_v) < p.arrival_agreement)
         if d_g < p.arrival_radius and (agree or (self.g_p is None and len(self._raw) == self._raw.maxlen)):
-            return Decision(0.0, 0.0, tuple(goal), True, "arrived")
+            return Decision(0.0, 0.0, goal, True, "arrived")
         if steer_to is not None:
             dx, dy = steer_to[0] - pose.x, steer_to[1] - pose.y
         theta_g = wrap_rad(math.atan2(dy, dx) - pose.theta)
         v, _ = velocity_law(theta_g, d_g, p.v_max, p.w_max, p.k_w, p.k_stop)
-        return Decision(v, self._turn(theta_g), tuple(goal), False, "homing")
+        return Decision(v, self._turn(theta_g), goal, False, "homing")
 
     def _turn(self, theta_g: float) -> float:
         """ω = k_ω θg; for a goal nearly behind keep the turning direction (no ±180° dithering)."""

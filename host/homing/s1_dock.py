@@ -143,6 +143,7 @@ class DockController(ControllerDefaults):
             return Decision(0.0, 0.0, (pose.x, pose.y), True, "arrived")
         if self._step is None:
             self._next_step(pose)
+            assert self._step is not None
         x, y, heading = self._step
         turn = wrap_rad(heading - pose.theta)
         if abs(math.degrees(turn)) > p.heading_tolerance_deg:  # rotate first

@@ -23,7 +23,7 @@ class ConfigError(Error, ValueError):
 
 
 def setting(default: Any = MISSING, *, low: float = -math.inf, high: float = math.inf, unit: str = "",
-            above: bool = False, inf: bool = False, choices: tuple = (), length: int | None = None,
+            above: bool = False, inf: bool = False, choices: tuple[Any, ...] = (), length: int | None = None,
             factory: Any = None) -> Any:
     """A dataclass field with its range: ``low``..``high`` (``above``: strictly above ``low``),
     ``unit`` for the message, ``inf``: infinity is a meaningful value, ``choices`` for strings
@@ -59,7 +59,7 @@ def defaults_problems(cls: type, where: str) -> list[str]:
     problems = []
     hints = _hints(cls)
     for f in fields(cls):
-        value = f.default_factory() if f.default is MISSING else f.default  # type: ignore[misc]
+        value = f.default_factory() if f.default_factory is not MISSING else f.default
         if is_dataclass(hints[f.name]):
             problems += defaults_problems(hints[f.name], f"{where}.{f.name}")
             continue
@@ -78,13 +78,13 @@ def _as_toml(value: Any) -> Any:
     return value
 
 
-def check(tp: Any, value: Any, f: Field, where: str, source: Any, key: str = "") -> Any:
+def check(tp: Any, value: Any, f: Field[Any], where: str, source: Any, key: str = "") -> Any:
     """``value`` of the field ``f`` (type ``tp``) as the dataclass wants it, or ConfigError;
     ``key`` names an element of a list or table field in the message (default: the field)."""
     key = key or f.name
     if _optional(tp) is not None:  # TOML has no null: a key that is there gives the value
         tp = _optional(tp)
-    if is_dataclass(tp):
+    if isinstance(tp, type) and is_dataclass(tp):
         return build(tp, value, f"{where}.{f.name}", source)
     meta = f.metadata
     origin = get_origin(tp)
@@ -109,7 +109,7 @@ def _optional(tp: Any) -> Any:
     return None
 
 
-def _scalar(tp: Any, value: Any, f: Field, where: str, source: Any, key: str) -> Any:
+def _scalar(tp: Any, value: Any, f: Field[Any], where: str, source: Any, key: str) -> Any:
     meta = f.metadata
     if tp is bool:
         if not isinstance(value, bool):
@@ -135,6 +135,8 @@ def _scalar(tp: Any, value: Any, f: Field, where: str, source: Any, key: str) ->
 def _in_range(value: float, meta: Any) -> bool:
     if meta.get("choices"):
         return value in meta["choices"]
+    low: float
+    high: float
     low, high = meta.get("low", -math.inf), meta.get("high", math.inf)
     return (value > low if meta.get("above") else value >= low) and value <= high
 
@@ -154,8 +156,8 @@ def _range(meta: Any) -> str:
     return f"{'above' if meta.get('above') else 'from'} {low:g} {'and at most' if meta.get('above') else 'to'} {high:g}{unit}"
 
 
-def _refuse(value: Any, f: Field, where: str, source: Any, key: str, expected: str) -> None:
-    default = f.default_factory() if f.default is MISSING else f.default  # type: ignore[misc]
+def _refuse(value: Any, f: Field[Any], where: str, source: Any, key: str, expected: str) -> None:
+    default = f.default_factory() if f.default_factory is not MISSING else f.default
     hint = "" if default is None or isinstance(default, dict) or key != f.name else f"; the default is {_toml(default)}"
     raise ConfigError(f"{source}: [{where}] {key} = {_toml(value)}: expected {expected}{hint}")
 

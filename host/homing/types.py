@@ -47,8 +47,13 @@ class Controller(Protocol):
     source: str  # what its readings are called in the run log ("aoa", "rss", ...)
     uses_planner: bool  # the loop's occupancy grid and A* may steer it
     own_avoidance: bool  # it avoids obstacles by its own rules: the loop's S0 avoidance stays off
-    phase: str
-    reported: Any  # the goal estimate (x, y) or None
+
+    @property
+    def phase(self) -> str: ...
+
+    @property
+    def reported(self) -> Any:
+        """The goal estimate (x, y) or None."""
 
     def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
         """One sensor reading; returns the fields to log, or None if it was not a reading."""

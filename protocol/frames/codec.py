@@ -73,7 +73,8 @@ def encode_inner(record: Any) -> bytes:
 
 def encode_frame(record: Any) -> bytes:
     """The bytes on the wire for one record, with a zero before and after."""
-    return b"\0" + cobs.encode(encode_inner(record)) + b"\0"
+    encoded: bytes = cobs.encode(encode_inner(record))
+    return b"\0" + encoded + b"\0"
 
 
 def _decode_frame(frame: bytes) -> Any:
@@ -141,6 +142,7 @@ class FrameDecoder:
         scanned = self._scan(self._rest, data, MAX_ENCODED)
         if scanned is None:  # the unfinished frame grows past MAX_ENCODED
             return self._feed_python(data)
+        frames: list[Any]  # inner bytes, or a 1-tuple of a raw frame left to us
         frames, self._rest = scanned
         if not frames:
             return frames

@@ -41,7 +41,7 @@ def _format_char(con: cs.Construct) -> str:
     if isinstance(con, cs.FormatField):
         if con.fmtstr[0] != "<":
             raise TypeError(f"{con} is not little-endian")
-        return con.fmtstr[1:]
+        return str(con.fmtstr[1:])
     if isinstance(con, cs.Bytes) and isinstance(con.length, int):
         return f"{con.length}s"
     raise TypeError(f"no struct layout for {con!r}")
@@ -132,7 +132,7 @@ def _make_decoder(rt: RecordType) -> BodyDecoder:
 
         return decode_counted_bytes
 
-    if layout.tail == "counted":
+    if layout.tail == "counted" and layout.tail_item is not None:
         item = layout.tail_item
         item_char = item.format[1:]
         arrays: dict[int, struct.Struct] = {}
@@ -156,10 +156,11 @@ def _make_decoder(rt: RecordType) -> BodyDecoder:
     def decode_rest(inner: bytes, end: int, node: int, seq: int, t: int) -> Any:
         if end < start:
             return None
-        rest = inner[start:end]
+        raw = inner[start:end]
+        rest: bytes | str = raw
         if text:
             try:
-                rest = rest.decode("utf-8")
+                rest = raw.decode("utf-8")
             except UnicodeDecodeError as exc:
                 raise BadText(f"{rt.kind} is not UTF-8: {exc.reason} at byte {exc.start}") from None
         return new(cls, (node, seq, t) + unpack(inner, HEADER_SIZE) + (rest,))

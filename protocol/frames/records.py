@@ -464,6 +464,7 @@ def build_inner(record: Any) -> bytes:
         body["antennas"] = [a._asdict() for a in body["antennas"]]
     fields = Struct("header" / HEADER, "body" / RECORD_TYPES[record.type_code].body)
     size = len(fields.build({"header": header, "body": body})) + 2
-    return INNER.build({"fields": {"value": {"header": header, "body": body}}}, size=size)
+    inner: bytes = INNER.build({"fields": {"value": {"header": header, "body": body}}}, size=size)
+    return inner
 
 

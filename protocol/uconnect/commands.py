@@ -43,7 +43,7 @@ class ConfigTag:
     source: str
 
 
-def _same(valid: range | None, families=FAMILIES) -> dict[str, range | None]:
+def _same(valid: range | None, families: tuple[str, ...] = FAMILIES) -> dict[str, range | None]:
     return {f: valid for f in families}
 
 
@@ -159,7 +159,7 @@ def set_config(tag: int, value: int | str, fam: str | None = None) -> Command:
                              f"{MAX_STRING} chars, without quotes")
         return Command(f'AT+UDFCFG={tag},"{text}"')
     if not any(accepts(f, tag, value) for f in families):
-        valid = max((entry.ranges[f] for f in families), key=len)
+        valid = max((r for f in families if (r := entry.ranges[f]) is not None), key=len)
         raise ValueError(f"AT+UDFCFG tag {tag} takes {valid.start}..{valid.stop - 1}")
     return Command(f"AT+UDFCFG={tag},{value}")
 
@@ -275,16 +275,16 @@ class CommandMatcher:
             if kind in ("echo", "info", "final"):
                 self.counters["unexpected_" + kind] += 1
             return None
-        if kind == "echo":
+        if item.kind == "echo":
             if item.text == self.pending.text:
                 self._echoed = True
             else:
                 self.counters["echo_mismatch"] += 1
-        elif kind in ("info", "unknown"):
+        elif item.kind == "info" or item.kind == "unknown":
             self._info.append(item.text)
-        elif kind == "final":
+        elif item.kind == "final":
             return self._complete(item.ok, restarted=False)
-        elif kind == "startup":
+        elif item.kind == "startup":
             return self._complete(False, restarted=True)
         return None
 

@@ -18,6 +18,7 @@ common ``+UUDF`` lines and hands every other line back here as bytes.
 from __future__ import annotations
 
 from collections import Counter
+from typing import Any
 
 from rfhoming.protocol.accel import ACCEL
 from rfhoming.protocol.uconnect.items import (
@@ -83,11 +84,11 @@ def _fast_angle_event(line: bytes) -> AngleEvent | None:
     n = len(t)
     if n not in (2, 3, 5):  # 9, 10 or 12 fields
         return None
-    ts = t[1]
-    if ts.isdigit() and ts[0] != 48 and len(ts) < 10:  # common case: positive, < 1e9 ms
-        ts = int(ts)
+    ts_text = t[1]
+    if ts_text.isdigit() and ts_text[0] != 48 and len(ts_text) < 10:  # common case: positive, < 1e9 ms
+        ts: int | None = int(ts_text)
     else:
-        ts = _strict_int(ts)
+        ts = _strict_int(ts_text)
         if ts is None or ts not in TIMESTAMP_RANGE:
             return None
     seq = az_raw = el_raw = None
@@ -237,6 +238,7 @@ class UConnectDecoder:
         scanned = self._scan(self._rest, data, AngleEvent)
         if scanned is None:  # the held line grows past MAX_LINE
             return self._feed_python(data)
+        out: list[Any]  # events, or lines left to us as bytes
         out, angles, self._rest = scanned
         if angles:
             self.counters["angle"] += angles

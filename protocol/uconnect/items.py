@@ -1,25 +1,20 @@
 """What the u-connectLocate decoder yields, one type per kind of line.
 
 Items are NamedTuples: cheap to build on the hot path, immutable, comparable, and
-``to_dict()`` gives the JSON form. ``kind`` is a class attribute, not a field.
+``to_dict()`` gives the JSON form. ``kind`` is a class attribute, not a field: typed as a
+``Literal`` on a subclass (NamedTuple bodies cannot hold typed class attributes), so
+``match item.kind`` narrows the item.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import ClassVar, Literal, NamedTuple
 
-from rfhoming.protocol.drop import Drop
+from rfhoming.protocol.drop import Drop as Drop  # re-exported: an Item can be a Drop
 from rfhoming.protocol.jsonable import as_dict
 
 
-class AngleEvent(NamedTuple):
-    """One ``+UUDF`` event: a tag's direction as seen by one anchor.
-
-    Angles are integer degrees in the board's own frame (azimuth -90..90, negative = tag to
-    the left seen from the antenna). ``seq`` exists from firmware 2.x on; the raw angles only
-    on u-locateEmbed with ``AT+UDFCFG=121,1``.
-    """
-
+class _AngleEvent(NamedTuple):
     instance_id: str
     rssi1: int
     azimuth: int
@@ -35,61 +30,91 @@ class AngleEvent(NamedTuple):
     azimuth_raw: int | None = None
     elevation_raw: int | None = None
 
-    kind = "angle"
+
+class AngleEvent(_AngleEvent):
+    """One ``+UUDF`` event: a tag's direction as seen by one anchor.
+
+    Angles are integer degrees in the board's own frame (azimuth -90..90, negative = tag to
+    the left seen from the antenna). ``seq`` exists from firmware 2.x on; the raw angles only
+    on u-locateEmbed with ``AT+UDFCFG=121,1``.
+    """
+
+    __slots__ = ()
+    kind: ClassVar[Literal["angle"]] = "angle"
     to_dict = as_dict
 
 
-class TagData(NamedTuple):
-    """``+UUDFP``: a tag's periodic-advertising payload (2.x), not an angle."""
-
+class _TagData(NamedTuple):
     instance_id: str
     payload: bytes
 
-    kind = "tag_data"
+
+class TagData(_TagData):
+    """``+UUDFP``: a tag's periodic-advertising payload (2.x), not an angle."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["tag_data"]] = "tag_data"
     to_dict = as_dict
 
 
-class Startup(NamedTuple):
+class _Startup(NamedTuple):
+    pass
+
+
+class Startup(_Startup):
     """``+STARTUP``: the board booted; a host must send its set-up again."""
 
-    kind = "startup"
+    __slots__ = ()
+    kind: ClassVar[Literal["startup"]] = "startup"
     to_dict = as_dict
 
 
-class Echo(NamedTuple):
+class _Echo(NamedTuple):
+    text: str
+
+
+class Echo(_Echo):
     """The board echoing a command the host sent (text without the CR)."""
 
-    text: str
-
-    kind = "echo"
+    __slots__ = ()
+    kind: ClassVar[Literal["echo"]] = "echo"
     to_dict = as_dict
 
 
-class InfoLine(NamedTuple):
+class _InfoLine(NamedTuple):
+    text: str
+
+
+class InfoLine(_InfoLine):
     """An information line of a command answer, e.g. ``+UMLA:…`` or ``"u-blox"``."""
 
-    text: str
-
-    kind = "info"
+    __slots__ = ()
+    kind: ClassVar[Literal["info"]] = "info"
     to_dict = as_dict
 
 
-class FinalCode(NamedTuple):
-    """``OK`` or ``ERROR``: the end of a command answer."""
-
+class _FinalCode(NamedTuple):
     ok: bool
 
-    kind = "final"
+
+class FinalCode(_FinalCode):
+    """``OK`` or ``ERROR``: the end of a command answer."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["final"]] = "final"
     to_dict = as_dict
 
 
-class UnknownLine(NamedTuple):
-    """A well-formed ASCII line we do not recognise; kept verbatim and counted."""
-
+class _UnknownLine(NamedTuple):
     text: str
     note: str = ""
 
-    kind = "unknown"
+
+class UnknownLine(_UnknownLine):
+    """A well-formed ASCII line we do not recognise; kept verbatim and counted."""
+
+    __slots__ = ()
+    kind: ClassVar[Literal["unknown"]] = "unknown"
     to_dict = as_dict
 
 
