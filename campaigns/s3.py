@@ -17,6 +17,7 @@ test points must lie inside), and both are shown.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -52,7 +53,7 @@ def rssi_at(distance: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarra
     d = np.asarray(distance, float)
     mean = np.where(d <= 5.0, np.interp(d, TABLE1_D, TABLE1_MEAN), BEYOND_TABLE.rssi(np.maximum(d, 1e-3)))
     std = np.interp(np.minimum(d, 5.0), TABLE1_D, TABLE1_STD)
-    return np.round(mean + std * rng.standard_normal((n, len(d))))
+    return np.asarray(np.round(mean + std * rng.standard_normal((n, len(d)))), float)
 
 
 def filters_run(seed: int) -> dict[str, Any]:
@@ -183,7 +184,7 @@ def _comparison_table(summary: dict[str, Any], paper_wins: int) -> str:
                      f"{summary['arenas'][a]['trilateration_better_at']}/9"] for a in ARENAS])
 
 
-def _plot(path, filt: dict[str, Any], summary: dict[str, Any]) -> None:
+def _plot(path: Path, filt: dict[str, Any], summary: dict[str, Any]) -> None:
     fig, axes = figure(path, 2)
     for n in FILTERS:
         axes[0].plot(TABLE1_D, filt[n], marker="o", label=n)

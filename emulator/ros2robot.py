@@ -17,7 +17,8 @@ from typing import Any
 from cyclonedds.core import DDSException, Listener, Qos
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
-from cyclonedds.sub import DataReader, InvalidSample
+from cyclonedds.internal import InvalidSample
+from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 from rfhoming.emulator.links import Link
@@ -46,13 +47,13 @@ def _join(domain: int, discovery: str) -> tuple[Domain | None, DomainParticipant
         raise dds.DdsError(f"cannot join ROS 2 domain {domain} ({exc})") from None
 
 
-def _writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos) -> DataWriter:
+def _writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos) -> DataWriter[Any]:
     return DataWriter(dp, Topic(dp, ros2.dds_topic(topic), dds.TYPES[ros_type]), qos=qos)
 
 
-def _reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable[[Any], None], qos: Qos) -> DataReader:
+def _reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable[[Any], None], qos: Qos) -> DataReader[Any]:
     """A reader of a ROS topic; ``on_sample`` is called on Cyclone's listener thread."""
-    def on_data(r: DataReader) -> None:
+    def on_data(r: DataReader[Any]) -> None:
         for sample in r.take(64):
             if not isinstance(sample, InvalidSample):  # a writer gone (disposed, unregistered): no data
                 on_sample(sample)

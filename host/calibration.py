@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import math
 import statistics
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import cast
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -93,7 +94,7 @@ def _predict(anchor: Anchor, theta: np.ndarray, points: np.ndarray, model: str) 
     return np.stack([s_az * ang[:, 0] + b_az, s_el * ang[:, 1] + b_el], axis=1)
 
 
-def _jacobian(f, theta: np.ndarray, free: list[int]) -> np.ndarray:
+def _jacobian(f: Callable[[np.ndarray], np.ndarray], theta: np.ndarray, free: list[int]) -> np.ndarray:
     r0 = f(theta)
     cols = []
     for k in free:
@@ -133,7 +134,7 @@ def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray, *, mode
         weights[1] = 0.0  # elevation held: its residuals say nothing about the azimuth parameters
 
     def resid(theta: np.ndarray) -> np.ndarray:
-        return ((_predict(anchor, theta, points, model) - measured) * weights).ravel()
+        return np.asarray((_predict(anchor, theta, points, model) - measured) * weights, float).ravel()
 
     jac = _jacobian(resid, DEFAULT, [0, 2])
     corr = abs(float(jac[:, 0] @ jac[:, 1]) / (np.linalg.norm(jac[:, 0]) * np.linalg.norm(jac[:, 1]) + 1e-12))
@@ -151,7 +152,10 @@ def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray, *, mode
         theta[free] = x
         return theta
 
-    solution = least_squares(lambda x: resid(sub(x)), DEFAULT[free], bounds=(lo[free], hi[free]),
+    def fun(x: np.ndarray) -> np.ndarray:
+        return resid(sub(x))
+
+    solution = least_squares(fun, DEFAULT[free], bounds=(lo[free], hi[free]),
                              loss="soft_l1", f_scale=ROBUST_DEG)
     theta = sub(solution.x)
     for k in free:
@@ -193,7 +197,7 @@ def find_dwells(events: Sequence[tuple[float, AngleEvent]], tag: str, *, min_s: 
     for k in sorted(medians):
         prev = medians.get(k - 1)
         common = set(medians[k]) & set(prev or {})
-        still.append((k, bool(prev) and len(common) >= 2
+        still.append((k, prev is not None and bool(prev) and len(common) >= 2
                       and all(abs(medians[k][a] - prev[a]) <= still_deg for a in common)))
     runs: list[list[int]] = []  # [first bin, last bin] of each still run
     for k, ok in still:
@@ -241,7 +245,7 @@ def _samples(events: list[tuple[float, AngleEvent]], points: list[Point]) -> dic
     for t, event in events:
         for i in by_tag.get(event.instance_id, ()):
             p = points[i]
-            if p.start_s is None or p.start_s <= t - t0 <= p.end_s:
+            if p.start_s is None or p.end_s is None or p.start_s <= t - t0 <= p.end_s:
                 samples.setdefault((event.anchor_id, i), []).append((event.azimuth, event.elevation))
     return samples
 
@@ -270,7 +274,7 @@ def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]],
     or whose fit would leave the site file's limits."""
     events = list(events)
     if isinstance(points, dict):
-        points = [Point(tag, tuple(map(float, p))) for tag, p in points.items()]  # type: ignore[misc]
+        points = [Point(tag, cast(tuple[float, float, float], tuple(map(float, p)))) for tag, p in points.items()]
     samples = _samples(events, points)
     models = ANGLE_MODELS if angle_model == "auto" else (angle_model,)
     per_model: dict[str, list[AnchorFit]] = {}

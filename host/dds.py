@@ -11,7 +11,8 @@ from typing import Any
 from cyclonedds.core import DDSException, Listener, Qos
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
-from cyclonedds.sub import DataReader, InvalidSample
+from cyclonedds.internal import InvalidSample
+from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 from rfhoming.protocol import ros2
@@ -54,9 +55,9 @@ def _domain(domain: int, xml: str | None) -> Domain | None:
 
 
 def reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable[[Any], None],
-           qos: Qos = SENSOR_QOS) -> DataReader:
+           qos: Qos = SENSOR_QOS) -> DataReader[Any]:
     """A reader of a ROS topic; ``on_sample`` is called on Cyclone's listener thread."""
-    def on_data(r: DataReader) -> None:
+    def on_data(r: DataReader[Any]) -> None:
         for sample in r.take(64):
             if not isinstance(sample, InvalidSample):  # a writer gone (disposed, unregistered): no data
                 on_sample(sample)
@@ -65,7 +66,7 @@ def reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable
                       listener=Listener(on_data_available=on_data))
 
 
-def writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos = DEFAULT_QOS) -> DataWriter:
+def writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos = DEFAULT_QOS) -> DataWriter[Any]:
     return DataWriter(dp, Topic(dp, ros2.dds_topic(topic), TYPES[ros_type]), qos=qos)
 
 

@@ -65,7 +65,7 @@ def candidates(ask: Callable[[str], bool | str] = answers_as_xplr_aoa) -> list[C
     vendors = known_vendors()
     for info in list_ports.comports():
         ftdi = info.vid == FTDI or (info.vid not in vendors and (info.manufacturer or "").upper().startswith("FTDI"))
-        known = vendors.get(info.vid) if info.vid is not None else None
+        known: tuple[str | None, str] | None = vendors.get(info.vid) if info.vid is not None else None
         ids = f"{info.vid:04X}:{info.pid:04X}" if info.vid is not None else "no USB ids"
         if ftdi:
             known = _ftdi(ask(info.device))

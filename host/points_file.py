@@ -39,8 +39,8 @@ def load_points(path: Path) -> list[Point]:
         if extra:
             raise CalibrationError(f"{where} has unknown key(s) {', '.join(extra)}; known: tag, position, from_s, to_s")
         window = [d.get("from_s"), d.get("to_s")]
-        if window != [None, None] and not (
-                all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in window) and window[0] < window[1]):
+        start, end = (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None for v in window)
+        if window != [None, None] and not (start is not None and end is not None and start < end):
             raise CalibrationError(f"{where}: from_s and to_s must both be given, seconds from the first angle "
                                    f"event with from_s < to_s (or both left out: dwells are found); got {window}")
         out.append(Point(d["tag"].upper(), _position(d.get("position"), f"{where} position"),

@@ -36,7 +36,7 @@ class Ros2Port:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._odometry = asyncio.Event()
         self._entities: list[Any] = []
-        self._writer: DataWriter | None = None
+        self._writer: DataWriter[Any] | None = None
 
     @property
     def is_open(self) -> bool:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -92,7 +92,7 @@ def make_driver(spec: PortSpec, taps: list[Tap], **options: Any) -> Driver:
 
 
 async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | None = None,
-                  taps: list[Tap] = (), kind: str | None = None,
+                  taps: Sequence[Tap] = (), kind: str | None = None,
                   describe: Callable[..., None] | None = None) -> PortSpec:
     """A spec made concrete: ``auto`` found, the protocol sniffed where not given, defaults
     (``baud``, ``flow`` from the command line) under the spec's own settings.
@@ -114,6 +114,7 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
     if spec.kind is None:
         spec = spec.with_kind(await sniff(spec, lambda *event: sniffed.append(event)))
     if describe is not None:
+        assert spec.kind is not None  # named, or sniffed just now
         record = devices.kind(spec.kind)
         describe(spec.name or spec.where, protocol=record.protocol, kind=record.name, label=label(spec.where, spec.name),
                  **driver_class(record).describe_spec(spec))  # e.g. a ROS 2 base's topics
@@ -123,8 +124,8 @@ async def resolve(text: str | PortSpec, *, baud: int | None = None, flow: str | 
     return spec
 
 
-async def open_drivers(specs: list[str | PortSpec], *, baud: int | None = None, flow: str | None = None,
-                       taps: list[Tap] = (), describe: Callable[..., None] | None = None,
+async def open_drivers(specs: Sequence[str | PortSpec], *, baud: int | None = None, flow: str | None = None,
+                       taps: Sequence[Tap] = (), describe: Callable[..., None] | None = None,
                        probe_baud: bool = False) -> list[Driver]:
     """Drivers for the specs (a ``capture:`` spec gives one per recorded device).
 

@@ -16,9 +16,13 @@ participant uses the loopback interface only, no multicast, unicast discovery to
 ``discovery=subnet`` leaves Cyclone's own defaults (the machine's network, multicast discovery).
 """
 
-# no `from __future__ import annotations`: cyclonedds reads the IDL fields' annotations at run time
+# no `from __future__ import annotations`: cyclonedds reads the IDL fields' annotations at run time.
+# ``sequence[T]`` and ``array[T, n]`` are written out as what they make, ``Annotated[Sequence[T], ...]``,
+# so that type checkers see a sequence too.
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Annotated
 
 from cyclonedds.core import Policy, Qos
 from cyclonedds.idl import IdlStruct
@@ -72,7 +76,7 @@ class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
 @dataclass
 class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
     pose: Pose = field(default_factory=Pose)
-    covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+    covariance: Annotated[Sequence[float64], array(float64, 36)] = field(default_factory=lambda: [0.0] * 36)
 
 
 @dataclass
@@ -90,7 +94,7 @@ class TwistStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TwistStamped_"
 @dataclass
 class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
     twist: Twist = field(default_factory=Twist)
-    covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+    covariance: Annotated[Sequence[float64], array(float64, 36)] = field(default_factory=lambda: [0.0] * 36)
 
 
 @dataclass
@@ -111,8 +115,8 @@ class LaserScan(IdlStruct, typename="sensor_msgs::msg::dds_::LaserScan_"):
     scan_time: float32 = 0.0
     range_min: float32 = 0.0
     range_max: float32 = 0.0
-    ranges: sequence[float32] = field(default_factory=list)
-    intensities: sequence[float32] = field(default_factory=list)
+    ranges: Annotated[Sequence[float32], sequence(float32)] = field(default_factory=list)
+    intensities: Annotated[Sequence[float32], sequence(float32)] = field(default_factory=list)
 
 
 @dataclass
@@ -130,7 +134,7 @@ class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformS
 
 @dataclass
 class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
-    transforms: sequence[TransformStamped] = field(default_factory=list)
+    transforms: Annotated[Sequence[TransformStamped], sequence(TransformStamped)] = field(default_factory=list)
 
 
 TF = "tf2_msgs/msg/TFMessage"

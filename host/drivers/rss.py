@@ -39,6 +39,10 @@ class BleRssi(NamedTuple):
     rssi_dbm: int
 
 
+def _four(powers: list[float | None]) -> tuple[float | None, float | None, float | None, float | None]:
+    return powers[0], powers[1], powers[2], powers[3]
+
+
 class AntennaPowers(NamedTuple):
     """One emitter frame on the four antennas (x1, x2, y1, y2); None = not received."""
 
@@ -101,12 +105,12 @@ class Associator:
         done = self.expire(t)
         if key in self._open and all(p is not None for p in powers):
             del self._open[key]
-            done.append(AntennaPowers(t0, node_id, emitter_seq, tuple(powers)))
+            done.append(AntennaPowers(t0, node_id, emitter_seq, _four(powers)))
         return done
 
     def expire(self, now: float) -> list[AntennaPowers]:
         old = [k for k, (t0, _) in self._open.items() if now - t0 > self.window_s]
-        return [AntennaPowers(self._open[k][0], k[0], k[1], tuple(self._open.pop(k)[1])) for k in old]
+        return [AntennaPowers(self._open[k][0], k[0], k[1], _four(self._open.pop(k)[1])) for k in old]
 
 
 class RssDriver(Driver):
@@ -153,8 +157,8 @@ class RssDriver(Driver):
                 if record.rssi_dbm != 127:
                     self.out.put(BleRssi(t, record.node_id, record.addr[::-1].hex().upper(), record.rssi_dbm))
             elif isinstance(record, AntennaSet) and self.use_antenna_sets:
-                dbm = tuple(self._dbm(a.ed, record.rssi_base_dbm) if record.valid_mask >> i & 1 else None
-                            for i, a in enumerate(record.antennas))
+                dbm = _four([self._dbm(a.ed, record.rssi_base_dbm) if record.valid_mask >> i & 1 else None
+                             for i, a in enumerate(record.antennas)])
                 self.out.put(AntennaPowers(t, record.node_id, record.emitter_seq, dbm))
             elif isinstance(record, RfFrame) and not self.use_antenna_sets:
                 for done in self.associator.add(record.node_id, record.emitter_seq, record.antenna,

@@ -387,7 +387,7 @@ async def run(plan: Homing) -> Outcome:
     when a device cannot be used, naming its port."""
     check(plan)
     assembled = build(await resolve_devices(plan))
-    drivers = [*assembled.loop.sensors, assembled.loop.base]
+    drivers: list[Driver | RobotBase] = [*assembled.loop.sensors, assembled.loop.base]
     homing = asyncio.create_task(assembled.loop.run())
     watch = asyncio.create_task(supervise(assembled.deadlines))  # at once done for in-process ports and replays
     lost = asyncio.create_task(losses.watch(lambda: [d.health() for d in drivers]))

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rfhoming.host.drivers.robot_base import Scan
+from rfhoming.host.drivers.robot import Scan
 from rfhoming.host.homing.schema import RAD_S, M, S, setting
 from rfhoming.host.homing.types import Decision
 

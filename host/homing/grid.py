@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rfhoming.host.drivers.robot_base import Scan
+from rfhoming.host.drivers.robot import Scan
 from rfhoming.host.homing.planner import Planner, TcodPlanner
 from rfhoming.host.homing.schema import M, setting
 from rfhoming.host.homing.types import Pose

@@ -127,7 +127,7 @@ class HomingLoop:
     def __init__(self, base: RobotBase, sensors: list[Driver], controller: Controller, config: Config,
                  runlog: RunLog, inputs: BoundedStream[Any], planner: Planner | None = None,
                  plans_taken: dict[float, float] | None = None) -> None:
-        assert all(d.out is inputs for d in (base, *sensors)), "every driver hands its items to the loop's stream"
+        assert base.out is inputs and all(d.out is inputs for d in sensors), "every driver hands its items to the loop's stream"
         self.base, self.sensors, self.config = base, sensors, config
         self.controller = controller
         self.source = controller.source
@@ -479,7 +479,7 @@ class HomingLoop:
     def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose | None, goal: Any) -> Outcome:
         self.base.stop()
         self.log.write("event", duration, what=reason)
-        drivers = [*self.sensors, self.base]
+        drivers: list[Driver | RobotBase] = [*self.sensors, self.base]
         kinds = [d.kind for d in drivers]
         links = {(d.kind if kinds.count(d.kind) == 1 else f"{d.kind}:{d.port.name}"): with_losses(d.health())
                  for d in drivers}

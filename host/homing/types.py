@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple, Protocol
 
-from rfhoming.host.drivers.robot_base import Scan
+from rfhoming.host.drivers.robot import Scan
 from rfhoming.protocol.errors import Error
 
 

@@ -12,13 +12,16 @@ import sys
 import time
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from rfhoming.host.drivers.robot import RobotBase
 from rfhoming.host.portspec import PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.sink import Sink
 from rfhoming.protocol.errors import Error
+
+if TYPE_CHECKING:  # imported when --ros2 is given: it needs cyclonedds
+    from rfhoming.host.export.ros2live import Ros2Publisher
 
 SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]  # what the view takes (host/foxglove_front.py)
 
@@ -76,7 +79,7 @@ BASE_TOPICS = frozenset({"/odom", "/scan", "/tf"})
 
 
 def ros2_publisher(text: str, ros2_bases: Iterable[int] = (), *, source: str | None = None, site: Any = None,
-                   robot: bool = True) -> Sink:
+                   robot: bool = True) -> Ros2Publisher:
     """``--ros2 [domain=N][,discovery=subnet]``: a sink publishing on that domain. ``ros2_bases``:
     the domains of the command's ROS 2 bases, whose own topics it leaves to them; the rest go to
     host/export/ros2live.py ``Ros2Publisher``."""
@@ -93,7 +96,7 @@ def ros2_publisher(text: str, ros2_bases: Iterable[int] = (), *, source: str | N
                          skip=BASE_TOPICS if domain in set(ros2_bases) else frozenset())
 
 
-def start_ros2(args: argparse.Namespace, drivers: list[Any]) -> Sink | None:
+def start_ros2(args: argparse.Namespace, drivers: list[Any]) -> Ros2Publisher | None:
     """``--ros2`` for commands that show devices (listen, capture, serve): None without it, else a
     sink for the drivers' items (stamped on the host's clock). An Error (one line, exit 2) when it
     cannot start."""

@@ -94,6 +94,6 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
     return 0
 
 
-async def _discard(stream: BoundedStream) -> None:
+async def _discard(stream: BoundedStream[Any]) -> None:
     async for _ in stream:
         pass

@@ -66,8 +66,11 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
     recordings = []
     for source in args.sources or [None]:
         events: list[tuple[float, Any]] = []
-        code = asyncio.run(gather("calibrate", site, [source] if source else None,
-                                  lambda t, event, into=events: into.append((t, event)),
+
+        def keep(t: float, event: Any, into: list[tuple[float, Any]] = events) -> None:
+            into.append((t, event))
+
+        code = asyncio.run(gather("calibrate", site, [source] if source else None, keep,
                                   baud=args.baud, flow=args.flow, duration=args.duration))
         if code:
             return code

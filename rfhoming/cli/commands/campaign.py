@@ -25,7 +25,8 @@ def default_folder(name: str, runs: int, seed: int) -> Path:
 
 def load(name: str) -> Campaign:
     module, attribute = REGISTRY[name].split(":")
-    return getattr(importlib.import_module(module), attribute)
+    campaign: Campaign = getattr(importlib.import_module(module), attribute)
+    return campaign
 
 
 def run(args: argparse.Namespace) -> int:

@@ -52,6 +52,7 @@ async def _serve(emulator: Emulator, duration: float | None) -> None:
         print(json.dumps(endpoint), flush=True)
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
+    assert task is not None  # run by asyncio.run
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, task.cancel)
     try:

@@ -25,9 +25,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _replay(args: argparse.Namespace) -> int:
-    damaged: list[CaptureFormatError] = []
+    damaged: list[Exception] = []
 
-    def warn(exc: CaptureFormatError) -> None:
+    def warn(exc: Exception) -> None:
         damaged.append(exc)
         print(f"rfhoming replay: {args.capture}: {exc}; replaying what came before it (--partial)", file=sys.stderr)
 

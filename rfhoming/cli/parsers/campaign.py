@@ -40,7 +40,7 @@ examples:
 """
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("campaign", help="reproduce a seed paper's results over many seeded runs",
                        description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("name", choices=sorted(REGISTRY), metavar="NAME", help="one of: " + ", ".join(REGISTRY))

@@ -34,7 +34,7 @@ examples:
 """
 
 
-def add_parsers(sub: argparse._SubParsersAction) -> None:
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     decode = sub.add_parser(
         "decode",
         help="decode raw device bytes to JSON lines",

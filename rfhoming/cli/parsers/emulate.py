@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 import os
 from importlib.util import find_spec
 from typing import Any
@@ -43,7 +44,7 @@ faults (repeatable): KIND[@DEVICE][:key=value,...]
 """
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("emulate", help="run an emulated world with devices on ptys or TCP",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenario", type=nonempty, help=f"a preset ({', '.join(presets())}) or a .toml file")
@@ -78,7 +79,7 @@ def robot_kind(text: str) -> dict[str, Any]:
     return mavlink_robot(text) if text.partition(":")[0].partition(",")[0] == "mavlink" else ros2_robot(text)
 
 
-MAVLINK_ROBOT = {"autopilot": str, "vehicle": str, "mode": str, "armed": lambda v: v in ("1", "yes", "true"),
+MAVLINK_ROBOT: dict[str, Callable[[str], Any]] = {"autopilot": str, "vehicle": str, "mode": str, "armed": lambda v: v in ("1", "yes", "true"),
                  "prearm": lambda v: v != "fail", "timeout": float}
 
 

@@ -26,7 +26,7 @@ examples:
 """
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("export", help="a run log and/or capture -> MCAP with ROS 2 messages",
                        description=EXPORT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run", type=path, metavar="RUN", help="the run log (run.jsonl), or a pcapng capture alone")

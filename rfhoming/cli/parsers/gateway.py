@@ -29,7 +29,7 @@ examples:
   rfhoming gateway --emulate site-64x1000 --broker mqtt://127.0.0.1:1883/8 --duration 60
 """
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     g = sub.add_parser("gateway", help="a site gateway: its anchors' angle events to an MQTT broker",
                        description=GATEWAY_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     g.add_argument("--device", type=nonempty, action="append", metavar="SPEC",

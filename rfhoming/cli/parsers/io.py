@@ -55,7 +55,7 @@ with --partial, the blocks before it are replayed (exit 0) and the problem is re
 """
 
 
-def add_parsers(sub: argparse._SubParsersAction) -> None:
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     raw = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser("devices", help="list serial ports and what each seems to be",
                        description="List the serial ports this machine sees and what each probably is, from "

@@ -112,7 +112,7 @@ def add_worker_arguments(p: argparse.ArgumentParser) -> None:
     w.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
 
 
-def add_parsers(sub: argparse._SubParsersAction) -> None:
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     raw = argparse.RawDescriptionHelpFormatter
     for name, helptext, description in (
             ("locate", "positions of tags from a site's fixed AoA anchors", LOCATE_HELP),

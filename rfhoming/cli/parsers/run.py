@@ -62,7 +62,7 @@ examples:
 """
 
 
-def add_parsers(sub: argparse._SubParsersAction) -> None:
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     raw = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser("demo", help="emulator + host: a full homing run, a summary and a plot",
                        description=DEMO_HELP, formatter_class=raw)

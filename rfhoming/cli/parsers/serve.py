@@ -38,7 +38,7 @@ examples:
 """
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("serve", help="own the devices and serve their items to many clients (gpsd-style)",
                        description=SERVE_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("ports", type=nonempty, nargs="+", metavar="PORT", help=ENDPOINT_HELP)
