@@ -8,12 +8,19 @@ Profiles: ``rfhoming`` (the default: derandomised, 150 examples) and ``fuzz`` (r
 
 import contextlib
 import os
+import signal
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
 import rigs
 from hypothesis import HealthCheck, settings
+
+# A suite started in the background (`nohup ... &`, a CI runner's job) has SIGINT ignored, and
+# every child would inherit that: the tests that end a command with Ctrl-C need it back. A handler
+# here (not an ignore) leaves the children the default on exec.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 settings.register_profile(
     "rfhoming",
