@@ -141,6 +141,18 @@ def test_a_turn_in_place_beside_an_obstacle_is_left_alone() -> None:
     assert drive.w >= 0.5 and drive.note == "too close on the right"  # driving on: steer away
 
 
+def test_a_planned_turn_in_place_is_not_turned_back_by_what_is_ahead() -> None:
+    """With a planner steering, a turn in place toward the path is left alone even with
+    something within obsThreshold2 ahead: overriding it, the real-time house and S2's scenario B
+    turned back and forth until the time limit (the homing turning one way, this rule the other)."""
+    avoid = ObstacleAvoidance()
+    avoid.on_scan(wall_scan(0.3))
+    turn = avoid.adjust(Decision(0.0, -1.2, (0, -5), False, "homing"), 0.0, emergency_only=True)
+    assert (turn.v, turn.w, turn.note) == (0.0, -1.2, "homing")
+    drive = avoid.adjust(Decision(0.5, 0.0, (5, 0), False, "homing"), 0.1, emergency_only=True)
+    assert drive.v == 0.0 and drive.w != 0  # driving into it is still stopped
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [4, 7])
 async def test_s0_homes_through_the_house(seed: int) -> None:

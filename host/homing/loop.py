@@ -203,6 +203,7 @@ class HomingLoop:
             async with self.stalls as stalls, self.base:
                 await self._base_connected(tasks[0])
                 self.base.stop()  # a known state, and the emulator's lockstep gets its first answer
+                self.last_odometry_wall = time.monotonic()  # the base's silence counts once it is there
                 outcome = await self._loop()
                 outcome.stalls = stalls.summary()
                 if self._wall_time_matters():
@@ -404,7 +405,10 @@ class HomingLoop:
                 self.log.write("event", t, what="plan asked", why=why, due=round(t + cfg.latency_s, 4))
         if not self._path:
             return None
-        return lookahead(self._path, pose, cfg.lookahead_m)
+        point = lookahead(self._path, pose, cfg.lookahead_m)
+        # the path's end is where the goal was when it was planned; the goal has moved since by
+        # less than a re-plan takes (an estimate moves all the time): the last stretch goes to it
+        return goal_xy if point == self._path[-1] else point
 
     def _replan_why(self, t: float, pose: Pose, goal: tuple[float, float]) -> str | None:
         """Why the path no longer does, or None: a material change, not every new scan."""
