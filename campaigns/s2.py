@@ -39,6 +39,7 @@ SYSTEMS = ("preliminary", "full", "full-bounded")
 stopping at an estimated ``OURS_STOP_M`` so that a range read short by a link's bias still
 ends within S2's 0.5 m."""
 OURS_STOP_M = 0.25
+PAPER_STOP_M = 0.5  # S2: "stop when front+back RSS says < 50 cm"
 PAPER_TIME_S = {"a": (89, 90), "b": (126, 230), "c": (252, 225), "d": (391, 222), "e": (None, 455)}
 """S2's mean times (s), preliminary / full; E failed with the preliminary system."""
 PAPER_DESCRIPTION = {"a": "straight 4 m", "b": "blocked", "c": "partly blocked right angle",
@@ -74,10 +75,9 @@ def host_config(scenario: str, system: str, seed: int, campaign_seed: int = 0) -
     fit = calibration.cached(f"s2-{scenario}", campaign_seed)
     motion, _, likelihood = system.partition("-")
     s2 = replace(Config().s2, motion=motion, seed=seed, likelihood=likelihood or "s2",
+                 arrival_range_m=OURS_STOP_M if likelihood == "bounded" else PAPER_STOP_M,
                  p0_dbm=round(fit.p0_dbm, 2), n=round(fit.n, 3), peak_gain_db=0.0,
                  dish_offsets_db=fit.dish_offsets_db)
-    if likelihood == "bounded":
-        s2 = replace(s2, arrival_range_m=OURS_STOP_M)
     return replace(Config(), s2=s2, loop=replace(LoopSettings(), max_time_s=MAX_TIME_S))
 
 

@@ -276,7 +276,7 @@ integrate_s = 0.3        # add a scan to the map at most this often
 p0_dbm = -40.0           # the emitter at 1 m through an isotropic antenna
 n = 2.0
 peak_gain_db = 6.6       # the dishes' peak gain (0.3 m at 915 MHz)
-arrival_range_m = 0.5    # stop when the estimated range is below this (S2)
+arrival_range_m = 0.25   # stop when the estimated range is below this (S2's own: 0.5)
 min_fixes = 10           # fixes before the first goal
 v_max = 0.4
 w_max = 1.0
@@ -288,7 +288,7 @@ motion = "full"          # "full": grid + A* (when scans come); "preliminary": S
 obstacle_m = 0.2         # preliminary: turn until clear when an obstacle is this close ahead
 body_radius_m = 0.25     # preliminary: obstacle_m is from the robot's round body, not the scanner
 touch_m = 0.05           # preliminary: this near the body anywhere in the scan counts as ahead
-likelihood = "s2"        # particle weights: "s2" (the paper's); "bounded": a range as an upper bound (walls)
+likelihood = "bounded"   # particle weights: "bounded" (ours: a range as an upper bound, walls); "s2" (the paper's)
 dish_offsets_db = [0.0, 0.0, 0.0, 0.0]  # x1, x2, y1, y2: each dish's own offset, subtracted (calibration)
 
 [s1]                     # docking (S1): the station's AoA and RSSI of the robot's tag
