@@ -142,14 +142,16 @@ def test_a_turn_in_place_beside_an_obstacle_is_left_alone() -> None:
 
 
 def test_a_planned_turn_in_place_is_not_turned_back_by_what_is_ahead() -> None:
-    """With a planner steering, a turn in place toward the path is left alone even with
-    something within obsThreshold2 ahead: overriding it, the real-time house and S2's scenario B
-    turned back and forth until the time limit (the homing turning one way, this rule the other)."""
+    """With a planner steering, a turn toward the path is kept even with something within
+    obsThreshold2 ahead: overriding it, the real-time house and S2's scenario B turned back and
+    forth until the time limit (the homing turning one way, this rule the other)."""
     avoid = ObstacleAvoidance()
     avoid.on_scan(wall_scan(0.3))
     turn = avoid.adjust(Decision(0.0, -1.2, (0, -5), False, "homing"), 0.0, emergency_only=True)
     assert (turn.v, turn.w, turn.note) == (0.0, -1.2, "homing")
-    drive = avoid.adjust(Decision(0.5, 0.0, (5, 0), False, "homing"), 0.1, emergency_only=True)
+    creep = avoid.adjust(Decision(0.02, -1.2, (0, -5), False, "homing"), 0.1, emergency_only=True)
+    assert (creep.v, creep.w) == (0.0, -1.2)  # turning toward the path while creeping on: stopped, still turning
+    drive = avoid.adjust(Decision(0.5, 0.0, (5, 0), False, "homing"), 0.2, emergency_only=True)
     assert drive.v == 0.0 and drive.w != 0  # driving into it is still stopped
 
 

@@ -8,9 +8,11 @@ Thresholds from S0 Table A1: obsThreshold1 1.5 m, obsThreshold2 0.35 m, sideObsT
 S0 gives the thresholds but its rule flowchart (Figure A6) is not in the text; these rules are
 our reconstruction:
 - something within obsThreshold2 ahead (centre 2 or centre): stop and turn to the freer side;
-  a turn in place toward a planned path is left alone (overriding it, the robot turned back
-  and forth for minutes facing a chair while the path led away behind it: the homing turned it
-  toward the path, this rule back to the freer side as soon as the chair came into the centre);
+  with a planner steering, stop but keep the planner's own turn (a turn in place brings
+  nothing nearer). Turning to the freer side there, the robot turned back and forth for
+  minutes facing a chair while the path led away beside it: the homing turned it toward the
+  path, slowly driving as it turned, and this rule back to the freer side as soon as the
+  chair came into the centre;
 - something within obsThreshold1 in the centre while driving forward: slow down in proportion
   and steer to the freer side unless the homing command already does (a turn in place is left
   alone: steering it away from something ahead it does not approach held the robot facing a
@@ -89,6 +91,9 @@ class ObstacleAvoidance:
             pass  # a planner steers, or the robot turns in place: nothing ahead to slow for
         elif emergency_only and v <= 0.0:
             pass  # a planner steers a turn in place: it brings nothing nearer, whatever is ahead
+        elif emergency_only and abs(w) >= p.w_turn / 2:
+            # a planner steers away, something is near ahead: stop, and keep turning as the path does
+            v, note = 0.0, "blocked ahead: turning toward the path"
         elif ahead < p.obs_threshold1:
             self._clear_since = None
             if not self._side:
