@@ -105,6 +105,14 @@ def test_a_plan_made_a_moment_ago_is_followed_ahead_of_the_robot() -> None:
     assert lookahead(path, Pose(1.5, 0.0, 0.0), 0.75) == (2.3, 0.0)
 
 
+def test_the_last_stretch_of_a_path_goes_to_the_goal_as_it_is_now() -> None:
+    """An estimated goal moves on after its plan; near the path's end the robot steers to where
+    it is now, not to where it was (the old end is up to ``goal_moved_m`` off)."""
+    path = [(0.0, 0.0), (1.0, 0.0), (2.0, 0.0)]
+    assert lookahead(path, Pose(0.0, 0.0, 0.0), 0.8, goal=(2.3, 0.4)) == (1.0, 0.0)  # far: on the path
+    assert lookahead(path, Pose(1.5, 0.0, 0.0), 0.8, goal=(2.3, 0.4)) == (2.3, 0.4)  # the end: the goal
+
+
 def test_sectors_and_avoidance_rules() -> None:
     s = sectors(wall_scan(1.0))
     assert s.centre == pytest.approx(1.0, abs=0.01) and s.left > 1.0

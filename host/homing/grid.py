@@ -115,10 +115,14 @@ class OccupancyGrid:
         return None if cells is None else [self.centre(c) for c in cells]
 
 
-def lookahead(path: list[tuple[float, float]], pose: Pose, distance: float = 1.0) -> tuple[float, float]:
+def lookahead(path: list[tuple[float, float]], pose: Pose, distance: float = 1.0,
+              goal: tuple[float, float] | None = None) -> tuple[float, float]:
     """The first path point at least ``distance`` from the robot after the point nearest it
-    (the last one if none is): a plan made a moment ago starts behind the robot."""
-    return path[_ahead(path, pose, distance)]
+    (the last one if none is): a plan made a moment ago starts behind the robot. With ``goal``,
+    the path's end is the goal as it is now: an estimate moves on after the plan, by less than
+    a re-plan takes, and the last stretch should follow it."""
+    i = _ahead(path, pose, distance)
+    return goal if goal is not None and i == len(path) - 1 else path[i]
 
 
 def _ahead(path: list[tuple[float, float]], pose: Pose, distance: float) -> int:

@@ -405,10 +405,7 @@ class HomingLoop:
                 self.log.write("event", t, what="plan asked", why=why, due=round(t + cfg.latency_s, 4))
         if not self._path:
             return None
-        point = lookahead(self._path, pose, cfg.lookahead_m)
-        # the path's end is where the goal was when it was planned; the goal has moved since by
-        # less than a re-plan takes (an estimate moves all the time): the last stretch goes to it
-        return goal_xy if point == self._path[-1] else point
+        return lookahead(self._path, pose, cfg.lookahead_m, goal_xy)
 
     def _replan_why(self, t: float, pose: Pose, goal: tuple[float, float]) -> str | None:
         """Why the path no longer does, or None: a material change, not every new scan."""
