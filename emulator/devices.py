@@ -431,8 +431,17 @@ class BaseRunner(DeviceRunner):
             ranges = world.cast((r.x, r.y), angles + r.theta, self.SCAN_RANGE_M)
             if self.scan_noise_m > 0:
                 ranges = np.maximum(ranges + self.rng.normal(0, self.scan_noise_m, len(ranges)), 0.0)
-            fw.send_scan(-math.pi / 2, math.pi / 2, self.SCAN_RANGE_M,
-                         [None if not math.isfinite(d) else float(d) for d in ranges])
+            fw.send_scan_mm(-math.pi / 2, math.pi / 2, self.SCAN_RANGE_M, scan_mm(ranges))
+
+
+def scan_mm(ranges_m: np.ndarray) -> tuple[int, ...]:
+    """Ranges (metres, inf = no return) in the base's wire form, all at once: what
+    :meth:`RobotBaseFirmware.send_scan` makes of them one by one (mm rounded half to even, 0 =
+    no return, at least 1, at most 65535; the first 255)."""
+    r = ranges_m[:255]
+    finite = np.isfinite(r)
+    mm = np.clip(np.rint(np.where(finite, r, 0.0) * 1000), 1, 65535)
+    return tuple(np.where(finite, mm, 0).astype(np.int64).tolist())
 
 
 def target_positions(world: World, t: float) -> list[dict[str, Any]]:

@@ -118,3 +118,15 @@ def test_obstacles_crossed_counts_as_every_edge_tested(seed: int) -> None:
     for _ in range(300):
         p, q = tuple(rng.uniform(-18, 18, 2)), tuple(rng.uniform(-18, 18, 2))
         assert world.obstacles_crossed(p, q) == reference_crossed(world, p, q), (p, q)
+
+
+def test_scan_ranges_in_wire_form_all_at_once_as_one_by_one() -> None:
+    from rfhoming.emulator.devices import scan_mm
+
+    rng = np.random.default_rng(3)
+    ranges = np.concatenate([rng.uniform(0, 9, 2000), rng.integers(0, 9000, 500) / 1000 + 0.0005,  # halves
+                             [0.0, 0.0004, 0.0005, 0.0015, 65.535, 65.5355, 1e9, np.inf, np.inf]])
+    rng.shuffle(ranges)
+    for chunk in np.array_split(ranges, 13):
+        one_by_one = tuple(0 if not math.isfinite(r) else max(1, min(65535, round(float(r) * 1000))) for r in chunk[:255])
+        assert scan_mm(chunk) == one_by_one
