@@ -178,6 +178,7 @@ class AoaRunner(DeviceRunner):
         self.observe_robot = options.get("observe", "targets") == "robot"
         self.robot_tag = robot_tag
         self.schedule = _Schedule(rng)
+        self._tag_ids: list[str] | None = None
 
     def device_baud(self) -> int:
         return self.forced_baud or self.firmware.baud
@@ -192,6 +193,13 @@ class AoaRunner(DeviceRunner):
         r = world.robot
         return r.x, r.y, r.theta + self.yaw
 
+    def _quiet_until(self, world: World) -> float:
+        """The next transmission time of any tag this board hears (-inf before each has one)."""
+        if self._tag_ids is None:  # who is heard never changes
+            self._tag_ids = [s[0] for s in self.sources(world, 0.0)]
+        nexts = self.schedule.next
+        return min((nexts.get(tag_id, -math.inf) for tag_id in self._tag_ids), default=math.inf)
+
     def sources(self, world: World, t: float) -> list[tuple[str, tuple[float, float], float, float, float]]:
         """(id, position, height, interval_s, tx_power) of every tag this board hears."""
         if self.observe_robot:
@@ -204,6 +212,9 @@ class AoaRunner(DeviceRunner):
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: XplrAoaFirmware = self.firmware
+        if self._quiet_until(world) > t1:  # no tag sends in this step (most steps)
+            fw.tick(int(t1 * 1000))
+            return
         for tag_id, pos, height, interval, tx in self.sources(world, t1):
             for t in self.schedule.due(tag_id, interval, interval * 0.1, t0, t1):
                 fw.tick(int(t * 1000))

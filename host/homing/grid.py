@@ -68,13 +68,14 @@ class OccupancyGrid:
         # the one before it is a new cell (no sort, where np.unique took a fifth of a house run)
         new = np.ones(key.shape, bool)
         new[:, 1:] = key[:, 1:] != key[:, :-1]
-        crossed = key[along & new]
-        self.misses += np.bincount(crossed, minlength=n * n).reshape(n, n).astype(np.int32)
+        # counted in place on the cells a scan touches (a whole-grid bincount per scan was most
+        # of this method's time)
+        np.add.at(self.misses.reshape(-1), key[along & new], 1)
         hit = np.isfinite(ranges) & (ranges <= p.max_range)
         if hit.any():
             hx = np.clip(((pose.x + ranges[hit] * cos[hit, 0] - self.x0) / r).astype(int), 0, n - 1)
             hy = np.clip(((pose.y + ranges[hit] * sin[hit, 0] - self.y0) / r).astype(int), 0, n - 1)
-            self.hits += 3 * np.bincount(hx * n + hy, minlength=n * n).reshape(n, n).astype(np.int32)
+            np.add.at(self.hits.reshape(-1), hx * n + hy, 3)
 
     def occupied(self) -> np.ndarray:
         return self.hits > self.misses
