@@ -172,14 +172,19 @@ class World:
         if not len(keep):
             return np.full(len(angles), np.inf)
         a, b = self._a[keep], self._b[keep]
-        d = np.stack([np.cos(angles), np.sin(angles)], axis=1)[:, None, :]  # (n,1,2)
-        e = (b - a)[None, :, :]  # (1,m,2)
-        w = (a - o)[None, :, :]
-        denom = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
+        e0, e1 = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]  # (m,): each edge's direction
+        w0, w1 = a[:, 0] - o[0], a[:, 1] - o[1]
+        dc, ds = np.cos(angles)[:, None], np.sin(angles)[:, None]  # (n,1): each beam's
+        denom = dc * e1 - ds * e0  # (n,m)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (w[..., 0] * e[..., 1] - w[..., 1] * e[..., 0]) / denom
-            u = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / denom
-        valid = (np.abs(denom) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1)
+            t = (w0 * e1 - w1 * e0) / denom
+            u = w0 * ds
+            u -= w1 * dc
+            u /= denom
+        valid = np.abs(denom) > 1e-12
+        valid &= t > 0
+        valid &= u >= 0
+        valid &= u <= 1
         t = np.where(valid, t, np.inf).min(axis=1)
         return np.where(t <= max_range, t, np.inf)
 
