@@ -7,10 +7,11 @@ The capture is made first by `rfhoming demo --in-process` (the same bytes for th
 Two replays are timed, each as a user runs it, in its own process: the drivers alone
 (`replay CAPTURE --json`, what `listen` would have printed) and the whole homing loop
 (`replay CAPTURE --run`, which must write the live run log line for line). Figures: the
-capture's recorded span, wall seconds per replay (best of --repeats) and per 60 s of capture,
-and the real-time factors: the span over the wall seconds, and over the CPU seconds the replay's
-process used (user + system, from the kernel's accounting of a waited-for child; start-up
-included), the figure a loaded machine disturbs least.
+capture's recorded span (wall time of the recording: an in-process demo's is short), wall
+seconds per replay (best of --repeats) and per 60 s of capture, and the real-time factors: the
+robot time the run covers (the replayed run's ``robot_time_s``) over the wall seconds, and over
+the CPU seconds the replay's process used (user + system, from the kernel's accounting of a
+waited-for child; start-up included), the figure a loaded machine disturbs least.
 """
 
 from __future__ import annotations
@@ -73,22 +74,24 @@ def main() -> None:
     if run.returncode not in (0, 1):
         sys.exit(f"replay_bench: replay --run failed: {run.stderr.strip()}")
     same_log = (out / "replayed.jsonl").read_text() == (out / "run.jsonl").read_text()
+    robot_s = float(json.loads(run.stdout)["robot_time_s"])
     result = {
         "scenario": args.scenario, "seed": args.seed, "capture_span_s": round(span, 2),
+        "robot_time_s": robot_s,
         "drivers": {"wall_s": round(drivers_s, 3), "wall_s_per_60s": round(drivers_s * 60 / span, 3),
-                    "cpu_s": round(drivers_cpu, 3), "realtime_factor": round(span / drivers_s, 2),
-                    "cpu_realtime_factor": round(span / drivers_cpu, 2), "items": items,
+                    "cpu_s": round(drivers_cpu, 3), "realtime_factor": round(robot_s / drivers_s, 2),
+                    "cpu_realtime_factor": round(robot_s / drivers_cpu, 2), "items": items,
                     "diverged": sum(c["diverged"] for c in counters),
                     "unanswered": sum(c["unanswered"] for c in counters), "stderr": drivers.stderr.strip()},
         "run": {"wall_s": round(run_s, 3), "wall_s_per_60s": round(run_s * 60 / span, 3), "cpu_s": round(run_cpu, 3),
-                "realtime_factor": round(span / run_s, 2), "cpu_realtime_factor": round(span / run_cpu, 2),
+                "realtime_factor": round(robot_s / run_s, 2), "cpu_realtime_factor": round(robot_s / run_cpu, 2),
                 "replay": json.loads(run.stdout)["replay"], "same_run_log": same_log, "stderr": run.stderr.strip()},
     }
     if args.json:
         print(json.dumps(result))
         return
     d, r = result["drivers"], result["run"]
-    print(f"{args.scenario} seed {args.seed}: a {span:.1f} s run capture")
+    print(f"{args.scenario} seed {args.seed}: a capture of {robot_s:.1f} s of robot time ({span:.1f} s recorded)")
     print(f"  replay --json  {d['wall_s']:.2f} s wall ({d['wall_s_per_60s']:.2f} s per 60 s of capture; "
           f"{d['realtime_factor']:.1f}x real time, {d['cpu_realtime_factor']:.1f}x per CPU second), {items} items, "
           f"diverged {d['diverged']}, unanswered {d['unanswered']}, stderr {d['stderr'] or 'empty'}")
