@@ -10,7 +10,12 @@ occupancy grid and the planner); the host is the
 real stack (drivers, decoders, estimator, controller) and the emulator the real one. Through
 ptys the emulator runs in its own process, as in `rfhoming demo` (wall time counted from the
 loop's start, not the interpreter's); in-process both share one process and a byte pipe.
-Simulated time is the robot's clock from its first odometry to the end of the run. The host
+Simulated time is the robot's clock from its first odometry to the end of the run. Beside the
+wall-clock real-time factor, ``cpu_realtime_factor`` divides simulated seconds by the CPU seconds
+the host and the emulator spent over the same span (this process's, its threads' included, and
+through ptys the emulator process's, from /proc): on a shared machine the wall clock measures the
+other users too, CPU time much less so. In-process the loop takes a plan at its robot time, as
+campaigns do (``plan.wait``), so a house run is the same run whatever the machine's load. The host
 keeps its real fail-safes, the 0.5 s wall-clock odometry check included: a stop that check
 makes when the machine stalls is counted as a stale-data stop (and logged).
 
@@ -27,12 +32,14 @@ import asyncio
 import cProfile
 import json
 import math
+import os
 import platform
 import pstats
 import signal
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +50,15 @@ from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import load
 from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import Device, Homing
+from rfhoming.host.homing.config import Config
 
 TARGETS = [(6.0, 4.0), (-7.0, 3.0), (-5.0, -8.0), (8.0, -6.0), (3.0, 8.0), (-8.0, -2.0), (9.0, 1.0), (-2.0, 7.0)]
+
+
+def child_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) a live child process has used so far, from /proc."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 async def pty_run(seed: int, target: tuple[float, float], scenario: str = "s0-open") -> dict:
@@ -55,15 +69,16 @@ async def pty_run(seed: int, target: tuple[float, float], scenario: str = "s0-op
     try:
         plan = Homing("aoa", [Device("base", spec=f"base:{endpoints['base']['path']}"),
                               Device("aoa", spec=f"xplr-aoa:{endpoints['xplr-aoa']['path']}")])
-        wall0 = time.perf_counter()
+        wall0, cpu0, child0 = time.perf_counter(), time.process_time(), child_cpu_s(proc.pid)
         outcome = await asyncio.wait_for(assembly.run(plan), 900)
         wall = time.perf_counter() - wall0
+        cpu = time.process_time() - cpu0 + child_cpu_s(proc.pid) - child0
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=10)
     _, states = read_truth(out / "truth.jsonl")
     robot, goal = states[-1]["robot"], states[-1]["targets"][0]
-    return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall,
+    return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall, "cpu_s": cpu,
             "final_error_m": math.hypot(robot["x"] - goal["x"], robot["y"] - goal["y"]),
             "latency_ms": outcome.latency_ms, "stale_stops": outcome.stale_stops, **outcome.stalls,
             "lockstep_timeouts": None}  # counted in the other process
@@ -76,14 +91,17 @@ async def pipe_run(seed: int, target: tuple[float, float], step_ms: int = 10, sc
     await em.start()
     world = asyncio.create_task(em.run())
     base, aoa = PipePort("base", em.device("base").link.host), PipePort("aoa", em.device("aoa").link.host)
-    wall0 = time.perf_counter()
-    outcome = await asyncio.wait_for(assembly.run(Homing("aoa", [Device("base", port=base), Device("aoa", port=aoa)])), 900)
-    wall = time.perf_counter() - wall0
+    config = Config()
+    config = replace(config, plan=replace(config.plan, wait=True))  # a plan at its robot time, as campaigns
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    outcome = await asyncio.wait_for(assembly.run(Homing("aoa", [Device("base", port=base), Device("aoa", port=aoa)],
+                                                         config)), 900)
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     world.cancel()
     await asyncio.gather(world, return_exceptions=True)
     await em.close()
     robot, goal = em.world.robot, sc.world.targets[0].position
-    return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall,
+    return {"arrived": outcome.arrived, "sim_s": outcome.robot_time_s, "wall_s": wall, "cpu_s": cpu,
             "final_error_m": math.hypot(robot.x - goal[0], robot.y - goal[1]),
             "latency_ms": outcome.latency_ms, "stale_stops": outcome.stale_stops, **outcome.stalls,
             "lockstep_timeouts": em.counters["lockstep_timeouts"], "steps": em.counters["steps"]}
@@ -127,9 +145,10 @@ def profile(runs: int, step_ms: int, scenario: str = "s0-open", top: int = 0) ->
 
 def summarise(runs: list[dict]) -> dict:
     lat = np.concatenate([r["latency_ms"] for r in runs])
-    sim, wall = sum(r["sim_s"] for r in runs), sum(r["wall_s"] for r in runs)
+    sim, wall, cpu = (sum(r[k] for r in runs) for k in ("sim_s", "wall_s", "cpu_s"))
     return {"runs": len(runs), "arrived": sum(r["arrived"] for r in runs), "sim_s": round(sim, 2),
             "wall_s": round(wall, 3), "realtime_factor": round(sim / wall, 1),
+            "cpu_s": round(cpu, 3), "cpu_realtime_factor": round(sim / cpu, 1),
             "latency_ms_p50": round(float(np.percentile(lat, 50)), 3),
             "latency_ms_p99": round(float(np.percentile(lat, 99)), 3),
             "stale_stops": sum(r["stale_stops"] for r in runs),
@@ -168,7 +187,7 @@ def main() -> int:
     for transport in transports:
         r = result[transport]
         print(f"{transport:<5} {r['arrived']}/{r['runs']} arrived  {r['sim_s']:.1f} s simulated in {r['wall_s']:.2f} s wall: "
-              f"{r['realtime_factor']:.0f}x real time   byte-in -> command-out p50 {r['latency_ms_p50']:.2f} ms, "
+              f"{r['realtime_factor']:.0f}x real time ({r['cpu_s']:.2f} CPU s: {r['cpu_realtime_factor']:.0f}x)   byte-in -> command-out p50 {r['latency_ms_p50']:.2f} ms, "
               f"p99 {r['latency_ms_p99']:.2f} ms   loop stall max {r['loop_stall_ms_max']} ms   "
               f"stale-data stops {r['stale_stops']}   lockstep timeouts "
               f"{'n/a (other process)' if r['lockstep_timeouts'] is None else r['lockstep_timeouts']}")

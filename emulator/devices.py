@@ -178,6 +178,7 @@ class AoaRunner(DeviceRunner):
         self.observe_robot = options.get("observe", "targets") == "robot"
         self.robot_tag = robot_tag
         self.schedule = _Schedule(rng)
+        self._tag_ids: list[str] | None = None
 
     def device_baud(self) -> int:
         return self.forced_baud or self.firmware.baud
@@ -192,6 +193,13 @@ class AoaRunner(DeviceRunner):
         r = world.robot
         return r.x, r.y, r.theta + self.yaw
 
+    def _quiet_until(self, world: World) -> float:
+        """The next transmission time of any tag this board hears (-inf before each has one)."""
+        if self._tag_ids is None:  # who is heard never changes
+            self._tag_ids = [s[0] for s in self.sources(world, 0.0)]
+        nexts = self.schedule.next
+        return min((nexts.get(tag_id, -math.inf) for tag_id in self._tag_ids), default=math.inf)
+
     def sources(self, world: World, t: float) -> list[tuple[str, tuple[float, float], float, float, float]]:
         """(id, position, height, interval_s, tx_power) of every tag this board hears."""
         if self.observe_robot:
@@ -204,6 +212,9 @@ class AoaRunner(DeviceRunner):
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: XplrAoaFirmware = self.firmware
+        if self._quiet_until(world) > t1:  # no tag sends in this step (most steps)
+            fw.tick(int(t1 * 1000))
+            return
         for tag_id, pos, height, interval, tx in self.sources(world, t1):
             for t in self.schedule.due(tag_id, interval, interval * 0.1, t0, t1):
                 fw.tick(int(t * 1000))
@@ -431,8 +442,17 @@ class BaseRunner(DeviceRunner):
             ranges = world.cast((r.x, r.y), angles + r.theta, self.SCAN_RANGE_M)
             if self.scan_noise_m > 0:
                 ranges = np.maximum(ranges + self.rng.normal(0, self.scan_noise_m, len(ranges)), 0.0)
-            fw.send_scan(-math.pi / 2, math.pi / 2, self.SCAN_RANGE_M,
-                         [None if not math.isfinite(d) else float(d) for d in ranges])
+            fw.send_scan_mm(-math.pi / 2, math.pi / 2, self.SCAN_RANGE_M, scan_mm(ranges))
+
+
+def scan_mm(ranges_m: np.ndarray) -> tuple[int, ...]:
+    """Ranges (metres, inf = no return) in the base's wire form, all at once: what
+    :meth:`RobotBaseFirmware.send_scan` makes of them one by one (mm rounded half to even, 0 =
+    no return, at least 1, at most 65535; the first 255)."""
+    r = ranges_m[:255]
+    finite = np.isfinite(r)
+    mm = np.clip(np.rint(np.where(finite, r, 0.0) * 1000), 1, 65535)
+    return tuple(np.where(finite, mm, 0).astype(np.int64).tolist())
 
 
 def target_positions(world: World, t: float) -> list[dict[str, Any]]:

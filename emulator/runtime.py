@@ -76,6 +76,9 @@ class Emulator:
         )
         self._triggered = {d: _HostTrigger([f for f in self.faults if "after_bytes" in f.params and f.hits(d.name)])
                            for d in self.devices}
+        self._triggered = {d: trigger for d, trigger in self._triggered.items() if trigger.faults}
+        self._base = next((d for d in self.devices if isinstance(d, BaseRunner)), None)
+        self._others = [d for d in self.devices if d is not self._base]
         self._replugs: list[tuple[float, DeviceRunner]] = []
         self._next_truth = 0.0
         self._next_control = self.control_period_s
@@ -125,7 +128,7 @@ class Emulator:
 
     @property
     def base(self) -> BaseRunner | None:
-        return next((d for d in self.devices if isinstance(d, BaseRunner)), None)
+        return self._base
 
     def device(self, name: str) -> DeviceRunner:
         for d in self.devices:
@@ -153,14 +156,13 @@ class Emulator:
     async def step(self) -> None:
         """Advance the world and every device by one step, then deliver their bytes."""
         t0, t1 = self.t, self.t + self.step_s
-        base = self.base
-        if base is not None:
-            base.step(self.world, t0, t1)
-        for d in self.devices:
-            if d is not base:
-                d.step(self.world, t0, t1)
+        if self._base is not None:
+            self._base.step(self.world, t0, t1)
+        for d in self._others:
+            d.step(self.world, t0, t1)
         self.t = self.world.t = t1
-        await self._timed_faults()
+        if self._replugs or self._timed or self._triggered:  # most steps have no fault to check
+            await self._timed_faults()
         for d in self.devices:
             d.pump(t1)
         self.counters["steps"] += 1
@@ -208,8 +210,9 @@ class Emulator:
         while self.t + 1e-9 < end:
             await self.step()
             if self.lockstep:
-                await self._let_host_run()
-                if self.t + 1e-9 >= self._next_control:
+                control = self.t + 1e-9 >= self._next_control
+                await self._let_host_run(control)
+                if control:
                     self._next_control += self.control_period_s
                     await self._await_host()
             elif math.isinf(self.speed):
@@ -218,16 +221,22 @@ class Emulator:
                 lag = sim0 + (time.monotonic() - wall0) * self.speed
                 await asyncio.sleep(max(0.0, (self.t - lag) / self.speed))
 
-    async def _let_host_run(self) -> None:
+    async def _let_host_run(self, control: bool = True) -> None:
         """Yield to the host after a step. In process (``pipe``), yield until every other task
         is idle -- waiting for bytes or a timer -- so the host has handled this step's bytes
         and sent its answer before the next step: a run's result then depends on the bytes
-        alone, not on how many awaits the host takes between them. Across processes a host's
-        progress cannot be seen; the control-period wait (:meth:`_await_host`) paces it."""
-        await asyncio.sleep(0)
+        alone, not on how many awaits the host takes between them. A step that woke nothing
+        (no bytes came, nothing is ready to run) is not yielded after, but for a ``control``
+        period's end, so that timers and other I/O still run at least once a period. Across
+        processes a host's progress cannot be seen; the control-period wait
+        (:meth:`_await_host`) paces it."""
         if self.transport != "pipe":
+            await asyncio.sleep(0)
             return
         ready = asyncio.get_running_loop()._ready  # type: ignore[attr-defined]  # asyncio's run queue
+        if not ready and not control:
+            return
+        await asyncio.sleep(0)
         for _ in range(SETTLE_LIMIT):
             if not ready:
                 return

@@ -84,7 +84,10 @@ class Obstacle:
 
 
 class World:
-    """Geometry queries over all obstacles, vectorised over edges with numpy."""
+    """Geometry queries over all obstacles, vectorised over edges with numpy.
+
+    Static geometry (each obstacle's edges, boxes and the edge rows of each set of nearby
+    obstacles) is computed once: the queries run every step, the obstacles never move."""
 
     def __init__(self, robot: Pose, targets: list[Target], obstacles: list[Obstacle],
                  bounds: tuple[float, float, float, float]) -> None:
@@ -99,6 +102,14 @@ class World:
         self._owner = np.array([i for i, o in enumerate(obstacles) for _ in o.edges()], dtype=int)
         self._boxes = [(min(x for x, _ in o.polygon), min(y for _, y in o.polygon), max(x for x, _ in o.polygon),
                         max(y for _, y in o.polygon)) for o in obstacles]
+        self._edge_box = (np.minimum(self._a, self._b), np.maximum(self._a, self._b))
+        # per obstacle: its edges as (ax, ay, ex, ey, |e|² floored) for the collision test, in
+        # the order of the vectorised test, and its row range in the edge arrays
+        self._obstacle_edges = [[_edge(a, b) for a, b in o.edges()] for o in obstacles]
+        ends = np.cumsum([len(o.polygon) for o in obstacles], dtype=int)
+        self._rows = [(int(e) - len(o.polygon), int(e)) for o, e in zip(obstacles, ends)]
+        self._near_edges: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._grown: tuple[float, list[tuple[float, float, float, float, int]]] | None = None
         self._reflections: dict[bool, Reflections] = {}
 
     def reflected_paths(self, source: tuple[float, float], receiver: tuple[float, float],
@@ -109,55 +120,113 @@ class World:
             r = self._reflections[bounds_reflect] = Reflections(self.obstacles, self.bounds if bounds_reflect else None)
         return r.paths(source, receiver)
 
+    def _edges_of(self, near: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(start, direction, owner) of the edges of obstacles ``near``, in edge order (as a
+        mask over all edges picks them); cached per set, as a robot meets the same sets again."""
+        key = tuple(near)
+        found = self._near_edges.get(key)
+        if found is None:
+            if len(self._near_edges) >= NEAR_CACHE_LIMIT:
+                self._near_edges.clear()
+            rows = np.concatenate([np.arange(*self._rows[k]) for k in near])
+            a = self._a[rows]
+            found = self._near_edges[key] = (a, self._b[rows] - a, self._owner[rows])
+        return found
+
     def obstacles_crossed(self, p: tuple[float, float], q: tuple[float, float]) -> int:
         """How many distinct obstacles the segment p-q passes through (0 = line of sight).
         Only obstacles whose box meets the segment's box can be crossed: the edge test runs on
-        those (per radio reception, most of a house's obstacles are out of the way)."""
-        lo_x, hi_x, lo_y, hi_y = min(p[0], q[0]) - 1e-9, max(p[0], q[0]) + 1e-9, min(p[1], q[1]) - 1e-9, max(p[1], q[1]) + 1e-9
-        near = [k for k, (x0, y0, x1, y1) in enumerate(self._boxes) if x0 <= hi_x and lo_x <= x1 and y0 <= hi_y and lo_y <= y1]
-        if not near:
-            return 0
-        edges = np.isin(self._owner, near)
-        a, owner = self._a[edges], self._owner[edges]
-        p_, q_ = np.asarray(p, float), np.asarray(q, float)
-        d = q_ - p_
-        e = self._b[edges] - a
-        denom = d[0] * e[:, 1] - d[1] * e[:, 0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w = a - p_
-            t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / denom
-            u = (w[:, 0] * d[1] - w[:, 1] * d[0]) / denom
-        hit = (np.abs(denom) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
-        return int(np.count_nonzero(np.bincount(owner[hit])))  # distinct owners; faster than np.unique
+        those (per radio reception, most of a house's obstacles are out of the way), in plain
+        floats (a few edges: numpy's per-call cost would be most of the time), each operation
+        as the vectorised test over all edges does it."""
+        px, py, qx, qy = float(p[0]), float(p[1]), float(q[0]), float(q[1])
+        lo_x, hi_x, lo_y, hi_y = min(px, qx) - 1e-9, max(px, qx) + 1e-9, min(py, qy) - 1e-9, max(py, qy) + 1e-9
+        crossed = 0
+        dx, dy = qx - px, qy - py
+        for k, (x0, y0, x1, y1) in enumerate(self._boxes):
+            if not (x0 <= hi_x and lo_x <= x1 and y0 <= hi_y and lo_y <= y1):
+                continue
+            for ax, ay, ex, ey, _ in self._obstacle_edges[k]:
+                denom = dx * ey - dy * ex
+                if not abs(denom) > 1e-12:
+                    continue
+                wx, wy = ax - px, ay - py
+                t = (wx * ey - wy * ex) / denom
+                u = (wx * dy - wy * dx) / denom
+                if 0 <= t <= 1 and 0 <= u <= 1:
+                    crossed += 1
+                    break
+        return crossed
 
     def cast(self, origin: tuple[float, float], angles: np.ndarray, max_range: float) -> np.ndarray:
-        """Range along each world angle to the nearest obstacle edge; inf beyond ``max_range``."""
+        """Range along each world angle to the nearest obstacle edge; inf beyond ``max_range``.
+        Edges whose box lies farther than ``max_range`` cannot give a range (a hit is on the
+        edge, at least that far), so only the others are tested: the same minimum."""
         if not len(self._a):
             return np.full(len(angles), np.inf)
         o = np.asarray(origin, float)
-        d = np.stack([np.cos(angles), np.sin(angles)], axis=1)[:, None, :]  # (n,1,2)
-        e = (self._b - self._a)[None, :, :]  # (1,m,2)
-        w = (self._a - o)[None, :, :]
-        denom = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
+        lo, hi = self._edge_box
+        gap = np.maximum(np.maximum(lo - o, o - hi), 0.0)
+        reach = max_range * (1 + 1e-9) + 1e-6  # margin over rounding: never drops an edge in range
+        keep = np.flatnonzero(gap[:, 0] ** 2 + gap[:, 1] ** 2 <= reach * reach)
+        if not len(keep):
+            return np.full(len(angles), np.inf)
+        a, b = self._a[keep], self._b[keep]
+        e0, e1 = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]  # (m,): each edge's direction
+        w0, w1 = a[:, 0] - o[0], a[:, 1] - o[1]
+        dc, ds = np.cos(angles)[:, None], np.sin(angles)[:, None]  # (n,1): each beam's
+        denom = dc * e1 - ds * e0  # (n,m)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (w[..., 0] * e[..., 1] - w[..., 1] * e[..., 0]) / denom
-            u = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / denom
-        valid = (np.abs(denom) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1)
+            t = (w0 * e1 - w1 * e0) / denom
+            u = w0 * ds
+            u -= w1 * dc
+            u /= denom
+        valid = np.abs(denom) > 1e-12
+        valid &= t > 0
+        valid &= u >= 0
+        valid &= u <= 1
         t = np.where(valid, t, np.inf).min(axis=1)
         return np.where(t <= max_range, t, np.inf)
 
     def collides(self, x: float, y: float, radius: float) -> bool:
         """Whether a disc of ``radius`` at (x, y) touches an obstacle. Only obstacles whose box,
-        grown by ``radius``, holds the centre can (this runs every step: most steps meet none)."""
-        near = [k for k, (x0, y0, x1, y1) in enumerate(self._boxes)
-                if x0 - radius <= x <= x1 + radius and y0 - radius <= y <= y1 + radius]
+        grown by ``radius``, holds the centre can (this runs every step: most steps meet none).
+        The distances are computed in plain floats, as the vectorised test
+        (:meth:`_collides_exact`) does them; a distance within rounding of ``radius`` is left to
+        that test, so the answer is always its answer."""
+        if self._grown is None or self._grown[0] != radius:
+            self._grown = (radius, [(x0 - radius, x1 + radius, y0 - radius, y1 + radius, k)
+                                    for k, (x0, y0, x1, y1) in enumerate(self._boxes)])
+        near = [k for x0, x1, y0, y1, k in self._grown[1] if x0 <= x <= x1 and y0 <= y <= y1]
         if not near:
             return False
         if any(self.obstacles[k].contains(x, y) for k in near):
             return True
-        edges = np.isin(self._owner, near)
-        a, e = self._a[edges], self._b[edges] - self._a[edges]
+        hypot = math.hypot
+        for k in near:
+            for ax, ay, ex, ey, ee in self._obstacle_edges[k]:
+                s = ((x - ax) * ex + (y - ay) * ey) / ee
+                s = 0.0 if s < 0 else 1.0 if s > 1 else s
+                gap = hypot(ax + s * ex - x, ay + s * ey - y) - radius
+                if abs(gap) <= 1e-9 * (1 + radius):
+                    return self._collides_exact(x, y, radius, near)
+                if gap < 0:
+                    return True
+        return False
+
+    def _collides_exact(self, x: float, y: float, radius: float, near: list[int]) -> bool:
+        """The vectorised edge-distance test of :meth:`collides`, for the distances at ``radius``."""
+        a, e, _ = self._edges_of(near)
         p = np.array([x, y])
         s = np.clip(np.einsum("ij,ij->i", p - a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-12), 0, 1)
         nearest = a + s[:, None] * e
         return bool(np.min(np.hypot(*(nearest - p).T)) < radius)
+
+
+def _edge(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float, float, float, float]:
+    ex, ey = float(b[0]) - float(a[0]), float(b[1]) - float(a[1])
+    return float(a[0]), float(a[1]), ex, ey, max(ex * ex + ey * ey, 1e-12)
+
+
+NEAR_CACHE_LIMIT = 4096
+"""Sets of nearby obstacles whose edge rows are kept (bounded; a world meets few)."""

@@ -150,7 +150,11 @@ class RobotBaseFirmware(FramedNode):
                   ranges_m: Sequence[float | None]) -> None:
         """Package a scan the world measured (radians of the first and last beam, metres):
         mm, 0 = no return, at most 255 beams."""
-        ranges = tuple(0 if r is None else max(1, min(65535, round(r * 1000))) for r in ranges_m[:255])
+        self.send_scan_mm(angle_min, angle_max, range_max,
+                          tuple(0 if r is None else max(1, min(65535, round(r * 1000))) for r in ranges_m[:255]))
+
+    def send_scan_mm(self, angle_min: float, angle_max: float, range_max: float, ranges: tuple[int, ...]) -> None:
+        """:meth:`send_scan` with the ranges already in its wire form (mm, 0 = no return, 1..65535)."""
         self.send(RangeScanV2(self.node_id, self.next_seq(), self._now_us & 0xFFFFFFFF,
                               round(angle_min * 1e6), round(angle_max * 1e6), min(65535, round(range_max * 1000)),
                               ranges))

@@ -341,9 +341,12 @@ class Driver:
             if self.answered_at is None:
                 self.answered_at = self.contact_clock()
             start = time.perf_counter()
-            with contextlib.ExitStack() as keeping:
-                for stream in self.consumers if recording else ():
-                    keeping.enter_context(stream.filling())
+            if recording:
+                with contextlib.ExitStack() as keeping:
+                    for stream in self.consumers:
+                        keeping.enter_context(stream.filling())
+                    self.on_chunk(chunk.data, chunk.t)
+            else:  # a live port: no stack to keep (this runs for every chunk)
                 self.on_chunk(chunk.data, chunk.t)
             self.latency.append(time.perf_counter() - start)
             for stream in self.consumers if recording else ():
