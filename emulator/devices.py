@@ -104,7 +104,8 @@ class DeviceRunner:
         self.height = scenario.robot_height
         return self
 
-    def position(self, world: World) -> tuple[float, float]:
+    def antenna(self, world: World) -> tuple[float, float]:
+        """Where it is in the world: on the robot at its ``offset``."""
         r = world.robot
         if self.offset == (0.0, 0.0):
             return r.x, r.y
@@ -114,7 +115,7 @@ class DeviceRunner:
     def transmissions(self, world: World, kind: str, t0: float, t1: float) -> Iterator[tuple[Target, float, tuple[float, float], float, int]]:
         """(source, time, position, distance to the device, obstacles crossed) of every
         transmission of a ``kind`` source in (t0, t1]."""
-        x, y = self.position(world)
+        x, y = self.antenna(world)
         for source in (s for s in world.targets if s.kind == kind):
             for t in self.schedule.due(source.id, source.interval_ms / 1000, source.jitter_ms / 1000, t0, t1):
                 pos = source.position_at(t)

@@ -108,7 +108,7 @@ def plan(endpoints: dict[str, dict[str, Any]], out: Path, config: Config, sinks:
 def _spec(endpoint: dict[str, Any]) -> str:
     """The port spec of a device the emulator printed (a MAVLink vehicle's path is a whole spec:
     the demo arms it)."""
-    path = endpoint["path"]
+    path: str = endpoint["path"]
     if path.startswith(f"{endpoint['kind']}:"):
         return path + (ARM if endpoint["kind"] == "mavlink" else "")
     return f"{endpoint['kind']}:{path}"

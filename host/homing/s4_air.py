@@ -137,7 +137,8 @@ class SurveyController(ControllerDefaults):
     def receivers(self, pose: Pose) -> np.ndarray:
         """Each receiver's position (M, 2): the vehicle's plus its offset turned by the heading."""
         c, s = math.cos(pose.theta), math.sin(pose.theta)
-        return np.array([pose.x, pose.y]) + self.mount @ np.array([[c, s], [-s, c]])
+        out: np.ndarray = np.array([pose.x, pose.y]) + self.mount @ np.array([[c, s], [-s, c]])
+        return out
 
     def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
         if not isinstance(item, BleRssi) or item.node_id not in self.nodes:
