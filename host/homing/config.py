@@ -358,10 +358,10 @@ arrival_radius = 0.15
 hold_s = 3.0             # hover over it this long before reporting arrival
 min_readings = 20        # a beacon heard less is not homed on
 
-[s4.receivers]           # BLE scanner node id = [x, y] on the vehicle (m, x ahead, y left): S4's formation
-1 = [-0.2, -0.2]
-2 = [0.4, -0.2]
-3 = [-0.2, 0.4]
+# [s4.receivers]         # BLE scanner node id = [x, y] on the vehicle (m, x ahead, y left); by
+# 1 = [-0.2, -0.2]       # default S4's formation, an L of 0.6 m sides centred on the vehicle
+# 2 = [0.4, -0.2]
+# 3 = [-0.2, 0.4]
 
 # [devices.ROLE]: the ports of `rfhoming run` (ROLE: aoa, base, rss, ble), each a port spec
 # plus any of its settings; --aoa/--base/--rss/--ble on the command line override them.
