@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from rfhoming.host.drivers.rss import BleRssi
+from rfhoming.host.estimation.beacon import S4Model, jacobian, measure
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.s4_air import S4Params, SurveyController, lawnmower
 from rfhoming.host.homing.types import Pose
@@ -61,6 +62,17 @@ def test_the_survey_flies_the_pattern_then_holds_over_the_beacon_it_localised() 
     found = survey.estimate()
     assert set(found["beacons"]) == set(found["smoothed"]) == set(beacons)
     assert all(math.dist(found["smoothed"][a], b) < 0.65 for a, b in beacons.items())
+
+
+def test_receivers_that_fly_hear_the_beacon_at_the_3d_distance() -> None:
+    model = S4Model(height_m=1.0)
+    x = np.array([[0.0, 0.0, 3.0, 0.0, 0.0, 4.0, 0.0, 0.0]])  # receivers at (0,0), (3,0), (0,4); beacon at 0
+    rssi = measure(model, x)[0, 6:]
+    assert rssi == pytest.approx(model.p0_dbm - 20 * np.log10(np.sqrt(np.array([0.0, 9.0, 16.0]) + 1.0)))
+    step = 1e-6 * np.eye(8)
+    numeric = np.stack([(measure(model, x + step[i]) - measure(model, x - step[i]))[0] / 2e-6 for i in range(8)], 1)
+    assert jacobian(model, x)[0] == pytest.approx(numeric, abs=1e-5)
+    assert model.ground_range(rssi) == pytest.approx([0.0, 3.0, 4.0], abs=1e-6)
 
 
 def test_the_config_has_an_s4_section() -> None:

@@ -309,3 +309,17 @@ def refine_batch(model: S4Model, receivers: np.ndarray, rssi: np.ndarray, beacon
     out = np.array(beacon, float).copy()
     out[:, :2] = b
     return out, offsets
+
+
+def batch_cost(model: S4Model, receivers: np.ndarray, rssi: np.ndarray, beacon: np.ndarray, offsets: np.ndarray,
+               offset_sigma_db: float = 2.0) -> np.ndarray:
+    """What :func:`refine_batch` minimises, per beacon (K,): the squared RSSI residuals of the
+    fit plus its offsets' prior -- so fits from several starts can be compared."""
+    pos = np.asarray(receivers, float)[..., :2]
+    heard = ~np.isnan(rssi)
+    d2 = np.maximum(np.sum((pos - np.asarray(beacon, float)[None, :, None, :2]) ** 2, axis=3) + model.height_m**2, 1e-4)
+    pred = model.p0_dbm + offsets[None] - 5 * model.n * np.log10(d2)
+    r = np.where(heard, np.nan_to_num(rssi) - pred, 0.0)
+    cost: np.ndarray = np.sum(r * r, axis=(0, 2)) + np.sum(offsets**2, axis=1) / offset_sigma_db**2
+    return cost
+

@@ -17,7 +17,8 @@ circle-intersection initialiser over ``n_init`` steps (``init = "circles"``, the
 the area's centre with its size as the spread (``"area"``, the default: the campaign found S4's
 initialiser the larger error, docs/RESULTS.md "S4 Monte Carlo"). With ``smooth`` the flight's
 readings are kept and, when the pattern ends, each beacon and its per-receiver RSSI offsets are
-fitted to all of them from the EKF's estimate (``refine_batch``, the campaign's smoother).
+fitted to all of them (``refine_batch``, the campaign's smoother), from the EKF's estimate and
+from a 1 m grid over the area, keeping the best fit.
 After the pattern the vehicle flies to the beacon ``home_on`` (or the one localised most
 surely), holds over it ``hold_s`` and reports arrival; the loop's stop leaves the vehicle
 holding there (a copter in BRAKE or LOITER).
@@ -33,13 +34,16 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host.drivers.rss import BleRssi
-from rfhoming.host.estimation.beacon import BeaconEkf, CircleInitializer, S4Model, initial_state, refine_batch
+from rfhoming.host.estimation.beacon import (BeaconEkf, CircleInitializer, S4Model, batch_cost, initial_state,
+                                             refine_batch)
 from rfhoming.host.estimation.fixed import wrap_rad
 from rfhoming.host.homing.schema import DBM, M_S, RAD_S, M, S, setting
 from rfhoming.host.homing.types import ControllerDefaults, Decision, ParamsError, Pose, velocity_law
 
 FORMATION = {"1": [-0.2, -0.2], "2": [0.4, -0.2], "3": [-0.2, 0.4]}
 """S4's simulated formation, an L of 0.6 m sides centred on the path, by receiver node id."""
+GRID_M = 1.0
+"""The smoother also starts from a grid of this spacing over the area."""
 MAX_STEPS = 36_000
 """Steps of readings kept for the smoother: an hour at 10 Hz; an older step is forgotten."""
 
@@ -188,16 +192,22 @@ class SurveyController(ControllerDefaults):
             b.estimate = b.ekf.beacon[0].copy()
 
     def smooth(self) -> None:
-        """Every beacon fitted to all the readings kept of it, from its EKF estimate."""
+        """Every beacon fitted to all the readings kept of it: the smoother from the EKF's
+        estimate and from a grid of starts over the area at once, the best fit kept (from one
+        start a few metres off, Gauss-Newton can settle in a local minimum)."""
         first = self.steps - len(self.path) + 1  # the step of path[0]
         path = np.array(self.path)
+        x0, y0, x1, y1 = self.params.area
+        grid = np.stack(np.meshgrid(np.arange(x0, x1 + 1e-9, GRID_M), np.arange(y0, y1 + 1e-9, GRID_M)), -1).reshape(-1, 2)
         for b in self.beacons.values():
             kept = [(k, r) for k, r in b.history if k >= first]
             if b.estimate is None or not kept:
                 continue
-            receivers = np.stack([path[k - first] for k, _ in kept])[:, None]  # (S, 1, M, 2)
-            rssi = np.stack([r for _, r in kept])[:, None]  # (S, 1, M)
-            b.smoothed = refine_batch(self.model, receivers, rssi, b.estimate[None], iterations=6)[0][0]
+            starts = np.vstack([b.estimate[None], grid])
+            receivers = np.repeat(np.stack([path[k - first] for k, _ in kept])[:, None], len(starts), axis=1)  # (S, K, M, 2)
+            rssi = np.repeat(np.stack([r for _, r in kept])[:, None], len(starts), axis=1)  # (S, K, M)
+            fits, offsets = refine_batch(self.model, receivers, rssi, starts, iterations=6)
+            b.smoothed = fits[int(np.argmin(batch_cost(self.model, receivers, rssi, fits, offsets)))]
 
     def _choose(self) -> str | None:
         """The beacon to hold over: ``home_on``, or the surest of those heard enough."""
