@@ -229,8 +229,17 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
     if goals:
         gx, gy = zip(*goals)
         ax.scatter(gx, gy, c=range(len(gx)), cmap="autumn_r", s=8, label="estimated target over time", zorder=2)
+    located = [g for g in map(json.loads, runlog_path.read_text().splitlines()) if "beacons" in g]
+    if located:  # a survey: every beacon, and where the run put each
+        others = states[-1]["targets"][1:]
+        ax.scatter([t["x"] for t in others], [t["y"] for t in others], marker="*", s=90, color="khaki", ec="k",
+                   label="other beacons (truth)", zorder=4)
+        final = located[-1].get("smoothed", located[-1]["beacons"])
+        ax.scatter([p[0] for p in final.values()], [p[1] for p in final.values()], marker="x", s=40, color="tab:red",
+                   label="beacons as localised", zorder=5)
     target = states[-1]["targets"][0]
-    ax.plot(target["x"], target["y"], marker="*", ms=18, color="gold", mec="k", label="tag (truth)", zorder=4)
+    ax.plot(target["x"], target["y"], marker="*", ms=18, color="gold", mec="k",
+            label="beacon held over (truth)" if located else "tag (truth)", zorder=4)
     ax.plot(xs[0], ys[0], "ko", label="start", zorder=4)
     x0, y0, x1, y1 = header["bounds"]
     ax.set_xlim(x0, x1)

@@ -29,7 +29,9 @@ reach the host in whatever order the operating system delivers two ports, so a r
 can meet a different odometry record and the simulated time and errors move by a few
 hundredths; the latencies are wall-clock figures. --in-process joins the emulator and the
 host by the emulator's in-process byte pipe (as the campaigns run) and gives the same
-summary, line for line, for the same seed, without the latency lines.
+summary, line for line, for the same seed, without the latency lines -- except s4-air, whose
+MAVLink copter talks to the host over UDP on 127.0.0.1 even in process: its datagrams meet the
+readings in the order the sockets deliver them.
 
 examples:
   rfhoming demo
@@ -37,6 +39,7 @@ examples:
   rfhoming demo --in-process               # the same summary for the same seed, every time
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
   rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
+  rfhoming demo --scenario s4-air --in-process  (S4: a MAVLink copter surveys ten BLE beacons)
   rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
   rfhoming demo --foxglove                 # watch it live at robot time: Foxglove -> ws://127.0.0.1:8765
 """
