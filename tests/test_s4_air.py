@@ -75,6 +75,26 @@ def test_receivers_that_fly_hear_the_beacon_at_the_3d_distance() -> None:
     assert model.ground_range(rssi) == pytest.approx([0.0, 3.0, 4.0], abs=1e-6)
 
 
+def test_the_scenario_flies_a_mavlink_copter_carrying_the_scanners() -> None:
+    pytest.importorskip("pymavlink")
+    from rfhoming.emulator.runtime import Emulator
+    from rfhoming.emulator.scenario import load
+
+    scenario = load("s4-air")
+    assert scenario.vehicle == {"kind": "mavlink", "gcs": None,
+                                "options": {"autopilot": "ardupilot", "vehicle": "copter", "mode": "GUIDED", "altitude": 1.0}}
+    world = Emulator(scenario, transport="pipe")
+    assert world.device("base").link.describe()["kind"] == "mavlink"  # no --robot needed
+    scanners = [world.device(f"survey_ble{k}") for k in (1, 2, 3)]
+    world.world.robot.x, world.world.robot.y, world.world.robot.theta = 1.0, 2.0, math.pi / 2
+    assert [s.antenna(world.world) for s in scanners] == pytest.approx([(1.2, 1.8), (1.2, 2.4), (0.6, 1.8)])
+    beacon = scenario.world.targets[0]
+    world.world.robot.x, world.world.robot.y = beacon.position[0] - 0.2, beacon.position[1] + 0.2  # scanner 1 over it
+    heard = [d for source, _, _, d, _ in scanners[0].transmissions(world.world, "ble_beacon", 0.0, 0.2)
+             if source is beacon]
+    assert heard and heard[0] == pytest.approx(1.0)  # straight down: the copter's height
+
+
 def test_the_config_has_an_s4_section() -> None:
     assert Config().s4 == S4Params()
 
