@@ -42,6 +42,9 @@ from rfhoming.host.homing.types import ControllerDefaults, Decision, ParamsError
 
 FORMATION = {"1": [-0.2, -0.2], "2": [0.4, -0.2], "3": [-0.2, 0.4]}
 """S4's simulated formation, an L of 0.6 m sides centred on the path, by receiver node id."""
+MAX_BEACONS = 100
+"""Beacons localised at most (S4 knows its beacons; a phone walking by is one more): later
+addresses are ignored, counted."""
 GRID_M = 1.0
 """The smoother also starts from a grid of this spacing over the area."""
 MAX_STEPS = 36_000
@@ -110,6 +113,8 @@ class SurveyController(ControllerDefaults):
         x0, y0, x1, y1 = params.area
         if not (x1 > x0 and y1 > y0):
             raise ParamsError(f"[s4] area = {params.area} must be [x0, y0, x1, y1] with x1 > x0 and y1 > y0")
+        if not all(k.isdigit() for k in params.receivers):
+            raise ParamsError(f"[s4.receivers] keys are the scanners' node ids (whole numbers), not {list(params.receivers)}")
         self.params = params
         self.nodes = {int(k): i for i, k in enumerate(params.receivers)}
         self.mount = np.array(list(params.receivers.values()), float)
@@ -122,6 +127,7 @@ class SurveyController(ControllerDefaults):
         self.path: deque[np.ndarray] = deque(maxlen=MAX_STEPS)  # the receivers' positions at each step
         self.next_wp = 0
         self.beacons: dict[str, _Beacon] = {}
+        self.ignored = 0  # readings of addresses beyond MAX_BEACONS
         self.stage = "search"
         self.target: str | None = None
         self.t = 0.0  # robot time of the newest reading
@@ -150,6 +156,9 @@ class SurveyController(ControllerDefaults):
         self.t = t
         m = self.model.receivers
         b = self.beacons.get(item.address)
+        if b is None and len(self.beacons) >= MAX_BEACONS:
+            self.ignored += 1
+            return None
         if b is None:
             p = self.params
             circles = CircleInitializer(self.model, 1, p.n_init, p.c_f, p.c_w) if p.init == "circles" else None
