@@ -19,7 +19,8 @@ initialiser the larger error, docs/RESULTS.md "S4 Monte Carlo"). With ``smooth``
 readings are kept and, when the pattern ends, each beacon and its per-receiver RSSI offsets are
 fitted to all of them (``refine_batch``, the campaign's smoother), from the EKF's estimate and
 from a 1 m grid over the area, keeping the best fit.
-After the pattern the vehicle flies to the beacon ``home_on`` (or the one localised most
+The smoother fits one beacon each control period while the vehicle hovers, so the loop never
+waits long on it. After the pattern the vehicle flies to the beacon ``home_on`` (or the one localised most
 surely), holds over it ``hold_s`` and reports arrival; the loop's stop leaves the vehicle
 holding there (a copter in BRAKE or LOITER).
 """
@@ -46,7 +47,9 @@ MAX_BEACONS = 100
 """Beacons localised at most (S4 knows its beacons; a phone walking by is one more): later
 addresses are ignored, counted."""
 GRID_M = 1.0
-"""The smoother also starts from a grid of this spacing over the area."""
+"""The smoother also starts from a grid of this spacing over the area ..."""
+THIN = 4
+"""... on every fourth step of the flight: a fit per grid point costs that much less."""
 MAX_STEPS = 36_000
 """Steps of readings kept for the smoother: an hour at 10 Hz; an older step is forgotten."""
 
@@ -133,6 +136,7 @@ class SurveyController(ControllerDefaults):
         self.t = 0.0  # robot time of the newest reading
         self._held_since: float | None = None
         self._previous: np.ndarray | None = None  # the receivers' positions at the last step
+        self._to_smooth: list[str] = []  # beacons the smoother has still to fit, after the pattern
 
     @property
     def phase(self) -> str:
@@ -200,23 +204,28 @@ class SurveyController(ControllerDefaults):
                 b.ekf.update(rec.reshape(1, -1), rssi)
             b.estimate = b.ekf.beacon[0].copy()
 
-    def smooth(self) -> None:
-        """Every beacon fitted to all the readings kept of it: the smoother from the EKF's
-        estimate and from a grid of starts over the area at once, the best fit kept (from one
-        start a few metres off, Gauss-Newton can settle in a local minimum)."""
+    def smooth(self, address: str) -> None:
+        """One beacon fitted to all the readings kept of it (the campaign's smoother). From one
+        start a few metres off Gauss-Newton can settle in a local minimum, so it also starts
+        from a grid over the area -- on every ``THIN``-th step, cheaply -- and the best of those
+        fits and the EKF's estimate, refined on every step, is kept."""
+        b = self.beacons[address]
         first = self.steps - len(self.path) + 1  # the step of path[0]
+        kept = [(k, r) for k, r in b.history if k >= first]
+        if b.estimate is None or not kept:
+            return
         path = np.array(self.path)
+        receivers = path[[k - first for k, _ in kept]][:, None]  # (S, 1, M, 2)
+        rssi = np.stack([r for _, r in kept])[:, None]  # (S, 1, M)
         x0, y0, x1, y1 = self.params.area
         grid = np.stack(np.meshgrid(np.arange(x0, x1 + 1e-9, GRID_M), np.arange(y0, y1 + 1e-9, GRID_M)), -1).reshape(-1, 2)
-        for b in self.beacons.values():
-            kept = [(k, r) for k, r in b.history if k >= first]
-            if b.estimate is None or not kept:
-                continue
-            starts = np.vstack([b.estimate[None], grid])
-            receivers = np.repeat(np.stack([path[k - first] for k, _ in kept])[:, None], len(starts), axis=1)  # (S, K, M, 2)
-            rssi = np.repeat(np.stack([r for _, r in kept])[:, None], len(starts), axis=1)  # (S, K, M)
-            fits, offsets = refine_batch(self.model, receivers, rssi, starts, iterations=6)
-            b.smoothed = fits[int(np.argmin(batch_cost(self.model, receivers, rssi, fits, offsets)))]
+        thin_rec, thin_rssi = (np.repeat(a[::THIN], len(grid), axis=1) for a in (receivers, rssi))
+        fits, offsets = refine_batch(self.model, thin_rec, thin_rssi, grid, iterations=6)
+        best = fits[int(np.argmin(batch_cost(self.model, thin_rec, thin_rssi, fits, offsets)))]
+        starts = np.stack([b.estimate, best])
+        receivers, rssi = np.repeat(receivers, 2, axis=1), np.repeat(rssi, 2, axis=1)
+        fits, offsets = refine_batch(self.model, receivers, rssi, starts, iterations=6)
+        b.smoothed = fits[int(np.argmin(batch_cost(self.model, receivers, rssi, fits, offsets)))]
 
     def _choose(self) -> str | None:
         """The beacon to hold over: ``home_on``, or the surest of those heard enough."""
@@ -232,6 +241,12 @@ class SurveyController(ControllerDefaults):
         p = self.params
         if self.stage == "search":
             return self._search(pose)
+        if self.stage == "smoothing":  # one beacon a control period: no long pause of the loop
+            if self._to_smooth:
+                address = self._to_smooth.pop(0)
+                self.smooth(address)
+                return Decision(0.0, 0.0, None, False, f"hovering: smoothing {address}")
+            self.stage = "homing"
         self.target = self._choose()
         goal = self.reported
         if goal is None:
@@ -254,9 +269,8 @@ class SurveyController(ControllerDefaults):
         while self.next_wp < len(self.waypoints) and math.dist(self.waypoints[self.next_wp], pose[:2]) < p.waypoint_radius_m:
             self.next_wp += 1
         if self.next_wp == len(self.waypoints):
-            self.stage = "homing"
-            if p.smooth:
-                self.smooth()
+            self.stage = "smoothing" if p.smooth else "homing"
+            self._to_smooth = sorted(a for a, b in self.beacons.items() if b.estimate is not None)
             return Decision(0.0, 0.0, None, False, "search done")
         wx, wy = self.waypoints[self.next_wp]
         rest = math.hypot(wx - pose.x, wy - pose.y) + sum(
