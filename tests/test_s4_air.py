@@ -32,10 +32,12 @@ def test_the_receivers_ride_on_the_vehicle() -> None:
     assert facing_y[1] == pytest.approx((1.0 + 0.2, 2.0 + 0.4))  # node 2 at (0.4, -0.2) on the vehicle
 
 
-def test_the_survey_flies_the_pattern_then_holds_over_the_beacon_it_localised() -> None:
+@pytest.mark.parametrize("init", ["area", "circles"])
+def test_the_survey_flies_the_pattern_then_holds_over_the_beacon_it_localised(init: str) -> None:
     """The controller alone on S4's model (a seeded simulation, no emulator): it flies every
-    corner, localises the beacons within S4's 95 % bound, flies to the one asked for and holds."""
-    params = S4Params(home_on="BE0000000001", search_speed=0.4, hold_s=1.0)
+    corner, localises the beacons within S4's 95 % bound, flies to the one asked for and holds;
+    each beacon's filter starting at the area's centre or from S4's initialiser."""
+    params = S4Params(home_on="BE0000000001", search_speed=0.4, hold_s=1.0, init=init)
     survey = SurveyController(params)
     rng = np.random.default_rng(4)
     beacons = {"BE0000000000": (1.2, 2.5), "BE0000000001": (3.1, 5.6)}

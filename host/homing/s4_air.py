@@ -101,7 +101,7 @@ class _Beacon:
     rssi_sum: np.ndarray
     heard: np.ndarray
     readings: int = 0
-    ekf: BeaconEkf | None = None
+    row: int | None = None  # its row of the EKF, once it has one
     estimate: np.ndarray | None = None
     smoothed: np.ndarray | None = None
     history: deque[tuple[int, np.ndarray]] = field(default_factory=lambda: deque(maxlen=MAX_STEPS))  # (step, RSSI)
@@ -136,6 +136,7 @@ class SurveyController(ControllerDefaults):
         self.t = 0.0  # robot time of the newest reading
         self._held_since: float | None = None
         self._previous: np.ndarray | None = None  # the receivers' positions at the last step
+        self.ekf: BeaconEkf | None = None  # every beacon's row, once it has one
         self._to_smooth: list[str] = []  # beacons the smoother has still to fit, after the pattern
 
     @property
@@ -174,35 +175,66 @@ class SurveyController(ControllerDefaults):
         return {"address": item.address, "node": item.node_id, "rssi": item.rssi_dbm}
 
     def step(self, pose: Pose) -> None:
-        """One S4 step for every beacon heard so far, on the readings since the last."""
+        """One S4 step for every beacon heard so far, on the readings since the last: one EKF
+        over all of them (K rows, host.estimation.beacon runs K beacons at once)."""
         rec = self.receivers(pose)
         u = np.zeros_like(rec) if self._previous is None else rec - self._previous
         self._previous = rec
         self.path.append(rec)
         self.steps += 1
-        for b in self.beacons.values():
+        rows: list[tuple[int, np.ndarray]] = []
+        joining: list[tuple[str, np.ndarray, np.ndarray]] = []
+        joining_rssi: list[np.ndarray] = []
+        for address, b in self.beacons.items():
             with np.errstate(invalid="ignore", divide="ignore"):
-                rssi = np.where(b.heard > 0, b.rssi_sum / b.heard, np.nan)[None]
+                rssi = np.where(b.heard > 0, b.rssi_sum / b.heard, np.nan)
             if b.heard.any():
-                b.history.append((self.steps, rssi[0]))
+                b.history.append((self.steps, rssi))
             b.rssi_sum[:] = 0
             b.heard[:] = 0
-            if b.ekf is None:
-                if b.init is None:  # at the area's centre, then this step's readings
-                    b.ekf = BeaconEkf(self.model, *initial_state(self.model, rec[None], self.centre[None],
-                                                                 self.spread[None]))
-                    b.ekf.update(rec.reshape(1, -1), rssi)
-                else:
-                    b.init.update(rec[None], rssi)
-                    if not b.init.ready:
-                        continue
+            if b.row is not None:
+                rows.append((b.row, rssi))
+            elif b.init is None:  # at the area's centre, then this step's readings
+                joining.append((address, self.centre, self.spread))
+                joining_rssi.append(rssi)
+            else:
+                b.init.update(rec[None], rssi[None])
+                if b.init.ready:
                     est, cov = b.init.estimate()
                     est = np.where(np.isnan(est), rec.mean(axis=0), est)  # no two circles met: under the receivers
-                    b.ekf = BeaconEkf(self.model, *initial_state(self.model, rec[None], est, cov))
-            else:
-                b.ekf.predict(u.reshape(1, -1))
-                b.ekf.update(rec.reshape(1, -1), rssi)
-            b.estimate = b.ekf.beacon[0].copy()
+                    joining.append((address, est[0], cov[0]))
+        if self.ekf is not None:
+            k = len(self.ekf.x)
+            heard = np.full((k, self.model.receivers), np.nan)
+            for row, rssi in rows:
+                heard[row] = rssi
+            self.ekf.predict(np.tile(u.reshape(1, -1), (k, 1)))
+            self.ekf.update(np.tile(rec.reshape(1, -1), (k, 1)), heard)
+        if joining:
+            self._join(rec, joining, joining_rssi)
+        if self.ekf is not None:
+            for b in self.beacons.values():
+                if b.row is not None:
+                    b.estimate = self.ekf.beacon[b.row].copy()
+
+    def _join(self, rec: np.ndarray, joining: list[tuple[str, np.ndarray, np.ndarray]], rssi: list[np.ndarray]) -> None:
+        """New rows of the EKF: beacons started at the area's centre take this step's readings."""
+        n = len(joining)
+        new = BeaconEkf(self.model, *initial_state(self.model, np.repeat(rec[None], n, axis=0),
+                                                   np.array([e for _, e, _ in joining]),
+                                                   np.array([c for _, _, c in joining])))
+        if rssi:  # the area's start: the first len(rssi) of them
+            first = BeaconEkf(self.model, new.x[: len(rssi)], new.p[: len(rssi)])
+            first.update(np.tile(rec.reshape(1, -1), (len(rssi), 1)), np.array(rssi))
+            new.x[: len(rssi)], new.p[: len(rssi)] = first.x, first.p
+        base = 0 if self.ekf is None else len(self.ekf.x)
+        if self.ekf is None:
+            self.ekf = new
+        else:
+            self.ekf.x = np.vstack([self.ekf.x, new.x])
+            self.ekf.p = np.concatenate([self.ekf.p, new.p])
+        for i, (address, _, _) in enumerate(joining):
+            self.beacons[address].row = base + i
 
     def smooth(self, address: str) -> None:
         """One beacon fitted to all the readings kept of it (the campaign's smoother). From one
@@ -229,12 +261,13 @@ class SurveyController(ControllerDefaults):
 
     def _choose(self) -> str | None:
         """The beacon to hold over: ``home_on``, or the surest of those heard enough."""
-        known = {a: b for a, b in self.beacons.items() if b.ekf is not None and b.readings >= self.params.min_readings}
+        known = {a: b.row for a, b in self.beacons.items() if b.row is not None and b.readings >= self.params.min_readings}
         if self.params.home_on:
             return self.params.home_on.upper() if self.params.home_on.upper() in known else None
-        if not known:
+        if not known or self.ekf is None:
             return None
-        return min(known, key=lambda a: float(np.trace(known[a].ekf.p[0, -2:, -2:])))  # type: ignore[union-attr]
+        p = self.ekf.p
+        return min(known, key=lambda a: float(np.trace(p[known[a], -2:, -2:])))
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         self.step(pose)
