@@ -142,8 +142,8 @@ def read_truth(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
 
 
 def survey_config(config: Config, truth: Path) -> Config:
-    """A survey run: hold over the scenario's first beacon (by its address, as a user names the
-    beacon to find), and time enough for S4's pattern."""
+    """A survey run on ptys: hold over the scenario's first beacon (by its address, as a user
+    names the beacon to find), read from the truth file once the emulator has written it."""
     for _ in range(50):  # the emulator writes the truth file as it starts
         if truth.exists() and len(truth.read_text().splitlines()) >= 2:
             break
