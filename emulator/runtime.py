@@ -96,8 +96,8 @@ class Emulator:
                                     "pip install 'rfhoming[mavlink]'") from None
             try:
                 return MavlinkLink(robot.get("gcs"), VehicleOptions(**robot.get("options", {})))
-            except ValueError as exc:
-                raise ScenarioError(f"--robot mavlink: {exc}") from None
+            except (ValueError, TypeError) as exc:  # TypeError: an option the vehicle does not take
+                raise ScenarioError(f"--robot mavlink or [robot.mavlink]: {exc}") from None
         try:
             from rfhoming.emulator.ros2robot import Ros2Link  # cyclonedds: the ros2 extra
         except ImportError as exc:
