@@ -359,7 +359,7 @@ hold_s = 3.0             # hover over it this long before reporting arrival
 min_readings = 20        # a beacon heard less is not homed on
 
 # [s4.receivers]         # BLE scanner node id = [x, y] on the vehicle (m, x ahead, y left); by
-# 1 = [-0.2, -0.2]       # default S4's formation, an L of 0.6 m sides centred on the vehicle
+# 1 = [-0.2, -0.2]       # default the S4 campaign's formation, an L of 0.6 m sides centred on it
 # 2 = [0.4, -0.2]
 # 3 = [-0.2, 0.4]
 

@@ -42,7 +42,7 @@ from rfhoming.host.homing.schema import DBM, M_S, RAD_S, M, S, setting
 from rfhoming.host.homing.types import ControllerDefaults, Decision, ParamsError, Pose, velocity_law
 
 FORMATION = {"1": [-0.2, -0.2], "2": [0.4, -0.2], "3": [-0.2, 0.4]}
-"""S4's simulated formation, an L of 0.6 m sides centred on the path, by receiver node id."""
+"""The S4 campaign's formation (S4 leaves it open), an L of 0.6 m sides centred on the path, by receiver node id."""
 MAX_BEACONS = 100
 """Beacons localised at most (S4 knows its beacons; a phone walking by is one more): later
 addresses are ignored, counted."""
