@@ -49,8 +49,9 @@ the demo tells it for the emulator's vehicle only."""
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None,
                    receiver: str | None = None, speed: float = 0.0) -> tuple[subprocess.Popen[str], dict[str, Any]]:
-    """``speed`` 0: lockstep (as fast as the host answers, deterministic); else the emulator's
-    ``--speed`` (1 = robot time, for a person watching)."""
+    """The emulator's process and every device it printed, by the scenario's device name (the
+    truth file's header says how many). ``speed`` 0: lockstep (as fast as the host answers,
+    deterministic); else the emulator's ``--speed`` (1 = robot time, for a person watching)."""
     pace = ["--lockstep"] if speed == 0 else ["--speed", str(speed)]
     cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", *pace, "--seed", str(seed),
            "--truth", str(truth), "--link-dir", str(link_dir)]
