@@ -68,7 +68,7 @@ async def pty_run(seed: int, target: tuple[float, float], scenario: str = "s0-op
                                      f"{target[0]},{target[1]}" if scenario == "s0-open" else None)
     try:
         plan = Homing("aoa", [Device("base", spec=f"base:{endpoints['base']['path']}"),
-                              Device("aoa", spec=f"xplr-aoa:{endpoints['xplr-aoa']['path']}")])
+                              Device("aoa", spec=f"xplr-aoa:{endpoints['aoa']['path']}")])
         wall0, cpu0, child0 = time.perf_counter(), time.process_time(), child_cpu_s(proc.pid)
         outcome = await asyncio.wait_for(assembly.run(plan), 900)
         wall = time.perf_counter() - wall0

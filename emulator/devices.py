@@ -93,14 +93,35 @@ class DeviceRunner:
     def step(self, world: World, t0: float, t1: float) -> None:
         self.firmware.tick(int(t1 * 1e6))
 
-    def transmissions(self, world: World, kind: str, t0: float, t1: float) -> Iterator[tuple[Target, float, tuple[float, float], float, int]]:
-        """(source, time, position, distance to the robot, obstacles crossed) of every
-        transmission of a ``kind`` source in (t0, t1]."""
+    offset = (0.0, 0.0)
+    """Where the device sits on the robot (m, x ahead, y left: REP 103)."""
+    height: float | None = None
+    """Its height above ground (a copter's receivers): distances in 3-D; None: in the plane."""
+
+    def mounted(self, options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
+        """Its place on the robot: the device's ``offset = [x, y]`` and the robot's ``height``."""
+        self.offset = _point(options.get("offset", (0.0, 0.0)))
+        self.height = scenario.robot_height
+        return self
+
+    def antenna(self, world: World) -> tuple[float, float]:
+        """Where it is in the world: on the robot at its ``offset``."""
         r = world.robot
+        if self.offset == (0.0, 0.0):
+            return r.x, r.y
+        c, s = math.cos(r.theta), math.sin(r.theta)
+        return r.x + c * self.offset[0] - s * self.offset[1], r.y + s * self.offset[0] + c * self.offset[1]
+
+    def transmissions(self, world: World, kind: str, t0: float, t1: float) -> Iterator[tuple[Target, float, tuple[float, float], float, int]]:
+        """(source, time, position, distance to the device, obstacles crossed) of every
+        transmission of a ``kind`` source in (t0, t1]."""
+        x, y = self.antenna(world)
         for source in (s for s in world.targets if s.kind == kind):
             for t in self.schedule.due(source.id, source.interval_ms / 1000, source.jitter_ms / 1000, t0, t1):
                 pos = source.position_at(t)
-                yield source, t, pos, math.hypot(pos[0] - r.x, pos[1] - r.y), world.obstacles_crossed((r.x, r.y), pos)
+                distance = (math.hypot(pos[0] - x, pos[1] - y) if self.height is None
+                            else math.hypot(pos[0] - x, pos[1] - y, self.height - source.height))
+                yield source, t, pos, distance, world.obstacles_crossed((x, y), pos)
 
     schedule: _Schedule
 
@@ -245,6 +266,11 @@ class AoaRunner(DeviceRunner):
         fw.tick(int(t1 * 1000))
 
 
+def _point(p: Any) -> tuple[float, float]:
+    x, y = map(float, p)
+    return x, y
+
+
 def _address(target_id: str) -> bytes:
     """A 12-hex-digit id as the 6 address bytes on the air (LSB first)."""
     return bytes.fromhex(target_id.rjust(12, "0")[-12:])[::-1]
@@ -258,7 +284,7 @@ class Esp32Runner(DeviceRunner):
     @classmethod
     def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
               options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
-        return cls(name, k + 1, link, faults, rng, scenario.path_loss)
+        return cls(name, k + 1, link, faults, rng, scenario.path_loss).mounted(options, scenario)
 
     def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
                  rng: np.random.Generator, path_loss: PathLossModel) -> None:
@@ -289,7 +315,7 @@ class EspAtRunner(DeviceRunner):
     @classmethod
     def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
               options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
-        return cls(name, link, faults, rng, scenario.path_loss, options)
+        return cls(name, link, faults, rng, scenario.path_loss, options).mounted(options, scenario)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  path_loss: PathLossModel, options: dict[str, Any]) -> None:
@@ -318,7 +344,7 @@ class HciRunner(DeviceRunner):
     @classmethod
     def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
               options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
-        return cls(name, link, faults, rng, scenario.path_loss, options)
+        return cls(name, link, faults, rng, scenario.path_loss, options).mounted(options, scenario)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  path_loss: PathLossModel, options: dict[str, Any]) -> None:
@@ -415,10 +441,14 @@ class BaseRunner(DeviceRunner):
         self.commanded = asyncio.Event()
         self._next_scan = 0.0
         self._commands_seen = 0
+        # a link that drives the firmware itself (a MAVLink vehicle) says when the host commanded
+        self._link_commands = hasattr(link, "on_command")
+        if self._link_commands:
+            link.on_command = self.commanded.set  # type: ignore[attr-defined]
 
     def on_host_bytes(self, data: bytes) -> None:
         super().on_host_bytes(data)
-        if self.firmware.counters["commands"] != self._commands_seen:
+        if not self._link_commands and self.firmware.counters["commands"] != self._commands_seen:
             self._commands_seen = self.firmware.counters["commands"]
             self.commanded.set()
 

@@ -12,6 +12,7 @@ each second), and the firmware is told the velocity the autopilot drives at that
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from typing import Any
 
 from rfhoming.emulator.links import Link
@@ -42,6 +43,7 @@ class MavlinkLink(Link):
         self._transport: asyncio.DatagramTransport | None = None
         self._seq = 0
         self.counters.update(datagrams_in=0, datagrams_out=0)
+        self.on_command: Callable[[], None] = lambda: None  # a setpoint came: the lockstep's answer
 
     def describe(self) -> dict[str, Any]:
         host_spec = (f"mavlink:udpin:{self.gcs[0]}:{self.gcs[1]}" if self.gcs
@@ -66,7 +68,10 @@ class MavlinkLink(Link):
             self.peer = addr
         self.counters["datagrams_in"] += 1
         self.counters["rx_bytes"] += len(data)
+        setpoints = self.vehicle.counters["setpoints"]
         self._to_gcs(self.vehicle.feed(data, self.t))
+        if self.vehicle.counters["setpoints"] != setpoints:
+            self.on_command()
 
     def _to_gcs(self, data: bytes) -> None:
         if data and self._transport is not None and self.peer is not None:

@@ -43,7 +43,8 @@ class Emulator:
                  faults: Iterable[Fault] = (), truth: IO[str] | None = None,
                  link_dir: Path | None = None, robot: dict[str, Any] | None = None) -> None:
         """``robot``: the base as a ROS 2 robot (emulator/ros2robot.py), e.g. {"domain": 7, "ns": ""}, or
-        as a MAVLink vehicle (emulator/mavlinkrobot.py), {"kind": "mavlink", "gcs": None, "options": {...}}."""
+        as a MAVLink vehicle (emulator/mavlinkrobot.py), {"kind": "mavlink", "gcs": None, "options": {...}};
+        by default the scenario's own (``[robot.mavlink]``), or the serial base."""
         if transport not in TRANSPORTS:
             raise ScenarioError(f"transport must be one of {TRANSPORTS}")
         self.scenario = scenario
@@ -62,6 +63,7 @@ class Emulator:
         self.link_dir = link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-"))
         self.faults = list(faults)
         self.devices: list[DeviceRunner] = []
+        robot = robot if robot is not None else scenario.vehicle
         unknown = {f.device for f in self.faults if f.device} - {d.name for d in scenario.devices}
         if unknown:
             names = ", ".join(d.name for d in scenario.devices)
@@ -97,8 +99,8 @@ class Emulator:
                                     "pip install 'rfhoming[mavlink]'") from None
             try:
                 return MavlinkLink(robot.get("gcs"), VehicleOptions(**robot.get("options", {})))
-            except ValueError as exc:
-                raise ScenarioError(f"--robot mavlink: {exc}") from None
+            except (ValueError, TypeError) as exc:  # TypeError: an option the vehicle does not take
+                raise ScenarioError(f"--robot mavlink or [robot.mavlink]: {exc}") from None
         try:
             from rfhoming.emulator.ros2robot import Ros2Link  # cyclonedds: the ros2 extra
         except ImportError as exc:
@@ -144,7 +146,8 @@ class Emulator:
             await d.link.start()
         if self.truth is not None:  # a header line: what a plot of the run needs to know
             header = {"scenario": self.scenario.name, "bounds": list(self.world.bounds),
-                      "obstacles": [o.polygon for o in self.world.obstacles]}
+                      "obstacles": [o.polygon for o in self.world.obstacles],
+                      "devices": [d.name for d in self.devices]}
             self.truth.write(json.dumps(header) + "\n")
         self.write_truth()
         return self.endpoints()

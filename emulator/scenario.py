@@ -44,6 +44,8 @@ class Scenario:
     robot_radius: float = 0.25
     robot_tag: str | None = None
     robot_tag_interval_ms: float = 20.0
+    robot_height: float | None = None  # its receivers' height above ground (a copter's); None: planar radio
+    vehicle: dict[str, Any] | None = None  # the base as a MAVLink vehicle (``[robot.mavlink]``), as --robot mavlink
 
 
 def presets() -> list[str]:
@@ -164,5 +166,21 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = No
         robot_radius=float(robot.get("radius", 0.25)),
         robot_tag=robot.get("tag"),
         robot_tag_interval_ms=float(robot.get("tag_interval_ms", 20.0)),
+        robot_height=None if robot.get("height") is None else float(robot["height"]),
+        vehicle=_vehicle(robot, name_or_path),
     )
+
+
+def _vehicle(robot: dict[str, Any], where: str) -> dict[str, Any] | None:
+    """``[robot.mavlink]``: the scenario's base is an emulated MAVLink vehicle (the options of
+    ``--robot mavlink``); a copter flies at the robot's ``height``."""
+    options = robot.get("mavlink")
+    if options is None:
+        return None
+    if not isinstance(options, dict):
+        raise ScenarioError(f"scenario {where}: [robot.mavlink] must be a table of the vehicle's options")
+    options = dict(options)
+    if options.get("vehicle") == "copter" and "height" in robot:
+        options.setdefault("altitude", float(robot["height"]))
+    return {"kind": "mavlink", "gcs": None, "options": options}
 

@@ -23,7 +23,7 @@ from typing import Any
 
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing import assembly
-from rfhoming.host.homing.assembly import CHOOSE_TAG_S, SENSORS, Device, Homing, run_record
+from rfhoming.host.homing.assembly import CHOOSE_TAG_S, Device, Homing, run_record, sensors_of
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import Outcome, RunLog
 from rfhoming.protocol import devices
@@ -34,13 +34,24 @@ class DemoError(Error):
     """The emulator child did not start; the message is its own last line of explanation."""
 
 
-SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e", "s3-arena"}  # S0–S3
+SUPPORTED = {"s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e", "s3-arena", "s4-air"}  # S0–S4
+SURVEYS = {"s4-air"}
+"""Scenarios of S4's survey: the vehicle is told which beacon to hold over (the scenario's first,
+as the other demos home on it), and the summary holds S4's localisation metric."""
+S4_PAPER = {"mean_m": 0.234, "p95_below_m": 0.65}
+"""S4's EKF over 10,000 simulated beacons: mean error 0.234 m, 95 % below 0.65 m."""
+SURVEY_TIME_S = 600.0
+"""S4's pattern takes 260 s at 0.2 m/s: a survey run's time limit is at least this."""
+ARM = ",arm=1"
+"""The demo arms the emulated MAVLink vehicle: rfhoming never arms one unless told (arm=1), and
+the demo tells it for the emulator's vehicle only."""
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None,
                    receiver: str | None = None, speed: float = 0.0) -> tuple[subprocess.Popen[str], dict[str, Any]]:
-    """``speed`` 0: lockstep (as fast as the host answers, deterministic); else the emulator's
-    ``--speed`` (1 = robot time, for a person watching)."""
+    """The emulator's process and every device it printed, by the scenario's device name (the
+    truth file's header says how many). ``speed`` 0: lockstep (as fast as the host answers,
+    deterministic); else the emulator's ``--speed`` (1 = robot time, for a person watching)."""
     pace = ["--lockstep"] if speed == 0 else ["--speed", str(speed)]
     cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", *pace, "--seed", str(seed),
            "--truth", str(truth), "--link-dir", str(link_dir)]
@@ -51,14 +62,16 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stderr is not None  # both piped
     endpoints: dict[str, dict[str, Any]] = {}
+    devices_ = 2
     try:
-        while len(endpoints) < 2:
+        while len(endpoints) < devices_:
             line = proc.stdout.readline()
             if not line:
                 why = proc.stderr.read().strip().splitlines() or [f"it exited with status {proc.wait()}"]
                 raise DemoError(f"the emulator did not start: {why[-1]}")
             endpoint = json.loads(line)
-            endpoints[endpoint["type"]] = endpoint
+            endpoints[endpoint["device"]] = endpoint
+            devices_ = len(read_truth(truth)[0].get("devices", ())) or 2  # written before the first endpoint
     except BaseException:  # Ctrl-C or SIGTERM while it starts: it goes too
         stop_emulator(proc, grace_s=INTERRUPTED_GRACE_S)
         raise
@@ -86,13 +99,20 @@ def plan(endpoints: dict[str, dict[str, Any]], out: Path, config: Config, sinks:
     """The same homing run ``rfhoming run`` makes, on the ptys the emulator printed: each
     device by its port spec (the kind it printed and its path), with a capture of every byte."""
     named = {e["device"]: e for e in endpoints.values()}
-    sensor = next(name for name in SENSORS if name in named)
-    controller, role = SENSORS[sensor]
-    specs = {r: f"{named[n]['kind']}:{named[n]['path']}" for r, n in ((role, sensor), ("base", "base"))}
-    plan = Homing(controller, [Device(role, spec=specs[role]), Device("base", spec=specs["base"])], config,
-                  sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
+    controller, role, sensors = sensors_of(list(named))
+    plan = Homing(controller, [*(Device(role, spec=_spec(named[n])) for n in sensors), Device("base", spec=_spec(named["base"]))],
+                  config, sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
     plan.capture = CaptureWriter(out / "capture.pcapng", comment=run_record(plan))
     return plan
+
+
+def _spec(endpoint: dict[str, Any]) -> str:
+    """The port spec of a device the emulator printed (a MAVLink vehicle's path is a whole spec:
+    the demo arms it)."""
+    path: str = endpoint["path"]
+    if path.startswith(f"{endpoint['kind']}:"):
+        return path + (ARM if endpoint["kind"] == "mavlink" else "")
+    return f"{endpoint['kind']}:{path}"
 
 
 async def home(plan: Homing, out: Path) -> Outcome:
@@ -122,6 +142,44 @@ def read_truth(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     return lines[0], [line for line in lines[1:] if "t" in line]
 
 
+def survey_config(config: Config, truth: Path) -> Config:
+    """A survey run on ptys: hold over the scenario's first beacon (by its address, as a user
+    names the beacon to find), read from the truth file once the emulator has written it."""
+    for _ in range(50):  # the emulator writes the truth file as it starts
+        if truth.exists() and len(truth.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.05)
+    _, states = read_truth(truth)
+    return _surveying(config, states[0]["targets"][0]["id"])
+
+
+def _surveying(config: Config, beacon: str) -> Config:
+    return replace(config, s4=replace(config.s4, home_on=config.s4.home_on or beacon))
+
+
+def localisation(runlog_path: Path, targets: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """S4's metric: each beacon's final estimate (the run log's last) against the truth; None
+    for a run that localised none."""
+    import numpy as np
+
+    last = None
+    with open(runlog_path) as log:
+        for line in log:
+            if '"beacons"' in line:
+                last = line
+    if last is None:
+        return None
+    record = json.loads(last)
+    out: dict[str, Any] = {}
+    for key, name in (("beacons", "ekf"), ("smoothed", "ekf_smoothed")):
+        estimates = record.get(key, {})
+        errors = [math.dist(estimates[t["id"]], (t["x"], t["y"])) for t in targets if t["id"] in estimates]
+        if errors:
+            out[name] = {"beacons": len(errors), "of": len(targets), "mean_m": round(float(np.mean(errors)), 3),
+                         "p95_m": round(float(np.percentile(errors, 95)), 3), "max_m": round(max(errors), 3)}
+    return {**out, "s4_paper": S4_PAPER} if out else None
+
+
 def summarise(outcome: Outcome, truth_path: Path, links: dict[str, Any], goal: list[float] | None = None) -> dict[str, Any]:
     header, states = read_truth(truth_path)
     target = states[-1]["targets"][0] if goal is None else {"x": goal[0], "y": goal[1]}
@@ -131,8 +189,11 @@ def summarise(outcome: Outcome, truth_path: Path, links: dict[str, Any], goal: l
     straight = math.dist((start["x"], start["y"]), (end["x"], end["y"]))
     final_error = math.dist((end["x"], end["y"]), (target["x"], target["y"]))
     goal_error = None if outcome.goal is None else math.dist(outcome.goal, (target["x"], target["y"]))
+    runlog = truth_path.parent / "run.jsonl"
+    located = localisation(runlog, states[-1]["targets"]) if header["scenario"] in SURVEYS and runlog.exists() else None
     return {
         "scenario": header["scenario"],
+        **({"localisation": located} if header["scenario"] in SURVEYS else {}),
         "success": outcome.arrived and final_error < 1.0,
         "reason": outcome.reason,
         "simulated_time_s": round(outcome.robot_time_s, 2),
@@ -169,8 +230,17 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
     if goals:
         gx, gy = zip(*goals)
         ax.scatter(gx, gy, c=range(len(gx)), cmap="autumn_r", s=8, label="estimated target over time", zorder=2)
+    located = [g for g in map(json.loads, runlog_path.read_text().splitlines()) if "beacons" in g]
+    if located:  # a survey: every beacon, and where the run put each
+        others = states[-1]["targets"][1:]
+        ax.scatter([t["x"] for t in others], [t["y"] for t in others], marker="*", s=90, color="khaki", ec="k",
+                   label="other beacons (truth)", zorder=4)
+        final = located[-1].get("smoothed", located[-1]["beacons"])
+        ax.scatter([p[0] for p in final.values()], [p[1] for p in final.values()], marker="x", s=40, color="tab:red",
+                   label="beacons as localised", zorder=5)
     target = states[-1]["targets"][0]
-    ax.plot(target["x"], target["y"], marker="*", ms=18, color="gold", mec="k", label="tag (truth)", zorder=4)
+    ax.plot(target["x"], target["y"], marker="*", ms=18, color="gold", mec="k",
+            label="beacon held over (truth)" if located else "tag (truth)", zorder=4)
     ax.plot(xs[0], ys[0], "ko", label="start", zorder=4)
     x0, y0, x1, y1 = header["bounds"]
     ax.set_xlim(x0, x1)
@@ -201,21 +271,27 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
         goal = [float(v) for v in target.split(",")] if target else [4.0, 4.0]
         beacons = {t.id: list(t.position) for t in sc.world.targets}
         config = replace(config, trilat=replace(config.trilat, anchors=beacons, goal=goal))
+    if scenario in SURVEYS:
+        config = _surveying(config, sc.world.targets[0].id)
     names = {d.name: d.type for d in sc.devices}
-    sensor = next(name for name in SENSORS if name in names)
-    controller, role = SENSORS[sensor]
+    controller, role, sensors = sensors_of(list(names))
     with open(out / "truth.jsonl", "w") as truth:
         em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=truth)
         await em.start()
         world = asyncio.create_task(em.run())
-        ports = {name: PipePort(name, pipe_end(em.device(name).link)) for name in (sensor, "base")}
-        kind = devices.BOARDS[names[sensor]][0].name
-        plan = Homing(controller, [Device(role, port=ports[sensor], kind=kind), Device("base", port=ports["base"])],
-                      config, sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
+        sensed = [Device(role, port=PipePort(n, pipe_end(em.device(n).link)), kind=devices.BOARDS[names[n]][0].name)
+                  for n in sensors]
+        base_link = em.device("base").link
+        if base_link.describe().get("kind") == "mavlink":  # a vehicle on UDP: the host connects as a ground station
+            base = Device("base", spec=_spec(base_link.describe()))
+        else:
+            base = Device("base", port=PipePort("base", pipe_end(base_link)))
+        plan = Homing(controller, [*sensed, base], config, sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
         capture = plan.capture = CaptureWriter(out / "capture.pcapng", comment=run_record(plan))
         for device in plan.devices:
-            device.port.taps.append(capture.tap)
-            capture.describe(device.port.name, kind=device.kind or "base", role=device.role)
+            if device.port is not None:  # a spec's port is described when it is resolved
+                device.port.taps.append(capture.tap)
+                capture.describe(device.port.name, kind=device.kind or "base", role=device.role)
         try:
             outcome = await home(plan, out)
         finally:
@@ -235,6 +311,8 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     ``in_process``: the emulator in this process, in lockstep (the same summary for the same
     seed), instead of in its own on ptys."""
     out.mkdir(parents=True, exist_ok=True)
+    if scenario in SURVEYS:
+        config = replace(config, loop=replace(config.loop, max_time_s=max(config.loop.max_time_s, SURVEY_TIME_S)))
     if speed == 0 or in_process:
         config = config.for_lockstep()  # the emulator waits for the host: wall time means nothing
     truth = out / "truth.jsonl"
@@ -251,6 +329,8 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     try:
         if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
             config = trilat_config(config, truth, target)
+        elif scenario in SURVEYS:
+            config = survey_config(config, truth)
         outcome = asyncio.run(asyncio.wait_for(_home_beside(proc, plan(endpoints, out, config, tuple(sinks)), out),
                                                config.loop.max_time_s + 60))
     except BaseException:

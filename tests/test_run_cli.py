@@ -116,7 +116,7 @@ def test_an_unopenable_port_fails_fast_naming_it(tmp_path: Path) -> None:
 SITE = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-home.toml"
 
 
-@pytest.mark.parametrize("controller", ["aoa", "dock", "rss", "trilat", "anchors"])
+@pytest.mark.parametrize("controller", ["aoa", "dock", "rss", "trilat", "survey", "anchors"])
 def test_every_controller_fails_fast_naming_an_unopenable_base(tmp_path: Path, controller: str) -> None:
     """The sensors' ports open (a plain pty), the base's does not: one line naming it, exit 2,
     for every controller (the anchors run once waited on the failed base for ever)."""
@@ -127,7 +127,7 @@ def test_every_controller_fails_fast_naming_an_unopenable_base(tmp_path: Path, c
         site.write_text(re.sub(r'port = "[^"]*"', f'port = "xplr-aoa:{sensor}"', SITE.read_text()))
         args = ["--site", str(site)]
     else:
-        args = [f"--{ {'aoa': 'aoa', 'dock': 'aoa', 'rss': 'rss', 'trilat': 'ble'}[controller]}", sensor]
+        args = [f"--{ {'aoa': 'aoa', 'dock': 'aoa', 'rss': 'rss', 'trilat': 'ble', 'survey': 'ble'}[controller]}", sensor]
     config = tmp_path / "robot.toml"
     config.write_text('[trilat]\ngoal = [1.0, 1.0]\n[trilat.anchors]\nA = [0.0, 0.0]\nB = [4.0, 0.0]\nC = [0.0, 4.0]\n')
     base = tmp_path / "no-base"

@@ -7,6 +7,8 @@ step length (variable time step). Measurements: each receiver's position (R_pos)
 receiver heard the beacon, its RSSI s_i = P0 − 10 n log10 |p_i − p_b| (R_rssi). A receiver
 that heard nothing (NaN) contributes no information: its row of H is zero, which leaves the
 update exactly as if the row were absent (the thesis's "missing receivers" future work).
+Receivers carried ``height_m`` above the beacon (UAVs; S4 §3.1 sets the beacon's z_b = 0 and
+does not estimate it) hear it at the 3-D distance, √(|p_i − p_b|² + h²), in the plane's state.
 
 Everything is vectorised over K beacons (arrays with a leading K axis), so a campaign runs
 thousands of beacons in one call; K = 1 is the single-beacon case.
@@ -32,6 +34,7 @@ class S4Model:
     r_pos: float = 0.05  # receiver position measurement variance (m²)
     r_rssi: float = 9.0  # RSSI measurement variance (dB²)
     nominal_dt: float = 0.1
+    height_m: float = 0.0  # receivers above the beacon, known (S4: z_b = 0, the MAVs' height measured)
 
     @property
     def size(self) -> int:
@@ -39,6 +42,10 @@ class S4Model:
 
     def distance(self, rssi: np.ndarray) -> np.ndarray:
         return 10 ** ((self.p0_dbm - rssi) / (10 * self.n))
+
+    def ground_range(self, rssi: np.ndarray) -> np.ndarray:
+        """The horizontal distance an RSSI stands for, receivers ``height_m`` above the beacon."""
+        return np.sqrt(np.maximum(self.distance(rssi) ** 2 - self.height_m**2, 0.0))
 
 
 def _split(model: S4Model, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -50,7 +57,7 @@ def _split(model: S4Model, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def measure(model: S4Model, x: np.ndarray) -> np.ndarray:
     """h(x): receiver positions then RSSI per receiver, (K, M·D + M)."""
     rec, beacon = _split(model, x)
-    dist = np.linalg.norm(rec - beacon[:, None, :], axis=2)
+    dist = np.sqrt(np.sum((rec - beacon[:, None, :]) ** 2, axis=2) + model.height_m**2)
     rssi = model.p0_dbm - 10 * model.n * np.log10(np.maximum(dist, 1e-3))
     return np.concatenate([rec.reshape(x.shape[0], -1), rssi], axis=1)
 
@@ -62,7 +69,7 @@ def jacobian(model: S4Model, x: np.ndarray) -> np.ndarray:
     h = np.zeros((k, m * d + m, model.size))
     h[:, : m * d, : m * d] = np.eye(m * d)
     diff = rec - beacon[:, None, :]
-    dist2 = np.maximum(np.sum(diff**2, axis=2), 1e-6)
+    dist2 = np.maximum(np.sum(diff**2, axis=2) + model.height_m**2, 1e-6)
     g = (-10 * model.n / LN10) * diff / dist2[:, :, None]  # ∂rssi_i/∂p_i, (K, M, D)
     for i in range(m):
         h[:, m * d + i, i * d : (i + 1) * d] = g[:, i]
@@ -195,7 +202,7 @@ class CircleInitializer:
         rssi = np.asarray(rssi, float)
         filtered = np.where(np.isnan(self._sf), rssi, (self.c_f * self._sf + rssi) / (self.c_f + 1))
         self._sf = np.where(np.isnan(rssi), self._sf, filtered)  # a missing reading keeps the old value
-        radius = self.model.distance(self._sf)
+        radius = self.model.ground_range(self._sf)
         centres = np.asarray(receivers, float)[:, :, :2]
         m = self.model.receivers
         points, valid = [], []
@@ -279,7 +286,7 @@ def refine_batch(model: S4Model, receivers: np.ndarray, rssi: np.ndarray, beacon
     px, py = pos[..., 0], pos[..., 1]
     for _ in range(iterations):
         dx, dy = px - b[None, :, None, 0], py - b[None, :, None, 1]  # p - b, (S, K, M)
-        d2 = np.maximum(dx * dx + dy * dy, 1e-4)
+        d2 = np.maximum(dx * dx + dy * dy + model.height_m**2, 1e-4)
         pred = model.p0_dbm + offsets[None] - 5 * model.n * np.log10(d2)
         r = np.where(heard, s_obs - pred, 0.0)
         w = np.where(heard, slope / d2, 0.0)
@@ -302,3 +309,17 @@ def refine_batch(model: S4Model, receivers: np.ndarray, rssi: np.ndarray, beacon
     out = np.array(beacon, float).copy()
     out[:, :2] = b
     return out, offsets
+
+
+def batch_cost(model: S4Model, receivers: np.ndarray, rssi: np.ndarray, beacon: np.ndarray, offsets: np.ndarray,
+               offset_sigma_db: float = 2.0) -> np.ndarray:
+    """What :func:`refine_batch` minimises, per beacon (K,): the squared RSSI residuals of the
+    fit plus its offsets' prior -- so fits from several starts can be compared."""
+    pos = np.asarray(receivers, float)[..., :2]
+    heard = ~np.isnan(rssi)
+    d2 = np.maximum(np.sum((pos - np.asarray(beacon, float)[None, :, None, :2]) ** 2, axis=3) + model.height_m**2, 1e-4)
+    pred = model.p0_dbm + offsets[None] - 5 * model.n * np.log10(d2)
+    r = np.where(heard, np.nan_to_num(rssi) - pred, 0.0)
+    cost: np.ndarray = np.sum(r * r, axis=(0, 2)) + np.sum(offsets**2, axis=1) / offset_sigma_db**2
+    return cost
+

@@ -40,6 +40,7 @@ from rfhoming.host.homing.s0_aoa import AoaController
 from rfhoming.host.homing.s1_dock import DockController
 from rfhoming.host.homing.s2_rss import RssController
 from rfhoming.host.homing.s3_trilat import TrilatController
+from rfhoming.host.homing.s4_air import SurveyController
 from rfhoming.host.homing.types import Controller
 from rfhoming.host.ports import HostPort, Tap
 from rfhoming.host.portspec import PortSpec, PortSpecError
@@ -81,13 +82,27 @@ METHODS: dict[str, Method] = {
     "dock": Method("S1: docking on the station's AoA/RSSI of the robot's tag", "aoa", lambda c, s: DockController(c.s1)),
     "rss": Method("S2: four dishes and a particle filter", "rss", lambda c, s: RssController(c.s2)),
     "trilat": Method("S3: trilateration on BLE beacons at known places", "ble", lambda c, s: TrilatController(c.trilat)),
+    "survey": Method("S4: lawn-mower survey, EKF beacon localisation, hold over one", "ble",
+                     lambda c, s: SurveyController(c.s4)),
     "anchors": Method("fixed anchors locate the robot's tag and the target's", "anchor", _anchors),
 }
 
 
-SENSORS = {"dock_aoa": ("dock", "aoa"), "aoa": ("aoa", "aoa"), "rss": ("rss", "rss"), "ble": ("trilat", "ble")}
+SENSORS = {"dock_aoa": ("dock", "aoa"), "aoa": ("aoa", "aoa"), "rss": ("rss", "rss"), "ble": ("trilat", "ble"),
+           "survey_ble": ("survey", "ble")}
 """The emulator's scenarios name each sensor device for what it is for: such a name -> the
-homing method it calls for and the role its device fills (the demo and the campaigns)."""
+homing method it calls for and the role its device fills (the demo and the campaigns). Several
+devices of one method are numbered: survey_ble1, survey_ble2 ..."""
+
+
+def sensors_of(names: Sequence[str]) -> tuple[str, str, list[str]]:
+    """A scenario's device names -> the homing method they call for, the role its sensors fill,
+    and those sensors' names (one, or several numbered alike); KeyError if none."""
+    for key, (controller, role) in SENSORS.items():
+        found = [n for n in names if n == key or (n.startswith(key) and n[len(key):].isdigit())]
+        if found:
+            return controller, role, found
+    raise KeyError(f"no sensor among {list(names)}")
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ from rfhoming.host.homing.s0_aoa import S0Params
 from rfhoming.host.homing.s1_dock import S1Params
 from rfhoming.host.homing.s2_rss import S2Params
 from rfhoming.host.homing.s3_trilat import TrilatParams
+from rfhoming.host.homing.s4_air import S4Params
 from rfhoming.host.homing.schema import DBM, ConfigError, M, S, build, setting
 from rfhoming.protocol.textfile import read_toml
 
@@ -106,6 +107,7 @@ class Config:
     s2: S2Params = field(default_factory=S2Params)
     s1: S1Params = field(default_factory=S1Params)
     trilat: TrilatParams = field(default_factory=TrilatParams)
+    s4: S4Params = field(default_factory=S4Params)
     devices: dict[str, portspec.PortSpec] = field(default_factory=dict)  # [devices.NAME]: port specs
 
     @property
@@ -123,7 +125,7 @@ class Config:
 
 SECTIONS = {"mounting": Mounting, "calibration": Calibration, "loop": LoopSettings, "s0": S0Params,
             "avoid": AvoidParams, "plan": PlanSettings, "s2": S2Params, "s1": S1Params,
-            "trilat": TrilatParams}
+            "trilat": TrilatParams, "s4": S4Params}
 
 
 def load(path: Path | str | None) -> Config:
@@ -332,6 +334,34 @@ k_w = 1.5
 k_stop = 0.8
 
 [trilat.anchors]         # beacon address (as rfhoming listen prints it) = [x, y]; at least three
+
+[s4]                     # S4 from the air: lawn-mower survey, EKF per beacon, then hold over one
+area = [0.0, 0.0, 4.0, 8.0]  # x0, y0, x1, y1 in the vehicle's local frame (m; S4's 4 x 8 m)
+lane_spacing_m = 0.8     # lanes along y, this far apart
+height_m = 1.0           # the receivers' height above the beacons
+p0_dbm = -40.23          # RSSI at 1 m (S4)
+n = 2.0
+q = 0.05                 # what S4's filter is told: receiver motion, positions, RSSI
+r_pos = 0.05
+r_rssi = 9.0
+n_init = 30              # S4's circle-intersection initialiser: steps, low-pass weight, covariance
+c_f = 3.0
+c_w = 500.0
+home_on = ""             # the beacon to hold over (its address); "": the one localised most surely
+search_speed = 0.2       # m/s along the pattern (S4)
+waypoint_radius_m = 0.1
+v_max = 0.5              # m/s toward the beacon
+w_max = 1.0
+k_w = 1.5
+k_stop = 0.8
+arrival_radius = 0.15
+hold_s = 3.0             # hover over it this long before reporting arrival
+min_readings = 20        # a beacon heard less is not homed on
+
+# [s4.receivers]         # BLE scanner node id = [x, y] on the vehicle (m, x ahead, y left); by
+# 1 = [-0.2, -0.2]       # default the S4 campaign's formation, an L of 0.6 m sides centred on it
+# 2 = [0.4, -0.2]
+# 3 = [-0.2, 0.4]
 
 # [devices.ROLE]: the ports of `rfhoming run` (ROLE: aoa, base, rss, ble), each a port spec
 # plus any of its settings; --aoa/--base/--rss/--ble on the command line override them.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any
 
 from rfhoming.cli.live import linger, mcap_recorder, start_foxglove, wait_for_viewer
 from rfhoming.host.homing.config import load
@@ -50,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
                     "loop_stall_ms_p99"):
             if key in summary:
                 print(f"  {key:<24} {summary[key]}")
+        if "localisation" in summary:
+            print_localisation(summary["localisation"])
         for name, counters in summary["links"].items():
             print(f"  link {name:<19} {counters}")
         for name, path in summary["files"].items():
@@ -60,3 +63,17 @@ def run(args: argparse.Namespace) -> int:
         finally:
             view.close()
     return 0 if summary["success"] else 1
+
+
+def print_localisation(located: dict[str, Any] | None) -> None:
+    """S4's metric beside the thesis's: every beacon's final error, mean and 95th percentile."""
+    if located is None:
+        print("  localisation             no beacon localised")
+        return
+    paper = located["s4_paper"]
+    for name, title in (("ekf", "S4's EKF"), ("ekf_smoothed", "EKF + smoother")):
+        if name in located:
+            e = located[name]
+            print(f"  localisation, {title:<14} mean {e['mean_m']} m, p95 {e['p95_m']} m, max {e['max_m']} m "
+                  f"({e['beacons']} of {e['of']} beacons; S4: mean {paper['mean_m']} m, 95 % below "
+                  f"{paper['p95_below_m']} m)")

@@ -33,8 +33,8 @@ def _tags(values: list[str]) -> tuple[str, ...]:
 def _devices(args: argparse.Namespace, config: Config, role: str) -> tuple[list[Device], Site | None]:
     """The run's devices by role: the command line's specs over the config's [devices.ROLE];
     fixed anchors come from the site file."""
-    def spec(r: str) -> PortSpec:
-        given = getattr(args, r, None)
+    def spec(r: str, given: str | None = None) -> PortSpec:
+        given = given or _one(getattr(args, r, None))
         found = parse_spec(given).over(config.devices.get(r)) if given else config.devices.get(r)
         if found is None:
             raise PortSpecError(f"--controller {args.controller} needs --{r} PORT (or [devices.{r}] in the config)")
@@ -51,8 +51,15 @@ def _devices(args: argparse.Namespace, config: Config, role: str) -> tuple[list[
             raise sites.SiteError(f"{args.site}: every anchor needs port = \"xplr-aoa:WHERE\" for run")
         sensors = [Device("anchor", spec=a.port) for a in site.anchors]
     else:
-        sensors = [Device(role, spec=spec(role))]
+        given = getattr(args, role, None)
+        several = given if isinstance(given, list) and len(given) > 1 else [None]  # --ble, once per receiver
+        sensors = [Device(role, spec=spec(role, g)) for g in several]
     return [*sensors, Device("base", spec=spec("base"))], site
+
+
+def _one(given: str | list[str] | None) -> str | None:
+    """A role's one port from the command line (--ble may be given several times)."""
+    return given[0] if isinstance(given, list) else given
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,7 +8,7 @@ from rfhoming.cli.args import delay, duration, nonempty, output_file, path, spee
 from rfhoming.cli.parsers import command
 from rfhoming.cli.parsers.common import ENDPOINT_HELP, add_foxglove_option, add_port_defaults, add_ros2_option
 
-CONTROLLERS = ("aoa", "dock", "rss", "trilat", "anchors")
+CONTROLLERS = ("aoa", "dock", "rss", "trilat", "survey", "anchors")
 """The homing methods, host/homing/assembly.py's METHODS (a test holds them equal): named here
 so that building the parsers does not load the homing loop."""
 

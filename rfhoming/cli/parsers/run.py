@@ -29,7 +29,9 @@ reach the host in whatever order the operating system delivers two ports, so a r
 can meet a different odometry record and the simulated time and errors move by a few
 hundredths; the latencies are wall-clock figures. --in-process joins the emulator and the
 host by the emulator's in-process byte pipe (as the campaigns run) and gives the same
-summary, line for line, for the same seed, without the latency lines.
+summary, line for line, for the same seed, without the latency lines -- except s4-air, whose
+MAVLink copter talks to the host over UDP on 127.0.0.1 even in process: its datagrams meet the
+readings in the order the sockets deliver them.
 
 examples:
   rfhoming demo
@@ -37,6 +39,7 @@ examples:
   rfhoming demo --in-process               # the same summary for the same seed, every time
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
   rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
+  rfhoming demo --scenario s4-air --in-process  (S4: a MAVLink copter surveys ten BLE beacons)
   rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
   rfhoming demo --foxglove                 # watch it live at robot time: Foxglove -> ws://127.0.0.1:8765
 """
@@ -90,13 +93,17 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
                    "WHERE[,baud=,flow=,tags=] (e.g. /dev/ttyUSB0,baud=1000000); settings it leaves out come "
                    "from the config's [devices.aoa]")
     p.add_argument("--rss", type=nonempty, metavar="SPEC", help="the four-dish AT86RF212 node, for --controller rss")
-    p.add_argument("--ble", type=nonempty, metavar="SPEC", help="the BLE RSSI receiver, for --controller trilat: an ESP32 "
-                   "scanner (rss-node:PATH), an ESP32 with ESP-AT (esp-at:PATH) or an HCI controller (hci:usb:0)")
+    p.add_argument("--ble", type=nonempty, metavar="SPEC", action="append",
+                   help="the BLE RSSI receiver, for --controller trilat and survey: an ESP32 "
+                   "scanner (rss-node:PATH), an ESP32 with ESP-AT (esp-at:PATH) or an HCI controller (hci:usb:0); "
+                   "survey takes one --ble per receiver the vehicle carries")
     p.add_argument("--base", type=nonempty, metavar="SPEC", help="the robot base (e.g. /dev/ttyACM0,baud=115200)")
     p.add_argument("--controller", choices=CONTROLLERS, default="aoa",
                    help="homing method: aoa (S0, XPLR-AOA bearings), dock (S1, the station's AoA/RSSI of "
                         "the robot's tag, given with --aoa), rss (S2, four dishes + particle filter), "
                         "trilat (S3, BLE beacons at the places in [trilat.anchors], to [trilat] goal), "
+                        "survey (S4, a vehicle carrying --ble receivers flies a lawn-mower over [s4] area, "
+                        "localises the beacons and holds over [s4] home_on), "
                         "anchors (fixed XPLR-AOA anchors of --site locate the robot's own tag and the target's)")
     p.add_argument("--tag", type=nonempty, action="append", default=[], metavar="ID",
                    help="the tag to home on (12 hex digits; repeat or join with + for several ids of one "
