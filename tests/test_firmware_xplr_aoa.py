@@ -418,6 +418,8 @@ def test_any_command_line_gets_one_final_code_and_events_keep_coming(lines: list
     h.drain()
     for line in lines:
         line = line.replace(b"\r", b"").replace(b"\n", b"")
+        if line in (b"OK", b"ERROR"):  # its echo is a final code itself: only its sender
+            continue  # can tell the two apart, and no host sends one
         h.fw.receive(line + b"\r")
         finals = [i for i in h.decoder.feed(h.fw.read()) if i.kind == "final"]
         assert len(finals) == (1 if line.strip() else 0)
