@@ -116,7 +116,8 @@ def test_an_unopenable_port_fails_fast_naming_it(tmp_path: Path) -> None:
 SITE = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-home.toml"
 
 
-@pytest.mark.parametrize("controller", ["aoa", "dock", "rss", "trilat", "anchors"])
+@pytest.mark.parametrize("controller", ["aoa", *(pytest.param(c, marks=pytest.mark.slow) for c in ("dock", "rss", "trilat")),
+                                        "anchors"])  # the quick loop: a sensor controller and the site one
 def test_every_controller_fails_fast_naming_an_unopenable_base(tmp_path: Path, controller: str) -> None:
     """The sensors' ports open (a plain pty), the base's does not: one line naming it, exit 2,
     for every controller (the anchors run once waited on the failed base for ever)."""
