@@ -243,6 +243,7 @@ def test_calibrate_writes_the_site_file_and_keeps_its_comments(tmp_path, emulate
     assert missing.returncode == 2 and "cannot read points file" in missing.stderr
 
 
+@pytest.mark.slow
 def test_ekf_on_bearings_tracks_walking_tags(kit):
     site = sites.load(SITE)
     ekf = errors(site, kit, tracker="ekf")

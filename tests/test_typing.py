@@ -23,11 +23,12 @@ PACKAGE_PARENT = Path(rfhoming.__file__).resolve().parent.parent
 TYPED_DOCS = [ROOT / "docs" / "api.md"]
 
 
-PROGRAMS_CACHE = ROOT / ".mypy_cache" / "programs"
-"""mypy's incremental cache for the users' programs, shared by every run of :func:`mypy`: the
-rfhoming modules a program imports are analysed once (10-20 s) instead of on every run, as a
-user's repeated ``mypy`` runs share their ``.mypy_cache``. mypy checks each cached module against
-its source, so a changed module is analysed again; the programs themselves always are."""
+PROGRAMS_CACHE = ROOT / ".mypy_cache" / "programs" / os.environ.get("PYTEST_XDIST_WORKER", "main")
+"""mypy's incremental cache for the users' programs, shared by every run of :func:`mypy` in one
+test process: the rfhoming modules a program imports are analysed once (10-20 s) instead of on
+every run, as a user's repeated ``mypy`` runs share their ``.mypy_cache``. mypy checks each cached
+module against its source, so a changed module is analysed again; the programs themselves always
+are. One folder per xdist worker: mypy's cache is an SQLite file that two runs at once could lock."""
 
 
 def mypy(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
