@@ -318,6 +318,7 @@ inputs = st.one_of(
 )
 
 
+@pytest.mark.slow
 @settings(deadline=None)
 @given(st.lists(inputs, min_size=1, max_size=4).map(b"".join))
 def test_c_reference_and_python_agree_on_invalid_and_near_limit_input(sanitized: Path, data: bytes) -> None:
@@ -330,6 +331,7 @@ UTF8_CASES = [b"", b"plain", "ünïcödé ✓ 𝄞".encode(), b"\xff", b"\xc0\x8
               b"\xe2\x82", b"ok\xe2\x82\xac\xf0\x9f\x98", b"\xf0\x9f\x98\x80"]
 
 
+@pytest.mark.slow
 def test_the_encoders_limits_decide_in_both_decoders(sanitized: Path) -> None:
     """Near the limit and on UTF-8's edges, case by case (built with sanitizers)."""
     cases = [_near_limit(0x7F, n, 100, b"x") for n in (1023, 1024, 1025, 1028)]
@@ -341,6 +343,7 @@ def test_the_encoders_limits_decide_in_both_decoders(sanitized: Path) -> None:
     assert kinds[6:] == [["F"], ["F"], ["F"], ["L"], ["L"], ["L"], ["L"], ["L"], ["L"], ["F"]]
 
 
+@pytest.mark.slow
 def test_a_random_corpus_runs_clean_under_the_sanitizers(sanitized: Path) -> None:
     rng = random.Random(0)
     corpus = [rng.randbytes(rng.randint(0, 3000)) for _ in range(300)]

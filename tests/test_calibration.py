@@ -32,7 +32,7 @@ def radio_constants(campaign: str) -> tuple[str, dict[str, float]]:
 CLOSED_LOOP = ("s0-table3", "s0-house", "s1-dock", "s2-scenarios")
 
 
-@pytest.mark.parametrize("campaign", CLOSED_LOOP)
+@pytest.mark.parametrize("campaign", [CLOSED_LOOP[0], *(pytest.param(c, marks=pytest.mark.slow) for c in CLOSED_LOOP[1:])])
 def test_host_radio_constants_come_from_measurements(campaign, monkeypatch) -> None:
     calibration.cached.cache_clear()
     scenario, plain = radio_constants(campaign)

@@ -116,6 +116,7 @@ def test_paper_gain_is_reproducible_with_the_unfolded_sensor() -> None:
     assert row["success"]
 
 
+@pytest.mark.slow
 def test_s1_trial_docks_and_alignment_fixes_the_heading() -> None:
     start = (0.9, 0.6, math.pi / 2 + 0.25)
     plain = s1.trial("paper", start, seed=5)
@@ -131,6 +132,7 @@ def test_s3_filters_reduce_the_spread_and_kalman_most() -> None:
     assert np.allclose(raw[1:], s3.TABLE1_STD[1:], rtol=0.25)  # the simulation follows Table I
 
 
+@pytest.mark.slow
 def test_s4_our_filter_matches_filterpy_on_the_same_data() -> None:
     pytest.importorskip("filterpy")
     z, u, rssi, beacons = s4.flights(1, seed=2)
@@ -184,6 +186,7 @@ def test_a_directory_named_like_a_scenario_does_not_shadow_it(tmp_path, monkeypa
     assert load_scenario("s1-dock").name == "s1-dock"
 
 
+@pytest.mark.slow
 def test_s4_smoother_removes_the_per_link_offsets_the_ekf_keeps() -> None:
     from rfhoming.host.estimation.beacon import refine_batch
 

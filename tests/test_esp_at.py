@@ -205,6 +205,7 @@ async def test_s3_homes_on_esp_at_readings_and_the_capture_replays_them_exactly(
     assert replayed["log"] == live["log"]
 
 
+@pytest.mark.slow
 def test_demo_runs_s3_on_an_esp_at_board(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--scenario", "s3-arena", "--receiver", "esp-at",
                            "--json", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)

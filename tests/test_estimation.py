@@ -235,6 +235,7 @@ def test_s4_filters_localise_beacons(cls) -> None:
     assert np.median(err) < 0.4 and np.mean(err) < 0.6
 
 
+@pytest.mark.slow
 def test_s4_ekf_3d_and_missing_receivers() -> None:
     err = simulate(BeaconEkf, k=20, dim=3, missing_every=3)
     assert np.median(err) < 0.6

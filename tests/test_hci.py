@@ -100,6 +100,7 @@ any_to_host = st.one_of(
 )
 
 
+@pytest.mark.slow
 @given(st.lists(any_to_host, max_size=3), st.integers(6, 0x59), st.integers(6, 255),
        st.lists(any_to_host, min_size=2, max_size=20), st.lists(st.integers(1, 300), max_size=4))
 def test_h4_after_junk_a_header_is_taken_only_when_the_next_one_confirms_it(

@@ -213,6 +213,7 @@ def test_self_calibration_recovers_the_emulated_boards_hidden_errors():
         assert f.sigma["az_scale"] < 0.03 and f.sigma["az_bias_deg"] < 1.0
 
 
+@pytest.mark.slow
 def test_self_calibration_refuses_tags_that_did_not_cover_the_room():
     from rfhoming.campaigns.kit import record
     from rfhoming.host.calibration import CalibrationError
@@ -245,6 +246,7 @@ def test_self_calibration_holds_elevation_that_the_data_cannot_determine():
     assert any("el_bias_deg" in f.sigma for f in given_height.fits)
 
 
+@pytest.mark.slow
 def test_self_calibration_holds_a_parameter_at_its_bound_and_writes_nothing_worse():
     """One board 50 deg off (beyond the site file's 45 deg bias limit, angles clipped at 90): its
     bias runs to the bound, so it is held with the reason instead of written at the bound, and
@@ -350,6 +352,7 @@ def test_cauchy_loss_keeps_a_reflected_ray_from_pulling_the_fix():
     assert fix.rms > 2  # the quality says one ray disagreed
 
 
+@pytest.mark.slow
 def test_rts_smoother_beats_the_causal_filter_on_a_recording():
     from rfhoming.campaigns.kit import record
     from rfhoming.host.locate import smooth
@@ -417,6 +420,7 @@ def _capture_of(events, path, site):
     writer.close()
 
 
+@pytest.mark.slow
 def test_calibrate_cli_takes_dwells_of_one_carried_tag(tmp_path):
     import json
     import subprocess

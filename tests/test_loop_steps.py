@@ -8,6 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from loops import loop_on
 
 from rfhoming.host.drivers.robot_base import Pose2D
@@ -85,6 +87,7 @@ def test_brake_mode_events_say_each_change_once_across_a_base_reset(tmp_path: Pa
     assert [e for e in said if e.startswith("brake mode")] == ["brake mode on", "brake mode off"] * 2, said
 
 
+@pytest.mark.slow
 async def test_the_garbage_collector_leaves_start_up_alone_during_a_run(monkeypatch) -> None:
     """A full collection over start-up's objects (modules, maps, drivers) stalled the real-time
     loop for tens of milliseconds: they are frozen while a run goes, and collectable after it."""

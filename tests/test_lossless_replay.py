@@ -130,6 +130,7 @@ def test_replay_prints_every_event_in_recorded_order(long_capture):
         [line for line in fast.stdout.splitlines() if '"kind": "angle"' in line]
 
 
+@pytest.mark.slow
 def test_the_api_hands_a_slow_caller_every_event_of_a_capture(long_capture):
     """Old code: the capture ran ahead of the caller and the items past its queue were dropped."""
     got = []

@@ -37,6 +37,7 @@ def test_every_robot_base_implements_the_interface() -> None:
     assert not isinstance(object(), RobotBase)
 
 
+@pytest.mark.slow
 def test_every_robot_base_implements_the_interface_for_mypy(tmp_path: Path) -> None:
     (tmp_path / "bases.py").write_text(
         "from rfhoming.host.drivers.mavlink_base import MavlinkBaseDriver\n"

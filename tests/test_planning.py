@@ -171,14 +171,15 @@ async def test_s0_homes_through_the_house(seed: int) -> None:
     assert any(e["kind"] == "plan" for e in log)
 
 
-@pytest.mark.parametrize(("scenario", "seed"), [("s2-a", 0), ("s2-b", 0), ("s2-c", 2)])
+@pytest.mark.parametrize(("scenario", "seed"), [("s2-a", 0), pytest.param("s2-b", 0, marks=pytest.mark.slow),
+                                                pytest.param("s2-c", 2, marks=pytest.mark.slow)])
 async def test_s2_rss_homing_completes_the_warehouse_scenarios(scenario: str, seed: int) -> None:
     outcome, error, log = await closed_loop_scenario(scenario, seed)
     assert outcome.arrived and error < 1.0  # S2 stops at an estimated 0.5 m
     assert sum(1 for e in log if e["kind"] == "measurement") > 50
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])
 async def test_s1_docks_at_the_station(seed: int) -> None:
     outcome, error, log = await closed_loop_scenario("s1-dock", seed)
     assert outcome.arrived
@@ -186,7 +187,7 @@ async def test_s1_docks_at_the_station(seed: int) -> None:
     assert any(e["kind"] == "estimate" and e.get("stage") == "docking" for e in log)
 
 
-@pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.parametrize("seed", [0, pytest.param(3, marks=pytest.mark.slow)])
 async def test_s3_goes_to_a_goal_localised_on_beacons(seed: int) -> None:
     outcome, error, log = await closed_loop_scenario("s3-arena", seed)
     assert outcome.arrived
@@ -194,6 +195,7 @@ async def test_s3_goes_to_a_goal_localised_on_beacons(seed: int) -> None:
     assert sum(1 for e in log if e["kind"] == "measurement" and "fix" in e) > 50
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["s2-d", "s2-e"])
 async def test_s2_bounded_weights_home_around_blocked_corners(scenario: str) -> None:
     from dataclasses import replace

@@ -52,6 +52,7 @@ def test_stop_ends_a_child_that_ignores_sigint_and_sigterm(spawn) -> None:
     assert child.stop(waits_s=(0.2, 0.2, 30)) == -signal.SIGKILL
 
 
+@pytest.mark.slow
 def test_run_kills_a_command_past_its_timeout_with_its_children_and_names_it(tmp_path: Path) -> None:
     """The grandchild is in the command's process group: SIGKILL reaches it too."""
     pid_file = tmp_path / "grandchild.pid"

@@ -116,7 +116,8 @@ def test_an_unopenable_port_fails_fast_naming_it(tmp_path: Path) -> None:
 SITE = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-home.toml"
 
 
-@pytest.mark.parametrize("controller", ["aoa", "dock", "rss", "trilat", "survey", "anchors"])
+@pytest.mark.parametrize("controller", ["aoa", *(pytest.param(c, marks=pytest.mark.slow) for c in ("dock", "rss", "trilat", "survey")),
+                                        "anchors"])  # the quick loop: a sensor controller and the site one
 def test_every_controller_fails_fast_naming_an_unopenable_base(tmp_path: Path, controller: str) -> None:
     """The sensors' ports open (a plain pty), the base's does not: one line naming it, exit 2,
     for every controller (the anchors run once waited on the failed base for ever)."""
@@ -135,7 +136,9 @@ def test_every_controller_fails_fast_naming_an_unopenable_base(tmp_path: Path, c
                                    "--config", str(config)), capture_output=True, text=True, timeout=60)
     os.close(device)
     assert done.returncode == 2, done.stderr
-    assert done.stderr.strip().count("\n") == 0 and str(base) in done.stderr
+    # the loop's watchdog may log a stall on a loaded machine: a diagnostic, not a second error line
+    said = [line for line in done.stderr.splitlines() if "rfhoming.host.homing.loop: event loop blocked" not in line]
+    assert len(said) == 1 and str(base) in said[0], done.stderr
 
 
 def test_a_controller_the_config_cannot_make_is_a_one_line_error(tmp_path: Path) -> None:

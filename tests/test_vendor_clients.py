@@ -144,7 +144,7 @@ def test_a_filter_stored_by_another_program_is_reported_then_cleared(tmp_path: P
         proc.stop()
 
 
-@pytest.mark.parametrize("spec", ["esp-at:{}", "hci:serial:{},1000000"])
+@pytest.mark.parametrize("spec", ["esp-at:{}", pytest.param("hci:serial:{},1000000", marks=pytest.mark.slow)])
 def test_a_receiver_that_never_answers_ends_listen_with_exit_2(spec: str) -> None:
     """A port where nothing answers (a pty nobody serves): one line naming it, exit 2, long before
     --duration."""
