@@ -23,10 +23,10 @@ from rfhoming.emulator.radio import (
     measure_azimuth,
     power_sum_dbm,
 )
-from rfhoming.emulator.scenario import Scenario
+from rfhoming.emulator.scenario import Scenario, ScenarioError
 from rfhoming.emulator.world import Target, World
 from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
-from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware
+from rfhoming.firmware.esp32_scanner import Esp32ScannerFirmware, ScanConfig
 from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.firmware.robot_base import RobotBaseFirmware, Slip
 from rfhoming.firmware.xplr_aoa import C209_NAMESPACE, Advertisement, XplrAoaFirmware
@@ -284,11 +284,20 @@ class Esp32Runner(DeviceRunner):
     @classmethod
     def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
               options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
-        return cls(name, k + 1, link, faults, rng, scenario.path_loss).mounted(options, scenario)
+        return cls(name, k + 1, link, faults, rng, scenario.path_loss, options).mounted(options, scenario)
 
     def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
-                 rng: np.random.Generator, path_loss: PathLossModel) -> None:
-        super().__init__(name, lambda: Esp32ScannerFirmware(node_id), link, faults, rng)
+                 rng: np.random.Generator, path_loss: PathLossModel, options: dict[str, Any]) -> None:
+        # a duty-cycled scan is a hardship no source shows for rfhoming's node: an option, off by
+        # default (docs/protocol.md, "The ESP32 scanner node")
+        default = ScanConfig()
+        interval_ms = float(options.get("scan_interval_ms", default.interval_us / 1000))
+        window_ms = float(options.get("scan_window_ms", min(default.window_us / 1000, interval_ms)))
+        config = ScanConfig(round(interval_ms * 1000), round(window_ms * 1000))
+        if not 2_500 <= config.window_us <= config.interval_us <= 10_240_000:
+            raise ScenarioError(f"[devices.{name}] needs 2.5 <= scan_window_ms <= scan_interval_ms <= 10240, "
+                                f"not {window_ms:g} and {interval_ms:g}")
+        super().__init__(name, lambda: Esp32ScannerFirmware(node_id, config), link, faults, rng)
         self.channel = RadioChannel(path_loss, rng)
         self.schedule = _Schedule(rng)
 

@@ -5,6 +5,11 @@ antenna (with its channel and float received power); the firmware keeps what a r
 controller would report: only while the scan window is open, only on the channel it is
 listening to this interval, not when two packets overlap on that channel, not below the
 sensitivity floor. Output: record 0x01 per report, status 0x10 at 1 Hz, log text 0x7F.
+
+It scans all the time by default, as ESP-IDF's and the HCI's scan parameters default to
+(docs/protocol.md, "The ESP32 scanner node"): a duty-cycled scan aliases with beacons
+advertising near its interval and leaves each of them unheard for a second or more, which
+no source says rfhoming's node does -- it is the emulator's fault option ``scan_window_ms``.
 """
 
 from __future__ import annotations
@@ -15,13 +20,13 @@ from rfhoming.firmware.ble_scan_radio import ScanRadio, listening_channel
 from rfhoming.firmware.framed_node import FramedNode
 from rfhoming.protocol.frames import AdvReport, NodeCommand
 
-"""1 Mb/s LE 1M PHY."""
-
 
 @dataclass(frozen=True)
 class ScanConfig:
-    interval_us: int = 100_000  # 0.625 ms units on the chip; 160 units
-    window_us: int = 50_000
+    """ESP-IDF's ``esp_ble_scan_params_t`` defaults: interval = window = 0x0010 (10 ms)."""
+
+    interval_us: int = 10_000  # 0.625 ms units on the chip: 16 units
+    window_us: int = 10_000
     sensitivity_dbm: float = -97.0
 
 

@@ -189,7 +189,8 @@ class Locator:
             last = next((w[0] for w in reversed(window) if since < w[0] <= t), None)
             if last is None:
                 continue
-            recent = [w for w in window if max(since, last - self.site.window_s) < w[0] <= last]
+            first = max(since, last - self.site.window_s)
+            recent = [w for w in window if first < w[0] <= last]
             az = statistics.median(w[1] for w in recent)
             el = statistics.median(w[2] for w in recent)
             sigma = math.hypot(sigma0 * 1.25 / math.sqrt(len(recent)), sigma0 * SYSTEMATIC)

@@ -139,6 +139,7 @@ class HostPort:
                 loop, lambda: _Protocol(self), self.spec, **kwargs)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PortError(explain(self.spec, exc)) from None
+        _gone_is_a_disconnect(transport)
         self._transport = transport
         self._gone = asyncio.Event()
         self._queue = asyncio.Queue()
@@ -216,6 +217,21 @@ class HostPort:
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(1.0):
                     await self._gone.wait()
+
+
+def _gone_is_a_disconnect(transport: serial_asyncio_fast.SerialTransport) -> None:
+    """A device gone under a write (unplugged, its emulator ended first at a shutdown) is a
+    disconnect, which connection_lost reports in one line (HostPort._lost); the transport
+    would also hand it to the event loop's exception handler, which prints a traceback."""
+    fatal = transport._fatal_error
+
+    def fatal_error(exc: BaseException, message: str = "Fatal error on serial transport") -> None:
+        if isinstance(exc, (serial.SerialException, OSError)):
+            transport._abort(exc)
+        else:
+            fatal(exc, message)
+
+    transport._fatal_error = fatal_error  # type: ignore[method-assign]
 
 
 STABLE_S = 5.0

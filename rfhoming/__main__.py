@@ -1,7 +1,5 @@
 """``python -m rfhoming`` is the ``rfhoming`` command."""
 
-import sys
+from rfhoming.cli.main import entry
 
-from rfhoming.cli.main import main
-
-sys.exit(main())
+entry()

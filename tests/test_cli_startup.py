@@ -60,3 +60,22 @@ def test_the_parsers_names_match_the_library() -> None:
     assert emulate.presets() == scenario.presets()
     assert common.KINDS == tuple(devices.KINDS)
     assert decode.PROTOCOLS == tuple(name for p in devices.PROTOCOLS.values() for name in (p.name, *p.aliases))
+
+
+ENDING = """\
+import atexit, gc, os, runpy, sys
+atexit.register(lambda: os.write(2, b"frozen at exit: %d\\n" % gc.get_freeze_count()))  # runs last
+sys.argv = ["rfhoming", *sys.argv[1:]]
+runpy.run_module("rfhoming", run_name="__main__")
+"""
+
+
+def test_the_process_ends_after_its_clean_up_without_the_collectors_teardown_passes() -> None:
+    """``python -m rfhoming`` runs every atexit handler and keeps the command's exit code, and
+    what it loaded is frozen by then: the garbage collector's passes over it while the
+    interpreter tears down were most of a command's exit after Ctrl-C (docs/BENCHMARKS.md)."""
+    done = subprocess.run([sys.executable, "-c", ENDING, "decode", "--protocol", "uconnect", "/no/such/file"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "/no/such/file" in done.stderr, done.stderr
+    frozen = int(done.stderr.rsplit("frozen at exit: ", 1)[1].split()[0])
+    assert frozen > 1000, done.stderr

@@ -18,7 +18,7 @@ from loops import loop_on
 from rfhoming.campaigns.closed_loop import PipePort
 from rfhoming.emulator.faults import Fault
 from rfhoming.emulator.runtime import Emulator
-from rfhoming.emulator.scenario import load
+from rfhoming.emulator.scenario import Scenario, ScenarioError, load
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.homing.config import DEFAULT_TOML, Config, ConfigError, LoopSettings, Mounting
 from rfhoming.host.homing.config import load as load_config
@@ -204,11 +204,11 @@ async def test_replay_reproduces_estimates_and_commands_exactly(tmp_path: Path) 
     assert [json.loads(line) for line in out.getvalue().splitlines()] == live
 
 
-async def closed_loop_scenario(scenario: str, seed: int, config: Config = Config()):
-    """Closed loop on a preset with its own target, in lockstep on the emulator's in-process
-    byte pipe (as campaigns run: the same bytes whatever the machine's load); the controller
-    follows the scenario's sensor (XPLR-AOA -> S0, AT86RF212 node -> S2)."""
-    sc = load(scenario, seed=seed)
+async def closed_loop_scenario(scenario: str | Scenario, seed: int, config: Config = Config()):
+    """Closed loop on a preset (or a scenario) with its own target, in lockstep on the emulator's
+    in-process byte pipe (as campaigns run: the same bytes whatever the machine's load); the
+    controller follows the scenario's sensor (XPLR-AOA -> S0, AT86RF212 node -> S2)."""
+    sc = load(scenario, seed=seed) if isinstance(scenario, str) else scenario
     config = config.for_lockstep()
     em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=30.0)
     await em.start()
@@ -240,6 +240,27 @@ async def closed_loop_scenario(scenario: str, seed: int, config: Config = Config
         await em.close()
     error = math.hypot(em.world.robot.x - target[0], em.world.robot.y - target[1])
     return outcome, error, [json.loads(line) for line in out.getvalue().splitlines()]
+
+
+@pytest.mark.parametrize("seed", [3, 6])
+async def test_s3_on_the_esp32_scanner_never_stops_for_stale_data(seed: int) -> None:
+    """The ESP32 scanner listens all the time, so the four beacons' readings never stop for the
+    loop's stale bound: no stale-data stop. With the 50 % duty-cycled scan the emulator keeps as
+    a fault option, the same seed stops the robot (the gap the budget bench saw)."""
+    outcome, _, log = await closed_loop_scenario("s3-arena", seed)
+    heard = [r["t"] for r in log if r["kind"] == "measurement"]
+    assert outcome.stale_stops == 0 and max(np.diff(heard)) < Config().loop.stale_timeout_s
+    duty_cycled = load("s3-arena", seed=seed)
+    next(d for d in duty_cycled.devices if d.name == "ble").options.update(scan_interval_ms=100, scan_window_ms=50)
+    outcome, _, _ = await closed_loop_scenario(duty_cycled, seed)
+    assert outcome.stale_stops >= 1
+
+
+def test_esp32_scan_options_are_checked() -> None:
+    sc = load("s3-arena", seed=1)
+    next(d for d in sc.devices if d.name == "ble").options.update(scan_interval_ms=100, scan_window_ms=150)
+    with pytest.raises(ScenarioError, match=r"\[devices.ble\] needs 2.5 <= scan_window_ms <= scan_interval_ms"):
+        Emulator(sc, transport="pipe", seed=1)
 
 
 async def test_in_process_lockstep_result_does_not_depend_on_the_hosts_awaits(monkeypatch) -> None:

@@ -108,3 +108,41 @@ async def test_the_garbage_collector_leaves_start_up_alone_during_a_run(monkeypa
     outcome, _, _ = await closed_loop_scenario("s0-open", 1)
     assert outcome.arrived and frozen and min(frozen) > 10_000  # every control step: start-up frozen
     assert gc.get_freeze_count() == 0  # and given back when the run ended
+
+
+async def test_a_backlog_is_worked_through_in_bounded_steps(tmp_path: Path, monkeypatch) -> None:
+    """Live, the loop hands the event loop back once a pass has worked its step budget, so a
+    backlog (the process held up, a slow fix tick) leaves room for the drivers and timers; the
+    clock is the test's: every reading costs 2 ms of it, whatever the machine."""
+    import asyncio
+
+    from rfhoming.host.homing import loop as homing_loop
+
+    now = [0.0]
+    monkeypatch.setattr(homing_loop, "_step_clock", lambda: now[0], raising=False)
+    loop, _ = loop_and_log(tmp_path)
+    taken: list[int] = []
+
+    class Slow(Steady):
+        def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
+            now[0] += 0.002
+            taken.append(len(taken))
+            return {}
+
+    loop.controller = Slow()
+    for k in range(50):  # a backlog: a reading and an odometry record each 20 ms of base clock
+        loop.inputs.put(odometry(k * 0.02))
+        loop.inputs.put(object())
+    seen: list[int] = []  # readings taken each time another task had the event loop
+
+    async def other_work() -> None:
+        while len(taken) < 50:
+            seen.append(len(taken))
+            await asyncio.sleep(0)
+
+    homing, other = asyncio.create_task(loop._loop()), asyncio.create_task(other_work())
+    await asyncio.wait_for(other, 10)
+    homing.cancel()
+    await asyncio.gather(homing, return_exceptions=True)
+    steps = [b - a for a, b in zip(seen, seen[1:] + [50]) if b > a]
+    assert len(steps) >= 10 and max(steps) <= 3, steps  # a 5 ms budget: three readings a pass

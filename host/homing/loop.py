@@ -58,6 +58,11 @@ from rfhoming.protocol import devices
 log = logging.getLogger(__name__)
 
 ODOMETRY_PERIOD_S = 0.02  # the base's documented 50 Hz odometry: the step assumed across a reset
+STEP_BUDGET_S = 0.005
+"""Wall time the live loop works through queued items before it hands the event loop back: a
+backlog (after the process was held up) is taken in bounded steps, with the drivers' reads and
+the timers between them, not as one long callback (an anchors fix tick alone takes 3-7 ms here)."""
+_step_clock = time.perf_counter
 
 
 @dataclass
@@ -159,6 +164,7 @@ class HomingLoop:
         self._brake_logged = False  # brake mode as the run log last said
         self.clock_resets = 0
         self._tasks: list[asyncio.Task[None]] = []
+        self._step_began = _step_clock()  # when this pass of the loop took the event loop
         self.brakes = devices.kind(base.kind, notice=False).brakes
         self.speed_limit = self.stopping_speed()  # m/s; inf for a base with a brake mode
         # the loop's state, on robot time
@@ -266,6 +272,9 @@ class HomingLoop:
         """The next input, or None after a wait that found none; stops the robot when the base
         has been silent too long on the wall clock (its own clock is gone with it)."""
         cfg = self.config.loop
+        if _step_clock() - self._step_began > STEP_BUDGET_S and self._wall_time_matters():
+            await asyncio.sleep(0)  # lockstep and replays need not: the world waits for the host
+            self._step_began = _step_clock()
         item = self.inputs.get_nowait()  # most items are already here: no timer, no task
         if item is None:
             try:  # asyncio.timeout, not wait_for: no task per item, and a cancellation stays one
@@ -273,6 +282,7 @@ class HomingLoop:
                     item = await self.inputs.get()
             except TimeoutError:
                 item = None
+            self._step_began = _step_clock()
         if (not isinstance(item, Pose2D) and not self.odometry_stale
                 and time.monotonic() - self.last_odometry_wall > cfg.odometry_wall_timeout_s):
             self.odometry_stale = True
