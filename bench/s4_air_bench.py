@@ -43,7 +43,9 @@ def errors(out: Path, key: str) -> list[float]:
     return [math.dist(found[t["id"]], (t["x"], t["y"])) for t in truth if t["id"] in found]
 
 
-def stats(values: list[float]) -> dict[str, Any]:
+def stats(values: list[float]) -> dict[str, Any] | None:
+    if not values:  # no run localised a beacon
+        return None
     e = np.array(values)
     return {"beacons": len(e), "mean_m": round(float(e.mean()), 3), "p95_m": round(float(np.percentile(e, 95)), 3),
             "max_m": round(float(e.max()), 3)}

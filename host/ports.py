@@ -223,7 +223,9 @@ def _gone_is_a_disconnect(transport: serial_asyncio_fast.SerialTransport) -> Non
     """A device gone under a write (unplugged, its emulator ended first at a shutdown) is a
     disconnect, which connection_lost reports in one line (HostPort._lost); the transport
     would also hand it to the event loop's exception handler, which prints a traceback."""
-    fatal = transport._fatal_error
+    fatal = getattr(transport, "_fatal_error", None)
+    if fatal is None or not hasattr(transport, "_abort"):  # a pyserial-asyncio-fast without them: its own way
+        return
 
     def fatal_error(exc: BaseException, message: str = "Fatal error on serial transport") -> None:
         if isinstance(exc, (serial.SerialException, OSError)):

@@ -74,6 +74,28 @@ def test_readings_during_a_base_outage_do_not_call_the_sensor_stale(tmp_path: Pa
     assert not any("stale: stop" in e for e in said), said
 
 
+class Surveying(Steady):
+    """A survey: it flies its pattern whether or not anything is heard."""
+
+    needs_fresh_readings = False
+
+
+def test_a_survey_flies_on_through_silence_and_a_homing_stops(tmp_path: Path) -> None:
+    """Silence is what a search meets before it finds anything: the survey's commands go on
+    with no reading at all, while a homing controller stops on the same silence."""
+    sent: dict[str, list[float]] = {}
+    for name, controller in (("homing", Steady()), ("survey", Surveying())):
+        loop = loop_on(controller, HostPort(str(tmp_path / "base")), HostPort(str(tmp_path / "aoa")), Config(),
+                       RunLog(io.StringIO()), role="aoa")
+        speeds = sent[name] = []
+        loop.base.send_velocity = lambda v, w, speeds=speeds: speeds.append(v) or True  # type: ignore[method-assign]
+        loop.base.brake = lambda on: True  # type: ignore[method-assign]
+        loop.base.stop = lambda: True  # type: ignore[method-assign]
+        drive(loop, 0.0, 2.0, readings=False)
+    assert sent["homing"] and not any(sent["homing"])
+    assert sent["survey"] and all(v == 0.2 for v in sent["survey"])
+
+
 def test_brake_mode_events_say_each_change_once_across_a_base_reset(tmp_path: Path) -> None:
     loop, out = loop_and_log(tmp_path)
     drive(loop, 0.0, 1.0)
@@ -119,7 +141,7 @@ async def test_a_backlog_is_worked_through_in_bounded_steps(tmp_path: Path, monk
     from rfhoming.host.homing import loop as homing_loop
 
     now = [0.0]
-    monkeypatch.setattr(homing_loop, "_step_clock", lambda: now[0], raising=False)
+    monkeypatch.setattr(homing_loop, "_step_clock", lambda: now[0])
     loop, _ = loop_and_log(tmp_path)
     taken: list[int] = []
 

@@ -17,7 +17,7 @@ from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.estimation.beacon import S4Model, jacobian, measure
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.s4_air import S4Params, SurveyController, lawnmower
-from rfhoming.host.homing.types import Pose
+from rfhoming.host.homing.types import ParamsError, Pose
 
 
 def test_the_pattern_is_s4s_lawnmower() -> None:
@@ -64,6 +64,16 @@ def test_the_survey_flies_the_pattern_then_holds_over_the_beacon_it_localised(in
     found = survey.estimate()
     assert set(found["beacons"]) == set(found["smoothed"]) == set(beacons)
     assert all(math.dist(found["smoothed"][a], b) < 0.65 for a, b in beacons.items())
+
+
+def test_a_beacon_to_hold_over_is_an_address_and_ble_once_is_once() -> None:
+    """A home_on with colons never matches what the scanners report: refused, not hovered on;
+    and --ble more than once is a survey's alone (another controller would mix receivers)."""
+    with pytest.raises(ParamsError, match="12 hex digits"):
+        SurveyController(S4Params(home_on="BE:00:00:00:00:01"))
+    done = subprocess.run([sys.executable, "-m", "rfhoming", "run", "--controller", "trilat", "--ble", "/dev/null",
+                           "--ble", "/dev/null", "--base", "/dev/null"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and done.stderr.strip().count("\n") == 0 and "--ble is given once" in done.stderr
 
 
 def test_receivers_that_fly_hear_the_beacon_at_the_3d_distance() -> None:

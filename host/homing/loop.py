@@ -354,7 +354,8 @@ class HomingLoop:
         slowed) command; the outcome when the run ends."""
         t, pose, cfg = self.t, self.pose, self.config.loop
         assert pose is not None and self.t0 is not None
-        if self.last_reading is None or t - self.last_reading > self.stale_timeout():
+        fresh_needed = self.controller.needs_fresh_readings
+        if fresh_needed and (self.last_reading is None or t - self.last_reading > self.stale_timeout()):
             if not self.stale and self.last_reading is not None:
                 self.stale_stops += 1
                 log.warning("%s stream stale for %.2f s: stopping the robot", self.source, t - self.last_reading)
@@ -377,7 +378,7 @@ class HomingLoop:
         if abs(decision.v) > self.speed_limit:  # along the same arc (v and ω scaled alike)
             scale = self.speed_limit / abs(decision.v)
             decision = decision._replace(v=decision.v * scale, w=decision.w * scale)
-        slow = self._age_factor(t - self.last_reading)
+        slow = self._age_factor(t - self.last_reading) if fresh_needed and self.last_reading is not None else 1.0
         self._brake(slow < 1.0, t)
         if slow < 1.0:
             decision = decision._replace(v=decision.v * slow, w=decision.w * slow)

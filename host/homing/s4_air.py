@@ -28,6 +28,7 @@ holding there (a copter in BRAKE or LOITER).
 from __future__ import annotations
 
 import math
+import re
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -49,6 +50,7 @@ addresses are ignored, counted."""
 GRID_M = 1.0
 """The smoother also starts from a grid of this spacing over the area ..."""
 THIN = 4
+MAX_STARTS = 200  # the smoother's grid of starts at most: a wide area gets a coarser grid, not more memory
 """... on every fourth step of the flight: a fit per grid point costs that much less."""
 MAX_STEPS = 36_000
 """Steps of readings kept for the smoother: an hour at 10 Hz; an older step is forgotten."""
@@ -109,6 +111,7 @@ class _Beacon:
 
 class SurveyController(ControllerDefaults):
     source = "ble"
+    needs_fresh_readings = False  # the pattern goes on through stretches where no beacon is heard
 
     def __init__(self, params: S4Params) -> None:
         if not params.receivers:
@@ -116,6 +119,9 @@ class SurveyController(ControllerDefaults):
         x0, y0, x1, y1 = params.area
         if not (x1 > x0 and y1 > y0):
             raise ParamsError(f"[s4] area = {params.area} must be [x0, y0, x1, y1] with x1 > x0 and y1 > y0")
+        if params.home_on and not re.fullmatch(r"[0-9A-Fa-f]{12}", params.home_on):
+            raise ParamsError(f"[s4] home_on = {params.home_on!r}: a beacon's address, 12 hex digits without colons "
+                              "(as `rfhoming listen` prints it), or \"\" for the surest")
         if not all(k.isdigit() for k in params.receivers):
             raise ParamsError(f"[s4.receivers] keys are the scanners' node ids (whole numbers), not {list(params.receivers)}")
         self.params = params
@@ -250,7 +256,8 @@ class SurveyController(ControllerDefaults):
         receivers = path[[k - first for k, _ in kept]][:, None]  # (S, 1, M, 2)
         rssi = np.stack([r for _, r in kept])[:, None]  # (S, 1, M)
         x0, y0, x1, y1 = self.params.area
-        grid = np.stack(np.meshgrid(np.arange(x0, x1 + 1e-9, GRID_M), np.arange(y0, y1 + 1e-9, GRID_M)), -1).reshape(-1, 2)
+        spacing = max(GRID_M, math.sqrt((x1 - x0) * (y1 - y0) / MAX_STARTS))
+        grid = np.stack(np.meshgrid(np.arange(x0, x1 + 1e-9, spacing), np.arange(y0, y1 + 1e-9, spacing)), -1).reshape(-1, 2)
         thin_rec, thin_rssi = (np.repeat(a[::THIN], len(grid), axis=1) for a in (receivers, rssi))
         fits, offsets = refine_batch(self.model, thin_rec, thin_rssi, grid, iterations=6)
         best = fits[int(np.argmin(batch_cost(self.model, thin_rec, thin_rssi, fits, offsets)))]

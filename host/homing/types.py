@@ -47,6 +47,9 @@ class Controller(Protocol):
     source: str  # what its readings are called in the run log ("aoa", "rss", ...)
     uses_planner: bool  # the loop's occupancy grid and A* may steer it
     own_avoidance: bool  # it avoids obstacles by its own rules: the loop's S0 avoidance stays off
+    # the loop stops the robot while its readings are stale; a survey flies its pattern on
+    # odometry whatever it hears (silence is where it has not found anything yet)
+    needs_fresh_readings: bool
 
     @property
     def phase(self) -> str: ...
@@ -72,6 +75,7 @@ class ControllerDefaults:
 
     uses_planner = True
     own_avoidance = False
+    needs_fresh_readings = True
 
     def on_scan(self, scan: Scan) -> None:
         pass

@@ -108,8 +108,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def entry() -> NoReturn:
-    """The ``rfhoming`` process: :func:`main`, then its exit. Every clean-up still runs (the
-    command's own, atexit's, the threads' joins); only the garbage collector's passes over all
+    """The ``rfhoming`` process: :func:`main`, then its exit. Every explicit clean-up still runs
+    (the command's own, atexit's, the threads' joins; files are closed explicitly, not left to
+    the collector: cyclic garbage older than the young generations is not finalised at exit);
+    only the garbage collector's passes over all
     that was loaded (numpy, scipy, the commands' modules) while the interpreter tears down are
     spared, by freezing it after a collection of the young generations (what the clean-up just
     dropped): they were ~0.17 of the teardown's ~0.2 CPU seconds, the most of a command's

@@ -53,6 +53,9 @@ def _devices(args: argparse.Namespace, config: Config, role: str) -> tuple[list[
     else:
         given = getattr(args, role, None)
         several = given if isinstance(given, list) and len(given) > 1 else [None]  # --ble, once per receiver
+        if several != [None] and args.controller != "survey":
+            raise PortSpecError(f"--{role} is given once for --controller {args.controller}; only a survey takes "
+                                "one per receiver")
         sensors = [Device(role, spec=spec(role, g)) for g in several]
     return [*sensors, Device("base", spec=spec("base"))], site
 
