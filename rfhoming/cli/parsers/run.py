@@ -39,8 +39,7 @@ examples:
   rfhoming demo --in-process               # the same summary for the same seed, every time
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
   rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
-  rfhoming demo --scenario s4-air --in-process  (S4: a MAVLink copter surveys ten BLE beacons;
-                                                its time limit is at least 600 s, the pattern's length)
+  rfhoming demo --scenario s4-air --in-process  (S4: a copter surveys ten beacons; limit >= 600 s)
   rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
   rfhoming demo --foxglove                 # watch it live at robot time: Foxglove -> ws://127.0.0.1:8765
 """
