@@ -1,0 +1,163 @@
+"""rfhoming locate on real XPLR-AOA recordings with ground truth, scored as the data set says.
+
+DIR is laid out as ``../shared/data/girolami_xplr_aoa/``: ``site.toml``, ``captures/UC_runR.pcapng``
+and ``ground_truth/UC_runR.csv`` (one waypoint per row, ``arrival_ms,leave_ms,x_cm,y_cm``). Each
+capture is located by ``rfhoming locate SITE --from capture:FILE`` in its own process, exactly as a
+user runs it; the ground truth is read here only, to score (host/groundtruth.py: ticks every 0.5 s
+from the first waypoint + 0.5 s to the last, the last position printed at or before each tick,
+5 m before the first) and for the angle statistics (host/angle_residuals.py: each report against
+the angle the board would give for the true position; bias, spread, tails, |azimuth| compression,
+autocorrelation time, missing events). Use cases are the captures' name prefixes (``uc1_run3`` is
+use case ``uc1``).
+
+``--self-cal``: also, for each use case, `rfhoming calibrate SITE --self` on the recordings of
+every *other* use case (a copy of the site file, no ground truth), then locate this use case's
+recordings with that calibration: what a user gets who calibrated on an earlier walk of the room.
+``--locate ARGS``: extra arguments for every `rfhoming locate` (one string, e.g. "--tracker ekf").
+
+    python bench/real_aoa.py --data ../shared/data/girolami_xplr_aoa [--self-cal] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+import rfhoming
+from rfhoming.host import site as sites
+from rfhoming.host.angle_residuals import angle_stats, residuals
+from rfhoming.host.groundtruth import load_waypoints, score
+
+RFHOMING = [sys.executable, "-m", "rfhoming"]
+
+
+def recordings(data: Path) -> dict[str, list[tuple[Path, Path]]]:
+    """Use case -> [(capture, ground truth)], in name order; SystemExit naming what is missing."""
+    found: dict[str, list[tuple[Path, Path]]] = {}
+    for capture in sorted((data / "captures").glob("*.pcapng")):
+        truth = data / "ground_truth" / f"{capture.stem}.csv"
+        if not truth.exists():
+            raise SystemExit(f"real_aoa: {capture} has no ground truth {truth}")
+        found.setdefault(capture.stem.rsplit("_run", 1)[0], []).append((capture, truth))
+    if not found or not (data / "site.toml").exists():
+        raise SystemExit(f"real_aoa: {data} needs site.toml, captures/*.pcapng and ground_truth/*.csv "
+                         "(the layout of ../shared/data/girolami_xplr_aoa)")
+    return found
+
+
+def locate(site: Path, capture: Path, extra: Sequence[str]) -> list[tuple[float, float, float]]:
+    """(t, x, y) of every position `rfhoming locate` prints for the capture."""
+    done = subprocess.run([*RFHOMING, "locate", str(site), "--from", f"capture:{capture}", *extra],
+                          capture_output=True, text=True, check=False)
+    if done.returncode:
+        raise SystemExit(f"real_aoa: rfhoming locate failed on {capture}: {done.stderr.strip().splitlines()[-1:]}")
+    rows = (json.loads(line) for line in done.stdout.splitlines() if line.startswith("{"))
+    return [(p["t"], p["x"], p["y"]) for p in rows if p.get("kind") == "position"]
+
+
+def self_calibrated(site: Path, captures: Sequence[Path], into: Path) -> tuple[Path, str]:
+    """A copy of ``site`` in ``into`` self-calibrated on ``captures`` (unchanged where calibrate
+    refuses, as a user's site file would be), and calibrate's verdict line."""
+    copy = into / "site.toml"
+    shutil.copy(site, copy)
+    sources = [arg for c in captures for arg in ("--from", f"capture:{c}")]
+    done = subprocess.run([*RFHOMING, "calibrate", str(copy), "--self", *sources],
+                          capture_output=True, text=True, check=False)
+    lines = [ln for ln in (done.stdout + done.stderr).splitlines() if ln.strip()]
+    if done.returncode:  # refused (the walks do not determine it): the user keeps the uncalibrated site
+        return copy, "refused: " + (lines[-1] if lines else f"exit {done.returncode}")
+    return copy, (lines[-1] if lines else "")
+
+
+def summary(errors: np.ndarray) -> dict[str, float]:
+    return {"mean_m": round(float(np.mean(errors)), 3), "median_m": round(float(np.median(errors)), 3),
+            "p95_m": round(float(np.percentile(errors, 95)), 3), "ticks": int(len(errors))}
+
+
+def score_case(site: Path, runs: Sequence[tuple[Path, Path]], extra: Sequence[str], jobs: int) -> dict[str, object]:
+    with ThreadPoolExecutor(jobs) as pool:
+        located = list(pool.map(lambda run: locate(site, run[0], extra), runs))
+    per_run = [score(load_waypoints(truth), positions) for (_, truth), positions in zip(runs, located)]
+    return {**summary(np.concatenate(per_run)), "runs": {c.stem: round(float(np.mean(e)), 3)
+                                                         for (c, _), e in zip(runs, per_run)}}
+
+
+def angle_figures(site_path: Path, runs: Sequence[tuple[Path, Path]]) -> dict[str, object]:
+    """The residual statistics of every anchor, pooled over ``runs``, and of all anchors together."""
+    site = sites.load(site_path)
+    groups = []
+    for capture, truth in runs:
+        events = [(got.t, got.item) for got in rfhoming.read(f"capture:{capture}", kinds={"angle"})]
+        groups.append(residuals(site, events, load_waypoints(truth)))
+    out: dict[str, object] = {"all": angle_stats(groups).as_dict()}
+    for anchor in site.anchors:
+        out[anchor.name] = angle_stats(groups, [anchor.name]).as_dict()
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", type=Path, required=True, help="a folder laid out as girolami_xplr_aoa/")
+    ap.add_argument("--self-cal", action="store_true", help="also: self-calibrate on the other use cases, then locate")
+    ap.add_argument("--locate", default="", metavar="ARGS", help="extra arguments for every rfhoming locate")
+    ap.add_argument("--jobs", type=int, default=2, help="locate processes at once (default 2)")
+    ap.add_argument("--json", action="store_true", help="one JSON object instead of tables")
+    args = ap.parse_args(argv)
+    data = args.data
+    cases = recordings(data)
+    extra = shlex.split(args.locate)
+    site = data / "site.toml"
+    result: dict[str, object] = {"data": str(data), "locate_args": extra, "load_before": os.getloadavg()[0]}
+    result["default"] = {uc: score_case(site, runs, extra, args.jobs) for uc, runs in cases.items()}
+    if args.self_cal:
+        calibrated = {}
+        for uc, runs in cases.items():
+            others = [c for other, rs in cases.items() if other != uc for c, _ in rs]
+            with tempfile.TemporaryDirectory(prefix="rfhoming-real-aoa-") as tmp:
+                cal_site, verdict = self_calibrated(site, others, Path(tmp))
+                calibrated[uc] = {**score_case(cal_site, runs, extra, args.jobs), "calibrated_on":
+                                  sorted({c.stem.rsplit("_run", 1)[0] for c in others}), "verdict": verdict}
+        result["self_calibrated"] = calibrated
+    result["angles"] = {uc: angle_figures(site, runs) for uc, runs in cases.items()}
+    result["angles"]["all"] = angle_figures(site, [r for runs in cases.values() for r in runs])  # type: ignore[index]
+    result["load_after"] = os.getloadavg()[0]
+    if args.json:
+        print(json.dumps(result, indent=1))
+    else:
+        print_tables(result)
+    return 0
+
+
+def print_tables(result: dict[str, object]) -> None:
+    rows = [("default", result["default"])] + ([("self-calibrated on the other use cases", result["self_calibrated"])]
+                                               if "self_calibrated" in result else [])
+    print("| pipeline | use case | mean | median | p95 | ticks |\n|---|---|---|---|---|---|")
+    for name, table in rows:
+        for uc, s in table.items():  # type: ignore[attr-defined]
+            print(f"| {name} | {uc} | {s['mean_m']:.3f} m | {s['median_m']:.3f} m | {s['p95_m']:.3f} m | {s['ticks']} |")
+    print("\nAngle residuals against the ground truth (degrees; tails: fraction beyond 20 deg; "
+          "acf: autocorrelation time, s; missing: worst recording's fraction)\n")
+    print("| use case | anchor | az bias | az std | az 1.4826 MAD | az tail | el bias | el std | el tail "
+          "| compression 45-60 / 60-90 | acf s | missing |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for uc, per in result["angles"].items():  # type: ignore[attr-defined]
+        for anchor, s in per.items():
+            c = s["compression"]
+            print(f"| {uc} | {anchor} | {s['az_bias']:+.1f} | {s['az_std']:.1f} | {s['az_mad_sigma']:.1f} "
+                  f"| {100 * s['az_tail']:.1f} % | {s['el_bias']:+.1f} | {s['el_std']:.1f} | {100 * s['el_tail']:.1f} % "
+                  f"| {c.get('45-60', float('nan')):+.1f} / {c.get('60-90', float('nan')):+.1f} "
+                  f"| {s['corr_time_s']:.2f} | {100 * s['missing']:.1f} % |")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,135 @@
+"""Where a walked tag really was: waypoint files, and the scoring rule of the real recordings.
+
+A waypoint file (the layout of ``girolami_xplr_aoa/ground_truth/*.csv``) has one row per
+waypoint, ``arrival_ms,leave_ms,x_cm,y_cm``: epoch milliseconds, ``leave_ms`` NaN where the walker
+did not stop, centimetres. The walker moves in a straight line at constant speed from one
+waypoint's leaving (or arrival) to the next one's arrival and stands still from arrival to leave.
+
+The ground truth is for scoring and for fitting radio profiles only (``bench/``, ``radio-fit
+--truth``): no localiser, tracker or calibration is ever given it.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rfhoming.protocol.errors import Error
+
+TICK_S = 0.5
+"""The scoring rule's tick: every 500 ms ..."""
+
+FIRST_TICK_S = 0.5
+"""... from the first waypoint's time plus this ..."""
+
+NO_ESTIMATE_M = 5.0
+"""... and this error at a tick before the first position."""
+
+
+class GroundTruthError(Error, ValueError):
+    """A waypoint file that cannot be read; the message names the file, the row and the fix."""
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    arrive_s: float
+    leave_s: float  # == arrive_s where the walker did not stop
+    x: float  # metres
+    y: float
+
+
+@dataclass(frozen=True)
+class WalkedPath:
+    """A walk through waypoints; :meth:`at` interpolates it."""
+
+    waypoints: tuple[Waypoint, ...]
+
+    @property
+    def start_s(self) -> float:
+        return self.waypoints[0].arrive_s
+
+    @property
+    def end_s(self) -> float:
+        return self.waypoints[-1].arrive_s
+
+    def at(self, t: Sequence[float] | np.ndarray) -> np.ndarray:
+        """(N, 2) positions at the times ``t`` (held at the ends)."""
+        times, xy = self._knots()
+        tt = np.asarray(t, float)
+        return np.stack([np.interp(tt, times, xy[:, 0]), np.interp(tt, times, xy[:, 1])], axis=1)
+
+    def moving(self, t: Sequence[float] | np.ndarray) -> np.ndarray:
+        """Whether the walker is between waypoints (not standing) at each of ``t``."""
+        tt = np.asarray(t, float)
+        standing = np.zeros(tt.shape, bool)
+        for w in self.waypoints:
+            standing |= (tt >= w.arrive_s) & (tt <= w.leave_s)
+        inside = (tt > self.start_s) & (tt < self.waypoints[-1].leave_s)
+        return inside & ~standing
+
+    def _knots(self) -> tuple[np.ndarray, np.ndarray]:
+        times, xy = [], []
+        for w in self.waypoints:
+            times.append(w.arrive_s)
+            xy.append((w.x, w.y))
+            if w.leave_s > w.arrive_s:
+                times.append(w.leave_s)
+                xy.append((w.x, w.y))
+        return np.array(times), np.array(xy)
+
+
+def load_waypoints(path: Path) -> WalkedPath:
+    """A waypoint CSV as a :class:`WalkedPath`; GroundTruthError naming the row when it is not one."""
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise GroundTruthError(f"cannot read the ground truth {path}: {exc.strerror}") from None
+    points: list[Waypoint] = []
+    for row_no, row in enumerate(csv.reader(text.splitlines()), 1):
+        if not row or not "".join(row).strip():
+            continue
+        if row_no == 1 and not _is_number(row[0]):
+            continue  # a header line
+        if len(row) != 4:
+            raise GroundTruthError(f"{path} row {row_no}: expected arrival_ms,leave_ms,x_cm,y_cm, got {len(row)} fields")
+        try:
+            arrive, leave, x, y = (float(v) for v in row)
+        except ValueError:
+            raise GroundTruthError(f"{path} row {row_no}: {','.join(row)!r} is not four numbers") from None
+        if not all(math.isfinite(v) for v in (arrive, x, y)) or not (math.isnan(leave) or leave >= arrive):
+            raise GroundTruthError(f"{path} row {row_no}: arrival and position must be finite numbers and "
+                                   "leave_ms NaN or not before arrival_ms")
+        if points and arrive < points[-1].leave_s * 1000:
+            raise GroundTruthError(f"{path} row {row_no}: arrives before the previous waypoint was left; "
+                                   "rows must be in time order")
+        points.append(Waypoint(arrive / 1000, (arrive if math.isnan(leave) else leave) / 1000, x / 100, y / 100))
+    if len(points) < 2:
+        raise GroundTruthError(f"{path}: a walk needs at least two waypoints, found {len(points)}")
+    return WalkedPath(tuple(points))
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def score(path: WalkedPath, positions: Sequence[tuple[float, float, float]]) -> np.ndarray:
+    """The horizontal error at each tick of the recordings' rule: ticks every TICK_S from the first
+    waypoint's time + FIRST_TICK_S to the last waypoint's; the estimate is the last position
+    ``(t, x, y)`` at or before the tick (NO_ESTIMATE_M before the first)."""
+    ticks = np.arange(path.start_s + FIRST_TICK_S, path.end_s + 1e-9, TICK_S)
+    est = np.array(sorted(positions), float).reshape(-1, 3)
+    truth = path.at(ticks)
+    idx = np.searchsorted(est[:, 0], ticks + 1e-9, side="right") - 1
+    errors = np.full(len(ticks), NO_ESTIMATE_M)
+    seen = idx >= 0
+    errors[seen] = np.hypot(*(est[idx[seen], 1:3] - truth[seen]).T)
+    return errors
