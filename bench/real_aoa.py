@@ -1,6 +1,8 @@
 """rfhoming locate on real XPLR-AOA recordings with ground truth, scored as the data set says.
 
-DIR is laid out as ``../shared/data/girolami_xplr_aoa/``: ``site.toml``, ``captures/UC_runR.pcapng``
+DIR is laid out as the published XPLR-AOA mobility recordings of Girolami et al. (IEEE Access 11,
+2023; doi:10.5281/zenodo.7759557; docs/RESULTS.md, "Real recordings"), rendered as rfhoming reads
+them: ``site.toml``, ``captures/UC_runR.pcapng`` (each anchor's ``+UUDF`` lines at the logged times)
 and ``ground_truth/UC_runR.csv`` (one waypoint per row, ``arrival_ms,leave_ms,x_cm,y_cm``). Each
 capture is located by ``rfhoming locate SITE --from capture:FILE`` in its own process, exactly as a
 user runs it; the ground truth is read here only, to score (host/groundtruth.py: ticks every 0.5 s
@@ -15,7 +17,7 @@ every *other* use case (a copy of the site file, no ground truth), then locate t
 recordings with that calibration: what a user gets who calibrated on an earlier walk of the room.
 ``--locate ARGS``: extra arguments for every `rfhoming locate` (one string, e.g. "--tracker ekf").
 
-    python bench/real_aoa.py --data ../shared/data/girolami_xplr_aoa [--self-cal] [--json]
+    python bench/real_aoa.py --data DIR [--self-cal] [--json]
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ def recordings(data: Path) -> dict[str, list[tuple[Path, Path]]]:
         found.setdefault(capture.stem.rsplit("_run", 1)[0], []).append((capture, truth))
     if not found or not (data / "site.toml").exists():
         raise SystemExit(f"real_aoa: {data} needs site.toml, captures/*.pcapng and ground_truth/*.csv "
-                         "(the layout of ../shared/data/girolami_xplr_aoa)")
+                         "(the layout of the XPLR-AOA recordings: bench/real_aoa.py --help)")
     return found
 
 
