@@ -21,7 +21,7 @@ import logging
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 from rfhoming.host import outputs
 from rfhoming.protocol import devices, pcapng
@@ -40,7 +40,7 @@ class CaptureWriter:
         """``comment`` goes in the section header: what the capture is (a homing run's record)."""
         self.path = Path(path)
         self._out = outputs.Output(self.path, binary=True)
-        self._file: BinaryIO = self._out.file
+        self._file: IO[bytes] = self._out.file
         try:
             self._file.write(pcapng.section_header(comment=comment))
             self._file.flush()

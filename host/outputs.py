@@ -84,10 +84,11 @@ def _busy(path: Path | str, part: Path) -> WriteFailed:
 class Output:
     """NAME's new contents: :attr:`file` is NAME.part, renamed over NAME by :meth:`commit`.
 
-    A stream that grows as a command runs is *owned* once it holds something of the command's
-    inputs (:meth:`own`; :meth:`write` owns it): :meth:`close` then renames it into place
-    however the command ends, and removes it (NAME as it was) when the command ended before
-    that. As a context manager: committed when the block ends, closed if it raises."""
+    A whole file is written in a ``with`` block: committed when the block ends, discarded
+    (NAME as it was) if it raises. A stream that grows as a command runs is *owned* once it
+    holds something of the command's inputs (:meth:`own`; :meth:`write` owns it): its
+    :meth:`close` renames it into place however the command ends, and removes it (NAME as it
+    was) when the command ended before that."""
 
     def __init__(self, path: Path | str, *, binary: bool = False) -> None:
         self.path = Path(path)
@@ -179,7 +180,7 @@ class Output:
         if kind is None:
             self.commit()
         else:
-            self.close()
+            self.discard()
 
 
 def _sync_folder(folder: Path) -> None:

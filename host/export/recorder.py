@@ -105,9 +105,13 @@ class McapRecorder(Sink):
         them through :meth:`watch`."""
         if clock not in ("robot", "host"):
             raise ValueError(f"clock must be robot or host, not {clock!r}")
-        self._out = outputs.Output(output, binary=True) if isinstance(output, (str, Path)) else None
-        given = output.file if isinstance(output, outputs.Output) else output
-        stream: IO[bytes] = self._out.file if self._out is not None else given
+        self._out: outputs.Output | None = None
+        stream: IO[bytes]
+        if isinstance(output, (str, Path)):
+            self._out = outputs.Output(output, binary=True)
+            stream = self._out.file
+        else:
+            stream = output.file if isinstance(output, outputs.Output) else output
         self.writer = Writer(stream, chunk_size=CHUNK_BYTES)
         self.writer.start(profile="ros2", library="rfhoming (mcap, mcap-ros2-support)")
         self._flushed_at: tuple[float, float] | None = None  # (message time, host monotonic) of the last flush

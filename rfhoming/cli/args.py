@@ -63,6 +63,7 @@ baud = Number(50, 12_000_000, "baud rate, e.g. 115200", whole=True)
 runs = Number(1, 1_000_000, "runs", whole=True)
 workers = Number(1, 256, "worker processes", whole=True)
 queue_lines = Number(1, 1_000_000, "lines", whole=True)
+clients = Number(1, 100_000, "clients", whole=True)
 seed = Number(0, 2**32 - 1, "seed", whole=True)
 tcp_port = Number(0, 65535, "TCP port; 0 = any free one", whole=True)
 

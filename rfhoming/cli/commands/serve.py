@@ -34,7 +34,7 @@ async def _serve_into(args: argparse.Namespace, capture: CaptureWriter | None) -
     except (Error, OSError) as exc:
         print(f"rfhoming serve: {exc}", file=sys.stderr)
         return 2
-    server = ItemServer(queue_lines=args.queue, drivers=drivers)
+    server = ItemServer(queue_lines=args.queue, max_idle=args.max_idle, stall_s=args.stall_s, drivers=drivers)
     try:
         for host in args.bind or ["127.0.0.1"]:
             for address in await server.start(host, args.port):
