@@ -34,7 +34,7 @@ TCP_MD5SIG_EXT = 32  # linux/tcp.h: a key for an address prefix (Linux 4.13)
 TCP_MD5SIG_FLAG_PREFIX = 1
 KEY_BYTES = 32  # at most TCP_MD5SIG_MAXKEYLEN, 80
 LOOPBACK = "127.0.0.0"
-_OPEN_STATES = frozenset({"01", "02", "03", "04", "05", "08", "09", "0B"})  # /proc/net/tcp: not LISTEN, TIME_WAIT, CLOSE
+_OPEN_STATES = frozenset({"01", "03"})  # /proc/net/tcp: ESTABLISHED, SYN_RECV (closing ones may be an older server's)
 
 
 class ListenerExposed(Error):
@@ -65,7 +65,7 @@ def _listening(port: int) -> list[int]:
 
 
 def connections_to(port: int) -> int:
-    """TCP connections on this machine whose local end is 127.0.0.1:``port`` (opening, open or closing)."""
+    """TCP connections on this machine whose local end is 127.0.0.1:``port``, open or opening."""
     address = struct.unpack("=I", socket.inet_aton("127.0.0.1"))[0]  # /proc/net/tcp prints it in host order
     local = f"{address:08X}:{port:04X}"
     with open("/proc/net/tcp") as table:

@@ -8,7 +8,9 @@ had written in ``NAME.part``. A recording that grows while its command runs (a c
 log, ``locate -o``'s lines) is ``NAME.part`` until the command ends: that is the file to follow
 (``tail -f NAME.part``). :func:`os.replace` is the whole mechanism (atomic on POSIX and Windows
 within one folder); the file is fsynced before it and the folder after it, so a power cut
-leaves one or the other.
+leaves one or the other. No library: ``atomicwrites`` (1.4.1) is deprecated by its author, and
+``safer`` renames a temporary file when a ``with`` block ends without an error but has no
+stable name to follow and no stream that is kept once its inputs gave it something.
 
 A write that fails (a full disk, a vanished mount) shows up as an OSError deep in a writer,
 with no file named: :func:`failed` names the output and says what of it was kept.

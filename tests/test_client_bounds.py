@@ -183,3 +183,30 @@ def test_the_sdks_listener_takes_no_connection_but_the_fronts(view) -> None:
     assert not writable
     direct.close()
     _handshake(view.front.port).close()  # through the front, as before
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/net/tcp"), reason="Linux's TCP-MD5 is needed")
+def test_a_connection_that_came_before_the_key_is_found() -> None:
+    """The instant between the SDK's listen and its key: a connection made in it is looked for."""
+    from rfhoming.host.loopback_key import ListenerExposed, keyed_socket, lock
+
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        port = listener.getsockname()[1]
+        early = socket.create_connection(("127.0.0.1", port), timeout=SAFETY_S)
+        with pytest.raises(ListenerExposed, match=f"127.0.0.1:{port}"):
+            lock(port)
+        early.close()
+    with socket.socket() as listener:  # and without one: only a keyed connection gets in
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        key = lock(listener.getsockname()[1])
+        assert key is not None
+        signed = keyed_socket(key)
+        signed.setblocking(True)
+        signed.settimeout(SAFETY_S)
+        signed.connect(listener.getsockname())
+        accepted, _ = listener.accept()
+        accepted.close()
+        signed.close()
