@@ -47,8 +47,11 @@ def part_of(path: Path | str) -> Path:
 
 
 def written_in_place(path: Path | str) -> bool:
-    """A device, a pipe or a terminal (``/dev/null``, ``/dev/stdout``): written as it is, since it
-    cannot be replaced (and a rename would replace the device node)."""
+    """A device, a pipe or a terminal, or a name in /dev or /proc (``/dev/null``, ``/dev/stdout``
+    even when it is a file the shell opened): written as it is, since it cannot be replaced (a
+    rename would replace the device node, or the file under the shell's feet)."""
+    if str(Path(path).absolute()).startswith(("/dev/", "/proc/")):
+        return True
     try:
         return not stat.S_ISREG(os.stat(path).st_mode)
     except OSError:  # not there yet (or unreadable: opening it says why)
