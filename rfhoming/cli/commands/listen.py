@@ -24,7 +24,6 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
     finally:
         if capture is not None:
             capture.close()  # renamed into place once a device gave it a packet, else the old file stays
-            print(capture.said(), file=sys.stderr)
     return 2 if capture is not None and capture.error else code  # said when it happened
 
 
@@ -56,6 +55,8 @@ async def _listen_into(args: argparse.Namespace, show: bool, capture: CaptureWri
             ros2.close()
         for h in health(drivers):
             print(json.dumps({"kind": "counters", **h}), file=sys.stdout if show else sys.stderr)
+        if capture is not None:
+            print(capture.said(), file=sys.stderr)
     return 0
 
 
