@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from rfhoming.host.outputs import Output
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -50,7 +52,8 @@ def save(fig: Figure, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with Output(path, binary=True) as out:  # replaced whole: a failed plot leaves the old one
+        fig.savefig(out.file, dpi=110, format=path.suffix.lstrip(".") or "png")
     plt.close(fig)
 
 

@@ -24,6 +24,20 @@ MAX_BACKLOG = 1 << 20
 _BAUD = {getattr(termios, f"B{b}"): b for b in (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600, 1000000)}
 
 
+def not_plain(name: str) -> str | None:
+    """Why ``name`` cannot be a link's file name in the link folder, or None when it can: a
+    name with a separator, ``..``, ``.``, NUL or nothing would put the link (and the unlink
+    before it) outside the folder, or nowhere."""
+    if not name:
+        return "it is empty"
+    if name in (".", ".."):
+        return f"{name!r} names a folder"
+    for char, what in (("/", "'/'"), ("\\", "'\\'"), ("\0", "NUL")):
+        if char in name:
+            return f"it holds {what}"
+    return None
+
+
 class Link:
     """Base: counts what crosses and what had to be dropped."""
 

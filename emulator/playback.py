@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
-from rfhoming.emulator.links import PtyLink
+from rfhoming.emulator.links import PtyLink, not_plain
 from rfhoming.protocol import devices, pcapng
 
 
@@ -37,7 +37,8 @@ async def serve(capture: Path, link_dir: Path, *, speed: float = 1.0, start_dela
     inbound = [p for p in packets if p.direction != pcapng.OUTBOUND]
     links = []
     for i, iface in enumerate(interfaces):
-        link = PtyLink(link_dir / (Path(iface.name).name or f"if{i}"))
+        name = Path(iface.name).name  # a recorded path's last part; a name that is no plain name is not used
+        link = PtyLink(link_dir / (name if not_plain(name) is None else f"if{i}"))
         await link.start()
         links.append(link)
         wire = devices.by_linktype(iface.linktype)

@@ -7,6 +7,7 @@ a (scenario, seed) pair always builds the same world.
 
 from __future__ import annotations
 
+import json
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
@@ -15,6 +16,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from rfhoming.emulator.links import not_plain
 from rfhoming.emulator.radio import AoaModel, PathLossModel
 from rfhoming.emulator.world import Obstacle, Pose, Target, World
 from rfhoming.protocol import devices
@@ -31,6 +33,13 @@ class DeviceSpec:
     name: str
     type: str
     options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """A device's name is its link's file name in the link folder: a plain name only."""
+        why = not_plain(self.name)
+        if why is not None:
+            raise ScenarioError(f"device name {self.name!r} is not a plain name ({why}): it names the device's link "
+                                f"in --link-dir; rename [devices.{json.dumps(self.name)}] (e.g. to letters, digits, - and _)")
 
 
 @dataclass

@@ -4,7 +4,9 @@ Use :meth:`CaptureWriter.tap` as a :class:`~host.ports.HostPort` tap. Blocks go 
 they come and are flushed at least once a second, so a killed process loses at most the last
 second and the file stays readable (a torn last block is skipped by every reader). The section
 header and each interface block are flushed the moment they are written: a capture killed at
-any time holds a whole header.
+any time holds a whole header. While it records, the file is ``NAME.part`` (host/outputs.py);
+:meth:`CaptureWriter.close` renames it to NAME once a port gave it a packet, and removes it
+(NAME as it was) when none came: a command whose ports never opened leaves the old capture.
 
 A write that fails (a full disk) does not stop the devices: the capture ends there, one error
 names the file and what it kept (``error``), and the command reports it at its end.
@@ -19,7 +21,7 @@ import logging
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 from rfhoming.host import outputs
 from rfhoming.protocol import devices, pcapng
@@ -37,14 +39,15 @@ class CaptureWriter:
                  comment: str = "") -> None:
         """``comment`` goes in the section header: what the capture is (a homing run's record)."""
         self.path = Path(path)
-        self._file: BinaryIO = open(self.path, "wb")
+        self._out = outputs.Output(self.path, binary=True)
+        self._file: IO[bytes] = self._out.file
         try:
             self._file.write(pcapng.section_header(comment=comment))
             self._file.flush()
         except OSError as exc:
-            with contextlib.suppress(OSError):
-                self._file.close()
-            raise outputs.failed(self.path, exc, "it is no capture (a torn header)") from None
+            error = outputs.failed(self._out, exc, "it is no capture (a torn header)")
+            self._out.discard()
+            raise error from None
         self.error: outputs.WriteFailed | None = None  # why the capture ended early (a full disk)
         self.t_last: float | None = None  # of the last packet written
         self._ids: dict[str, int] = {}
@@ -93,6 +96,7 @@ class CaptureWriter:
             else:
                 flag = pcapng.INBOUND if direction == "in" else pcapng.OUTBOUND
                 self._file.write(pcapng.packet(iface, t, data, flag, self._comments.pop(port, "")))
+            self._out.own()
             self.packets += 1
             self.t_last = t
         self._schedule_flush()
@@ -118,7 +122,7 @@ class CaptureWriter:
             with contextlib.suppress(OSError):
                 self._file.close()
             until = f" up to t = {self.t_last:.6f}" if self.t_last is not None else ""
-            self.error = outputs.failed(self.path, exc, f"it holds about {self.packets} packets{until}, flushed at "
+            self.error = outputs.failed(self._out, exc, f"it holds about {self.packets} packets{until}, flushed at "
                                         "least a second before; replay and Wireshark read up to the last whole block")
             log.error("capture: %s", self.error)
 
@@ -143,11 +147,20 @@ class CaptureWriter:
                 self._file.flush()
         self._last_flush = time.monotonic()
 
+    def said(self) -> str:
+        """What a command tells of it at its end (after :meth:`close`)."""
+        if not self.packets:
+            return f"captured nothing: {self.path} is as it was"
+        return f"captured {self.packets} chunks to {self.path}"
+
     def close(self) -> None:
+        """The capture renamed into place if a port gave it a packet, else removed (NAME as it was)."""
         self.flush()
-        if not self._file.closed:
-            with self._writing():
-                self._file.close()
+        try:
+            self._out.close()
+        except outputs.WriteFailed as exc:
+            self.error = self.error or exc
+            log.error("capture: %s", exc)
 
 
 async def describe_dialects(drivers: list[Any], capture: CaptureWriter) -> None:

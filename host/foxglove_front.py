@@ -16,9 +16,14 @@ No client can stop it: foxglove-sdk's ``stop()`` waits forever for a client that
 SDK only ever talks to this front, which always reads what the SDK sends: it holds at most
 ``CLIENT_BUFFER`` bytes for a client and cuts off a client that takes none of them for
 ``STALL_S``; a handshake must come within ``HANDSHAKE_S`` and ``MAX_HEAD`` bytes; past
-``MAX_CLIENTS`` connections a new one is closed. :meth:`Front.close` aborts every connection
-before the SDK is stopped, so the SDK has nobody left to wait for. The front runs its own
-event loop in a thread: a run's loop never waits on it, nor it on the run.
+``MAX_CLIENTS`` connections a new one is closed. A client that has sent nothing since its
+handshake (no subscription, no request) is idle: one address keeps at most ``max_idle`` idle
+clients, and another closes the one idle longest (host/idle_clients.py). :meth:`Front.close`
+aborts every connection before the SDK is stopped, so the SDK has nobody left to wait for. The
+front runs its own event loop in a thread: a run's loop never waits on it, nor it on the run.
+
+Only the front reaches the SDK: given the SDK listener's key (host/loopback_key.py), it signs
+its connections with it, and the kernel drops any other's.
 """
 
 from __future__ import annotations
@@ -27,6 +32,9 @@ import asyncio
 import contextlib
 import logging
 import threading
+
+from rfhoming.host.idle_clients import IdleClients
+from rfhoming.host.loopback_key import keyed_socket
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +46,7 @@ CHUNK = 64 * 1024
 CLIENT_BUFFER = 4 * 1024 * 1024  # bytes from the SDK held for one client that has not taken them
 STALL_S = 5.0  # a client that takes nothing of its buffer for this long is cut off
 MAX_CLIENTS = 64
+MAX_IDLE = 8  # clients of one address that have sent nothing since their handshake, at most
 CLOSE_S = 5.0  # what close() waits for the front's thread
 
 
@@ -67,12 +76,16 @@ def answer_as(head: bytes, protocol: bytes | None) -> bytes:
 
 class Front:
     """Listens on ``host:port`` (0: any free port; :attr:`port` is the one taken) and passes
-    each client to the SDK's server on ``127.0.0.1:upstream``."""
+    each client to the SDK's server on ``127.0.0.1:upstream``, signing those connections with
+    ``key`` (the listener's TCP-MD5 key; None: plain connections)."""
 
-    def __init__(self, upstream: int, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(self, upstream: int, host: str = "127.0.0.1", port: int = 0, *, key: bytes | None = None,
+                 max_idle: int = MAX_IDLE) -> None:
         self.upstream = upstream
-        self.counters = {"clients": 0, "renamed": 0, "refused": 0, "stalled": 0, "bad_handshakes": 0}
+        self.key = key
+        self.counters = {"clients": 0, "renamed": 0, "refused": 0, "stalled": 0, "bad_handshakes": 0, "idle_closed": 0}
         self._transports: set[asyncio.WriteTransport] = set()
+        self._idle: IdleClients[asyncio.WriteTransport] = IdleClients(max_idle)
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="foxglove-front", daemon=True)
         self._thread.start()
@@ -117,13 +130,19 @@ class Front:
             client.abort()
             return
         self._transports.add(client)
+        source = str(writer.get_extra_info("peername")[0])
+        longest = self._idle.arrived(source, client)
+        if longest is not None:
+            self.counters["idle_closed"] += 1
+            log.warning("Foxglove view: more than %d clients from %s sent nothing; closing the one idle longest",
+                        self._idle.per_source, source)
+            longest.abort()
         upstream: asyncio.StreamWriter | None = None
         try:
             try:
                 head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), HANDSHAKE_S)
                 request, rename = offer_sdk(head)
-                up_reader, up_writer = await asyncio.wait_for(
-                    asyncio.open_connection("127.0.0.1", self.upstream, limit=MAX_HEAD), HANDSHAKE_S)
+                up_reader, up_writer = await asyncio.wait_for(self._connect(), HANDSHAKE_S)
                 upstream = up_writer  # closed at the end
                 self._transports.add(up_writer.transport)
                 up_writer.write(request)
@@ -135,7 +154,7 @@ class Front:
             self.counters["renamed"] += rename is not None
             writer.transport.set_write_buffer_limits(high=CLIENT_BUFFER)
             writer.write(answer_as(response, rename))
-            pipes = [asyncio.ensure_future(self._to_sdk(reader, up_writer)),
+            pipes = [asyncio.ensure_future(self._to_sdk(reader, up_writer, client)),
                      asyncio.ensure_future(self._to_client(up_reader, writer))]
             try:
                 await asyncio.wait(pipes, return_when=asyncio.FIRST_COMPLETED)
@@ -144,15 +163,31 @@ class Front:
                     pipe.cancel()
                 await asyncio.gather(*pipes, return_exceptions=True)
         finally:
+            self._idle.left(client)
             for side in (writer, upstream):
                 if side is not None:
                     self._transports.discard(side.transport)
                     side.transport.abort()  # both ends go at once: nothing is left to wait for
 
-    async def _to_sdk(self, reader: asyncio.StreamReader, upstream: asyncio.StreamWriter) -> None:
-        """What the client sends, as it comes; the SDK bounds and judges it."""
+    async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+        """A connection to the SDK's listener, signed with its key when there is one."""
+        if self.key is None:
+            return await asyncio.open_connection("127.0.0.1", self.upstream, limit=MAX_HEAD)
+        sock = keyed_socket(self.key)
+        try:
+            await asyncio.get_running_loop().sock_connect(sock, ("127.0.0.1", self.upstream))
+        except BaseException:
+            sock.close()
+            raise
+        return await asyncio.open_connection(sock=sock, limit=MAX_HEAD)
+
+    async def _to_sdk(self, reader: asyncio.StreamReader, upstream: asyncio.StreamWriter,
+                      client: asyncio.WriteTransport) -> None:
+        """What the client sends, as it comes; the SDK bounds and judges it. A client that sends
+        anything is idle no more."""
         with contextlib.suppress(OSError):
             while data := await reader.read(CHUNK):
+                self._idle.spoke(client)
                 upstream.write(data)
                 await upstream.drain()
 

@@ -31,7 +31,8 @@ Clients: foxglove-sdk's server listens on a free loopback port behind
 :class:`~rfhoming.host.foxglove_front.Front`, which takes both names of the protocol
 (``foxglove.sdk.v1``, which the SDK alone accepts, and the spec's ``foxglove.websocket.v1``, which
 Foxglove's ``FoxgloveClient`` and Lichtblick 1.21 and older offer) and stands between the SDK
-and its clients, so that one that never reads cannot stall the SDK's ``stop()`` (nor Ctrl-C).
+and its clients, so that one that never reads cannot stall the SDK's ``stop()`` (nor Ctrl-C);
+the SDK's listener takes only the front's connections (host/loopback_key.py).
 The SDK's own log lines (about what a client sent, or a connection that broke) are kept out of
 Python's logging: each needs the GIL from the SDK's network threads, so a client sending garbage
 would make them queue for it behind the run; the front counts and logs what matters.
@@ -52,6 +53,7 @@ import numpy as np
 from foxglove import channels, messages
 from foxglove.websocket import Capability, ServerListener
 
+from rfhoming.host import loopback_key
 from rfhoming.host.drivers.robot_base import scan_of
 from rfhoming.host.drivers.rss import NodeClock
 from rfhoming.host.export import frames
@@ -89,7 +91,11 @@ class FoxgloveView(Sink):
                                             capabilities=[Capability.Time], server_listener=_Listener(self._subscribed),
                                             message_backlog_size=BACKLOG)
         try:
-            self.front = Front(self.server.port, host, port)
+            key = loopback_key.lock(self.server.port)  # only the front reaches the SDK's listener
+            if key is None:
+                log.warning("Foxglove view: this system cannot lock the SDK's listener (127.0.0.1:%d, no TCP-MD5); "
+                            "local programs can reach it past the front's limits", self.server.port)
+            self.front = Front(self.server.port, host, port, key=key)
         except BaseException:
             self._stop_server()
             raise

@@ -34,8 +34,14 @@ next newline, never held); at most ``ERRORS_PENDING`` error lines wait in a clie
 errors past those are counted in the last one (``suppressed``). A client that sends more than
 ``max_input`` bytes the server does not understand, in all, is disconnected
 (``disconnected_input``); past ``max_clients`` connections a new one is refused. A client that
-half-closes (EOF) is sent what its queue holds, then closed. So no client can make the server
-hold more than its queue, its transport's 16 KiB, a 4 KiB read and one command line.
+takes nothing of what waits for it (its transport's 16 KiB and the kernel's buffers full) for
+``stall_s`` seconds is disconnected (``disconnected_stalled``), as gpsd cuts a watcher that
+stopped reading (its NOREAD_TIMEOUT). A client that has sent no command is *idle*: one address
+keeps at most ``max_idle`` idle clients, and when another connects the one idle longest is
+closed (``disconnected_idle``; host/idle_clients.py), so clients that connect and forget cannot
+hold every slot. A client that half-closes (EOF) is sent what its queue holds, then closed. So
+no client can make the server hold more than its queue, its transport's 16 KiB, a 4 KiB read
+and one command line.
 
 :class:`~rfhoming.host.drivers.serve_client.ServeDriver` is the other end: a driver whose port
 is a server's address, so ``serve://HOST:PORT`` works wherever a port spec does.
@@ -58,6 +64,7 @@ from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 from rfhoming.host.drivers.common import Driver
+from rfhoming.host.idle_clients import IdleClients
 from rfhoming.host.supervise import ready
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.jsonable import as_dict
@@ -80,6 +87,8 @@ READ_CHUNK = 4096
 BACKLOG_LINES = 64  # a client's commands wait while its queue holds more lines than this ...
 BACKLOG_BYTES = 64 * 1024  # ... or more bytes than this (or more than half of queue_lines)
 MAX_CLIENTS = 256
+MAX_IDLE = 16  # clients of one address that have sent no command, at most (the longest idle goes)
+STALL_S = 30.0  # a client that takes nothing of what waits for it this long is disconnected
 LINGER_S = 1.0  # a client cut off for its input has this long to read the error line
 ERRORS_PENDING = 8  # error lines a client may have waiting; more are counted in the last one
 STATE_POLL_S = 0.05  # how often the drivers' states are looked at (an item looks at once)
@@ -217,7 +226,9 @@ class _Client:
 
     def __init__(self, writer: asyncio.StreamWriter, queue_lines: int) -> None:
         self.writer = writer
-        self.peer = ":".join(map(str, writer.get_extra_info("peername")[:2]))
+        peer = writer.get_extra_info("peername")
+        self.source = str(peer[0])  # its address: what the idle bound counts by
+        self.peer = ":".join(map(str, peer[:2]))
         self.queue: deque[bytes | _ErrorLine] = deque()
         self.queue_lines = queue_lines
         self.queued_bytes = 0
@@ -244,16 +255,20 @@ class ItemServer:
     :meth:`start` on)."""
 
     def __init__(self, *, queue_lines: int = QUEUE_LINES, max_drops: int | None = None,
-                 max_input: int = MAX_INPUT, max_clients: int = MAX_CLIENTS, drivers: Iterable[Driver] = ()) -> None:
+                 max_input: int = MAX_INPUT, max_clients: int = MAX_CLIENTS, max_idle: int = MAX_IDLE,
+                 stall_s: float = STALL_S, drivers: Iterable[Driver] = ()) -> None:
         self.queue_lines = queue_lines
         self.max_drops = queue_lines if max_drops is None else max_drops
         self.max_input = max_input
         self.max_clients = max_clients
+        self.idle: IdleClients[_Client] = IdleClients(max_idle)
+        self.stall_s = stall_s
         self.drivers = list(drivers)
         self.devices: dict[str, _Device] = {d.port.name: _Device(d.port.name, d) for d in self.drivers}
         self.clients: set[_Client] = set()
         self.counters = {"items": 0, "clients": 0, "disconnected_slow": 0, "dropped": 0, "disconnected_input": 0,
-                         "refused": 0, "commands": 0, "bad_commands": 0, "state_changes": 0}
+                         "disconnected_stalled": 0, "disconnected_idle": 0, "refused": 0, "commands": 0,
+                         "bad_commands": 0, "state_changes": 0}
         self._servers: list[asyncio.Server] = []
         self._tasks: set[asyncio.Task[Any]] = set()
         self._follower: asyncio.Task[Any] | None = None
@@ -430,6 +445,7 @@ class ItemServer:
         except CommandError as exc:
             self._error(client, str(exc))
             return False
+        self.idle.spoke(client)
         for name, args in commands:
             client.commands += 1
             self.counters["commands"] += 1
@@ -522,6 +538,14 @@ class ItemServer:
         client = _Client(writer, self.queue_lines)
         self.clients.add(client)
         self.counters["clients"] += 1
+        longest = self.idle.arrived(client.source, client)
+        if longest is not None:
+            self.counters["disconnected_idle"] += 1
+            log.warning("client %s sent no command and %d newer ones from %s are idle too: disconnecting it",
+                        longest.peer, self.idle.per_source, client.source)
+            self._drop_client(longest, {"kind": "error", "class": "ERROR", "message":
+                                        f"more than {self.idle.per_source} clients from {client.source} sent no command; "
+                                        "the one idle longest is closed (send a command, e.g. ?WATCH;, to stay)"})
         self._offer(client, _line(self._hello()))
         self._spawn(self._serve(client, reader))
 
@@ -537,7 +561,12 @@ class ItemServer:
                     await client.ready.wait()
                     continue
                 client.writer.write(line)
-                await client.writer.drain()
+                try:
+                    await asyncio.wait_for(client.writer.drain(), self.stall_s)
+                except TimeoutError:
+                    self.counters["disconnected_stalled"] += 1
+                    log.warning("client %s took nothing for %g s: disconnecting it", client.peer, self.stall_s)
+                    return
         except (ConnectionError, OSError):
             pass
         finally:
@@ -615,6 +644,7 @@ class ItemServer:
         client.ready.set()
         client.taken.set()
         self.clients.discard(client)
+        self.idle.left(client)
         transport = client.writer.transport
         if flush:
             lines = []

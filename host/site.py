@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.host import portspec
+from rfhoming.host import outputs, portspec
 from rfhoming.host.estimation.anchors3d import ANGLE_MODELS, rotation
 from rfhoming.host.portspec import PortSpecError
 from rfhoming.protocol import devices
@@ -268,7 +268,8 @@ def load(path: str | Path) -> Site:
 def write_calibration(path: str | Path, calibrations: dict[str, Calibration],
                       models: dict[str, str] | None = None) -> None:
     """Write each anchor's calibration (by anchor name), and its angle model if given, into the
-    site file, keeping the rest of it -- comments and order -- as it was."""
+    site file, keeping the rest of it -- comments and order -- as it was. The file is replaced
+    whole (host/outputs.py): a command killed while it writes leaves the old one."""
     import tomlkit
 
     path = Path(path)
@@ -280,4 +281,4 @@ def write_calibration(path: str | Path, calibrations: dict[str, Calibration],
         for f in fields(Calibration):
             table[f.name] = round(float(getattr(cal, f.name)), 4)
         doc["anchors"][name]["calibration"] = table
-    path.write_text(tomlkit.dumps(doc))
+    outputs.replace_text(path, tomlkit.dumps(doc))

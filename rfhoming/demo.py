@@ -9,6 +9,7 @@ imports the emulator, to join it and the host by its in-process byte pipe.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import shutil
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.outputs import Output, part_of
 from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import CHOOSE_TAG_S, Device, Homing, run_record, sensors_of
 from rfhoming.host.homing.config import Config
@@ -71,7 +73,7 @@ def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target
                 raise DemoError(f"the emulator did not start: {why[-1]}")
             endpoint = json.loads(line)
             endpoints[endpoint["device"]] = endpoint
-            devices_ = len(read_truth(truth)[0].get("devices", ())) or 2  # written before the first endpoint
+            devices_ = len(read_truth(part_of(truth))[0].get("devices", ())) or 2  # written before the first endpoint
     except BaseException:  # Ctrl-C or SIGTERM while it starts: it goes too
         stop_emulator(proc, grace_s=INTERRUPTED_GRACE_S)
         raise
@@ -116,7 +118,7 @@ def _spec(endpoint: dict[str, Any]) -> str:
 
 
 async def home(plan: Homing, out: Path) -> Outcome:
-    with open(out / "run.jsonl", "w") as runlog:
+    with contextlib.closing(Output(out / "run.jsonl")) as runlog:
         plan.runlog = RunLog(runlog)
         try:
             return await assembly.run(plan)
@@ -127,14 +129,21 @@ async def home(plan: Homing, out: Path) -> Outcome:
 
 def trilat_config(config: Config, truth: Path, target: str | None) -> Config:
     """The arena's beacons as anchors, and the goal (--target, or (4, 4))."""
-    for _ in range(50):  # the emulator writes the truth file as it starts
-        if truth.exists() and len(truth.read_text().splitlines()) >= 2:
-            break
-        time.sleep(0.05)
-    _, states = read_truth(truth)
+    _, states = read_truth(_started(truth))
     anchors = {t["id"]: [t["x"], t["y"]] for t in states[0]["targets"]}
     goal = [float(v) for v in target.split(",")] if target else [4.0, 4.0]
     return replace(config, trilat=replace(config.trilat, anchors=anchors, goal=goal))
+
+
+def _started(truth: Path) -> Path:
+    """The truth file of an emulator that runs (TRUTH.part until it stops: host/outputs.py),
+    once it holds the header and the first state."""
+    live = part_of(truth)
+    for _ in range(50):  # the emulator writes the truth file as it starts
+        if live.exists() and len(live.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.05)
+    return live
 
 
 def read_truth(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -145,11 +154,7 @@ def read_truth(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
 def survey_config(config: Config, truth: Path) -> Config:
     """A survey run on ptys: hold over the scenario's first beacon (by its address, as a user
     names the beacon to find), read from the truth file once the emulator has written it."""
-    for _ in range(50):  # the emulator writes the truth file as it starts
-        if truth.exists() and len(truth.read_text().splitlines()) >= 2:
-            break
-        time.sleep(0.05)
-    _, states = read_truth(truth)
+    _, states = read_truth(_started(truth))
     return _surveying(config, states[0]["targets"][0]["id"])
 
 
@@ -252,7 +257,8 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
     ax.set_title(f"rfhoming demo: {header['scenario']}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out_png)
+    with Output(out_png, binary=True) as png:
+        fig.savefig(png.file, format="png")
     plt.close(fig)
 
 
@@ -275,8 +281,9 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
         config = _surveying(config, sc.world.targets[0].id)
     names = {d.name: d.type for d in sc.devices}
     controller, role, sensors = sensors_of(list(names))
-    with open(out / "truth.jsonl", "w") as truth:
-        em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=truth)
+    with contextlib.closing(Output(out / "truth.jsonl")) as truth:
+        truth.own()  # the scenario is loaded: this run's truth replaces the old however it ends
+        em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=truth.file)
         await em.start()
         world = asyncio.create_task(em.run())
         sensed = [Device(role, port=PipePort(n, pipe_end(em.device(n).link)), kind=devices.BOARDS[names[n]][0].name)

@@ -55,7 +55,7 @@ def test_the_parsers_names_match_the_library() -> None:
     from rfhoming.host.homing.assembly import METHODS
 
     assert io.CONTROLLERS == tuple(METHODS)
-    assert serve.QUEUE_LINES == server.QUEUE_LINES
+    assert (serve.QUEUE_LINES, serve.MAX_IDLE, serve.STALL_S) == (server.QUEUE_LINES, server.MAX_IDLE, server.STALL_S)
     assert emulate.BLE_RECEIVERS == scenario.BLE_RECEIVERS
     assert emulate.presets() == scenario.presets()
     assert common.KINDS == tuple(devices.KINDS)

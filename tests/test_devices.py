@@ -138,6 +138,7 @@ def test_a_new_kind_needs_only_its_record(monkeypatch, tmp_path: Path) -> None:
     assert isinstance(driver, ProbeDriver) and driver.port.baud == 230400
     writer = CaptureWriter(tmp_path / "p.pcapng")
     writer.describe("/dev/ttyUSB7", kind="probe-node")
+    writer.tap("/dev/ttyUSB7", "in", 1.0, b"\x00")  # a capture is written once a port gave it a packet
     writer.close()
     assert recorded_kind(load_capture(tmp_path / "p.pcapng")[0][0]) is record
     with pytest.raises(portspec.PortSpecError, match="unknown device kind 'probe-nod'"):

@@ -95,22 +95,26 @@ def test_export_to_a_full_disk_names_the_file(tmp_path):
     assert "Errno" not in cli.stderr and "Traceback" not in cli.stderr
 
 
-def test_an_export_that_fails_leaves_no_empty_file(tmp_path, monkeypatch):
-    """Old code: a raw OSError and a 0-byte MCAP left behind."""
+def test_an_export_that_fails_leaves_the_old_file_and_no_part(tmp_path, monkeypatch):
+    """Old code: a raw OSError and a 0-byte MCAP left behind; then, with the raw error named, a
+    failed export still truncated the old file and left its torn start there. Now the export is
+    written to OUT.part and renamed only when whole: the old file stays, no .part is left."""
     pytest.importorskip("mcap_ros2")
     from rfhoming.host.export import recorder
 
     _capture(tmp_path / "in.pcapng")
-    monkeypatch.setattr(recorder, "open", lambda path, mode: io.BufferedWriter(FullDisk(Path(path))), raising=False)
     out = tmp_path / "out.mcap"
-    with pytest.raises(outputs.WriteFailed, match=rf"cannot write {out}: No space left on device; nothing was written"):
-        recorder.export(out, capture=tmp_path / "in.pcapng")
-    assert not out.exists()
-    monkeypatch.setattr(recorder, "open", lambda path, mode: io.BufferedWriter(FullDisk(Path(path), 3000), 64),
-                        raising=False)
-    with pytest.raises(outputs.WriteFailed, match=r"its \d+ bytes are kept: readable up to its last complete chunk"):
-        recorder.export(out, capture=tmp_path / "in.pcapng")
-    assert out.stat().st_size > 0
+    out.write_bytes(b"the old export")
+    for room in (0, 3000):
+        monkeypatch.setattr(outputs, "open", lambda path, mode, room=room: io.BufferedWriter(FullDisk(Path(path), room), 64),
+                            raising=False)
+        with pytest.raises(outputs.WriteFailed, match=rf"cannot write {out}: No space left on device; nothing of it "
+                                                      rf"is kept \({out} is as it was\)"):
+            recorder.export(out, capture=tmp_path / "in.pcapng")
+        assert out.read_bytes() == b"the old export" and not outputs.part_of(out).exists()
+    monkeypatch.undo()
+    recorder.export(out, capture=tmp_path / "in.pcapng")  # a whole export replaces it
+    assert out.read_bytes().startswith(b"\x89MCAP") and not outputs.part_of(out).exists()
 
 
 @needs_dev_full

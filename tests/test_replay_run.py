@@ -84,6 +84,7 @@ def test_a_capture_without_a_run_record_is_a_one_line_error(tmp_path: Path) -> N
 
     writer = CaptureWriter(tmp_path / "listen.pcapng")
     writer.describe("/dev/ttyUSB0", kind="xplr-aoa")
+    writer.tap("/dev/ttyUSB0", "in", 1.0, b"+STARTUP\r\n")  # a capture is written once a port gave it a packet
     writer.close()
     done = rfhoming("replay", str(tmp_path / "listen.pcapng"), "--run")
     assert done.returncode == 2 and "holds no homing run's record" in done.stderr and done.stderr.count("\n") == 1

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from rfhoming.host.outputs import part_of
+
 CHOSEN, OTHER = "CCF9578E0D8B", "CCF9578E0D8A"
 
 TWO_TAGS = f"""\
@@ -57,13 +59,14 @@ def rfhoming(*args: str) -> list[str]:
 
 @pytest.fixture
 def two_tags(tmp_path: Path, emulated) -> Path:
-    """The emulator on ptys in lockstep with two tags in view; its truth file."""
+    """The emulator on ptys in lockstep with two tags in view; its truth file as it runs
+    (truth.jsonl.part until the emulator stops: host/outputs.py)."""
     scenario = tmp_path / "two-tags.toml"
     scenario.write_text(TWO_TAGS)
     (tmp_path / "robot.toml").write_text(LOCKSTEP_CONFIG)
     truth = tmp_path / "truth.jsonl"
     emulated(scenario, "--pty", "--lockstep", "--seed", "4", "--truth", str(truth), link_dir=tmp_path)
-    return truth
+    return part_of(truth)
 
 
 def run_on(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:

@@ -20,9 +20,10 @@ class ServeDriver(Driver):
     """A client of ``rfhoming serve``: the items of the server's devices, as if local.
 
     Each item is rebuilt from its JSON form and shown to the listeners under its own device's
-    name and time; angle events also go to :attr:`out` (as from an AoaDriver). ``device``
-    keeps only one device's items: the server is asked to send only those (a server before
-    protocol 1 ignores the request; the driver filters them itself too). The server's device
+    name and time; angle events also go to :attr:`out` (as from an AoaDriver). It asks the
+    server to watch at once (so it is never an idle client); ``device`` keeps only one device's
+    items: the server is asked to send only those (a server before protocol 1 ignores the
+    request; the driver filters them itself too). The server's device
     states are kept in :attr:`devices`; bad lines are counted, never fatal; the server's
     ``dropped`` notices add up in ``counters["server_dropped"]``, its errors in ``server_errors``."""
 
@@ -105,7 +106,8 @@ class ServeDriver(Driver):
 
     async def session(self) -> None:
         self._partial = b""
-        if self.device is not None:
-            # one command line, ended CR LF as the server ends its own
-            self.port.write((json.dumps({"cmd": "watch", "devices": [self.device]}) + "\r\n").encode())
+        # a watch at once, so the server never counts this client idle (host/idle_clients.py);
+        # one command line, ended CR LF as the server ends its own
+        watch = {"cmd": "watch", **({"devices": [self.device]} if self.device is not None else {})}
+        self.port.write((json.dumps(watch) + "\r\n").encode())
         await super().session()

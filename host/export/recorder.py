@@ -43,7 +43,6 @@ inbound bytes go through the same decoders as live.
 
 from __future__ import annotations
 
-import contextlib
 import heapq
 import json
 import logging
@@ -95,16 +94,24 @@ class McapRecorder(Sink):
     ``commands_from``: "runlog" when a run log will give the velocity commands (live runs and
     exports with a run log), "capture" to take them from the bytes sent to the base."""
 
-    def __init__(self, output: Path | str | IO[bytes], *, clock: str = "robot", commands_from: str = "runlog",
-                 mounting: Any = None, source: str | None = None, site: Any = None) -> None:
-        """``mounting``: the config's ``[mounting]`` (sensor frames; None: all at the robot's
-        centre); ``source``: the controller's measurement source (which AoA board is off the
-        robot); ``site``: the fixed anchors' site (their frames). A live run gives them through
-        :meth:`watch`."""
+    def __init__(self, output: Path | str | outputs.Output | IO[bytes], *, clock: str = "robot",
+                 commands_from: str = "runlog", mounting: Any = None, source: str | None = None,
+                 site: Any = None) -> None:
+        """``output``: a path is a live recording (NAME.part until :meth:`close`, which renames it
+        into place once it holds a message: host/outputs.py); an Output or a stream is the
+        caller's to close. ``mounting``: the config's ``[mounting]`` (sensor frames; None: all
+        at the robot's centre); ``source``: the controller's measurement source (which AoA board
+        is off the robot); ``site``: the fixed anchors' site (their frames). A live run gives
+        them through :meth:`watch`."""
         if clock not in ("robot", "host"):
             raise ValueError(f"clock must be robot or host, not {clock!r}")
-        stream = open(output, "wb") if isinstance(output, (str, Path)) else output
-        self._file = stream if stream is not output else None
+        self._out: outputs.Output | None = None
+        stream: IO[bytes]
+        if isinstance(output, (str, Path)):
+            self._out = outputs.Output(output, binary=True)
+            stream = self._out.file
+        else:
+            stream = output.file if isinstance(output, outputs.Output) else output
         self.writer = Writer(stream, chunk_size=CHUNK_BYTES)
         self.writer.start(profile="ros2", library="rfhoming (mcap, mcap-ros2-support)")
         self._flushed_at: tuple[float, float] | None = None  # (message time, host monotonic) of the last flush
@@ -127,7 +134,8 @@ class McapRecorder(Sink):
         self._held_n = 0
         self._written_ns = 0  # log time of the last message written
         self._closed = False
-        self.path = output if isinstance(output, (str, Path)) else getattr(output, "name", "the MCAP output")
+        self.path = (output.name if isinstance(output, outputs.Output) else output if isinstance(output, (str, Path))
+                     else getattr(output, "name", "the MCAP output"))
         self.write_error: OSError | None = None  # the first failed write of the file
 
     def watch(self, loop: Any) -> None:
@@ -254,6 +262,8 @@ class McapRecorder(Sink):
             channel = self._channels[(topic, device)] = self.writer.register_channel(topic, "cdr", schema_id, metadata)
         ns = max(0, round(t * 1e9))
         heapq.heappush(self._held, (ns, self._held_n, channel, ns, self.counts[topic], encode(message)))
+        if self._out is not None:
+            self._out.own()  # a message of the run: the recording replaces the old file at its close
         self._held_n += 1
         self.counts[topic] += 1
         self._release(ns - round(REORDER_S * 1e9))
@@ -289,8 +299,9 @@ class McapRecorder(Sink):
             self.writer.flush()  # ends the chunk (mcap >= 1.6)
 
     def close(self) -> None:
-        """The held messages and the summary written, the file closed; after a write error only
-        closed (what is on disk stays as it is: KEPT)."""
+        """The held messages and the summary written, the file closed (and, a recording this
+        recorder opened, renamed into place); after a write error only closed (what is on disk
+        stays as it is: KEPT)."""
         if self._closed:
             return
         self._closed = True
@@ -299,12 +310,10 @@ class McapRecorder(Sink):
                 self._release(math.inf)
                 self.writer.finish()
         finally:
-            if self._file is not None:
-                if self.write_error is None:
-                    self._file.close()
-                else:
-                    with contextlib.suppress(OSError):  # its buffer cannot be written either
-                        self._file.close()
+            if self._out is not None:
+                if self.write_error is not None:
+                    self._out.abandon()  # its buffer cannot be written either
+                self._out.close()
 
     def summary(self) -> dict[str, Any]:
         return {"messages": sum(self.counts.values()), "topics": dict(sorted(self.counts.items())),
@@ -331,15 +340,22 @@ def export(output: Path | str, *, runlog: Path | str | None = None, capture: Pat
     source = next((r.get("source") for r in records if r.get("kind") == "measurement"), None)
     if source is None and site is not None:  # only --controller anchors records a site
         source = "anchors"
+    out = outputs.Output(output, binary=True)  # the inputs are read: NAME.part, NAME once whole
     try:
-        recorder = McapRecorder(output, clock="robot" if has_base else "host",
+        recorder = McapRecorder(out, clock="robot" if has_base else "host",
                                 commands_from="runlog" if runlog is not None else "capture", mounting=mounting,
                                 source=source, site=site)
         _feed(recorder, drivers, packets, deque(records))
         if recorder.write_error is not None:
             raise recorder.write_error
-    except OSError as exc:  # a full disk: name the file; an empty one is not left behind
-        raise outputs.failed(output, exc, KEPT) from None
+    except OSError as exc:  # a full disk: name the file; the old one stays, no .part is left
+        error = outputs.failed(out, exc, KEPT)
+        out.discard()
+        raise error from None
+    except BaseException:
+        out.discard()
+        raise
+    out.commit()
     return recorder.summary()
 
 

@@ -94,13 +94,15 @@ class Outcome:
 
 
 class RunLog:
-    """JSON lines, one per event, flushed as they come (a killed run keeps its log).
+    """JSON lines, one per event, flushed as they come (a killed run keeps its log: in
+    ``NAME.part`` when written through an :class:`~rfhoming.host.outputs.Output`).
 
     A write that fails (a full disk) ends the run with an error naming the file and how many
     records it kept: a run without its record is not what was asked for."""
 
-    def __init__(self, out: IO[str] | None, listeners: list[Callable[[dict[str, Any]], None]] | None = None) -> None:
-        self.out = out
+    def __init__(self, out: IO[str] | outputs.Output | None,
+                 listeners: list[Callable[[dict[str, Any]], None]] | None = None) -> None:
+        self.out = out  # an Output is owned from the first record on: the run's log replaces the old one
         self.listeners = listeners or []  # each record also goes to these (an MCAP recorder, a live view)
         self.written = 0  # records on disk
 
@@ -112,11 +114,12 @@ class RunLog:
                 self.out.flush()
             except OSError as exc:
                 out, self.out = self.out, None
+                kept = f"it holds the run's first {self.written} records (export skips a torn last line)"
+                if isinstance(out, outputs.Output):
+                    raise outputs.failed(out, exc, kept) from None
                 with contextlib.suppress(OSError):  # what it still holds cannot be written either
                     out.close()
-                raise outputs.failed(getattr(out, "name", "the run log"), exc,
-                                     f"it holds the run's first {self.written} records (export skips a torn "
-                                     "last line)") from None
+                raise outputs.failed(getattr(out, "name", "the run log"), exc, kept) from None
             self.written += 1
         for listener in self.listeners:
             listener(record)

@@ -63,6 +63,7 @@ baud = Number(50, 12_000_000, "baud rate, e.g. 115200", whole=True)
 runs = Number(1, 1_000_000, "runs", whole=True)
 workers = Number(1, 256, "worker processes", whole=True)
 queue_lines = Number(1, 1_000_000, "lines", whole=True)
+clients = Number(1, 100_000, "clients", whole=True)
 seed = Number(0, 2**32 - 1, "seed", whole=True)
 tcp_port = Number(0, 65535, "TCP port; 0 = any free one", whole=True)
 
@@ -161,18 +162,19 @@ def fault(text: str) -> str:
 
 
 def output_file(text: str) -> Path:
-    """A file the command will write, tried at once (and removed again if it was not there), so
-    that a path that cannot be written is refused before any device is opened."""
+    """A file the command will write (as FILE.part, renamed to FILE when done: host/outputs.py),
+    tried at once, so that a path that cannot be written -- or whose FILE.part is there, left by
+    a killed command or being written by another -- is refused before any device is opened."""
+    from rfhoming.host.outputs import WriteFailed, check
+
     file = Path(nonempty(text)).expanduser()
     try:
-        existed = file.exists()
-        with open(file, "ab"):
-            pass
+        check(file)
+    except WriteFailed as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     except OSError as exc:
         raise argparse.ArgumentTypeError(f"cannot write {text!r}: {exc.strerror or exc}; give a path in a folder "
                                          "that exists and that you may write") from None
-    if not existed:
-        file.unlink(missing_ok=True)
     return file
 
 

@@ -48,16 +48,17 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
     ``on_angle`` in arrival order until ``duration`` or the end of a capture, and tell
     ``on_lost`` the anchor ids of a device that went away; ``capture_to``: also record every
     byte there. 2 on a port/capture error, said in one line naming ``command``."""
+    specs = _specs(site, sources)
     capture = CaptureWriter(capture_to) if capture_to else None
     try:
-        drivers: list[Driver] = await open_drivers(_specs(site, sources), baud=baud, flow=flow,
+        drivers: list[Driver] = await open_drivers(specs, baud=baud, flow=flow,
                                                    taps=[capture.tap] if capture else [],
                                                    describe=capture.describe if capture else None)
-    except OSError as exc:
-        print(f"rfhoming {command}: cannot read {exc.filename}: {exc.strerror}", file=sys.stderr)
-        return 2
-    except Error as exc:
-        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+    except (OSError, Error) as exc:
+        if capture is not None:
+            capture.close()  # nothing came: the old file stays
+        said = f"cannot read {exc.filename}: {exc.strerror}" if isinstance(exc, OSError) else str(exc)
+        print(f"rfhoming {command}: {said}", file=sys.stderr)
         return 2
 
     as_recorded = [d.port.name for d in drivers if isinstance(d, AoaDriver) and replayed_without_set_up(d.port)]
@@ -90,7 +91,7 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
             print(json.dumps({"kind": "counters", **h}), file=sys.stderr)
         if capture is not None:
             capture.close()
-            print(f"captured {capture.packets} chunks to {capture.path}", file=sys.stderr)
+            print(capture.said(), file=sys.stderr)
     return 0
 
 

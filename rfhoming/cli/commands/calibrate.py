@@ -11,6 +11,7 @@ from dataclasses import replace
 from typing import Any
 
 from rfhoming.cli.site_sources import gather, load_site
+from rfhoming.host import outputs
 from rfhoming.host import site as sites
 from rfhoming.host.calibration import CalibrationError, assign_dwells, calibrate
 from rfhoming.host.points_file import load_points
@@ -20,6 +21,8 @@ def run(args: argparse.Namespace) -> int:
     site = load_site(args.site, "calibrate")
     if site is None:
         return 2
+    if not args.dry_run:
+        outputs.check(args.site)  # it can be replaced (no site file's .part in the way) before any device opens
     if args.self_calibrate:
         return _self_calibrate(args, site)
     if args.points is None:

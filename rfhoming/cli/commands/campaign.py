@@ -13,6 +13,7 @@ from pathlib import Path
 
 from rfhoming.campaigns.runner import Campaign, CampaignError, run_jobs
 from rfhoming.cli.parsers.campaign import REGISTRY
+from rfhoming.host.outputs import replace_text
 
 __all__ = ["REGISTRY", "default_folder", "load", "run"]
 
@@ -62,9 +63,9 @@ def run(args: argparse.Namespace) -> int:
     meta = {"campaign": args.name, "command": command, "runs": runs, "seed": args.seed, "jobs": len(jobs),
             "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
             "machine": platform.machine()}
-    (args.out / f"{args.name}.json").write_text(json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
-    (args.out / f"{args.name}.md").write_text(
-        f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where})\n\n{report.markdown}\n")
+    replace_text(args.out / f"{args.name}.json", json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
+    replace_text(args.out / f"{args.name}.md",
+                 f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where})\n\n{report.markdown}\n")
     for name, write in report.plots.items():
         write(args.out / name)
     checkpoint.unlink()

@@ -26,9 +26,11 @@ def run(args: argparse.Namespace) -> int:
         where = "in this process" if args.in_process else "on ptys"
         pace = "in lockstep" if speed == 0 or args.in_process else f"at {speed:g}x robot time"
         print(f"demo: emulating {args.scenario} (seed {args.seed}) {where} {pace}; homing ...", file=sys.stderr)
-    sinks = [mcap_recorder(args.mcap)] if args.mcap else []
-    view = start_foxglove(args, "demo")
+    sinks = []
+    view = None
     try:
+        sinks += [mcap_recorder(args.mcap)] if args.mcap else []
+        view = start_foxglove(args, "demo")  # a view that cannot start leaves no MCAP.part behind
         wait_for_viewer(view, args.wait_viewer)
         summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver,
                            sinks=[*sinks, *([view] if view else [])], speed=speed, in_process=args.in_process)

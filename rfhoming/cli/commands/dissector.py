@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from rfhoming.host.outputs import replace_text
 from rfhoming.protocol.frames.wireshark import lua_dissector
 
 
@@ -16,7 +17,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         path = Path(args.output).expanduser()
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(lua_dissector())
+        replace_text(path, lua_dissector())
     except OSError as exc:
         print(f"rfhoming dissector: cannot write {args.output}: {exc.strerror}", file=sys.stderr)
         return 2

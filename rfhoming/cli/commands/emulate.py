@@ -13,6 +13,7 @@ import sys
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import ScenarioError, load
+from rfhoming.host.outputs import Output
 from rfhoming.protocol.errors import Error
 
 
@@ -29,17 +30,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"rfhoming emulate: --link-dir {args.link_dir} is not a directory: create it "
               f"(mkdir -p {args.link_dir}) or leave --link-dir out for a new temporary one", file=sys.stderr)
         return 2
-    truth = open(args.truth, "w") if args.truth else None
+    truth = Output(args.truth) if args.truth else None  # TRUTH.part while it runs, TRUTH once it stops
     try:
         emulator = Emulator(
             scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
             speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
-            faults=faults, truth=truth, link_dir=args.link_dir, robot=args.robot,
+            faults=faults, truth=truth.file if truth else None, link_dir=args.link_dir, robot=args.robot,
         )
     except Error as exc:
+        if truth is not None:
+            truth.close()  # the old truth file stays
         print(f"rfhoming emulate: {exc}", file=sys.stderr)
         return 2
     try:
+        if truth is not None:
+            truth.own()  # the world is built: this run's truth replaces the old however it ends
         asyncio.run(_serve(emulator, args.duration))
     finally:
         if truth is not None:

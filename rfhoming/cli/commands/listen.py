@@ -20,6 +20,15 @@ from rfhoming.protocol.errors import Error
 async def _listen(args: argparse.Namespace, show: bool) -> int:
     capture = CaptureWriter(args.output) if getattr(args, "output", None) else None
     try:
+        code = await _listen_into(args, show, capture)
+    finally:
+        if capture is not None:
+            capture.close()  # renamed into place once a device gave it a packet, else the old file stays
+    return 2 if capture is not None and capture.error else code  # said when it happened
+
+
+async def _listen_into(args: argparse.Namespace, show: bool, capture: CaptureWriter | None) -> int:
+    try:
         drivers = await open_drivers(args.ports, baud=args.baud, flow=args.flow, taps=[capture.tap] if capture else [],
                                      describe=capture.describe if capture else None, probe_baud=args.probe_baud)
     except (Error, OSError) as exc:
@@ -47,9 +56,8 @@ async def _listen(args: argparse.Namespace, show: bool) -> int:
         for h in health(drivers):
             print(json.dumps({"kind": "counters", **h}), file=sys.stdout if show else sys.stderr)
         if capture is not None:
-            capture.close()
-            print(f"captured {capture.packets} chunks to {capture.path}", file=sys.stderr)
-    return 2 if capture is not None and capture.error else 0  # said when it happened
+            print(capture.said(), file=sys.stderr)
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:

@@ -16,6 +16,7 @@ from rfhoming.host import losses
 from rfhoming.host import site as sites
 from rfhoming.host.locate import Locator, Position, smooth
 from rfhoming.host.loopstall import StallMonitor, watching
+from rfhoming.host.outputs import Output
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     # --ros2: the anchors' angles (in anchor_<id>, placed in map by /tf_static) and the fixes
     ros2 = (ros2_publisher(args.ros2, source="anchors", site=site, robot=False)
             if args.ros2 is not None else None)
-    out = args.output.open("w") if args.output else sys.stdout
+    out = Output(args.output) if args.output else sys.stdout  # OUTPUT.part while it runs (tail -f that), then OUTPUT
     per_tag: dict[str, list[float]] = {}
     fixes: list[Position] = []
 
@@ -61,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
     code = asyncio.run(watching(gather("locate", site, args.sources, feed, locator.disconnected, baud=args.baud,
                                        flow=args.flow, duration=args.duration, capture_to=args.capture), stalls))
     if code:
+        if isinstance(out, Output):
+            out.close()  # renamed into place if it got a line, else the old file stays
         return code
     show(locator.flush())
     if args.smooth:

@@ -52,10 +52,11 @@ def replay_run(args: argparse.Namespace) -> int:
     from rfhoming.host.homing import assembly
     from rfhoming.host.homing.config import load
     from rfhoming.host.homing.loop import RunLog
+    from rfhoming.host.outputs import Output
 
     plan = assembly.replay_plan(args.capture, controller=args.controller,
                                 config=load(args.config) if args.config else None)
-    runlog = open(args.log, "w") if args.log else None
+    runlog = Output(args.log) if args.log else None  # LOG.part until the run ends, then LOG
     plan.runlog = RunLog(runlog)
     try:
         outcome = asyncio.run(assembly.run(plan))

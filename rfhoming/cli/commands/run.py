@@ -15,6 +15,7 @@ from rfhoming.host.homing import assembly
 from rfhoming.host.homing.assembly import CHOOSE_TAG_S, METHODS, Device, Homing, run_record
 from rfhoming.host.homing.config import Config, load
 from rfhoming.host.homing.loop import RunLog
+from rfhoming.host.outputs import Output
 from rfhoming.host.portspec import PortSpec, PortSpecError
 from rfhoming.host.portspec import parse as parse_spec
 from rfhoming.host.sink import Sink
@@ -84,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         if view is not None:
             sinks.append(opened.enter_context(contextlib.closing(view)))
         plan.sinks = sinks
-        plan.runlog = RunLog(opened.enter_context(open(args.log, "w")) if args.log else None)
+        # each output is NAME.part until the run ends, then NAME (a run that never started leaves NAME)
+        plan.runlog = RunLog(opened.enter_context(contextlib.closing(Output(args.log))) if args.log else None)
         if args.capture:
             record = run_record(plan, args.site.read_text() if site is not None else None)
             plan.capture = opened.enter_context(contextlib.closing(CaptureWriter(args.capture, comment=record)))

@@ -21,12 +21,20 @@ from rfhoming.protocol.errors import Error
 async def _serve(args: argparse.Namespace) -> int:
     capture = CaptureWriter(args.output) if args.output else None
     try:
+        return await _serve_into(args, capture)
+    finally:
+        if capture is not None:
+            capture.close()  # renamed into place once a device gave it a packet, else the old file stays
+
+
+async def _serve_into(args: argparse.Namespace, capture: CaptureWriter | None) -> int:
+    try:
         drivers = await open_drivers(args.ports, baud=args.baud, flow=args.flow, taps=[capture.tap] if capture else [],
                                      describe=capture.describe if capture else None)
     except (Error, OSError) as exc:
         print(f"rfhoming serve: {exc}", file=sys.stderr)
         return 2
-    server = ItemServer(queue_lines=args.queue, drivers=drivers)
+    server = ItemServer(queue_lines=args.queue, max_idle=args.max_idle, stall_s=args.stall_s, drivers=drivers)
     try:
         for host in args.bind or ["127.0.0.1"]:
             for address in await server.start(host, args.port):
@@ -57,8 +65,6 @@ async def _serve(args: argparse.Namespace) -> int:
         served = server.health()
         print(json.dumps({"kind": "server", **served, "losses": losses.WARNINGS.check("serve", served),
                           **stalls.summary()}), flush=True)
-        if capture is not None:
-            capture.close()
     return 0
 
 

@@ -15,6 +15,8 @@ ENDPOINT_HELP = ("port spec [KIND:]WHERE[,key=value...]: WHERE is a path, socket
                  "capture:FILE replays a recording; serve://HOST:PORT is the devices of an `rfhoming serve` "
                  "(see docs/usage.md)")
 
+GROWING = " (FILE.part while it runs -- tail -f that -- renamed to FILE when it ends)"
+"""Said of every output that grows as a command runs (host/outputs.py, docs/usage.md "Output files")."""
 FOXGLOVE_PORT = 8765  # Foxglove's own default (rfhoming.host.foxglove_view.DEFAULT_PORT)
 FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {FOXGLOVE_PORT}, 0 = any free port) to "
                  "Foxglove or Lichtblick (subprotocol foxglove.websocket.v1 or foxglove.sdk.v1); "

@@ -10,6 +10,7 @@ from typing import Any
 
 from rfhoming.cli.args import duration, fault, nonempty, output_file, path, seed, speed, xy
 from rfhoming.cli.parsers import command
+from rfhoming.cli.parsers.common import GROWING
 
 BLE_RECEIVERS = ("esp32", "at86rf212", "esp-at", "hci")
 """emulator/scenario.py's BLE_RECEIVERS, the device table's boards with the "ble" role (a test
@@ -62,7 +63,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                    "(Espressif's AT firmware) or hci (a Bluetooth controller over H4, needs rfhoming[hci])")
     p.add_argument("--aoa-preset", type=int, choices=range(1, 6), help="S0 Table 2 noise configuration 1-5")
     p.add_argument("--fault", type=fault, action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
-    p.add_argument("--truth", type=output_file, help="write the true robot pose and target positions as JSON lines")
+    p.add_argument("--truth", type=output_file, help="write the true robot pose and target positions as JSON lines" + GROWING)
     p.add_argument("--duration", type=duration, help="stop after this many simulated seconds")
     p.add_argument("--robot", type=robot_kind, metavar="ros2[:...] | mavlink[:udpout:HOST:PORT][,...]",
                    help="the robot base as a ROS 2 robot over DDS (ros2[:domain=N,ns=NS,discovery=subnet,stamped=1]: "

@@ -31,7 +31,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                        description=EXPORT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run", type=path, metavar="RUN", help="the run log (run.jsonl), or a pcapng capture alone")
     p.add_argument("--capture", type=path, help="the run's pcapng capture (odometry, scans, raw readings)")
-    p.add_argument("-o", "--output", type=output_file, required=True, help="MCAP file to write")
+    p.add_argument("-o", "--output", type=output_file, required=True, help="MCAP file to write (as FILE.part, renamed to FILE once whole)")
     p.add_argument("--config", type=path, help="the run's TOML config, for where the sensors sit on the robot "
                    "([mounting]; default: all at its centre)")
     p.set_defaults(func=command("export"))

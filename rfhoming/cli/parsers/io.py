@@ -6,7 +6,7 @@ import argparse
 
 from rfhoming.cli.args import delay, duration, nonempty, output_file, path, speed
 from rfhoming.cli.parsers import command
-from rfhoming.cli.parsers.common import ENDPOINT_HELP, add_foxglove_option, add_port_defaults, add_ros2_option
+from rfhoming.cli.parsers.common import ENDPOINT_HELP, GROWING, add_foxglove_option, add_port_defaults, add_ros2_option
 
 CONTROLLERS = ("aoa", "dock", "rss", "trilat", "survey", "anchors")
 """The homing methods, host/homing/assembly.py's METHODS (a test holds them equal): named here
@@ -76,7 +76,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         p.add_argument("--json", action="store_true", help="one JSON object per item")
         add_ros2_option(p, "the decoded readings")
         if name == "capture":
-            p.add_argument("-o", "--output", type=output_file, required=True, help="pcapng file to write")
+            p.add_argument("-o", "--output", type=output_file, required=True, help="pcapng file to write" + GROWING)
             p.add_argument("--show", action="store_true", help="also print the decoded items")
             p.set_defaults(func=command("listen", "run_capture"))
         else:
@@ -97,5 +97,5 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument("--run", action="store_true", help="run the recorded homing loop again on the capture's bytes")
     p.add_argument("--config", type=path, help="with --run: this config instead of the recorded one")
     p.add_argument("--controller", choices=CONTROLLERS, help="with --run: this controller instead of the recorded one")
-    p.add_argument("--log", type=output_file, help="with --run: write the replayed run log here")
+    p.add_argument("--log", type=output_file, help="with --run: write the replayed run log here" + GROWING)
     p.set_defaults(func=command("replay"))

@@ -21,7 +21,7 @@ from rfhoming.cli.args import (
     tag_height,
 )
 from rfhoming.cli.parsers import command
-from rfhoming.cli.parsers.common import add_port_defaults, add_ros2_option
+from rfhoming.cli.parsers.common import GROWING, add_port_defaults, add_ros2_option
 
 LOCATE_HELP = """\
 Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
@@ -50,7 +50,9 @@ Fit each anchor's angle corrections and write them, with its angle model, into t
 [anchors.NAME] tables (the rest of the file is kept as it was); report each anchor's angle
 error before and after, each fitted parameter's standard deviation, and which parameters were
 held and why (only what the points determine is fitted: e.g. no elevation when every point is
-at one height). Results stay within the site file's limits, or nothing is written.
+at one height). Results stay within the site file's limits, or nothing is written. The site
+file is replaced whole (written as SITE.part, then renamed): a calibrate killed as it writes
+leaves the old file, and SITE.part to remove.
 
 With known points (--points FILE):
 
@@ -124,8 +126,8 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         p.add_argument("--duration", type=duration, help="stop after this many seconds (a capture ends by itself)")
         add_port_defaults(p)
         if name == "locate":
-            p.add_argument("--capture", type=output_file, help="also record every anchor's bytes to this pcapng file")
-            p.add_argument("-o", "--output", type=output_file, help="write the JSON lines here instead of stdout")
+            p.add_argument("--capture", type=output_file, help="also record every anchor's bytes to this pcapng file" + GROWING)
+            p.add_argument("-o", "--output", type=output_file, help="write the JSON lines here instead of stdout" + GROWING)
             p.add_argument("--rate", type=rate_hz, help="positions per second per tag (default: the site's rate_hz)")
             p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
             p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",

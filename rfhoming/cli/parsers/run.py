@@ -8,6 +8,7 @@ from pathlib import Path
 from rfhoming.cli.args import nonempty, output_file, output_folder, path, seed, speed, xy
 from rfhoming.cli.parsers import command
 from rfhoming.cli.parsers.common import (
+    GROWING,
     add_foxglove_option,
     add_port_defaults,
     add_ros2_option,
@@ -16,7 +17,7 @@ from rfhoming.cli.parsers.common import (
 from rfhoming.cli.parsers.io import CONTROLLERS
 
 MCAP_HELP = ("also record the run as ROS 2 messages (odometry, scans, commands, estimates, readings) in "
-             "this MCAP file, for Foxglove, rosbags or ros2 bag (needs the ros extra)")
+             "this MCAP file, for Foxglove, rosbags or ros2 bag (needs the ros extra)" + GROWING)
 
 DEMO_HELP = """\
 Start the emulator in its own process on pseudo-terminals (in lockstep: its world waits
@@ -112,8 +113,8 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument("--site", type=path, help="site file for --controller anchors (see rfhoming locate --help)")
     p.add_argument("--config", type=path, help="TOML config (see rfhoming config --print-default)")
     add_port_defaults(p)
-    p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command")
-    p.add_argument("--capture", type=output_file, help="pcapng capture of every byte")
+    p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command" + GROWING)
+    p.add_argument("--capture", type=output_file, help="pcapng capture of every byte" + GROWING)
     p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
     add_ros2_option(p, "what the run senses (a ROS 2 base's own /odom, /scan and /tf are left to it)")
     add_foxglove_option(p)

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import argparse
 
-from rfhoming.cli.args import duration, nonempty, output_file, queue_lines, tcp_port
+from rfhoming.cli.args import clients, duration, nonempty, output_file, queue_lines, tcp_port
 from rfhoming.cli.parsers import command
-from rfhoming.cli.parsers.common import ENDPOINT_HELP, add_foxglove_option, add_port_defaults, add_ros2_option
+from rfhoming.cli.parsers.common import ENDPOINT_HELP, GROWING, add_foxglove_option, add_port_defaults, add_ros2_option
 
 QUEUE_LINES = 1000
-"""host/serve.py's default queue (a test holds them equal), named here so that building the
-parsers does not load the server."""
+MAX_IDLE = 16
+STALL_S = 30.0
+"""host/serve.py's defaults (a test holds them equal), named here so that building the parsers
+does not load the server."""
 DEFAULT_PORT = 2948  # beside gpsd's 2947
 
 SERVE_HELP = f"""\
@@ -23,8 +25,11 @@ Clients may send commands: {{"cmd": "watch", "devices": [...], "kinds": [...], "
 ?WATCH={{...}}; ?POLL; ?DEVICES; ?VERSION; (docs/protocol.md, "serve"). The devices' AT set-up
 chatter goes only to clients that ask for it. A client that reads too slowly loses items
 (counted; it is sent a "dropped" line) and never holds up the devices or the other clients; one
-that takes nothing while its queue overflows is disconnected. Listens on 127.0.0.1:{DEFAULT_PORT}
-unless told; prints each address it listens on as a JSON line when it starts.
+that takes nothing while its queue overflows, or for --stall-s seconds, is disconnected. A
+client that has sent no command is idle: one address keeps at most --max-idle of them (every
+program on this machine is one address, 127.0.0.1), and another closes the one idle longest.
+Listens on 127.0.0.1:{DEFAULT_PORT} unless told; prints each address it listens on as a JSON
+line when it starts.
 
 Clients: `rfhoming listen serve://127.0.0.1:{DEFAULT_PORT}`, the Python API with the same port
 spec, or anything that reads lines from a socket (`nc 127.0.0.1 {DEFAULT_PORT}`).
@@ -48,7 +53,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--port", type=tcp_port, default=DEFAULT_PORT, help=f"TCP port (default {DEFAULT_PORT}; 0 = any free)")
     p.add_argument("--queue", type=queue_lines, default=QUEUE_LINES, metavar="LINES",
                    help=f"items held for a slow client before its newest are dropped (default {QUEUE_LINES})")
-    p.add_argument("-o", "--output", type=output_file, help="also capture every byte of the devices to this pcapng file")
+    p.add_argument("--max-idle", type=clients, default=MAX_IDLE, metavar="N",
+                   help=f"clients of one address that have sent no command, at most (default {MAX_IDLE}); "
+                        "another one closes the one idle longest")
+    p.add_argument("--stall-s", type=duration, default=STALL_S, metavar="S",
+                   help=f"a client that takes nothing of what waits for it this long is disconnected (default {STALL_S:g})")
+    p.add_argument("-o", "--output", type=output_file,
+                   help="also capture every byte of the devices to this pcapng file" + GROWING)
     p.add_argument("--duration", type=duration, help="stop after this many seconds")
     add_foxglove_option(p)
     add_ros2_option(p, "the devices' readings")

@@ -1,0 +1,212 @@
+"""Servers bounded by client (issue 46, item 4): ``serve`` and the Foxglove front keep at most so
+many idle clients of one address and cut a client that never reads; foxglove-sdk's own listener
+takes no client but the front.
+
+Each test fails on the code before: 256 idle local clients held every ``serve`` slot; a
+``serve`` client that read nothing stayed connected while lines were dropped short of
+``max_drops`` (a quiet server never reaches it); the front let any number of idle clients in;
+and a plain connection to the SDK's listener got its WebSocket handshake, past the front."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import errno
+import json
+import os
+import select
+import socket
+import time
+
+import pytest
+
+from rfhoming.host.serve import ItemServer
+from rfhoming.protocol.jsonable import from_dict
+
+SAFETY_S = 60  # a hang guard on each wait, not a speed check
+
+
+async def _client(port: int) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    assert json.loads(await asyncio.wait_for(reader.readline(), SAFETY_S))["kind"] == "hello"
+    return reader, writer
+
+
+async def _closed(reader: asyncio.StreamReader) -> list[dict]:
+    """What the server sent before it closed the connection (read to EOF, bounded)."""
+    try:
+        rest = await asyncio.wait_for(reader.read(), SAFETY_S)
+    except ConnectionError:
+        rest = b""
+    return [json.loads(line) for line in rest.splitlines()]
+
+
+async def test_serve_keeps_at_most_max_idle_clients_of_one_address_and_never_one_that_spoke() -> None:
+    server = ItemServer(max_idle=3)
+    (address,) = await server.start("127.0.0.1", 0)
+    port = int(address.rsplit(":", 1)[1])
+    talker = await _client(port)
+    talker[1].write(b"?VERSION;\r\n")
+    assert json.loads(await asyncio.wait_for(talker[0].readline(), SAFETY_S))["kind"] == "version"
+    idle = [await _client(port) for _ in range(3)]
+    assert server.counters["disconnected_idle"] == 0
+    for k in range(20):  # each new idle client closes the one idle longest, told why
+        idle.append(await _client(port))
+        said = await _closed(idle[k][0])
+        assert said and said[-1]["kind"] == "error" and "sent no command" in said[-1]["message"]
+        assert server.counters["disconnected_idle"] == k + 1 and len(server.clients) == 1 + 3
+    talker[1].write(b"?VERSION;\r\n")  # the client that spoke is still served
+    assert json.loads(await asyncio.wait_for(talker[0].readline(), SAFETY_S))["kind"] == "version"
+    for _, writer in [talker, *idle]:
+        writer.close()
+    await server.close()
+
+
+async def test_serve_cuts_a_client_that_takes_nothing_for_stall_s() -> None:
+    """A client that never reads, on a server whose drops never reach ``max_drops``."""
+    server = ItemServer(queue_lines=100_000, max_drops=10**9, stall_s=0.5)
+    (address,) = await server.start("127.0.0.1", 0)
+    _, writer = await _client(int(address.rsplit(":", 1)[1]))
+    writer.transport.pause_reading()  # reads nothing from here on
+    big = from_dict({"kind": "log_text", "node_id": 1, "seq": 0, "t_us": 0, "text": "y" * 2000})
+    deadline = time.monotonic() + SAFETY_S
+    while server.clients:  # lines until the kernel's buffers and its queue are full, then it stalls
+        assert time.monotonic() < deadline, f"never cut: {server.counters}"
+        server.publish("dev", 0.0, big)
+        await asyncio.sleep(0.001)
+    assert server.counters["disconnected_stalled"] == 1 and server.counters["disconnected_slow"] == 0
+    writer.close()
+    await server.close()
+
+
+# -- the Foxglove front --------------------------------------------------------------------
+
+
+def _upgrade(port: int) -> bytes:
+    key = base64.b64encode(os.urandom(16)).decode()
+    return (f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+            "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode()
+
+
+def _handshake(port: int) -> socket.socket:
+    """A WebSocket client of the view that has its 101 and sends nothing more."""
+    sock = socket.create_connection(("127.0.0.1", port), timeout=SAFETY_S)
+    sock.sendall(_upgrade(port))
+    head = b""
+    while b"\r\n\r\n" not in head:
+        got = sock.recv(4096)
+        assert got, f"closed during the handshake: {head!r}"
+        head += got
+    assert head.startswith(b"HTTP/1.1 101"), head
+    return sock
+
+
+def _masked_text(payload: bytes) -> bytes:
+    """One WebSocket text frame as a client sends it (masked, RFC 6455 §5.3); payload < 126 bytes."""
+    mask = os.urandom(4)
+    return bytes([0x81, 0x80 | len(payload)]) + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
+
+
+def _cut(sock: socket.socket) -> bool:
+    """True once the peer closed the connection (reads what it still sends first; bounded)."""
+    deadline = time.monotonic() + SAFETY_S
+    while time.monotonic() < deadline:
+        try:
+            if not sock.recv(65536):
+                return True
+        except ConnectionError:
+            return True
+        except TimeoutError:
+            continue
+    return False
+
+
+@pytest.fixture
+def view():
+    pytest.importorskip("foxglove")
+    from rfhoming.host.foxglove_view import FoxgloveView
+
+    view = FoxgloveView(port=0)
+    yield view
+    view.close()
+
+
+def test_the_front_keeps_at_most_max_idle_clients_of_one_address(view) -> None:
+    from rfhoming.host.foxglove_front import MAX_IDLE
+
+    talker = _handshake(view.front.port)
+    talker.sendall(_masked_text(b'{"op":"subscribe","subscriptions":[]}'))
+    deadline = time.monotonic() + SAFETY_S
+    while view.front._idle.count("127.0.0.1"):  # until the front has passed it on: idle no more
+        assert time.monotonic() < deadline, "the front never took the talker's message"
+        time.sleep(0.01)
+    idle = [_handshake(view.front.port) for _ in range(MAX_IDLE)]
+    for k in range(5):  # each new idle client closes the one idle longest
+        idle.append(_handshake(view.front.port))
+        assert _cut(idle[k]), f"idle client {k} still connected"
+    assert view.front.counters["idle_closed"] == 5
+    talker.settimeout(0.0)  # the client that spoke is still connected (nothing closed it)
+    with pytest.raises(BlockingIOError):
+        while talker.recv(65536):
+            pass
+    for sock in [talker, *idle]:
+        sock.close()
+
+
+def _md5_drops() -> int:
+    """Linux's count of TCP segments dropped for want of a TCP-MD5 signature."""
+    with open("/proc/net/netstat") as table:
+        lines = table.read().splitlines()
+    for names, values in zip(lines[::2], lines[1::2], strict=True):
+        if names.startswith("TcpExt:"):
+            return int(dict(zip(names.split(), values.split(), strict=True))["TCPMD5NotFound"])
+    raise AssertionError("no TcpExt line")
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/net/netstat"), reason="Linux's TCP-MD5 counters are needed")
+def test_the_sdks_listener_takes_no_connection_but_the_fronts(view) -> None:
+    """A plain connection to the SDK's port never opens: its SYN is dropped (counted by the
+    kernel), while the front's signed connections carry a client's handshake as before."""
+    before = _md5_drops()
+    direct = socket.socket()
+    direct.setblocking(False)
+    assert direct.connect_ex(("127.0.0.1", view.server.port)) in (0, errno.EINPROGRESS)
+    deadline = time.monotonic() + SAFETY_S
+    while _md5_drops() == before:  # until the kernel has seen its SYN and dropped it
+        _, writable, _ = select.select([], [direct], [], 0.05)
+        if writable:
+            error = direct.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+            pytest.fail(f"a plain connection reached the SDK's listener directly (error {error})")
+        assert time.monotonic() < deadline, "the kernel saw no SYN"
+    _, writable, _ = select.select([], [direct], [], 0)
+    assert not writable
+    direct.close()
+    _handshake(view.front.port).close()  # through the front, as before
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/net/tcp"), reason="Linux's TCP-MD5 is needed")
+def test_a_connection_that_came_before_the_key_is_found() -> None:
+    """The instant between the SDK's listen and its key: a connection made in it is looked for."""
+    from rfhoming.host.loopback_key import ListenerExposed, keyed_socket, lock
+
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        port = listener.getsockname()[1]
+        early = socket.create_connection(("127.0.0.1", port), timeout=SAFETY_S)
+        with pytest.raises(ListenerExposed, match=f"127.0.0.1:{port}"):
+            lock(port)
+        early.close()
+    with socket.socket() as listener:  # and without one: only a keyed connection gets in
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        key = lock(listener.getsockname()[1])
+        assert key is not None
+        signed = keyed_socket(key)
+        signed.setblocking(True)
+        signed.settimeout(SAFETY_S)
+        signed.connect(listener.getsockname())
+        accepted, _ = listener.accept()
+        accepted.close()
+        signed.close()
