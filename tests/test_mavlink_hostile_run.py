@@ -30,7 +30,7 @@ ENDED_S = 240.0
 
 @pytest.fixture(scope="module")
 def aoa(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    with rigs.emulate("s0-open", link_dir=tmp_path_factory.mktemp("links")) as world:
+    with rigs.emulate("s0-open", "--seed", "3", link_dir=tmp_path_factory.mktemp("links")) as world:
         yield world.path("aoa")
 
 

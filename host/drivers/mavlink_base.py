@@ -86,14 +86,13 @@ class MavlinkBaseDriver(CommandedBase):
         return {"silence_s": HEARTBEAT_LOSS_S if live else None}
 
     def __init__(self, port: Any, *, sysid: int | None = None, compid: int | None = None, arm: bool = False,
-                 end: str | None = None, datagrams: bool | None = None, silence_s: float | None = HEARTBEAT_LOSS_S,
+                 end: str | None = None, datagrams: bool = False, silence_s: float | None = HEARTBEAT_LOSS_S,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out)
         self.codec = ml.Codec()
         self.sysid, self.compid, self.arm, self.end = sysid, compid, arm, end
         self.chosen = sysid is not None  # the user named the vehicle: a second one is no doubt about which
-        spec = getattr(port, "spec", None)
-        self.datagrams = datagrams if datagrams is not None else isinstance(spec, str) and MavlinkPort.datagrams_on(spec)
+        self.datagrams = datagrams  # each chunk is a whole datagram (a UDP link): no packet spans two
         self.silence_s = silence_s
         self.autopilot: ml.Autopilot | None = None
         self.mode: int | None = None
@@ -217,7 +216,7 @@ class MavlinkBaseDriver(CommandedBase):
         self._others.add(who)
         if self.step != "driving" and not self.chosen:
             self._fail(f"two vehicles speak ({who} {where}, besides system {self.sysid}): name the one to drive "
-                       f"with ,sysid=N in the port spec")
+                       "with ,sysid=N in the port spec")
         else:
             log.warning("%s: another vehicle, %s, speaks %s: ignored (rfhoming drives system %s only)",
                         self.port.name, who, where, self.sysid)
