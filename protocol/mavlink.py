@@ -50,6 +50,18 @@ class Autopilot:
     def mode_name(self, custom_mode: int) -> str:
         return self.modes.get(custom_mode, f"mode {custom_mode}")
 
+    def end_mode(self, name: str | None) -> int:
+        """The mode the vehicle is left in: ``name`` (a spec's ``end=``), else :attr:`hold`.
+        ValueError when ``name`` is not one of its modes, or one that needs a pilot or takes
+        setpoints (then nothing would hold the vehicle)."""
+        if name is None:
+            return self.hold
+        number = next((n for n, m in self.modes.items() if m == name), None)
+        if number is None or number in self.manual or number == self.guided:
+            allowed = ", ".join(m for n, m in self.modes.items() if n not in self.manual and n != self.guided)
+            raise ValueError(f"end={name} is not a mode {self.name} can be left in; one of {allowed}")
+        return number
+
 
 def _px4(main: int, sub: int = 0) -> int:
     return (main << 16) | (sub << 24)
@@ -145,28 +157,128 @@ def command_of(setpoint: Any) -> tuple[float, float]:
     return setpoint.vx, (0.0 if setpoint.type_mask & IGNORE_YAW_RATE else -setpoint.yaw_rate)
 
 
+class Refused(NamedTuple):
+    """A whole, well-formed message whose values no vehicle can mean (:func:`refusal`): it never
+    reaches the driver's pose, the estimator or a log, only this note of why."""
+
+    message: Any
+    why: str
+
+
+POSITION_LIMIT_M = 1e5  # from the EKF origin: 100 km, where float32 still resolves 8 mm
+SPEED_LIMIT_M_S = 100.0
+ANGLE_LIMIT = math.pi + 1e-3  # ATTITUDE's angles are documented -pi..+pi (float32 rounds pi up)
+RATE_LIMIT = 35.0  # rad/s: 2000 deg/s, the full scale of the IMUs autopilots use
+
+LIMITS: dict[str, dict[str, float]] = {
+    "LOCAL_POSITION_NED": {"x": POSITION_LIMIT_M, "y": POSITION_LIMIT_M, "z": POSITION_LIMIT_M,
+                           "vx": SPEED_LIMIT_M_S, "vy": SPEED_LIMIT_M_S, "vz": SPEED_LIMIT_M_S},
+    "ATTITUDE": {"roll": ANGLE_LIMIT, "pitch": ANGLE_LIMIT, "yaw": ANGLE_LIMIT,
+                 "rollspeed": RATE_LIMIT, "pitchspeed": RATE_LIMIT, "yawspeed": RATE_LIMIT},
+}
+"""The largest magnitude taken of each float of the messages the driver reads (docs/protocol.md
+§10 says why each); a message beyond one is refused whole."""
+
+
+def refusal(message: Any) -> str | None:
+    """Why ``message``'s values cannot be a vehicle's (a non-finite or absurd field), or None."""
+    kind = message.get_type()
+    for name, limit in LIMITS.get(kind, {}).items():
+        value = getattr(message, name)
+        if not math.isfinite(value):
+            return f"{kind}.{name} = {value}, not a number a vehicle can mean"
+        if abs(value) > limit:
+            return f"{kind}.{name} = {value:g}, beyond {limit:g}: no vehicle rfhoming drives is there"
+    return None
+
+
+V1_MARKER, V2_MARKER = 0xFE, 0xFD
+V1_HEADER, V2_HEADER, CRC_LEN, SIGNATURE_LEN = 6, 10, 2, 13
+
+
+def _frame_length(buf: bytearray, i: int) -> int | None:
+    """The length of the frame starting at ``buf[i]`` (a start marker), or None while its header
+    is incomplete; 0 for a header no frame has (incompatibility flags MAVLink 2 does not define)."""
+    if buf[i] == V1_MARKER:
+        return V1_HEADER + buf[i + 1] + CRC_LEN if len(buf) > i + 1 else None
+    if len(buf) <= i + 2:
+        return None
+    flags = buf[i + 2]
+    if flags & ~mav.MAVLINK_IFLAG_SIGNED:
+        return 0
+    return V2_HEADER + buf[i + 1] + CRC_LEN + (SIGNATURE_LEN if flags & mav.MAVLINK_IFLAG_SIGNED else 0)
+
+
 class Codec:
-    """MAVLink 2 packets out (this end's system and component ids, its own sequence) and in."""
+    """MAVLink 2 packets out (this end's system and component ids, its own sequence) and in.
+
+    In, it frames the bytes itself and lets pymavlink check and decode each frame: a frame that
+    fails (bad CRC, impossible header) costs one byte, and the hunt for the next start marker
+    goes on from the byte after its marker, so junk never takes the good packets after it with
+    it (pymavlink's own parser drops a bad frame's whole declared length, up to 280 bytes). A
+    frame of a message outside the common dialect (ArduPilot's own, say) is passed over whole,
+    as MAVLink's parsers do. On a datagram link each datagram is whole on its own (a packet
+    never spans two): ``feed(..., datagram=True)`` drops what is left of a truncated frame, so
+    a junk datagram ending in a start marker cannot swallow the next datagram's packets."""
 
     def __init__(self, system: int = GCS_SYSTEM, component: int = GCS_COMPONENT) -> None:
         self.mav = mav.MAVLink(None, srcSystem=system, srcComponent=component)
-        self.mav.robust_parsing = True  # a corrupt packet is an item (bad_data), not an exception
-        self.bad = 0
+        self.bad = 0  # frames that failed their checks, and truncated ones
+        self.junk = 0  # bytes outside any frame
+        self.unknown = 0  # whole frames of messages outside the common dialect
+        self.refused = 0  # whole messages with values no vehicle means (Refused)
+        self._buf = bytearray()
 
     def encode(self, message: Any) -> bytes:
         data = bytes(message.pack(self.mav))
         self.mav.seq = (self.mav.seq + 1) % 256
         return data
 
-    def feed(self, data: bytes) -> list[Any]:
-        """Every whole message in ``data`` (and the bytes before it); corrupt ones counted."""
-        out = []
-        for message in self.mav.parse_buffer(data) or ():
-            if message.get_type() == "BAD_DATA":
+    def feed(self, data: bytes, *, datagram: bool = False) -> list[Any]:
+        """Every whole message in ``data`` (after what came before), a :class:`Refused` in place
+        of one whose values are impossible; junk and corrupt frames counted."""
+        buf = self._buf
+        buf += data
+        out: list[Any] = []
+        i = 0
+        while i < len(buf):
+            start = min((k for k in (buf.find(V1_MARKER, i), buf.find(V2_MARKER, i)) if k >= 0), default=len(buf))
+            self.junk += start - i
+            i = start
+            n = _frame_length(buf, i) if i < len(buf) else None
+            if n is None or len(buf) - i < n:
+                break  # the rest of the frame is still to come
+            try:
+                message = self.mav.decode(bytearray(buf[i:i + n])) if n else None
+            except mav.MAVError:
+                message = None
+            if message is None:
                 self.bad += 1
+                i += 1  # not a frame after all: hunt on from the next byte
+                continue
+            i += n
+            if message.get_type().startswith("UNKNOWN_"):
+                self.unknown += 1
+                continue
+            why = refusal(message)
+            if why is not None:
+                self.refused += 1
+                out.append(Refused(message, why))
             else:
                 out.append(message)
+        del buf[:i]
+        if datagram and buf:
+            self.bad += 1
+            self.junk += len(buf)
+            buf.clear()
         return out
+
+
+def has_vehicle_heartbeat(datagram: bytes, system: int | None) -> bool:
+    """Whether ``datagram`` holds a vehicle's HEARTBEAT (of ``system``, if given): what a
+    listening link locks on to."""
+    return any(not isinstance(m, Refused) and m.get_type() == "HEARTBEAT" and is_vehicle(m)
+               and system in (None, m.get_srcSystem()) for m in Codec().feed(datagram, datagram=True))
 
 
 def heartbeat(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: int, status: int) -> Any:
@@ -228,14 +340,15 @@ def command_name(command: int) -> str:
 
 class MavlinkDecoder:
     """The wire protocol's decoder for the device table (tools that decode any capture):
-    bytes -> MAVLink messages."""
+    bytes -> MAVLink messages (one whose values are impossible is counted, not shown)."""
 
     def __init__(self) -> None:
         self.codec = Codec()
 
     @property
     def counters(self) -> dict[str, int]:
-        return {"bad_packets": self.codec.bad}
+        c = self.codec
+        return {"bad_packets": c.bad, "junk_bytes": c.junk, "unknown_messages": c.unknown, "refused_values": c.refused}
 
     def feed(self, data: bytes) -> list[Any]:
-        return self.codec.feed(data)
+        return [m for m in self.codec.feed(data) if not isinstance(m, Refused)]

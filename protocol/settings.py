@@ -127,6 +127,12 @@ def mav_id(text: str) -> int:
     return int(text)
 
 
+def mode_name(text: str) -> str:
+    if not re.fullmatch(r"[A-Za-z][A-Za-z_.]{0,31}", text):
+        raise ValueError("an autopilot's mode by name, e.g. end=LOITER")
+    return text.upper()
+
+
 SERIAL: dict[str, Parser] = {"baud": baud, "flow": flow, "name": name, "timeout": seconds}
 """A serial port's: its rate, flow control, a short name, the set-up commands' timeout."""
 
@@ -147,5 +153,6 @@ ROS2: dict[str, Parser] = {
 }
 """A ROS 2 base's: its domain, namespace, topic names, Twist or TwistStamped, and DDS discovery."""
 
-MAVLINK: dict[str, Parser] = {"sysid": mav_id, "compid": mav_id, "arm": yes_no, "expose": yes_no}
-"""A MAVLink vehicle's: its ids (else from its HEARTBEAT), arming when asked, a non-loopback socket."""
+MAVLINK: dict[str, Parser] = {"sysid": mav_id, "compid": mav_id, "arm": yes_no, "expose": yes_no, "end": mode_name}
+"""A MAVLink vehicle's: its ids (else from its HEARTBEAT), arming when asked, a socket other
+machines reach, the mode it is left in (else its holding mode)."""

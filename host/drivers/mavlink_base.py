@@ -5,10 +5,26 @@ Safety first. The driver never arms a vehicle unless the user asked (``arm=1``) 
 over from a pilot: a vehicle in a manual mode (MANUAL, STABILIZE, POSCTL ...) ends the run with
 one line saying how to switch. Otherwise it puts the vehicle in GUIDED (ArduPilot) or OFFBOARD
 (PX4, after streaming zero setpoints, as PX4 requires), then sends one setpoint per loop command
--- one per odometry, well above the rate each autopilot needs to keep moving. A vehicle that
-leaves that mode (the pilot's switch, a failsafe) gets no more setpoints and ends the run. When
-the run ends it is sent zero velocity and then HOLD (Rover, PX4) or BRAKE (Copter). If the host
-dies, the autopilot's own setpoint timeout (GUID_TIMEOUT, COM_OF_LOSS_T) stops it.
+-- one per odometry, well above the rate each autopilot needs to keep moving. If the host dies,
+the autopilot's own setpoint timeout (GUID_TIMEOUT, COM_OF_LOSS_T) stops it.
+
+It drives one vehicle, and believes nothing else: the first vehicle HEARTBEAT (or ``sysid=``)
+fixes the system and component it listens to, a UDP link the address (host/mavlinkport.py).
+Each of these ends the run with one line (an Error the supervisor raises):
+
+- the vehicle leaves the guided mode or disarms (the pilot's switch, a failsafe): no more
+  setpoints, and no mode command either -- the mode someone else chose stands;
+- its HEARTBEAT stops for ``HEARTBEAT_LOSS_S`` of its own clock while its telemetry goes on, or
+  (live) the vehicle falls silent for that long on the wall clock;
+- it sends a value no vehicle can mean (NaN, inf, 1e38: rfhoming.protocol.mavlink.refusal);
+- another sender speaks as the vehicle (its system and component ids, from another address);
+- a second vehicle speaks before the driving starts and ``sysid=`` did not say which to drive
+  (after, it is ignored: counted, warned once);
+- a command is refused or unanswered during the set-up.
+
+Every exit after rfhoming asked for the guided mode -- an error, the end of the run, Ctrl-C,
+SIGTERM -- sends zero velocity and then the holding mode: HOLD (Rover, PX4) or BRAKE (Copter),
+or the spec's ``end=``.
 
 Every write follows an input (a vehicle HEARTBEAT is answered with the ground station's; each
 setpoint follows an odometry), so a replay of the capture writes the same bytes.
@@ -18,9 +34,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
+import time
 from typing import Any
 
-from rfhoming.host.drivers.common import BoundedStream
+from rfhoming.host.drivers.common import BoundedStream, Wiring
 from rfhoming.host.drivers.robot import CommandedBase, Pose2D
 from rfhoming.host.mavlinkport import MavlinkPort
 from rfhoming.host.ports import Disconnected, Tap
@@ -33,6 +51,10 @@ log = logging.getLogger(__name__)
 SETUP_TIMEOUT_S = 5.0  # *assumed*: from the first HEARTBEAT to driving (two commands answered)
 TELEMETRY_HZ = 50  # LOCAL_POSITION_NED and ATTITUDE, asked of the vehicle: the loop's odometry rate
 STREAM_BEFORE_SWITCH_S = 1.0  # PX4 enables offboard after more than a second of setpoints (PX4 Offboard Mode)
+HEARTBEAT_PERIOD_S = 1.0  # ArduPilot and PX4 send HEARTBEAT at 1 Hz (docs/protocol.md §10)
+HEARTBEAT_LOSS_S = 3.5
+"""Three HEARTBEATs missed, and half a period for jitter: the link is lost (MAVLink's heartbeat
+service calls a system gone after four or five missed; a vehicle being driven, sooner)."""
 
 
 class _SetUp(asyncio.Event):
@@ -56,11 +78,22 @@ class MavlinkBaseDriver(CommandedBase):
     sets_up = True
     watchdog = "the autopilot's setpoint timeout (GUID_TIMEOUT / COM_OF_LOSS_T)"
 
+    @classmethod
+    def options(cls, wiring: Wiring) -> dict[str, Any]:
+        """A live run watches the vehicle's silence on the wall clock too; lockstep runs and
+        replays (the loop's wall-clock watchdog off) only on the vehicle's own clock."""
+        live = wiring.config is None or not math.isinf(wiring.config.loop.odometry_wall_timeout_s)
+        return {"silence_s": HEARTBEAT_LOSS_S if live else None}
+
     def __init__(self, port: Any, *, sysid: int | None = None, compid: int | None = None, arm: bool = False,
+                 end: str | None = None, datagrams: bool = False, silence_s: float | None = HEARTBEAT_LOSS_S,
                  reconnect: bool = True, out: BoundedStream[Any] | None = None) -> None:
         super().__init__(port, reconnect=reconnect, out=out)
         self.codec = ml.Codec()
-        self.sysid, self.compid, self.arm = sysid, compid, arm
+        self.sysid, self.compid, self.arm, self.end = sysid, compid, arm, end
+        self.chosen = sysid is not None  # the user named the vehicle: a second one is no doubt about which
+        self.datagrams = datagrams  # each chunk is a whole datagram (a UDP link): no packet spans two
+        self.silence_s = silence_s
         self.autopilot: ml.Autopilot | None = None
         self.mode: int | None = None
         self.armed = False
@@ -69,22 +102,32 @@ class MavlinkBaseDriver(CommandedBase):
         self._local: tuple[Any, float] | None = None  # the newest LOCAL_POSITION_NED and when it came
         self._heartbeat = asyncio.Event()
         self.step = "waiting"  # of the set-up: waiting, streaming, switching, arming, driving, failed, done
+        self.took = False  # rfhoming asked for the guided mode (or drove): every exit leaves the vehicle holding
+        self.taken_over = False  # the pilot or a failsafe changed its mode or disarmed it: their choice stands
         self._asked: int | None = None  # the command whose COMMAND_ACK the set-up waits for
         self._heartbeat_asked = False
         self._stream_from: int | None = None  # PX4: time_boot_ms of the first zero setpoint before the switch
+        self._beat_ms: int | None = None  # the vehicle's clock at its first telemetry after its last HEARTBEAT
+        self._heard_at = time.monotonic()  # the wall clock when the vehicle last spoke
+        self._others: set[str] = set()  # the other vehicles warned of
+        self._foreign = ml.Codec()  # reads datagrams of other senders (host/mavlinkport.py)
         self.connected: _SetUp = _SetUp()
         self.speaks_first = bool(getattr(port, "speaks_first", False)
                                  or getattr(port, "description", {}).get("speaks_first") == "1")
-        self.counters.update(packets=0, bad_packets=0, heartbeats=0, other_systems=0)
+        if hasattr(port, "on_foreign"):
+            port.on_foreign = self._on_foreign
+        self.counters.update(packets=0, bad_packets=0, junk_bytes=0, unknown_messages=0, refused_values=0,
+                             heartbeats=0, other_systems=0)
 
     @classmethod
     def from_spec(cls, spec: PortSpec, taps: list[Tap], *, port: Any = None, **options: Any) -> MavlinkBaseDriver:
         s = spec.settings
         if port is None:
             port = MavlinkPort(spec.where, baud=spec.baud or 57600, name=spec.name or spec.where, taps=taps,
-                               expose=s.get("expose", False))
+                               expose=s.get("expose", False), sysid=s.get("sysid"))
         options.pop("command_timeout_ms", None)  # the autopilot's own timeout applies (GUID_TIMEOUT, COM_OF_LOSS_T)
-        return cls(port, sysid=s.get("sysid"), compid=s.get("compid"), arm=s.get("arm", False), **options)
+        return cls(port, sysid=s.get("sysid"), compid=s.get("compid"), arm=s.get("arm", False), end=s.get("end"),
+                   datagrams=MavlinkPort.datagrams_on(spec.where), **options)
 
     @staticmethod
     def describe_spec(spec: PortSpec) -> dict[str, str]:
@@ -98,11 +141,16 @@ class MavlinkBaseDriver(CommandedBase):
     # -- inbound: every set-up step follows a message, so a replay takes the same steps ----------
 
     def on_chunk(self, data: bytes, t_host: float) -> None:
-        before = self.codec.bad
-        for message in self.codec.feed(data):
-            self._on_message(message, t_host)
-        if self.codec.bad > before:
-            self.counters["bad_packets"] += self.codec.bad - before
+        codec = self.codec
+        before = codec.bad
+        for item in codec.feed(data, datagram=self.datagrams):
+            if isinstance(item, ml.Refused):
+                self._on_refused(item)
+            else:
+                self._on_message(item, t_host)
+        self.counters.update(bad_packets=codec.bad, junk_bytes=codec.junk, unknown_messages=codec.unknown,
+                             refused_values=codec.refused)
+        if codec.bad > before:
             self.emit(t_host, {"kind": "drop", "why": "corrupt MAVLink packet"})
 
     def _ours(self, message: Any) -> bool:
@@ -112,7 +160,8 @@ class MavlinkBaseDriver(CommandedBase):
 
     def _on_message(self, message: Any, t_host: float) -> None:
         kind = message.get_type()
-        if kind == "HEARTBEAT" and self.sysid is None and ml.is_vehicle(message):
+        vehicle = kind == "HEARTBEAT" and ml.is_vehicle(message)
+        if vehicle and self.sysid is None:
             self.sysid = message.get_srcSystem()
         elif self.step == "waiting" and not self._heartbeat_asked and ml.from_autopilot(message, self.sysid):
             self._heartbeat_asked = True  # its telemetry came first: ask for its HEARTBEAT now, not within a second
@@ -120,11 +169,14 @@ class MavlinkBaseDriver(CommandedBase):
                        counted=False)
         if not self._ours(message):
             self.counters["other_systems"] += 1
+            if vehicle:
+                self._second_vehicle(message, "on this link")
             return
         self.counters["packets"] += 1
-        if self.step == "failed":
+        self._heard_at = time.monotonic()
+        if self.step in ("failed", "done"):
             return
-        if kind == "HEARTBEAT" and ml.is_vehicle(message):
+        if vehicle:
             self._on_heartbeat(message)
         elif kind == "COMMAND_ACK" and message.command == self._asked:
             self._on_ack(message)
@@ -133,8 +185,45 @@ class MavlinkBaseDriver(CommandedBase):
         elif kind == "LOCAL_POSITION_NED" and self._attitude is not None:
             self._on_position(message, t_host)
 
+    def _on_refused(self, refused: ml.Refused) -> None:
+        """A value no vehicle can mean, from the vehicle: its estimate cannot be driven on."""
+        if self.sysid is None or not self._ours(refused.message):
+            self.counters["other_systems"] += 1
+        elif self.step not in ("failed", "done"):
+            self._fail(f"the vehicle sent {refused.why}: its position or attitude cannot be driven on (check its "
+                       "EKF and position source); rfhoming stopped")
+
+    def _on_foreign(self, source: tuple[str, int], data: bytes) -> None:
+        """A datagram from a sender that is not the vehicle (dropped by the port, counted there)."""
+        if self.step in ("failed", "done") or self.sysid is None:
+            return
+        for item in self._foreign.feed(data, datagram=True):
+            message = item.message if isinstance(item, ml.Refused) else item
+            if self._ours(message):
+                self._fail(f"another sender, {source[0]}:{source[1]}, speaks as the vehicle (system {self.sysid}) "
+                           "beside it: rfhoming drives only a vehicle it can tell apart; if two vehicles share one "
+                           "system id, give each its own (ArduPilot SYSID_THISMAV, PX4 MAV_SYS_ID)")
+                return
+            if message.get_type() == "HEARTBEAT" and ml.is_vehicle(message):
+                self._second_vehicle(message, f"at {source[0]}:{source[1]}")
+
+    def _second_vehicle(self, heartbeat: Any, where: str) -> None:
+        """Another vehicle speaks: before the driving starts, with no ``sysid=``, there is no
+        telling which one the user meant; after it, it is ignored (warned once)."""
+        who = f"system {heartbeat.get_srcSystem()} component {heartbeat.get_srcComponent()}"
+        if who in self._others or self.step in ("failed", "done"):
+            return
+        self._others.add(who)
+        if self.step != "driving" and not self.chosen:
+            self._fail(f"two vehicles speak ({who} {where}, besides system {self.sysid}): name the one to drive "
+                       "with ,sysid=N in the port spec")
+        else:
+            log.warning("%s: another vehicle, %s, speaks %s: ignored (rfhoming drives system %s only)",
+                        self.port.name, who, where, self.sysid)
+
     def _on_heartbeat(self, message: Any) -> None:
         self.counters["heartbeats"] += 1
+        self._beat_ms = None  # heartbeat loss counts from the next telemetry
         if self.compid is None:
             self.compid = message.get_srcComponent()
         try:
@@ -148,9 +237,11 @@ class MavlinkBaseDriver(CommandedBase):
         if self.step == "waiting":
             self._begin()
         elif self.step == "driving" and self.mode != ap.guided:
+            self.taken_over = True
             self._fail(f"the vehicle left {ap.mode_name(ap.guided)} for {ap.mode_name(self.mode)} (the pilot or a "
-                       "failsafe took over); rfhoming stopped sending setpoints")
+                       "failsafe took over); rfhoming stopped sending setpoints and leaves it there")
         elif self.step == "driving" and not self.armed:
+            self.taken_over = True
             self._fail("the vehicle disarmed; rfhoming stopped sending setpoints")
 
     def _begin(self) -> None:
@@ -161,6 +252,11 @@ class MavlinkBaseDriver(CommandedBase):
         self.problem = f"setting up the {ap.name} vehicle (system {system})"
         for message_id in (ml.mav.MAVLINK_MSG_ID_ATTITUDE, ml.mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
             self._send(ml.message_interval(system, component, message_id, TELEMETRY_HZ))
+        try:
+            ap.end_mode(self.end)
+        except ValueError as exc:
+            self._fail(str(exc))
+            return
         if self.mode in ap.manual:
             self._fail(f"the vehicle is in {ap.mode_name(self.mode)}, a pilot's mode: rfhoming does not take over "
                        f"from a pilot; switch it to {ap.mode_name(ap.hold)} (or {ap.mode_name(ap.guided)}) on the "
@@ -171,11 +267,17 @@ class MavlinkBaseDriver(CommandedBase):
         elif self.mode != ap.guided and ap.stream_before_switch:
             self.step = "streaming"  # _on_position sends the setpoints, then the switch
         elif self.mode != ap.guided:
-            self._ask(ml.set_mode(system, component, ap, ap.guided), "switching")
+            self._switch()
         elif not self.armed:
             self._ask(ml.arm(system, component), "arming")
         else:
             self._drive()
+
+    def _switch(self) -> None:
+        """Ask for the guided mode: from here on, every exit leaves the vehicle holding."""
+        assert self.autopilot is not None and self.sysid is not None
+        self.took = True
+        self._ask(ml.set_mode(self.sysid, self.compid or 0, self.autopilot, self.autopilot.guided), "switching")
 
     def _on_ack(self, message: Any) -> None:
         assert self.autopilot is not None and self.sysid is not None
@@ -195,22 +297,31 @@ class MavlinkBaseDriver(CommandedBase):
 
     def _drive(self) -> None:
         """Set up: the loop starts (``connected``) with the newest odometry already in its stream."""
-        self.step, self.state, self.problem = "driving", "streaming", None
+        self.step, self.state, self.problem, self.took = "driving", "streaming", None, True
         if self._local is not None:
             self._emit_pose(*self._local)
         self.connected.ready()
 
     def _on_position(self, local: Any, t_host: float) -> None:
+        self._check_heartbeat(local.time_boot_ms)
         self.time_boot_ms = local.time_boot_ms
         self._local = (local, t_host)
         if self.step == "driving":
             self._emit_pose(local, t_host)
         elif self.step == "streaming":  # PX4 engages offboard only on a stream that is already there
-            assert self.autopilot is not None and self.sysid is not None
             self._setpoint(0.0, 0.0)
             self._stream_from = self.time_boot_ms if self._stream_from is None else self._stream_from
             if self.time_boot_ms - self._stream_from >= STREAM_BEFORE_SWITCH_S * 1000:
-                self._ask(ml.set_mode(self.sysid, self.compid or 0, self.autopilot, self.autopilot.guided), "switching")
+                self._switch()
+
+    def _check_heartbeat(self, time_boot_ms: int) -> None:
+        """Telemetry goes on: has the vehicle's HEARTBEAT stopped (on the vehicle's own clock, so a
+        replay and a lockstep world decide the same)?"""
+        if self._beat_ms is None or time_boot_ms < self._beat_ms:  # after a HEARTBEAT, or a reboot's clock
+            self._beat_ms = time_boot_ms
+        elif time_boot_ms - self._beat_ms > HEARTBEAT_LOSS_S * 1000 and self.step not in ("waiting", "failed", "done"):
+            self._fail(f"no HEARTBEAT from the vehicle for {HEARTBEAT_LOSS_S:g} s of its clock while its telemetry "
+                       f"goes on (it sends one a second): its link or autopilot is not well; rfhoming stopped")
 
     def _emit_pose(self, local: Any, t_host: float) -> None:
         pose = ml.pose_of(local, self._attitude)
@@ -220,9 +331,10 @@ class MavlinkBaseDriver(CommandedBase):
         self.out.put(item)
 
     def _fail(self, why: str) -> None:
+        """The run ends: the supervisor raises the error (one line, naming the port)."""
         self.step, self.state, self.problem = "failed", "setup_failed", why
-        self.error = VehicleError(why)  # the supervisor ends the run with it, naming the port
-        log.error("%s: %s", self.port.name, why)
+        self.error = VehicleError(why)
+        log.info("%s: %s", self.port.name, why)
 
     # -- outbound --------------------------------------------------------------------------
 
@@ -252,7 +364,8 @@ class MavlinkBaseDriver(CommandedBase):
 
     async def session(self) -> None:
         """After every open: say hello where this end must speak first, then wait for the set-up
-        (done message by message in :meth:`on_chunk`); one that stalls fails the run, saying where."""
+        (done message by message in :meth:`on_chunk`); one that stalls fails the run, saying where.
+        Then, live, watch for the vehicle falling silent."""
         if self.speaks_first:  # udpout:, tcp:: the vehicle learns of this end from its first packet
             self._send(ml.gcs_heartbeat(), counted=False)
         await self._heartbeat.wait()
@@ -266,12 +379,23 @@ class MavlinkBaseDriver(CommandedBase):
                            "arming": f"no COMMAND_ACK to {ml.command_name(self._asked or 0)}"}
                 self._fail(f"set-up stalled after {SETUP_TIMEOUT_S:g} s: {stalled.get(self.step, self.step)}; is the "
                            "link two-way (the vehicle hears this end), and the vehicle's telemetry on?")
+            return
+        while self.silence_s is not None and self.step == "driving":
+            await asyncio.sleep(self.silence_s / 4)
+            if time.monotonic() - self._heard_at > self.silence_s and self.step == "driving":
+                self._fail(f"the vehicle has said nothing for {self.silence_s:g} s (no HEARTBEAT, no telemetry): "
+                           "its link is lost; rfhoming stopped")
 
     async def __aexit__(self, *exc: Any) -> None:
-        """Zero velocity, then the autopilot's holding mode (the loop's own stops stay in guided mode)."""
-        if self.step != "driving":  # never driven (or taken over): nothing of rfhoming's to stop
+        """However the run ends, once rfhoming asked for the guided mode: zero velocity, then the
+        holding mode (or ``end=``). Not when the pilot or a failsafe took the vehicle: their mode stands."""
+        if not self.took or self.taken_over or self.autopilot is None or self.sysid is None:
             return
-        await super().__aexit__(*exc)
-        if self.autopilot is not None and self.sysid is not None:
-            self.step = "done"
-            self._send(ml.set_mode(self.sysid, self.compid or 0, self.autopilot, self.autopilot.hold))
+        self.step = "done"
+        self.counters["stops"] += 1
+        stopped = self._setpoint(0.0, 0.0)
+        end = self.autopilot.end_mode(self.end)
+        if not (self._send(ml.set_mode(self.sysid, self.compid or 0, self.autopilot, end)) and stopped):
+            log.warning("%s: could not send the final stop and %s; %s stops the vehicle", self.port.name,
+                        self.autopilot.mode_name(end), self.watchdog)
+        await asyncio.sleep(0)

@@ -107,10 +107,16 @@ class RunLog:
         self.written = 0  # records on disk
 
     def write(self, kind: str, t: float, **fields: Any) -> None:
+        """One record; a non-finite number in it is a bug (every decoder refuses one), raised
+        here as ValueError: the log stays strict JSON, never a bare NaN or Infinity token."""
         record = {"kind": kind, "t": round(t, 4), **fields}
         if self.out is not None:
             try:
-                self.out.write(json.dumps(record) + "\n")
+                line = json.dumps(record, allow_nan=False)
+            except ValueError:
+                raise ValueError(f"a {kind} record at t={t} holds a number that is not finite: {record!r}") from None
+            try:
+                self.out.write(line + "\n")
                 self.out.flush()
             except OSError as exc:
                 out, self.out = self.out, None

@@ -95,5 +95,5 @@ def run(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             print("rfhoming run: interrupted; the base was told to stop", file=sys.stderr)
             return 130
-    print(json.dumps(outcome.summary()))
+    print(json.dumps(outcome.summary(), allow_nan=False))
     return 0 if outcome.arrived else 1
