@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
         emulator = Emulator(
             scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
             speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
-            faults=faults, truth=truth, link_dir=args.link_dir, robot=args.robot,
+            faults=faults, truth=truth, link_dir=args.link_dir, robot=args.robot, pose_from=args.pose_from,
         )
     except Error as exc:
         print(f"rfhoming emulate: {exc}", file=sys.stderr)
