@@ -19,7 +19,7 @@ Loopback only: Fast DDS with the profile docs/ros2/fastdds-loopback.xml and ROS_
 set here before rclpy starts (a user's shell would export them). ROS_AUTOMATIC_DISCOVERY_RANGE is
 SYSTEM_DEFAULT, which leaves discovery to the profile: Jazzy's rmw_fastrtps adds, for LOCALHOST, an
 any-address unicast locator to the profile's, so the node would announce the machine's other
-addresses too (seen with tshark; docs/hardware.md, "ROS 2 on loopback"). rclpy's wheels set
+addresses too (seen with tshark; docs/hardware.md, "ROS 2 on loopback, or on the network"). rclpy's wheels set
 LD_LIBRARY_PATH themselves: their .pth file starts the interpreter again with it.
 """
 
