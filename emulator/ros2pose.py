@@ -42,11 +42,11 @@ class PoseFollower:
         self._latest: tuple[float, float, float] | None = None
         self._origin: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
         self._entities: list[Any] = []
+        self._warned: set[str] = set()  # the other types seen on the topic, each said once
 
     def start(self) -> None:
         self._domain, self._dp = join(self.domain, self.discovery)  # the domain object kept: it holds the configuration
         self._publications = BuiltinDataReader(self._dp, BuiltinTopicDcpsPublication)
-        self._warned: set[str] = set()
 
     def _discover(self) -> None:
         """Reads what the domain's writers announce until one writes ``topic`` as a known type."""

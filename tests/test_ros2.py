@@ -343,3 +343,18 @@ def test_bad_pose_from_specs_say_what_is_wanted(text: str) -> None:
     with pytest.raises(argparse.ArgumentTypeError) as err:
         pose_source(text)
     assert "\n" not in str(err.value) and "ros2:" in str(err.value)
+
+
+async def test_pose_from_ignores_a_writer_of_another_type_and_says_so(caplog: pytest.LogCaptureFixture) -> None:
+    from rfhoming.emulator.runtime import Emulator, running
+    from rfhoming.emulator.scenario import load
+
+    domain = random_domain()
+    emulator = Emulator(load("s0-open"), transport="pipe", speed=20.0, pose_from={"topic": "/gt", "domain": domain})
+    writer = dds_io.writer(dds_io.participant(domain), "/gt", ros2.TWIST)
+    async with running(emulator):
+        await until(lambda: "geometry_msgs::msg::dds_::Twist_" in caplog.text, "the warning")
+        writer.write(dds.Twist(dds.Vector3(1.0, 0, 0), dds.Vector3()))
+    assert emulator.pose_from is not None and emulator.pose_from.type is None
+    assert (emulator.world.robot.x, emulator.world.robot.y) == (0.0, 0.0)
+    assert len([r for r in caplog.records if "--pose-from /gt" in r.getMessage()]) == 1
