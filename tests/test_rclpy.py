@@ -188,7 +188,7 @@ def test_rfhoming_homes_an_rclpy_robot_whose_pose_the_emulated_radios_follow(tmp
                       "--truth", str(truth), link_dir=tmp_path, devices=1) as emulator:
             assert list(emulator.endpoints) == ["aoa"]  # the scenario's base is the ROS 2 robot's
             run = cli("run", "--aoa", emulator.path("aoa"), "--base", f"ros2:domain={domain}")
-        lines = ended(robot)
+            lines = ended(robot)  # the emulator still follows it: its truth ends where the robot stopped
     assert run.returncode == 0, run.stderr
     summary = json.loads(run.stdout)
     assert summary["arrived"]
@@ -200,7 +200,9 @@ def test_rfhoming_homes_an_rclpy_robot_whose_pose_the_emulated_radios_follow(tmp
     moved = (c * dx + s * dy, -s * dx + c * dy)
     last = json.loads(truth.read_text().splitlines()[-1])
     assert (last["robot"]["x"], last["robot"]["y"]) == pytest.approx(moved, abs=0.02)
-    assert tuple(summary["pose"][:2]) == pytest.approx(state["odom"][:2], abs=0.02)  # what rfhoming read on /odom
+    # what rfhoming read last on /odom, and where the robot stopped after it: within the stopping
+    # distance the loop keeps to for a base without brakes ([loop] stop_within_m, docs/hardware.md)
+    assert math.dist(summary["pose"][:2], state["odom"][:2]) <= 0.25
     target = last["targets"][0]
     assert math.dist(moved, (target["x"], target["y"])) < 1.0
 
