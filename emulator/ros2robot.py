@@ -33,7 +33,7 @@ def _stamp(t_us: int) -> dds.Time:
     return dds.Time(*ros2.Stamp.of(t_us / 1e6))
 
 
-def _join(domain: int, discovery: str) -> tuple[Domain | None, DomainParticipant]:
+def join(domain: int, discovery: str) -> tuple[Domain | None, DomainParticipant]:
     """A participant on ``domain``, the domain configured as the host configures it (loopback
     only unless ``subnet``) unless this process made it already (the host, in-process)."""
     xml = dds.config(domain, discovery)
@@ -51,7 +51,7 @@ def _writer(dp: DomainParticipant, topic: str, ros_type: str, qos: Qos) -> DataW
     return DataWriter(dp, Topic(dp, ros2.dds_topic(topic), dds.TYPES[ros_type]), qos=qos)
 
 
-def _reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable[[Any], None], qos: Qos) -> DataReader[Any]:
+def reader(dp: DomainParticipant, topic: str, ros_type: str, on_sample: Callable[[Any], None], qos: Qos) -> DataReader[Any]:
     """A reader of a ROS topic; ``on_sample`` is called on Cyclone's listener thread."""
     def on_data(r: DataReader[Any]) -> None:
         for sample in r.take(64):
@@ -84,12 +84,12 @@ class Ros2Link(Link):
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        self._domain, dp = _join(self.domain, self.discovery)  # the domain object kept: it holds the configuration
+        self._domain, dp = join(self.domain, self.discovery)  # the domain object kept: it holds the configuration
         self._odom = _writer(dp, self._name("odom"), ros2.ODOMETRY, dds.SENSOR_QOS)
         self._scan = _writer(dp, self._name("scan"), ros2.LASER_SCAN, dds.SENSOR_QOS)
         self._tf = _writer(dp, self._name("tf"), dds.TF, dds.DEFAULT_QOS)
-        self._cmd = _reader(dp, self._name("cmd_vel"), ros2.TWIST_STAMPED if self.stamped else ros2.TWIST,
-                               self._from_dds, dds.DEFAULT_QOS)
+        self._cmd = reader(dp, self._name("cmd_vel"), ros2.TWIST_STAMPED if self.stamped else ros2.TWIST,
+                              self._from_dds, dds.DEFAULT_QOS)
         self._entities = [self._odom, self._scan, self._tf, self._cmd]
         self.plugged = True
 

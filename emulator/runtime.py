@@ -21,7 +21,7 @@ import tempfile
 import time
 from collections.abc import AsyncIterator, Iterable
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,6 +30,9 @@ from rfhoming.emulator.faults import ByteFaults, Fault, FaultError
 from rfhoming.emulator.links import Link, PipeLink, PtyLink, TcpLink
 from rfhoming.emulator.scenario import Scenario, ScenarioError
 from rfhoming.protocol import devices
+
+if TYPE_CHECKING:
+    from rfhoming.emulator.ros2pose import PoseFollower
 
 TRANSPORTS = ("pty", "tcp", "pipe")
 SETTLE_LIMIT = 1000
@@ -41,10 +44,13 @@ class Emulator:
                  step_ms: int = 10, speed: float = 1.0, lockstep: bool = False,
                  control_period_ms: int = 100, lockstep_timeout: float = 5.0,
                  faults: Iterable[Fault] = (), truth: IO[str] | None = None,
-                 link_dir: Path | None = None, robot: dict[str, Any] | None = None) -> None:
+                 link_dir: Path | None = None, robot: dict[str, Any] | None = None,
+                 pose_from: dict[str, Any] | None = None) -> None:
         """``robot``: the base as a ROS 2 robot (emulator/ros2robot.py), e.g. {"domain": 7, "ns": ""}, or
         as a MAVLink vehicle (emulator/mavlinkrobot.py), {"kind": "mavlink", "gcs": None, "options": {...}};
-        by default the scenario's own (``[robot.mavlink]``), or the serial base."""
+        by default the scenario's own (``[robot.mavlink]``), or the serial base. ``pose_from``: the
+        robot is another, a ROS 2 robot whose pose comes on a topic (emulator/ros2pose.py), e.g.
+        {"topic": "/ground_truth/pose", "domain": 7}: the scenario's base is not served."""
         if transport not in TRANSPORTS:
             raise ScenarioError(f"transport must be one of {TRANSPORTS}")
         self.scenario = scenario
@@ -64,11 +70,19 @@ class Emulator:
         self.faults = list(faults)
         self.devices: list[DeviceRunner] = []
         robot = robot if robot is not None else scenario.vehicle
+        if pose_from is not None and (lockstep or robot is not None):
+            raise ScenarioError("--pose-from: the robot is a ROS 2 robot of its own; it takes neither --lockstep nor "
+                                "--robot (nor a scenario with [robot.mavlink])")
+        self.pose_from = self._pose_follower(pose_from) if pose_from is not None else None
+        start = scenario.world.robot
+        self._start = (start.x, start.y, start.theta)
         unknown = {f.device for f in self.faults if f.device} - {d.name for d in scenario.devices}
         if unknown:
             names = ", ".join(d.name for d in scenario.devices)
             raise FaultError(f"fault names unknown device(s) {sorted(unknown)}; this scenario has: {names}")
         for k, spec in enumerate(scenario.devices):
+            if self.pose_from is not None and spec.type == "base":
+                continue
             rng = np.random.default_rng([seed, k])
             link = self._robot_link(robot) if robot is not None and spec.type == "base" else self._link(transport, spec.name)
             byte_faults = ByteFaults([f for f in self.faults if f.hits(spec.name)], np.random.default_rng([seed, k, 1]))
@@ -109,6 +123,18 @@ class Emulator:
 
         return Ros2Link(**robot)
 
+    @staticmethod
+    def _pose_follower(settings: dict[str, Any]) -> PoseFollower:
+        try:
+            from rfhoming.emulator.ros2pose import PoseFollower  # cyclonedds: the ros2 extra
+        except ImportError as exc:
+            raise ScenarioError(f"--pose-from ros2: needs {exc.name or exc}; install it with "
+                                "pip install 'rfhoming[ros2]'") from None
+        try:
+            return PoseFollower(**settings)
+        except (ValueError, TypeError) as exc:  # TypeError: a setting it does not take
+            raise ScenarioError(f"--pose-from: {exc}") from None
+
     def _link(self, transport: str, name: str) -> Link:
         if transport == "pty":
             return PtyLink(self.link_dir / name)
@@ -144,6 +170,8 @@ class Emulator:
     async def start(self) -> list[dict[str, Any]]:
         for d in self.devices:
             await d.link.start()
+        if self.pose_from is not None:
+            self.pose_from.start()
         if self.truth is not None:  # a header line: what a plot of the run needs to know
             header = {"scenario": self.scenario.name, "bounds": list(self.world.bounds),
                       "obstacles": [o.polygon for o in self.world.obstacles],
@@ -155,12 +183,17 @@ class Emulator:
     async def close(self) -> None:
         for d in self.devices:
             await d.link.close()
+        if self.pose_from is not None:
+            self.pose_from.close()
 
     async def step(self) -> None:
         """Advance the world and every device by one step, then deliver their bytes."""
         t0, t1 = self.t, self.t + self.step_s
         if self._base is not None:
             self._base.step(self.world, t0, t1)
+        elif self.pose_from is not None and (pose := self.pose_from.pose(self._start)) is not None:
+            r = self.world.robot
+            r.x, r.y, r.theta = pose
         for d in self._others:
             d.step(self.world, t0, t1)
         self.t = self.world.t = t1

@@ -31,6 +31,7 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 TWIST = "geometry_msgs/msg/Twist"
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"  # a ground-truth pose (emulate --pose-from)
 
 
 class Ros2FormatError(Error, ValueError):

@@ -74,6 +74,12 @@ class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
 
 
 @dataclass
+class PoseStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_"):
+    header: Header = field(default_factory=Header)
+    pose: Pose = field(default_factory=Pose)
+
+
+@dataclass
 class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
     pose: Pose = field(default_factory=Pose)
     covariance: Annotated[Sequence[float64], array(float64, 36)] = field(default_factory=lambda: [0.0] * 36)
@@ -141,7 +147,7 @@ TF = "tf2_msgs/msg/TFMessage"
 
 TYPES: dict[str, type[IdlStruct]] = {
     ros2.ODOMETRY: Odometry, ros2.LASER_SCAN: LaserScan, ros2.TWIST: Twist, ros2.TWIST_STAMPED: TwistStamped,
-    TF: TFMessage,
+    TF: TFMessage, ros2.POSE_STAMPED: PoseStamped,
 }
 
 DEFAULT_QOS = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.Durability.Volatile,

@@ -53,7 +53,7 @@ LONGEST_FIRST = (
     "test_docs.py", "test_campaigns.py", "test_replay_run.py", "test_c_reference.py", "test_locate_robust.py",
     "test_typing.py", "test_plan_timing.py", "test_s4_air.py", "test_lossless_replay.py", "test_mcap_frames.py", "test_locate.py",
     "test_run_cli.py", "test_vendor_clients.py", "test_fastdds.py", "test_ros2_live.py", "test_planning.py",
-    "test_sitebus.py", "test_ros2_emulated.py", "test_homing.py", "test_foxglove_spec.py",
+    "test_sitebus.py", "test_ros2_emulated.py", "test_rclpy.py", "test_homing.py", "test_foxglove_spec.py",
 )
 """Test files by their measured time in the full suite, longest first (docs/testing.md, "The
 suite's time"). The two xdist workers take whole files (``--dist loadfile``) in collection order

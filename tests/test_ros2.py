@@ -29,10 +29,10 @@ stamp = st.builds(ros2.Stamp, st.integers(-2**31, 2**31 - 1), st.integers(0, 999
 
 
 def random_domain() -> int:
-    """1-76 here; tests/test_fastdds.py draws from 77-153, tests/test_ros2_emulated.py from
-    154-191 and tests/test_ros2_live.py from 192-229, so files running side by side
-    (pytest-xdist) never share a domain."""
-    return random.SystemRandom().randint(1, 76)
+    """1-60 here; tests/test_rclpy.py draws from 61-76, tests/test_fastdds.py from 77-153,
+    tests/test_ros2_emulated.py from 154-191 and tests/test_ros2_live.py from 192-229, so files
+    running side by side (pytest-xdist) never share a domain."""
+    return random.SystemRandom().randint(1, 60)
 
 
 @given(stamp, name, name, finite, finite, st.floats(-3.1, 3.1), finite, finite)
@@ -265,3 +265,96 @@ async def test_the_emulated_robot_takes_the_command_type_it_is_told(stamped: boo
         await link.close()
     command = next(r for r in received if isinstance(r, VelocityCommand))
     assert (command.v_mm_s, command.w_mrad_s) == (250, -500) and link.counters["commands"] >= 1
+
+
+def pose_sample(ros_type: str, x: float, y: float, yaw: float) -> object:
+    pose = dds.Pose(dds.Point(x, y, 0.0), dds.Quaternion(0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)))
+    if ros_type == ros2.POSE_STAMPED:
+        return dds.PoseStamped(dds.Header(dds.Time(1, 0), "world"), pose)
+    msg = dds.Odometry(dds.Header(dds.Time(1, 0), "world"), "base_link")
+    msg.pose.pose = pose
+    return msg
+
+
+@pytest.mark.parametrize(("ros_type", "frame"), [(ros2.POSE_STAMPED, "start"), (ros2.ODOMETRY, "world")])
+async def test_pose_from_carries_the_robot_and_its_receivers_on_a_ros2_robots_pose(ros_type: str, frame: str) -> None:
+    """``emulate --pose-from ros2:TOPIC``: the world's robot (and every receiver on it) follows a
+    ROS 2 robot's pose, its type read from discovery; ``frame=start`` puts the first pose at the
+    scenario's start (kit-home: 1.5, 1.2, 0.6) and moves the robot as that robot moves from it,
+    ``frame=world`` takes the poses as they are; a non-finite pose is refused; the scenario's base
+    is not served."""
+    from rfhoming.emulator.runtime import Emulator, running
+    from rfhoming.emulator.scenario import load
+
+    domain = random_domain()
+    emulator = Emulator(load("kit-home"), transport="pipe", speed=20.0,
+                        pose_from={"topic": "/ground_truth/pose", "domain": domain, "frame": frame})
+    assert emulator.base is None and all(d.board != "base" for d in emulator.devices)
+    robot = emulator.world.robot
+    writer = dds_io.writer(dds_io.participant(domain), "/ground_truth/pose", ros_type, dds.SENSOR_QOS)
+    follower = emulator.pose_from
+    assert follower is not None
+
+    async def publish_until(x: float, y: float, yaw: float, test) -> None:  # noqa: ANN001
+        async with asyncio.timeout(60):  # hang guard only: best effort, so published until it is read
+            while not test():
+                writer.write(pose_sample(ros_type, x, y, yaw))
+                await asyncio.sleep(0.02)
+
+    async def stepped() -> None:  # a step after the pose came: it has moved the robot
+        steps = emulator.counters["steps"]
+        await until(lambda: emulator.counters["steps"] > steps, "an emulator step")
+
+    async with running(emulator):
+        spawn = (5.0, -3.0, 0.7)
+        await publish_until(*spawn, lambda: follower.counters["poses"] > 0)
+        await stepped()
+        assert follower.type == ros_type
+        expected = spawn if frame == "world" else (1.5, 1.2, 0.6)
+        assert (robot.x, robot.y, robot.theta) == pytest.approx(expected, abs=1e-9)
+        # 1 m ahead of the spawn along its heading, turned 0.5 rad left
+        ahead = (spawn[0] + math.cos(0.7), spawn[1] + math.sin(0.7), 1.2)
+        await publish_until(*ahead, lambda: abs(robot.theta - (ahead[2] if frame == "world" else 1.1)) < 1e-9)
+        expected = ahead if frame == "world" else (1.5 + math.cos(0.6), 1.2 + math.sin(0.6), 1.1)
+        assert (robot.x, robot.y, robot.theta) == pytest.approx(expected, abs=1e-9)
+        await publish_until(math.nan, 0.0, 0.0, lambda: follower.counters["refused"] > 0)
+        await stepped()
+        assert (robot.x, robot.y, robot.theta) == pytest.approx(expected, abs=1e-9)
+
+
+@pytest.mark.parametrize(("text", "settings"), [
+    ("ros2:/ground_truth/pose", {"topic": "/ground_truth/pose"}),
+    ("ros2:odom,domain=7,frame=world,discovery=subnet", {"topic": "odom", "domain": 7, "frame": "world",
+                                                         "discovery": "subnet"}),
+])
+def test_pose_from_specs(text: str, settings: dict[str, object]) -> None:
+    from rfhoming.cli.parsers.emulate import pose_source
+
+    assert pose_source(text) == settings
+
+
+@pytest.mark.parametrize("text", ["/gt", "ros2:", "ros2:a b", "ros2:/gt,domain=300", "ros2:/gt,frame=map",
+                                  "ros2:/gt,type=odometry", "mavlink:/gt"])
+def test_bad_pose_from_specs_say_what_is_wanted(text: str) -> None:
+    import argparse
+
+    from rfhoming.cli.parsers.emulate import pose_source
+
+    with pytest.raises(argparse.ArgumentTypeError) as err:
+        pose_source(text)
+    assert "\n" not in str(err.value) and "ros2:" in str(err.value)
+
+
+async def test_pose_from_ignores_a_writer_of_another_type_and_says_so(caplog: pytest.LogCaptureFixture) -> None:
+    from rfhoming.emulator.runtime import Emulator, running
+    from rfhoming.emulator.scenario import load
+
+    domain = random_domain()
+    emulator = Emulator(load("s0-open"), transport="pipe", speed=20.0, pose_from={"topic": "/gt", "domain": domain})
+    writer = dds_io.writer(dds_io.participant(domain), "/gt", ros2.TWIST)
+    async with running(emulator):
+        await until(lambda: "geometry_msgs::msg::dds_::Twist_" in caplog.text, "the warning")
+        writer.write(dds.Twist(dds.Vector3(1.0, 0, 0), dds.Vector3()))
+    assert emulator.pose_from is not None and emulator.pose_from.type is None
+    assert (emulator.world.robot.x, emulator.world.robot.y) == (0.0, 0.0)
+    assert len([r for r in caplog.records if "--pose-from /gt" in r.getMessage()]) == 1

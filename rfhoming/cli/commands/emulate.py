@@ -36,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
             scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
             speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
             faults=faults, truth=truth.file if truth else None, link_dir=args.link_dir, robot=args.robot,
+            pose_from=args.pose_from,
         )
     except Error as exc:
         if truth is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 import os
+import re
 from importlib.util import find_spec
 from typing import Any
 
@@ -37,6 +38,7 @@ examples:
   rfhoming emulate s3-arena --receiver esp-at     (the robot's scanner is an ESP32 with ESP-AT)
   rfhoming emulate s3-arena --receiver hci        (... a Bluetooth controller: hci:serial:PATH)
   rfhoming emulate s0-open --lockstep --fault unplug@aoa:at=5,for=2 --fault ber:rate=1e-5
+  rfhoming emulate s0-open --pose-from ros2:/ground_truth/pose,domain=7   (the radios ride on a ROS 2 robot)
 
 faults (repeatable): KIND[@DEVICE][:key=value,...]
   ber:rate=R  drop:rate=R  garbage:every=S,len=N  unplug:at=S,for=S  reboot:at=S  baud:at=S,rate=B
@@ -71,8 +73,43 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                         "MAVLink vehicle on UDP 127.0.0.1 (mavlink[:udpout:127.0.0.1:PORT][,autopilot=ardupilot|px4,"
                         "vehicle=rover|copter,mode=HOLD,armed=1,prearm=fail,timeout=S]), not a serial port "
                         "(docs/hardware.md, Robots)")
+    p.add_argument("--pose-from", type=pose_source, metavar="ros2:TOPIC[,domain=N,frame=world,discovery=subnet]",
+                   help="the robot is a ROS 2 robot of its own (a simulator's, a real one): the emulated receivers "
+                        "ride on it, moved by its pose on TOPIC (nav_msgs/Odometry or geometry_msgs/PoseStamped, "
+                        "e.g. a Gazebo robot's ground truth); the scenario's base is not served -- drive that robot "
+                        "with run --base ros2:. frame=start (default): its first pose is the scenario's start pose; "
+                        "frame=world: its poses are the scenario's coordinates (docs/emulator.md)")
     p.add_argument("--link-dir", type=path, help="directory for the pty symlinks (default: a new temp dir)")
     p.set_defaults(func=command("emulate"))
+
+
+TOPIC = re.compile(r"/?[A-Za-z_~][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
+"""A ROS 2 topic name (design.ros2.org "Topic and Service names"), relative or absolute."""
+POSE_SOURCE: dict[str, Callable[[str], Any]] = {
+    "domain": lambda v: int(v) if v.isdigit() and int(v) <= 232 else None,
+    "discovery": lambda v: v if v in ("localhost", "subnet") else None,
+    "frame": lambda v: v if v in ("start", "world") else None,
+}
+
+
+def pose_source(text: str) -> dict[str, Any]:
+    """``ros2:TOPIC[,domain=N,discovery=localhost|subnet,frame=start|world]`` -> PoseFollower's
+    arguments (emulator/ros2pose.py)."""
+    head, *pairs = text.split(",")
+    kind, _, topic = head.partition(":")
+    if kind != "ros2" or not TOPIC.fullmatch(topic):
+        raise argparse.ArgumentTypeError(f"{text!r}: give ros2:TOPIC, a ROS 2 topic of nav_msgs/Odometry or "
+                                         "geometry_msgs/PoseStamped, e.g. ros2:/ground_truth/pose,domain=7")
+    settings: dict[str, Any] = {"topic": topic}
+    for pair in pairs:
+        key, _, raw = pair.partition("=")
+        if key not in POSE_SOURCE:
+            raise argparse.ArgumentTypeError(f"{text!r}: --pose-from ros2: takes {', '.join(POSE_SOURCE)}")
+        settings[key] = POSE_SOURCE[key](raw)
+        if settings[key] is None:
+            raise argparse.ArgumentTypeError(f"{text!r}: bad {key}={raw!r} (domain=0..232, "
+                                             "discovery=localhost|subnet, frame=start|world)")
+    return settings
 
 
 def robot_kind(text: str) -> dict[str, Any]:
