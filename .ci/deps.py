@@ -19,6 +19,7 @@ import sys
 import tomllib
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 from packaging.specifiers import SpecifierSet
 from packaging.utils import canonicalize_name
@@ -31,7 +32,7 @@ NOT_OURS = {"pip", "rfhoming"}
 
 def read_lock(path: Path) -> dict[str, Version]:
     """``name==version`` lines of a pip-compile output (comments, ``# via`` and options skipped)."""
-    pins = {}
+    pins: dict[str, Version] = {}
     for raw in path.read_text().splitlines():
         line = raw.split("#", 1)[0].strip()
         if not line or line.startswith("-"):
@@ -55,7 +56,7 @@ def differences(lock: dict[str, Version], have: dict[str, Version]) -> list[str]
             for name, version in sorted(have.items()) if lock.get(name) != version]
 
 
-def audit_verdict(lock: dict[str, Version], report: dict | None, errors: str) -> tuple[int, list[str]]:
+def audit_verdict(lock: dict[str, Version], report: dict[str, Any] | None, errors: str) -> tuple[int, list[str]]:
     """(exit code, lines) from pip-audit's JSON report, or from its stderr when it wrote none."""
     if report is None:
         reason = next((line for line in reversed(errors.splitlines()) if line.strip()), "no report written")
