@@ -7,6 +7,10 @@ import-linter) follow without running code. ``src/`` holds one more symlink, ``s
 ../rfhoming``: with ``package_dir = {"": "src"}`` an editable install is a plain path entry for
 ``src/``, where nothing but ``rfhoming`` is importable (docs/architecture.md).
 
+Packages are found as namespace packages: the data folders (``emulator/scenarios``, the ROS 2 message
+package ``host/export/rfhoming_msgs``) are imported by name (``resources.files("rfhoming.emulator.scenarios")``),
+so they are packages of their own, listed with their data, not files smuggled in under their parents.
+
 The extension is ``optional=True``: where no C compiler is found the build goes on without it and
 the pure-Python decoders run (``python -m rfhoming.protocol.accel`` says which one is in use).
 """
@@ -14,7 +18,7 @@ the pure-Python decoders run (``python -m rfhoming.protocol.accel`` says which o
 import runpy
 from pathlib import Path
 
-from setuptools import Extension, find_packages, setup
+from setuptools import Extension, find_namespace_packages, setup
 
 try:  # a checkout without symlinks would build an empty wheel: say what to set instead
     runpy.run_path(str(Path(__file__).parent / "rfhoming" / "_links.py"))["check"]()
@@ -23,7 +27,7 @@ except ImportError as exc:
 
 setup(
     package_dir={"": "src"},
-    packages=find_packages("src"),
+    packages=find_namespace_packages("src", include=["rfhoming*"], exclude=["*.__pycache__"]),
     ext_modules=[
         Extension("rfhoming.protocol._accel", ["protocol/_accel.c"], optional=True, extra_compile_args=["-O2"]),
     ],

@@ -11,6 +11,7 @@ import os
 import shutil
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
 import pytest
@@ -20,7 +21,8 @@ LAYERS = ("protocol", "firmware", "emulator", "host", "campaigns")
 
 
 def lint(cwd: Path) -> subprocess.CompletedProcess:
-    lint_imports = shutil.which("lint-imports")
+    # this interpreter's environment first: `venv/bin/python -m pytest` finds its own tools unactivated
+    lint_imports = shutil.which("lint-imports", path=os.pathsep.join([sysconfig.get_path("scripts"), os.environ["PATH"]]))
     assert lint_imports, "import-linter is part of the test extra: pip install -e '.[test]'"
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     return subprocess.run([lint_imports, "--config", str(cwd / "pyproject.toml"), "--no-cache"], cwd=cwd, text=True,

@@ -99,7 +99,8 @@ def test_the_scenario_flies_a_mavlink_copter_carrying_the_scanners() -> None:
     assert world.device("base").link.describe()["kind"] == "mavlink"  # no --robot needed
     scanners = [world.device(f"survey_ble{k}") for k in (1, 2, 3)]
     world.world.robot.x, world.world.robot.y, world.world.robot.theta = 1.0, 2.0, math.pi / 2
-    assert [s.antenna(world.world) for s in scanners] == pytest.approx([(1.2, 1.8), (1.2, 2.4), (0.6, 1.8)])
+    expected = [(1.2, 1.8), (1.2, 2.4), (0.6, 1.8)]  # each scanner's (x, y) in the world
+    assert [s.antenna(world.world) for s in scanners] == [pytest.approx(xy) for xy in expected]
     beacon = scenario.world.targets[0]
     world.world.robot.x, world.world.robot.y = beacon.position[0] - 0.2, beacon.position[1] + 0.2  # scanner 1 over it
     heard = [d for source, _, _, d, _ in scanners[0].transmissions(world.world, "ble_beacon", 0.0, 0.2)
