@@ -1,6 +1,6 @@
 """A MAVLink vehicle whose link carries junk: how long the set-up takes, and how often the homing
-loop stops on stale odometry (issue 46: junk datagrams made the set-up take 5 s, not 2, and the
-brake toggle 25 times).
+loop stops on stale odometry (a hostile-peer trial on loopback saw junk datagrams make the set-up take 5 s, not 2, and
+the brake toggle 25 times).
 
 Each run starts ``rfhoming emulate s0-open`` (for its AoA board), the vehicle of
 tests/hostile_vehicle.py (an ArduPilot Rover on UDP loopback, written on pymavlink alone) and

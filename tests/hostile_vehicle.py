@@ -1,4 +1,4 @@
-"""A MAVLink vehicle that lies, for the tests of the MAVLink base (issue 46): an ArduPilot Rover on
+"""A MAVLink vehicle that lies, for the tests of the MAVLink base: an ArduPilot Rover on
 UDP loopback, written on pymavlink alone -- not on rfhoming's codec or its emulated autopilot --
 so that what it sends is what any vehicle, or anyone on the network, could send.
 

@@ -1,4 +1,4 @@
-"""Servers bounded by client (issue 46, item 4): ``serve`` and the Foxglove front keep at most so
+"""Servers bounded by client: ``serve`` and the Foxglove front keep at most so
 many idle clients of one address and cut a client that never reads; foxglove-sdk's own listener
 takes no client but the front.
 

@@ -1,4 +1,4 @@
-"""Issue 46, MAVLink: a vehicle (or anyone on its link) that lies, against rfhoming's MAVLink base
+"""MAVLink: a vehicle (or anyone on its link) that lies, against rfhoming's MAVLink base
 in process. The lies are made with pymavlink alone (tests/hostile_vehicle.py); the honest part
 of the vehicle is the emulated autopilot (test_mavlink.FakeLink). Each test failed on the code
 before the fix: values were taken as the pose, a lost HEARTBEAT went unnoticed, a second

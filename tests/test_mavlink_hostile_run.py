@@ -1,4 +1,4 @@
-"""Issue 46's must-show, in processes: ``rfhoming run --base mavlink:udpout:...,arm=1`` against a
+"""A lying vehicle, in processes: ``rfhoming run --base mavlink:udpout:...,arm=1`` against a
 vehicle that lies (tests/hostile_vehicle.py, on UDP loopback; the AoA board is the emulator's).
 A vehicle sending NaN, one whose HEARTBEAT stops, someone speaking as it from another port, a
 refused or unanswered arming: the run stops (or refuses to start) with one line and exit 2, and

@@ -1,4 +1,4 @@
-"""Files are replaced, never truncated (issue 46, item 3): every output is written to NAME.part
+"""Files are replaced, never truncated: every output is written to NAME.part
 and renamed over NAME when done (host/outputs.py), only once the command's inputs gave it
 something; device and link names are plain names.
 
