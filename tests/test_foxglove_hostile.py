@@ -39,8 +39,11 @@ def test_clients_that_never_read_do_not_hold_up_close_or_others() -> None:
             never[-1].sendall(frame(subscribe.encode(), 1))
         with handshake(port, protocol="foxglove.sdk.v1") as garbage:
             rng = random.Random(0)
-            for _ in range(50):
-                garbage.sendall(junk(rng))
+            try:
+                for _ in range(50):
+                    garbage.sendall(junk(rng))
+            except (BrokenPipeError, ConnectionResetError):
+                pass  # the view cut the garbage off (how soon depends on the machine's load): what it should do
         for i in range(20_000):  # far more than the never-readers' buffers hold
             view._on_pose(i * 1e-3, 0.0, 0.0)
             view.on_runlog({"kind": "command", "t": i * 1e-3, "v": 0.1, "w": 0.0})
