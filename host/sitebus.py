@@ -236,6 +236,8 @@ class Publisher:
         self._answered = False  # the broker answered this try's CONNECT (a CONNACK, yes or no)
         self._mismatches = 0  # tries in a row closed before any MQTT answer
         self._refusals = 0  # in the current streak: the first is logged, the rest counted
+        self.caught_up = False
+        """service() read everything that had arrived when it returned (False: READ_BURST more wait)."""
         self._away_since: float | None = time.monotonic()  # None while connected; the outage's first warning
         self._warned_away = self._warned_drop = False  # once per outage each
         self.client.on_connect = self._connected
@@ -285,8 +287,11 @@ class Publisher:
         for _ in range(READ_BURST):
             sock = self.client.socket()
             if sock is None or not (getattr(sock, "pending", lambda: 0)() or select.select([sock], [], [], 0)[0]):
+                self.caught_up = True
                 break
             self.client.loop_read()
+        else:
+            self.caught_up = False
 
     def wait_connected(self, timeout: float) -> bool:
         """Wait for the broker (servicing the connection when there is no paho thread)."""
@@ -521,6 +526,7 @@ class Worker:
         self.engine = BatchLocator(site, track=track, gate=INCONSISTENT_CHI2_PER_DOF)
         self._claims: dict[str, float] = {}  # another live worker -> until when (self.clock) its claim counts
         self._next_beat = -math.inf
+        self._read_until = -math.inf  # (self.clock) everything that came before it was read
         self.owned: set[int] = set()
         self._inbox: collections.deque[tuple[float, str, bytes]] = collections.deque(maxlen=INBOX_MESSAGES)
         self._lock = threading.Lock()
@@ -563,8 +569,8 @@ class Worker:
         self._next_beat = now + sitebus.HEARTBEAT_S
         if self.pub.connected.is_set():
             self.pub.client.publish(self._me, sitebus.encode_claim(now), qos=1, retain=True)
-        with self._lock:
-            gone = [name for name, until in self._claims.items() if until <= now]
+        with self._lock:  # run out, and no renewal unread: a worker that stalled reads before it judges
+            gone = [name for name, until in self._claims.items() if until <= self._read_until]
             for name in gone:
                 del self._claims[name]
         if gone:
@@ -717,6 +723,7 @@ class Worker:
             self._drain()
             self._tick(round(self._next_tick * self.period, 9))
             self._next_tick += 1
+            self._beat()  # a worker catching up on ticks still makes its claim
         return max(0.0, self._next_tick * self.period + self.reorder_s - self.clock())
 
     def _tick(self, t: float) -> None:
@@ -724,10 +731,10 @@ class Worker:
             owned = set(self.owned)
         site = self.site.name
         fixes = self.engine.tick(t, only_new=True)
-        self.pub.service(0.0)  # read what came meanwhile: the broker drops what queues past its limit
+        self._service(0.0)  # read what came meanwhile: the broker drops what queues past its limit
         for k, f in enumerate(fixes):
             if k % SERVICE_EVERY == SERVICE_EVERY - 1:
-                self.pub.service(0.0)
+                self._service(0.0)
             if not f.new:
                 continue  # nothing new of this tag since its last position: that one stands
             if sitebus.partition(f.tag, self.partitions) not in owned:
@@ -754,12 +761,17 @@ class Worker:
         self.counters["inconsistent"] += 1
         return why
 
+    def _service(self, timeout: float) -> None:
+        self.pub.service(timeout)
+        if self.pub.caught_up:
+            self._read_until = self.clock()
+
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> None:
         end = None if duration is None else self.clock() + duration
         stop = stop or threading.Event()
         while not stop.is_set() and (end is None or self.clock() < end):
             self._beat()
-            self.pub.service(min(self.step(), 0.05))
+            self._service(min(self.step(), 0.05))
 
     def close(self) -> None:
         """Say "offline" if the broker is there (for 2 s at most: one that is away publishes the

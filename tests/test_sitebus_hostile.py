@@ -260,8 +260,9 @@ def _offline_worker(sc: SiteScenario, now: list[float], partitions: int = 1):
 def test_claims_count_for_their_heartbeats_and_nothing_else() -> None:
     """A plain "online" (what a worker used to retain, and 8 fake ones held a real worker to 0
     positions for 12 s), a claim older than its heartbeats, a non-finite or absurd one: none
-    counts. A fresh one counts for 5 heartbeats from when it was made (no later than now),
-    "offline" ends it at once."""
+    counts. A fresh one counts for 5 heartbeats from when it was made (no later than now), and
+    runs out only once the worker has read what came meanwhile (a worker that stalled would
+    otherwise drop every claim whose renewal waits unread); "offline" ends it at once."""
     sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
     now = [1_800_000_000.0]
     worker = _offline_worker(sc, now)
@@ -279,6 +280,10 @@ def test_claims_count_for_their_heartbeats_and_nothing_else() -> None:
     assert worker._claim("ahead", sitebus.encode_claim(now[0] + 3600), False, now[0])  # counted from now, not then
     assert worker.live == {"w1", "fresh", "ahead"}
     now[0] += lasts - 1.0
+    worker._beat()
+    assert worker.live == {"w1", "fresh", "ahead"}  # run out, but what came meanwhile is not read yet
+    worker._read_until = now[0]  # (as service() sets it once it has read all that came)
+    worker._next_beat = -math.inf
     worker._beat()
     assert worker.live == {"w1", "ahead"}
     assert worker._claim("ahead", sitebus.OFFLINE, False, now[0]) and worker.live == {"w1"}
