@@ -91,7 +91,7 @@ def test_a_refusal_ends_the_command_with_one_line_naming_it(case: str, command: 
     theirs = [a.format(**fill) for a in theirs]
     # plaintext to the TLS port, mosquitto_sub retries silently until its -W, then exits 255 (not 27:
     # it never connected); every other refusal ends it at once
-    wait = "10" if case == "plaintext-to-tls" else "60"
+    wait = "2" if case == "plaintext-to-tls" else "60"
     mosquitto_sub = subprocess.run([*_sub(*theirs), "-t", "x", "-C", "1", "-W", wait], capture_output=True,
                                    text=True, timeout=120)
     assert mosquitto_sub.returncode not in (0, 27), mosquitto_sub
