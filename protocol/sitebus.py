@@ -7,8 +7,9 @@ workers subscribe, fix every tag and publish positions (docs/protocol.md, "Site 
   partition, ``crc32(tag id) mod partitions``, so every anchor's events of one tag reach the same
   worker whichever gateway heard them.
 - ``rfhoming/SITE/positions/TAG``: one position per tag and output tick.
-- ``rfhoming/SITE/workers/WORKER``: "online" (retained) while a worker lives, its MQTT will
-  "offline" when it goes; the live set decides who owns which partitions (:func:`owner`).
+- ``rfhoming/SITE/workers/WORKER``: a worker's claim (retained), made again every heartbeat while
+  it lives, its MQTT will "offline" when it goes; the live set decides who owns which partitions
+  (:func:`owner`). A claim older than its heartbeats allow counts for nothing (:func:`decode_claim`).
 
 Nothing here does I/O: the host's client (host/sitebus.py) and the emulated gateways use it.
 """
@@ -189,10 +190,10 @@ def _whole(col: object, n: int | None, what: str, below: int) -> list[int]:
 
 
 def _seconds(raw: dict[str, Any], key: str) -> float:
-    x = float(raw[key])
-    if not abs(x) <= MAX_SECONDS:  # NaN fails it too
+    x = raw[key]
+    if not (type(x) in _NUMBER and abs(x) <= MAX_SECONDS):  # NaN fails it too; so do "1e3" and true
         raise PayloadError(f"{key} is not a number of seconds within +-{MAX_SECONDS:g}")
-    return x
+    return float(x)
 
 
 def _seq(raw: dict[str, Any]) -> int:
@@ -242,11 +243,10 @@ def _decode_v1(raw: dict[str, Any]) -> AngleBatch:
         raise PayloadError("events is not a list")
     rows = []
     for t, a, tag, az, el in events:
-        t, az, el = float(t), float(az), float(el)
-        if not (isinstance(a, str) and isinstance(tag, str) and math.isfinite(t)
-                and -90.0 <= az <= 90.0 and -90.0 <= el <= 90.0):
-            raise PayloadError("an event row is not [time, anchor, tag, azimuth, elevation]")
-        rows.append((t, a, tag, az, el))
+        if not (isinstance(a, str) and isinstance(tag, str) and all(type(x) in _NUMBER for x in (t, az, el))
+                and math.isfinite(t) and -90.0 <= az <= 90.0 and -90.0 <= el <= 90.0):
+            raise PayloadError("an event row is not [time, anchor, tag, azimuth, elevation] (numbers, ids)")
+        rows.append((float(t), a, tag, float(az), float(el)))
     return _decode_v2(json.loads(encode_angles(_gateway(raw), _seq(raw), _seconds(raw, "sent"),
                                                _seconds(raw, "offset_s"), rows)))
 
@@ -269,19 +269,69 @@ def decode_angles(payload: bytes) -> AngleBatch:
     return batch
 
 
+HEARTBEAT_S = 1.0
+"""A worker makes its claim again every second it lives."""
+
+CLAIM_HEARTBEATS = 5
+"""A claim counts for five of its heartbeats after it was made (a worker stalled for a few seconds
+on a loaded machine keeps its partitions), then for nothing: a retained claim of a worker that
+died without its will, or a fake one published once, holds no partition for longer."""
+
+MAX_HEARTBEAT_S = 60.0
+"""A claim's ``heartbeat_s`` is in (0, 60]: more would let one claim hold partitions for minutes."""
+
+MAX_CLAIM = 1024
+"""Bytes of a claim a worker parses at most (a real one is about 60)."""
+
+OFFLINE = b'{"v":1,"state":"offline"}'
+"""A worker's will, and what it says when it stops."""
+
+
+def encode_claim(t: float, heartbeat_s: float = HEARTBEAT_S) -> bytes:
+    """A worker's claim made at Unix time ``t``: it is live until ``CLAIM_HEARTBEATS`` x
+    ``heartbeat_s`` later unless it makes it again."""
+    return json.dumps({"v": 1, "state": "online", "t": round(t, 3), "heartbeat_s": heartbeat_s},
+                      separators=(",", ":")).encode()
+
+
+def decode_claim(payload: bytes) -> tuple[float, float] | None:
+    """A claim's (time made, seconds it counts for), or None for "offline"; PayloadError for
+    anything else -- a claim without a time (a retained message of unknown age counts for
+    nothing), a time or heartbeat that is not a finite number in range."""
+    if len(payload) > MAX_CLAIM:
+        raise PayloadError(f"a worker claim of {len(payload):,} bytes (at most {MAX_CLAIM})")
+    try:
+        raw = json.loads(payload)
+    except (ValueError, RecursionError):
+        raise PayloadError("a worker claim that is not JSON") from None
+    if not (isinstance(raw, dict) and type(raw.get("v")) is int and raw["v"] == 1
+            and raw.get("state") in ("online", "offline")):
+        raise PayloadError('not a worker claim: {"v":1,"state":"online"|"offline",...}')
+    if raw["state"] == "offline":
+        return None
+    t: Any = raw.get("t")
+    beat: Any = raw.get("heartbeat_s")
+    if not (type(t) in _NUMBER and 0 <= t <= MAX_SECONDS):  # NaN fails it too
+        raise PayloadError(f"a worker claim's t is not a Unix time in 0..{MAX_SECONDS:g} s")
+    if not (type(beat) in _NUMBER and 0 < beat <= MAX_HEARTBEAT_S):
+        raise PayloadError(f"a worker claim's heartbeat_s is not in (0, {MAX_HEARTBEAT_S:g}] s")
+    return float(t), CLAIM_HEARTBEATS * float(beat)
+
+
 def utc(t: float) -> str:
     """Unix time ``t`` as ISO 8601 UTC to the microsecond (``2026-12-02T00:45:02.500000Z``)."""
     return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
 def position_payload(site: str, t: float, tag: str, point: np.ndarray, covariance: np.ndarray, anchors: list[str],
-                     rejected: list[str], chi2_per_dof: float, worker: str, latency_s: float | None = None) -> bytes:
+                     rejected: list[str], chi2_per_dof: float, worker: str, latency_s: float | None = None,
+                     inconsistent: str | None = None) -> bytes:
     """A position as JSON that says what it is (docs/schemas/position.schema.json): its site, frame
     (FRAME) and units (UNITS) in it, ``t`` Unix time with ``time`` the same instant in ISO 8601 UTC,
     ``anchors``/``rejected`` by the ids the angle batches carry, ``chi2_per_dof`` the rays'
     chi-square about the fix per degree of freedom (about 1 or below: they agree as their sigmas
     say), ``worker`` the worker that made it, ``latency_s`` its age: publishing time minus the
-    newest angle's."""
+    newest angle's; ``inconsistent``, only on a fix the worker's gate flagged, says why."""
     x, y, z = (round(v, 3) for v in point.tolist())
     t = round(t, 6)
     body: dict[str, Any] = {
@@ -290,4 +340,6 @@ def position_payload(site: str, t: float, tag: str, point: np.ndarray, covarianc
         "chi2_per_dof": round(chi2_per_dof, 3), "worker": worker}
     if latency_s is not None:
         body["latency_s"] = round(latency_s, 4)
+    if inconsistent is not None:
+        body["inconsistent"] = inconsistent
     return json.dumps(body, separators=(",", ":")).encode()

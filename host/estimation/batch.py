@@ -35,6 +35,12 @@ SYSTEMATIC = 0.6
 SLOTS = 8
 """Angles kept per (tag, anchor): the median is over the newest of them inside the window."""
 
+INCONSISTENT_CHI2_PER_DOF = 25.0
+"""A fix whose rays' chi-square per degree of freedom exceeds this is inconsistent (a site worker's
+gate, ``BatchLocator(gate=...)``): its anchors disagree far beyond their sigmas -- an anchor moved,
+a strong reflection on several, or a publisher sending false angles (a rogue gateway's made
+6 x 10^5). Rays that agree give about 1 or below, a biased anchor several."""
+
 MAX_PAIRS = 4_000_000
 """(tag, anchor) pairs tracked at most; events of a new pair beyond it are dropped and counted
 (``overflow``). A tag becomes a row only with a pair, so this bounds the tags too."""
@@ -153,6 +159,7 @@ class TagFix:
     quality: float
     tracked: bool = False
     new: bool = True  # rests on an angle no earlier tick of this tag had
+    inconsistent: bool = False  # quality beyond the locator's gate: the raw fix, kept out of the track
 
 
 class BatchLocator:
@@ -162,10 +169,13 @@ class BatchLocator:
     of its newest, anchors heard within ``stale_s``, the same ray sigma), kept in flat arrays so a
     tick costs numpy calls, not Python per tag. Events must come in time order per (tag, anchor)
     (one gateway hears one anchor); tags not listed in the site are located too (a warehouse's
-    tags come and go), without a known height."""
+    tags come and go), without a known height. With ``gate`` (a chi-square per degree of freedom) a
+    fix beyond it is returned raw and flagged ``inconsistent``, and never moves the tag's track."""
 
-    def __init__(self, site: Site, calibrated: bool = True, track: bool = False, accel_psd: float = 1.0) -> None:
+    def __init__(self, site: Site, calibrated: bool = True, track: bool = False, accel_psd: float = 1.0,
+                 gate: float | None = None) -> None:
         self.site = site
+        self.gate = math.inf if gate is None else gate
         self.tracker = BatchConstantVelocity(accel_psd) if track else None
         anchors = site.anchors
         self.anchor_index = {a.id: i for i, a in enumerate(anchors)}
@@ -192,7 +202,7 @@ class BatchLocator:
         self._ptag = np.zeros(cap, np.int64)
         self._panchor = np.zeros(cap, np.int64)
         self.counters = {"events": 0, "unknown_anchor": 0, "overflow": 0, "fixes": 0, "no_fix": 0,
-                         "consensus": 0, "rejected_anchor": 0, "gated": 0}
+                         "consensus": 0, "rejected_anchor": 0, "gated": 0, "inconsistent": 0}
         self._known = {t.id: t for t in site.tags}
 
     def _tag(self, tag: str) -> int:
@@ -379,11 +389,17 @@ class BatchLocator:
             row = rows_l[k]
             new.append(newest_k > reported[row])
             reported[row] = max(reported[row], newest_k)
+        bad = [f[4] > self.gate for f in fixes]
+        self.counters["inconsistent"] += sum(bad)
+        raw = [TagFix(t, self.tags[rows_l[k]], fix, newest_k, qual, False, is_new, is_bad)
+               for (k, fix, newest_k, _, qual), is_new, is_bad in zip(fixes, new, bad)
+               if self.tracker is None or is_bad]
         if self.tracker is None:
-            return [TagFix(t, self.tags[rows_l[k]], fix, newest_k, qual, False, is_new)
-                    for (k, fix, newest_k, _, qual), is_new in zip(fixes, new)]
+            return raw
+        new = [is_new for is_new, is_bad in zip(new, bad) if not is_bad]
+        fixes = [f for f, is_bad in zip(fixes, bad) if not is_bad]
         if not fixes:
-            return []
+            return raw
         which = np.array([rows[k] for k, *_ in fixes])
         ok = self.tracker.update(which, np.array([f[3] for f in fixes]), np.array([f.point for _, f, *_ in fixes]),
                                  np.array([f.covariance for _, f, *_ in fixes]))
@@ -397,7 +413,7 @@ class BatchLocator:
                 point = np.array([point[0], point[1], heights[k]])
             out.append(TagFix(t, self.tags[rows_l[k]], Fix(point, cov, fix.used, fix.rejected, fix.chi2), newest_k,
                               qual, True, is_new))
-        return out
+        return out + raw
 
     def _ray(self, ai: int, med: np.ndarray, sigma_deg: float) -> Ray:
         a = self._anchors[ai]

@@ -11,9 +11,10 @@ import gc
 import logging
 import signal
 import sys
-from typing import Any, NoReturn
+from typing import Any, NoReturn, cast
 
 from rfhoming.cli.parsers import campaign, decode, emulate, export, gateway, io, locate, run, serve
+from rfhoming.protocol.credentials import redact
 from rfhoming.protocol.errors import Error
 
 
@@ -32,15 +33,31 @@ def _installed() -> str:
     return __version__
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose error (the usage, then one line echoing what was wrong) never
+    shows a URL's password; the subcommands' parsers are of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        super().error(redact(message))
+
+
+class _Redacting(logging.Formatter):
+    """Log lines with every URL's password hidden, whoever logged them."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return redact(super().format(record))
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="rfhoming",
         description="Radio homing for mobile robots: device protocols, emulator and host stack.",
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an internal error (for a bug report)")
     parser.add_argument("--version", action=_Version, help="print the installed version and exit")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = cast("argparse._SubParsersAction[argparse.ArgumentParser]",  # of _Parser, which the parsers need not know
+               parser.add_subparsers(dest="command", required=True, metavar="COMMAND"))
     decode.add_parsers(sub)
     run.add_parsers(sub)
     io.add_parsers(sub)
@@ -55,7 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def configure_logging(verbose: int) -> None:
     level = logging.WARNING - 10 * verbose
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_Redacting("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    logging.basicConfig(level=level, handlers=[handler])
 
 
 _terminated = False
@@ -88,11 +107,11 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.close()
         return 0
     except Error as exc:
-        print(f"rfhoming {args.command}: {exc}", file=sys.stderr)
+        print(redact(f"rfhoming {args.command}: {exc}"), file=sys.stderr)
         return 2
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"rfhoming {args.command}: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(redact(f"rfhoming {args.command}: {where}{exc.strerror or exc}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"rfhoming {args.command}: {'terminated' if _terminated else 'interrupted'}", file=sys.stderr)
@@ -100,8 +119,9 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if args.debug:
             raise
-        print(f"rfhoming {args.command}: internal error, a bug in rfhoming {_installed()} ({type(exc).__name__}: "
-              f"{exc}); please report it with the output of the same command run with --debug", file=sys.stderr)
+        print(redact(f"rfhoming {args.command}: internal error, a bug in rfhoming {_installed()} "
+                     f"({type(exc).__name__}: {exc}); please report it with the output of the same command run "
+                     "with --debug"), file=sys.stderr)
         return 1
     finally:
         signal.signal(signal.SIGTERM, before)

@@ -34,11 +34,12 @@ def run(args: argparse.Namespace) -> int:
 def _device_gateway(args: argparse.Namespace) -> int:
     """The anchors of --device/--site through the normal drivers (locate's opening and errors)."""
     import asyncio
+    import contextlib
     import socket
 
     from rfhoming.host.sitebus import Broker, Gateway, Publisher
 
-    broker = Broker.parse(args.broker)
+    broker = Broker.parse(args.broker).login(args.password_file)
     site = site_file.load(args.site) if args.site else Site(args.site_name or "", ())
     name = args.site_name or site.name
     if not name:
@@ -64,9 +65,30 @@ def _device_gateway(args: argparse.Namespace) -> int:
 
             loop.call_later(args.flush, flush)
 
+    async def until_refused() -> int:
+        """gather's run, ended early (as Ctrl-C ends it) if the broker refuses for good."""
+        task = asyncio.create_task(gather("gateway", site, args.device, on_angle, baud=args.baud, flow=args.flow,
+                                          duration=args.duration))
+        loop = asyncio.get_running_loop()
+
+        def cancel() -> None:  # on paho's thread
+            with contextlib.suppress(RuntimeError):  # the run has ended, its loop closed
+                loop.call_soon_threadsafe(task.cancel)
+
+        pub.on_failure.append(cancel)
+        if pub.failure is not None:  # before the hook was there
+            task.cancel()
+        try:
+            return await task
+        except asyncio.CancelledError:
+            if pub.failure is None:
+                raise
+            return 2
+
     try:
-        code = asyncio.run(gather("gateway", site, args.device, on_angle, baud=args.baud, flow=args.flow,
-                                  duration=args.duration))
+        code = asyncio.run(until_refused())
+        if pub.failure is not None:
+            raise pub.failure
         gw.flush(time.time())
     finally:
         try:
@@ -85,7 +107,7 @@ def _emulated_gateways(args: argparse.Namespace) -> int:
     from rfhoming.emulator.site import SiteScenario
     from rfhoming.host.sitebus import Broker, Gateway, Publisher
 
-    broker = Broker.parse(args.broker)
+    broker = Broker.parse(args.broker).login(args.password_file)
     partitions = broker.partitions or sitebus.DEFAULT_PARTITIONS
     sc = SiteScenario.named(args.emulate, seed=args.seed, tag_rate_hz=args.tag_rate)
     site = sitebus.check_level("--site-name", args.site_name or args.emulate)

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
               f"cv filter and publishes to the broker; leave out {', '.join(given) or 'the other --from'}",
               file=sys.stderr)
         return 2
-    broker = Broker.parse(args.sources[0])
+    broker = Broker.parse(args.sources[0]).login(args.password_file)
     site = resolve_site(str(args.site), args.seed)
     partitions = broker.partitions or sitebus.DEFAULT_PARTITIONS
     worker = Worker(site, broker, worker_id=args.id, partitions=partitions, rate_hz=args.rate,

@@ -1,5 +1,5 @@
 """Options that several commands share: the ports' defaults, --foxglove, --ros2, the demo's
-watch options."""
+watch options, the site bus's broker login."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import argparse
 import math
 
 from rfhoming.cli.args import baud, delay, nonempty, tcp_port
+from rfhoming.protocol.credentials import PASSWORD_ENV
 
 KINDS = ("xplr-aoa", "rss-node", "esp-at", "hci", "base", "ros2", "mavlink")
 """The device table's kinds (a test holds them equal), named here so the parsers load no table."""
@@ -54,3 +55,11 @@ def add_ros2_option(p: argparse.ArgumentParser, what: str) -> None:
                    help=f"publish {what} live on ROS 2 domain N (default 0): the MCAP recording's topics and "
                         "types, REP 105 frames, stamped on this host's clock; the loop's commands on "
                         "/rfhoming/cmd_vel; this machine only unless discovery=subnet; needs the ros and ros2 extras")
+
+
+def add_login_arguments(p: argparse._ActionsContainer) -> None:
+    """--password-file and --ca: the site bus's broker login and TLS (gateway, locate --from mqtt://)."""
+    p.add_argument("--password-file", type=nonempty, metavar="FILE",
+                   help="the broker login's password: the first line of FILE (the user is the URL's USER@). Or "
+                        f"set ${PASSWORD_ENV}. Not in the URL: a command line is visible to every user in ps")
+    p.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")

@@ -12,7 +12,7 @@ import argparse
 
 from rfhoming.cli.args import broker_url, bus_name, duration, flush_s, nonempty, path, rate_hz, seed
 from rfhoming.cli.parsers import command
-from rfhoming.cli.parsers.common import add_port_defaults
+from rfhoming.cli.parsers.common import add_login_arguments, add_port_defaults
 
 GATEWAY_HELP = """\
 A site gateway: the XPLR-AOA anchors on this machine's ports (--device SPEC, repeatable, or the
@@ -27,6 +27,10 @@ examples:
   rfhoming gateway --site docs/sites/kit-room.toml --broker mqtt://broker.local/8 --name gw-east
   rfhoming gateway --device xplr-aoa:/dev/ttyUSB0 --device xplr-aoa:/dev/ttyUSB1 --site-name hall --broker mqtt://broker.local/8
   rfhoming gateway --emulate site-64x1000 --broker mqtt://127.0.0.1:1883/8 --duration 60
+  rfhoming gateway --site hall.toml --broker mqtts://gw-east@broker.local/8 --password-file gw.pass --ca ca.pem
+
+A broker that refuses (a login, a certificate, TLS against a plaintext port) ends the gateway
+at once with one line and exit 2; one that is away is tried again, 0.1 s doubling to 5 s.
 """
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -37,7 +41,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     g.add_argument("--site", type=path, metavar="FILE", help="a site file: its anchors' ports (unless --device), "
                    "its name for the topics")
     g.add_argument("--emulate", type=nonempty, metavar="site-NxM", help="every gateway of an emulated site (e.g. site-64x1000)")
-    g.add_argument("--broker", type=broker_url, required=True, metavar="URL", help="mqtt://HOST[:PORT][/PARTITIONS] (mqtts:// = TLS)")
+    g.add_argument("--broker", type=broker_url, required=True, metavar="URL",
+                   help="mqtt://[USER@]HOST[:PORT][/PARTITIONS] (mqtts:// = TLS)")
     g.add_argument("--site-name", type=bus_name, help="the SITE of the topics (default: the site file's or scenario's name)")
     g.add_argument("--name", type=bus_name, help="this gateway's name on the bus (default: the host name)")
     g.add_argument("--seed", type=seed, default=1, help="--emulate: the scenario's seed (default 1)")
@@ -46,7 +51,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     g.add_argument("--flush", type=flush_s, default=0.02, metavar="S",
                    help="seconds between a gateway's batches (default 0.02)")
     g.add_argument("--duration", type=duration, help="stop after this many seconds")
-    g.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
+    add_login_arguments(g)
     add_port_defaults(g)
     g.set_defaults(func=command("gateway"))
 

@@ -12,7 +12,6 @@ from rfhoming.cli.args import (
     from_spec,
     height_sigma,
     is_broker,
-    nonempty,
     output_file,
     path,
     rate_hz,
@@ -21,7 +20,7 @@ from rfhoming.cli.args import (
     tag_height,
 )
 from rfhoming.cli.parsers import command
-from rfhoming.cli.parsers.common import GROWING, add_port_defaults, add_ros2_option
+from rfhoming.cli.parsers.common import GROWING, add_login_arguments, add_port_defaults, add_ros2_option
 
 LOCATE_HELP = """\
 Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
@@ -85,7 +84,8 @@ examples:
 
 
 WORKER_HELP = """\
-With --from mqtt://BROKER[:PORT][/PARTITIONS] (mqtts:// = TLS, mqtt://user:pw@... a login),
+With --from mqtt://[USER@]BROKER[:PORT][/PARTITIONS] (mqtts:// = TLS; USER@ a login, whose password
+comes from --password-file or $RFHOMING_MQTT_PASSWORD: never the command line, which ps shows),
 locate is a site worker: it subscribes to the partitions it owns among the live workers
 (rendezvous hashing; a worker that goes, its will tells the others, who take its partitions),
 measures each gateway's clock offset, fixes every tag per tick with the batched engine and
@@ -93,7 +93,7 @@ publishes each position as JSON on rfhoming/SITE/positions/TAG; on exit it print
 line of counters. SITE is then a site file or an emulated site name (site-64x1000).
 
   rfhoming locate site-64x1000 --from mqtt://127.0.0.1:1883/8 --id w1
-  rfhoming locate docs/sites/kit-room.toml --from mqtts://user:pw@broker.example/8 --ca ca.pem
+  rfhoming locate docs/sites/kit-room.toml --from mqtts://w1@broker.example/8 --password-file w1.pass --ca ca.pem
 """
 
 
@@ -111,7 +111,7 @@ def add_worker_arguments(p: argparse.ArgumentParser) -> None:
     w.add_argument("--reorder", type=reorder_s, default=0.02, metavar="S",
                    help="seconds a tick waits for late batches (default 0.02)")
     w.add_argument("--seed", type=seed, default=1, help="an emulated site's seed (default 1)")
-    w.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
+    add_login_arguments(w)
 
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
