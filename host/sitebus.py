@@ -232,7 +232,8 @@ class Publisher:
         self._client_id = client_id
         self.failure: BrokerRefused | None = None
         """Set when the broker refused for good: no more tries; service() and wait_connected() raise it."""
-        self.on_failure: list[Callable[[], None]] = []  # called once, on paho's thread when threaded
+        self._on_failure: list[Callable[[], None]] = []  # called once, on paho's thread when threaded
+        self._failure_lock = threading.Lock()
         self._answered = False  # the broker answered this try's CONNECT (a CONNACK, yes or no)
         self._mismatches = 0  # tries in a row closed before any MQTT answer
         self._refusals = 0  # in the current streak: the first is logged, the rest counted
@@ -309,13 +310,25 @@ class Publisher:
         """paho's on_pre_connect: a new try, not answered yet."""
         self._answered = False
 
+    def when_refused(self, hook: Callable[[], None]) -> None:
+        """Call ``hook`` once when the broker refuses for good (on paho's thread when threaded), or
+        at once if it has already: a refusal that came before the hook is not missed."""
+        with self._failure_lock:
+            if self.failure is None:
+                self._on_failure.append(hook)
+                return
+        hook()
+
     def _fail(self, why: str) -> None:
         """The broker refused for good: no more tries (paho's thread ends), the owner is told."""
-        if self.failure is None:
+        with self._failure_lock:
+            if self.failure is not None:
+                return
             self.failure = BrokerRefused(why)
-            self.client.disconnect()
-            for hook in self.on_failure:
-                hook()
+            hooks, self._on_failure = self._on_failure, []
+        self.client.disconnect()
+        for hook in hooks:
+            hook()
 
     def _mismatch(self, what: str, fix: str) -> None:
         """A try the broker took and closed before any MQTT answer: MISMATCH_TRIES in a row fail."""

@@ -121,19 +121,21 @@ def test_a_device_gateway_refused_by_the_broker_ends_at_once(site_broker, emulat
 
 def test_a_threaded_publisher_stops_trying_and_says_so_once(site_broker) -> None:
     """paho's own thread (a device gateway's): a wrong password is tried once, then the thread
-    ends, ``failure`` holds the one-line reason and every ``on_failure`` hook is called once."""
+    ends, ``failure`` holds the one-line reason and a ``when_refused`` hook is called once, even
+    one added after the refusal (which may come first on a loaded machine)."""
     from rfhoming.host.sitebus import Broker, BrokerRefused, Publisher
 
     calls: list[str] = []
     pub = Publisher(Broker("127.0.0.1", site_broker.plain, False, None, "gw", "not-it"), "gw-threaded")
-    pub.on_failure.append(lambda: calls.append("failed"))
+    pub.when_refused(lambda: calls.append("failed"))
     try:
         with pytest.raises(BrokerRefused, match="refused the login of user 'gw'"):
             pub.wait_connected(60)  # a hang guard
         thread = pub.client._thread
         if thread is not None:
             thread.join(30)
-        assert pub.client._thread is None and calls == ["failed"] and pub.counters["refused"] == 1
+        pub.when_refused(lambda: calls.append("late"))  # after the refusal: called at once
+        assert pub.client._thread is None and calls == ["failed", "late"] and pub.counters["refused"] == 1
     finally:
         pub.close()
 

@@ -75,9 +75,7 @@ def _device_gateway(args: argparse.Namespace) -> int:
             with contextlib.suppress(RuntimeError):  # the run has ended, its loop closed
                 loop.call_soon_threadsafe(task.cancel)
 
-        pub.on_failure.append(cancel)
-        if pub.failure is not None:  # before the hook was there
-            task.cancel()
+        pub.when_refused(cancel)
         try:
             return await task
         except asyncio.CancelledError:
