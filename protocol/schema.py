@@ -160,7 +160,7 @@ def _range(meta: Any) -> str:
 
 def _refuse(value: Any, f: Field[Any], where: str, source: Any, key: str, expected: str) -> None:
     default = f.default_factory() if f.default_factory is not MISSING else f.default
-    hint = "" if default is None or isinstance(default, dict) or key != f.name else f"; the default is {_toml(default)}"
+    hint = "" if default is None or default is MISSING or isinstance(default, dict) or key != f.name else f"; the default is {_toml(default)}"
     raise ConfigError(f"{source}: [{where}] {key} = {_toml(value)}: expected {expected}{hint}")
 
 
