@@ -19,6 +19,7 @@ from rfhoming.emulator.measured_rssi import channel
 from rfhoming.emulator.radio import (
     AoaModel,
     PathLossModel,
+    RadioChannel,
     idealised_rssi,
     measure_azimuth,
     power_sum_dbm,
@@ -125,6 +126,8 @@ class DeviceRunner:
                 yield source, t, pos, distance, world.obstacles_crossed((x, y), pos)
 
     schedule: _Schedule
+    channel: RadioChannel
+    """Its radio (the scenario's, or measured: emulator/measured_rssi.py), for a board that hears one."""
 
     def beacon_receptions(self, world: World, t0: float, t1: float) -> Iterator[tuple[Target, float, int, int, float]]:
         """(beacon, time, k, channel, dBm) of every advertisement heard in (t0, t1] on 37, 38 and
