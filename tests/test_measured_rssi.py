@@ -1,5 +1,5 @@
 """The emulator's measured RSSI (emulator/measured_rssi.py) and the fitter that reads it back
-(host/rssi_fit.py), on data the tests make: never the shared recordings."""
+(host/rssi_fit.py), on data the tests make: never the real recordings."""
 
 from __future__ import annotations
 
