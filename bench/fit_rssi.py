@@ -1,9 +1,9 @@
 """Fit the measured RSSI profile's ``[rssi.*]`` tables to real recordings, and check the emulator
 against them.
 
-    python bench/fit_rssi.py --data ../shared/data [--seeds 5] [--json]
+    python bench/fit_rssi.py --data DIR [--seeds 4] [--rounds 2] [--json]
 
-DATA holds three public recordings by other teams (their sources: each folder's SOURCE.txt;
+DIR holds three public recordings by other teams (their sources: each folder's SOURCE.txt;
 docs/RESULTS.md, "Measured radios: RSSI"), read here and never by the test suite:
 
 - ``danis_ble_rssi/``: 12 BLE receivers, one beacon. ``hst_set_2/*.mbd``: the beacon still at 6
@@ -75,8 +75,8 @@ XPLR-AOA event carries its angle and its RSSI, and is lost with both."""
 
 RADIO_OF = {"danis-static": "ble", "danis-moving": "ble", "kolakowski": "ble", "girolami": "xplr"}
 
-SUBGHZ_ASSUMED = ("no recording of the AT86RF212 node, or of any 915 MHz receiver behind directional "
-                  "antennas, exists in the shared data: the BLE recordings' figures (indoor links through "
+SUBGHZ_ASSUMED = ("no public recording of the AT86RF212 node, or of any 915 MHz receiver behind directional "
+                  "antennas, with ground truth was found: the BLE recordings' figures (indoor links through "
                   "furniture and walls, the nearest measured) are taken as they are")
 
 STATS = ("scatter_db", "exponent_sd", "offset_sd_db", "shadowing_sd_db", "shadowing_distance_m", "missing",
