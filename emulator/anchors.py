@@ -30,6 +30,7 @@ The host is told none of this: a calibration run through the same anchors has to
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ from rfhoming.emulator.links import Link
 from rfhoming.emulator.radio import AoaModel, PathLossModel, fold_front
 from rfhoming.emulator.world import World
 from rfhoming.firmware.xplr_aoa import C209_NAMESPACE, Advertisement, XplrAoaFirmware
+from rfhoming.protocol.rssi_profile import RssiProfile
 
 
 def rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
@@ -59,8 +61,8 @@ class FixedAnchorRunner(AoaRunner):
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
-                 robot_tag: tuple[str, float] | None = None) -> None:
-        super().__init__(name, link, faults, rng, options, aoa, path_loss, robot_tag)
+                 robot_tag: tuple[str, float] | None = None, rssi: Mapping[str, RssiProfile] | None = None) -> None:
+        super().__init__(name, link, faults, rng, options, aoa, path_loss, robot_tag, rssi)
         o = options
         self.position = np.array([float(v) for v in o["position"]])
         mount_sigma = float(o.get("mount_error_deg", 3.0))
@@ -131,9 +133,13 @@ class FixedAnchorRunner(AoaRunner):
         for tag_id, pos, height, interval, tx in self.sources(world, t1):
             for t in self.schedule.due(tag_id, interval, interval * 0.1, t0, t1):
                 fw.tick(int(t * 1000))
+                link = (tag_id, self.name)
+                if self.channel.lost(link, t):
+                    continue
                 tag = np.array([pos[0], pos[1], height])
                 distance = float(np.linalg.norm(tag - self.position))
-                sample = self.channel.received_dbm((tag_id, self.name), distance, tx, 0)
+                sample = self.channel.received_dbm(link, distance, tx, 0, t=t,
+                                                   ends=(pos, (float(self.position[0]), float(self.position[1]))))
                 if sample is None or sample < -100:
                     continue
                 d = self.rot.T @ (self._image(world, tag) - self.position)
@@ -153,5 +159,5 @@ class FixedAnchorRunner(AoaRunner):
                 el = el * self.el_scale + self.el_bias + slow_el + float(self.rng.normal(0, self.el_sigma))
                 fw.on_advertisement(Advertisement(tag_id, C209_NAMESPACE, -max(-90.0, min(90.0, az_ccw)),
                                                   max(-90.0, min(90.0, el)), sample,
-                                                  sample + float(self.rng.normal(0, 1.5))))
+                                                  self.channel.second_dbm(link, sample)))
         fw.tick(int(t1 * 1000))

@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
 
 from rfhoming.emulator.faults import ByteFaults, scramble
 from rfhoming.emulator.links import Link, TcpLink
+from rfhoming.emulator.measured_rssi import channel
 from rfhoming.emulator.radio import (
     AoaModel,
     PathLossModel,
@@ -31,6 +32,7 @@ from rfhoming.firmware.esp_at import EspAtFirmware
 from rfhoming.firmware.robot_base import RobotBaseFirmware, Slip
 from rfhoming.firmware.xplr_aoa import C209_NAMESPACE, Advertisement, XplrAoaFirmware
 from rfhoming.protocol import devices
+from rfhoming.protocol.rssi_profile import RssiProfile
 from rfhoming.protocol.uconnect import Dialect
 
 BOARD_HEIGHT_M = 0.2
@@ -124,6 +126,21 @@ class DeviceRunner:
                 yield source, t, pos, distance, world.obstacles_crossed((x, y), pos)
 
     schedule: _Schedule
+    channel: RadioChannel
+    """Its radio (the scenario's, or measured: emulator/measured_rssi.py), for a board that hears one."""
+
+    def beacon_receptions(self, world: World, t0: float, t1: float) -> Iterator[tuple[Target, float, int, int, float]]:
+        """(beacon, time, k, channel, dBm) of every advertisement heard in (t0, t1] on 37, 38 and
+        39 in turn (k = 0, 1, 2): what a BLE scanner's radio hands its firmware."""
+        here = self.antenna(world)
+        for beacon, t, pos, distance, walls in self.transmissions(world, "ble_beacon", t0, t1):
+            link = (beacon.id, self.name)
+            if self.channel.lost(link, t):
+                continue
+            for k, ch in enumerate((37, 38, 39)):
+                power = self.channel.received_dbm(link, distance, beacon.tx_power_dbm, walls, t=t, ends=(pos, here))
+                if power is not None:
+                    yield beacon, t, k, ch, power
 
     def reboot(self, t: float) -> None:
         """Power-cycle: fresh firmware, all state lost (binary nodes restart their counters)."""
@@ -176,11 +193,11 @@ class AoaRunner(DeviceRunner):
 
         tag = (scenario.robot_tag, scenario.robot_tag_interval_ms) if scenario.robot_tag else None
         runner = FixedAnchorRunner if "position" in options else AoaRunner
-        return runner(name, link, faults, rng, options, scenario.aoa, scenario.path_loss, tag)
+        return runner(name, link, faults, rng, options, scenario.aoa, scenario.path_loss, tag, scenario.rssi)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
-                 robot_tag: tuple[str, float] | None) -> None:
+                 robot_tag: tuple[str, float] | None, rssi: Mapping[str, RssiProfile] | None = None) -> None:
         dialect = Dialect(str(options.get("dialect", "1.2")))
         mac = str(options.get("mac", "CCF9578E0D89"))
         baud = int(options.get("baud", DEFAULT_BAUD))
@@ -192,7 +209,7 @@ class AoaRunner(DeviceRunner):
         self.namespace = str(options.get("tag_namespace", C209_NAMESPACE)).upper()
         self.aoa = aoa
         self.path_loss = path_loss
-        self.channel = RadioChannel(path_loss, rng)
+        self.channel = channel(self.board, path_loss, rng, rssi or {})
         self.mount = options.get("mount")
         self.yaw = math.radians(float(options.get("mount_yaw_deg", 0.0)))
         self.upside_down = bool(options.get("upside_down", False))
@@ -241,6 +258,9 @@ class AoaRunner(DeviceRunner):
                 fw.tick(int(t * 1000))
                 # the tag's own event counter counts what it sent, whatever the board hears
                 counter = self.schedule.sent[tag_id] = (self.schedule.sent.get(tag_id, 0) + 1) & 0xFFFF
+                link = (tag_id, self.name)
+                if self.channel.lost(link, t):
+                    continue
                 bx, by, bth = self.board_pose(world)
                 distance = math.hypot(pos[0] - bx, pos[1] - by)
                 walls = world.obstacles_crossed((bx, by), pos)
@@ -252,7 +272,8 @@ class AoaRunner(DeviceRunner):
                 else:
                     if distance > self.path_loss.max_range_m:
                         continue
-                    rssi = self.channel.sample((tag_id, self.name), power_sum_dbm([p for _, p in paths]))
+                    rssi = self.channel.sample(link, power_sum_dbm([p for _, p in paths]), t=t, ends=(pos, (bx, by)),
+                                               distance_m=distance)
                     if rssi < -100:
                         continue
                 relative = math.degrees(direction - bth)
@@ -262,7 +283,7 @@ class AoaRunner(DeviceRunner):
                 elevation = math.degrees(math.atan2(height - BOARD_HEIGHT_M, max(distance, 0.05)))
                 elevation += float(self.rng.normal(0, self.aoa.angle_deg))
                 fw.on_advertisement(Advertisement(tag_id, self.namespace, azimuth, elevation, rssi,
-                                                  rssi + float(self.rng.normal(0, 1.5)), counter))
+                                                  self.channel.second_dbm(link, rssi), counter))
         fw.tick(int(t1 * 1000))
 
 
@@ -284,10 +305,10 @@ class Esp32Runner(DeviceRunner):
     @classmethod
     def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
               options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
-        return cls(name, k + 1, link, faults, rng, scenario.path_loss, options).mounted(options, scenario)
+        return cls(name, k + 1, link, faults, rng, scenario.path_loss, options, scenario.rssi).mounted(options, scenario)
 
-    def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
-                 rng: np.random.Generator, path_loss: PathLossModel, options: dict[str, Any]) -> None:
+    def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+                 path_loss: PathLossModel, options: dict[str, Any], rssi: Mapping[str, RssiProfile] | None = None) -> None:
         # a duty-cycled scan is a hardship no source shows for rfhoming's node: an option, off by
         # default (docs/protocol.md, "The ESP32 scanner node")
         default = ScanConfig()
@@ -298,17 +319,13 @@ class Esp32Runner(DeviceRunner):
             raise ScenarioError(f"[devices.{name}] needs 2.5 <= scan_window_ms <= scan_interval_ms <= 10240, "
                                 f"not {window_ms:g} and {interval_ms:g}")
         super().__init__(name, lambda: Esp32ScannerFirmware(node_id, config), link, faults, rng)
-        self.channel = RadioChannel(path_loss, rng)
+        self.channel = channel(self.board, path_loss, rng, rssi or {})
         self.schedule = _Schedule(rng)
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: Esp32ScannerFirmware = self.firmware
-        ad = BEACON_AD
-        for beacon, t, _pos, distance, walls in self.transmissions(world, "ble_beacon", t0, t1):
-            for k, ch in enumerate((37, 38, 39)):
-                power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
-                if power is not None:
-                    fw.on_advertisement(int(t * 1e6) + 400 * k, ch, _address(beacon.id), power, ad)
+        for beacon, t, k, ch, power in self.beacon_receptions(world, t0, t1):
+            fw.on_advertisement(int(t * 1e6) + 400 * k, ch, _address(beacon.id), power, BEACON_AD)
         fw.tick(int(t1 * 1e6))
 
 
@@ -324,23 +341,20 @@ class EspAtRunner(DeviceRunner):
     @classmethod
     def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
               options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
-        return cls(name, link, faults, rng, scenario.path_loss, options).mounted(options, scenario)
+        return cls(name, link, faults, rng, scenario.path_loss, options, scenario.rssi).mounted(options, scenario)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
-                 path_loss: PathLossModel, options: dict[str, Any]) -> None:
+                 path_loss: PathLossModel, options: dict[str, Any], rssi: Mapping[str, RssiProfile] | None = None) -> None:
         version = str(options.get("version", "3.2"))  # which ESP-AT documentation the board follows
         super().__init__(name, lambda: EspAtFirmware(version), link, faults, rng)
         self.baud = int(options.get("baud", DEFAULT_BAUD))
-        self.channel = RadioChannel(path_loss, rng)
+        self.channel = channel(self.board, path_loss, rng, rssi or {})
         self.schedule = _Schedule(rng)
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: EspAtFirmware = self.firmware
-        for beacon, t, _pos, distance, walls in self.transmissions(world, "ble_beacon", t0, t1):
-            for k, ch in enumerate((37, 38, 39)):
-                power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
-                if power is not None:
-                    fw.on_advertisement(int(t * 1e6) + 400 * k, ch, beacon.id.rjust(12, "0")[-12:], power, BEACON_AD)
+        for beacon, t, k, ch, power in self.beacon_receptions(world, t0, t1):
+            fw.on_advertisement(int(t * 1e6) + 400 * k, ch, beacon.id.rjust(12, "0")[-12:], power, BEACON_AD)
         fw.tick(int(t1 * 1e6))
 
 
@@ -353,10 +367,10 @@ class HciRunner(DeviceRunner):
     @classmethod
     def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
               options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
-        return cls(name, link, faults, rng, scenario.path_loss, options).mounted(options, scenario)
+        return cls(name, link, faults, rng, scenario.path_loss, options, scenario.rssi).mounted(options, scenario)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
-                 path_loss: PathLossModel, options: dict[str, Any]) -> None:
+                 path_loss: PathLossModel, options: dict[str, Any], rssi: Mapping[str, RssiProfile] | None = None) -> None:
         from rfhoming.firmware.hci_controller import (
             HciControllerFirmware,  # bumble only where used
         )
@@ -371,18 +385,15 @@ class HciRunner(DeviceRunner):
         self.baud = int(options.get("baud", 1_000_000))
         if isinstance(link, TcpLink):  # HCI over TCP (bumble's tcp-client) has no baud rate to get wrong
             link.assumed_host_baud = self.baud
-        self.channel = RadioChannel(path_loss, rng)
+        self.channel = channel(self.board, path_loss, rng, rssi or {})
         self.schedule = _Schedule(rng)
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw = self.firmware
-        for beacon, t, _pos, distance, walls in self.transmissions(world, "ble_beacon", t0, t1):
+        for beacon, t, k, ch, power in self.beacon_receptions(world, t0, t1):
             hex_id = beacon.id.rjust(12, "0")[-12:].upper()
             address = ":".join(hex_id[i : i + 2] for i in range(0, 12, 2))
-            for k, ch in enumerate((37, 38, 39)):
-                power = self.channel.received_dbm((beacon.id, self.name), distance, beacon.tx_power_dbm, walls)
-                if power is not None:
-                    fw.on_advertisement(int(t * 1e6) + 400 * k, ch, address, power, BEACON_AD)
+            fw.on_advertisement(int(t * 1e6) + 400 * k, ch, address, power, BEACON_AD)
         fw.tick(int(t1 * 1e6))
 
 
@@ -394,14 +405,14 @@ class RssRunner(DeviceRunner):
     @classmethod
     def build(cls, name: str, k: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
               options: dict[str, Any], scenario: Scenario) -> DeviceRunner:
-        return cls(name, k + 1, link, faults, rng, scenario.path_loss, options)
+        return cls(name, k + 1, link, faults, rng, scenario.path_loss, options, scenario.rssi)
 
-    def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults,
-                 rng: np.random.Generator, path_loss: PathLossModel, options: dict[str, Any]) -> None:
+    def __init__(self, name: str, node_id: int, link: Link, faults: ByteFaults, rng: np.random.Generator,
+                 path_loss: PathLossModel, options: dict[str, Any], rssi: Mapping[str, RssiProfile] | None = None) -> None:
         offsets = tuple(float(v) for v in options.get("chip_offsets_db", rng.uniform(-5, 5, 4)))
         kwargs: dict[str, Any] = {"chip_offsets_db": offsets, "dish_diameter_m": float(options.get("dish_diameter_m", 0.3))}
         super().__init__(name, lambda: At86rf212NodeFirmware(node_id, **kwargs), link, faults, rng)
-        self.channel = RadioChannel(path_loss, rng)
+        self.channel = channel(self.board, path_loss, rng, rssi or {})
         self.schedule = _Schedule(rng)
         self.emitter_seq: dict[str, int] = {}
 
@@ -413,14 +424,18 @@ class RssRunner(DeviceRunner):
             if distance > m.max_range_m:
                 continue
             seq = self.emitter_seq[emitter.id] = (self.emitter_seq.get(emitter.id, 0) + 1) & 0xFFFF
+            if self.channel.lost((emitter.id, self.name), t):  # the whole frame: the chips measure the one frame
+                continue
             bearing = math.atan2(pos[1] - r.y, pos[0] - r.x) - r.theta
             paths = arrivals(world, m, pos, (r.x, r.y), emitter.tx_power_dbm, walls)
+            ends = (pos, (r.x, r.y))
             if len(paths) == 1:
                 incident = [self.channel.received_dbm((emitter.id, f"{self.name}.{i}"), distance,
-                                                      emitter.tx_power_dbm, walls) for i in range(4)]
+                                                      emitter.tx_power_dbm, walls, t=t, ends=ends) for i in range(4)]
                 fw.on_frame(int(t * 1e6), seq, bearing, incident)  # type: ignore[arg-type]
                 continue
-            noise = [self.channel.sample((emitter.id, f"{self.name}.{i}"), 0.0) for i in range(4)]
+            noise = [self.channel.sample((emitter.id, f"{self.name}.{i}"), 0.0, t=t, ends=ends, distance_m=distance)
+                     for i in range(4)]
             fw.on_paths(int(t * 1e6), seq, [(d - r.theta, p) for d, p in paths], noise)
         fw.tick(int(t1 * 1e6))
 

@@ -52,8 +52,14 @@ class PathLossModel:
         return self.d0_m * 10 ** ((tx_power_dbm + self.p0_dbm - rssi_dbm) / (10 * self.n))
 
 
+Ends = tuple[tuple[float, float], tuple[float, float]]
+"""Where a link's transmitter and receiver are (world x, y, metres): what shadowing depends on."""
+
+
 class RadioChannel:
-    """Samples received power per link; the per-link bias is drawn on first use."""
+    """Samples received power per link; the per-link bias is drawn on first use. The scenario's
+    own (``ideal``) channel: the keywords that a measured channel uses (emulator/measured_rssi.py:
+    the reading's time, its ends, its distance) change nothing here."""
 
     def __init__(self, model: PathLossModel, rng: np.random.Generator) -> None:
         self.model = model
@@ -61,13 +67,15 @@ class RadioChannel:
         self._bias: dict[tuple[str, str], float] = {}
 
     def received_dbm(self, link: tuple[str, str], distance_m: float, tx_power_dbm: float,
-                     walls: int) -> float | None:
+                     walls: int, *, t: float = 0.0, ends: Ends | None = None) -> float | None:
         """One sample, or None beyond the model's range."""
         if distance_m > self.model.max_range_m:
             return None
-        return self.sample(link, self.model.mean_dbm(distance_m, tx_power_dbm, walls))
+        return self.sample(link, self.model.mean_dbm(distance_m, tx_power_dbm, walls), t=t, ends=ends,
+                           distance_m=distance_m)
 
-    def sample(self, link: tuple[str, str], mean_dbm: float) -> float:
+    def sample(self, link: tuple[str, str], mean_dbm: float, *, t: float = 0.0, ends: Ends | None = None,
+               distance_m: float | None = None) -> float:
         """One reception of a link whose mean power is ``mean_dbm``: its bias, fast noise, fading."""
         m = self.model
         bias = self._bias.get(link)
@@ -80,6 +88,15 @@ class RadioChannel:
             scatter = self.rng.normal(0, math.sqrt(1 / (2 * (k + 1))), 2)
             power += 20 * math.log10(max(math.hypot(los + scatter[0], scatter[1]), 1e-6))
         return power
+
+    def lost(self, link: tuple[str, str], t: float) -> bool:
+        """Whether the receiver misses the link's transmission at ``t``: never, here (the
+        firmware models' own collisions and sensitivity aside)."""
+        return False
+
+    def second_dbm(self, link: tuple[str, str], rssi_dbm: float) -> float:
+        """The XPLR-AOA's second polarisation for a reading of ``rssi_dbm`` on the first."""
+        return rssi_dbm + float(self.rng.normal(0, 1.5))
 
 
 def power_sum_dbm(powers_dbm: list[float]) -> float:

@@ -21,6 +21,7 @@ from rfhoming.emulator.radio import AoaModel, PathLossModel
 from rfhoming.emulator.world import Obstacle, Pose, Target, World
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.rssi_profile import RssiProfile
 
 
 
@@ -55,6 +56,8 @@ class Scenario:
     robot_tag_interval_ms: float = 20.0
     robot_height: float | None = None  # its receivers' height above ground (a copter's); None: planar radio
     vehicle: dict[str, Any] | None = None  # the base as a MAVLink vehicle (``[robot.mavlink]``), as --robot mavlink
+    rssi: dict[str, RssiProfile] = field(default_factory=dict)
+    """Measured RSSI by radio (a profile's ``[rssi.NAME]``); a radio left out keeps ``path_loss`` (ideal)."""
 
 
 def presets() -> list[str]:

@@ -68,6 +68,7 @@ class Board:
     name: str
     firmware: str  # module:class in rfhoming.firmware
     runner: str  # module:class of its emulator runner (rfhoming.emulator), built by its ``build`` classmethod
+    radio: str | None = None  # its RSSI's table in a radio profile, ``[rssi.NAME]`` (protocol/rssi_profile.py)
 
 
 @dataclass(frozen=True)
@@ -141,20 +142,20 @@ EMULATOR = "rfhoming.emulator.devices"
 KINDS: dict[str, DeviceKind] = {k.name: k for k in (
     DeviceKind("xplr-aoa", "u-blox XPLR-AOA direction-finding kit (u-connectLocate)", "uconnect",
                {**s.SERIAL, "tags": s.tags}, "rfhoming.host.drivers.aoa:AoaDriver",
-               (Board("xplr-aoa", "rfhoming.firmware.xplr_aoa:XplrAoaFirmware", f"{EMULATOR}:AoaRunner"),),
+               (Board("xplr-aoa", "rfhoming.firmware.xplr_aoa:XplrAoaFirmware", f"{EMULATOR}:AoaRunner", "xplr"),),
                ("aoa", "anchor"), 20.0, USB_XPLR_AOA, sniff=20, rtscts=True, aliases=("ublox-aoa",)),
     DeviceKind("rss-node", "rfhoming node firmware: ESP32 BLE scanner or STM32 + AT86RF212 four-dish node",
                "frames", s.SERIAL, "rfhoming.host.drivers.rss:RssDriver",
-               (Board("esp32", "rfhoming.firmware.esp32_scanner:Esp32ScannerFirmware", f"{EMULATOR}:Esp32Runner"),
-                Board("at86rf212", "rfhoming.firmware.at86rf212_node:At86rf212NodeFirmware", f"{EMULATOR}:RssRunner")),
+               (Board("esp32", "rfhoming.firmware.esp32_scanner:Esp32ScannerFirmware", f"{EMULATOR}:Esp32Runner", "ble"),
+                Board("at86rf212", "rfhoming.firmware.at86rf212_node:At86rf212NodeFirmware", f"{EMULATOR}:RssRunner", "subghz")),
                ("rss", "ble"), 5.0, USB_ESP32, sniff=10, aliases=("rss",)),
     DeviceKind("esp-at", "ESP32 with Espressif's ESP-AT firmware (BLE scan)", "esp-at", {**s.SERIAL, **s.SCAN},
                "rfhoming.host.drivers.espat:EspAtDriver",
-               (Board("esp-at", "rfhoming.firmware.esp_at:EspAtFirmware", f"{EMULATOR}:EspAtRunner"),),
+               (Board("esp-at", "rfhoming.firmware.esp_at:EspAtFirmware", f"{EMULATOR}:EspAtRunner", "ble"),),
                ("ble",), 5.0, USB_ESP32),
     DeviceKind("hci", "Bluetooth controller through a bumble transport (HCI advertising reports)", "h4",
                {"name": s.name, "timeout": s.seconds, **s.SCAN, **s.HCI_SCAN}, "rfhoming.host.drivers.hci:HciDriver",
-               (Board("hci", "rfhoming.firmware.hci_controller:HciControllerFirmware", f"{EMULATOR}:HciRunner"),),
+               (Board("hci", "rfhoming.firmware.hci_controller:HciControllerFirmware", f"{EMULATOR}:HciRunner", "ble"),),
                ("ble",), 5.0, None, extra="hci"),
     DeviceKind("base", "rfhoming robot base (velocity commands, odometry, range scans)", "frames", s.SERIAL,
                "rfhoming.host.drivers.robot_base:BaseDriver",

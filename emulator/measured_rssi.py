@@ -1,0 +1,160 @@
+"""RSSI as real receivers measure it: a radio profile's ``[rssi.NAME]`` made concrete, seeded.
+
+A reading of a link (transmitter, receiver) at time t with the ends at (s, r) is
+
+    the scenario's mean power (path loss, walls, reflections)
+    - 10 (n_link - n) log10(d' / pivot)     the link's own exponent, turned about the pivot
+                                            (d' = d held within the recordings' span)
+    + b_link                                its offset
+    + S_link(s, r)                          shadowing: a Gaussian field over both ends
+    + X_link(t)                             Ornstein-Uhlenbeck: what changes in time
+    + N(0, white^2)
+
+and the receiver misses some readings, in bursts (a two-state Markov chain in time). What is
+drawn once per link (exponent, offset, field, loss fraction) comes from the channel's seed and
+the link's name alone, so a link's radio map does not depend on what the robot did or heard
+first: the same place gives the same shadowing, this run or the next with the same seed. What
+changes in time (the residual, the white noise, the losses) comes from the runner's stream.
+
+:func:`channel` is the one entry point: the scenario's own channel (``ideal``) where a board's
+radio has no profile, else a :class:`MeasuredChannel`. docs/emulator.md, "Measured RSSI".
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from rfhoming.emulator.radio import Ends, PathLossModel, RadioChannel
+from rfhoming.protocol import devices
+from rfhoming.protocol.rssi_profile import RssiProfile
+
+FIELD_FEATURES = 128
+"""Random Fourier features per shadowing field: enough that its values look Gaussian."""
+
+
+class ShadowField:
+    """A stationary Gaussian field over a link's two ends (s_x, s_y, r_x, r_y) with covariance
+    sd^2 exp(-|Δ|^2 / distance^2), as random Fourier features (Rahimi and Recht, NIPS 2007):
+    cosines whose frequencies are drawn from the kernel's spectral density, N(0, 2 / distance^2)."""
+
+    def __init__(self, sd_db: float, distance_m: float, rng: np.random.Generator) -> None:
+        self.freq = rng.normal(0.0, math.sqrt(2.0) / distance_m, (FIELD_FEATURES, 4))
+        self.phase = rng.uniform(0.0, 2 * math.pi, FIELD_FEATURES)
+        self.amp = sd_db * math.sqrt(2.0 / FIELD_FEATURES)
+        self._last: tuple[Ends, float] | None = None  # ends that stay put (a parked robot, a fixed pair) cost nothing
+
+    def at(self, ends: Ends) -> float:
+        if self._last is not None and self._last[0] == ends:
+            return self._last[1]
+        (sx, sy), (rx, ry) = ends
+        value = float(self.amp * np.cos(self.freq @ np.array([sx, sy, rx, ry]) + self.phase).sum())
+        self._last = (ends, value)
+        return value
+
+
+@dataclass
+class _Link:
+    """One link's draws (fixed) and its processes' state."""
+
+    exponent: float
+    offset_db: float
+    field: ShadowField | None
+    loss: float
+    residual_db: float | None = None  # the OU state, None before the first reading
+    residual_t: float = 0.0
+    lost: bool | None = None  # the loss chain's state, None before the first transmission
+    lost_t: float = 0.0
+
+
+class MeasuredChannel(RadioChannel):
+    """A radio whose RSSI behaves as a profile measured: a drop-in for :class:`RadioChannel`
+    (the runners pass each reading's time, ends and distance, which the ideal one ignores)."""
+
+    def __init__(self, model: PathLossModel, profile: RssiProfile, rng: np.random.Generator) -> None:
+        super().__init__(model, rng)
+        self.profile = profile
+        self._seed = int(rng.integers(2**63))
+        self._links: dict[tuple[str, str], _Link] = {}
+
+    def link(self, link: tuple[str, str]) -> _Link:
+        """The link's draws, from the channel's seed and the link's name only."""
+        found = self._links.get(link)
+        if found is None:
+            p = self.profile
+            g = np.random.default_rng([self._seed, zlib.crc32("\0".join(link).encode())])
+            e = p.exponent
+            exponent = min(e.high, max(e.low, float(g.normal(e.mean, e.sd))))
+            offset = float(g.normal(0.0, p.offset.sd_db))
+            s = p.shadowing
+            field = ShadowField(s.sd_db, s.distance_m, g) if s.sd_db > 0 else None
+            loss = float(g.uniform(p.loss.fraction_low, p.loss.fraction_high)) if p.loss is not None else 0.0
+            found = self._links[link] = _Link(exponent, offset, field, loss)
+        return found
+
+    def shadowing_db(self, link: tuple[str, str], ends: Ends) -> float:
+        """The link's shadowing with its ends at ``ends``: a function of place alone."""
+        field = self.link(link).field
+        return field.at(ends) if field is not None else 0.0
+
+    def sample(self, link: tuple[str, str], mean_dbm: float, *, t: float = 0.0, ends: Ends | None = None,
+               distance_m: float | None = None) -> float:
+        """One reading at ``t`` of a link whose scenario mean is ``mean_dbm``: turned to the
+        link's exponent at ``distance_m`` (none: at the pivot; beyond the exponent's span, the
+        scenario's slope from its ends), with ``ends`` for the shadowing
+        (none: a link that never moves, no shadowing but its offset)."""
+        state = self.link(link)
+        p = self.profile
+        power = mean_dbm + state.offset_db
+        if distance_m is not None:
+            e = p.exponent
+            held = min(max(distance_m, e.near_m), e.far_m)
+            power -= 10 * (state.exponent - self.model.n) * math.log10(held / e.pivot_m)
+        if ends is not None and state.field is not None:
+            power += state.field.at(ends)
+        r = p.residual
+        if r.sd_db > 0:
+            if state.residual_db is None:
+                state.residual_db = float(self.rng.normal(0.0, r.sd_db))
+            else:
+                keep = math.exp(-max(0.0, t - state.residual_t) / r.time_s)
+                state.residual_db = state.residual_db * keep + math.sqrt(1 - keep * keep) * float(self.rng.normal(0.0, r.sd_db))
+            state.residual_t = t
+            power += state.residual_db
+        return power + float(self.rng.normal(0.0, r.white_sd_db))
+
+    def lost(self, link: tuple[str, str], t: float) -> bool:
+        """Whether the reading at ``t`` is missed: a chain in time with the link's loss fraction
+        and bursts ``burst_s`` long on average, so it holds whatever the transmission rate."""
+        state = self.link(link)
+        loss = self.profile.loss
+        if loss is None or state.loss <= 0:
+            return False
+        if state.lost is None:
+            p_lost = state.loss
+        else:  # P(lost at t | state at the last transmission): the chain relaxes to the fraction
+            keep = math.exp(-max(0.0, t - state.lost_t) / (loss.burst_s * (1 - state.loss)))
+            p_lost = state.loss + ((1.0 if state.lost else 0.0) - state.loss) * keep
+        state.lost = bool(self.rng.random() < p_lost)
+        state.lost_t = t
+        return state.lost
+
+    def second_dbm(self, link: tuple[str, str], rssi_dbm: float) -> float:
+        pol = self.profile.polarisation
+        if pol is None:
+            return super().second_dbm(link, rssi_dbm)
+        return rssi_dbm + float(self.rng.normal(pol.mean_db, pol.sd_db))
+
+
+def channel(board: str, model: PathLossModel, rng: np.random.Generator,
+            profiles: Mapping[str, RssiProfile]) -> RadioChannel:
+    """The channel of a ``board`` (a scenario's device type): measured where ``profiles`` (the
+    radio profile's ``[rssi.NAME]``, by name) has the table of its radio (the device table's
+    ``Board.radio``), else the scenario's own."""
+    radio = devices.BOARDS[board][1].radio
+    profile = profiles.get(radio) if radio is not None else None
+    return RadioChannel(model, rng) if profile is None else MeasuredChannel(model, profile, rng)
