@@ -81,12 +81,12 @@ def lock(port: int) -> bytes | None:
     if sys.platform != "linux":
         return None
     key = secrets.token_bytes(KEY_BYTES)
-    fds = _listening(port)
     try:
+        fds = _listening(port)
         for fd in fds:
             with socket.socket(fileno=os.dup(fd)) as sock:
                 sock.setsockopt(socket.IPPROTO_TCP, TCP_MD5SIG_EXT, _md5sig(key, *EVERY_SOURCE))
-    except OSError:  # a kernel without TCP-MD5
+    except OSError:  # no /proc to find the listener in (a sandbox), or a kernel without TCP-MD5
         return None
     if not fds:
         return None

@@ -260,3 +260,18 @@ def test_a_connection_that_came_before_the_key_is_found() -> None:
         accepted, _ = listener.accept()
         accepted.close()
         signed.close()
+
+
+def test_a_system_without_proc_leaves_the_listener_unlocked_and_says_so(monkeypatch) -> None:
+    """No /proc/self/fd (a sandbox): the listener cannot be found, so lock() returns None (the
+    view warns) instead of raising out of the Foxglove view."""
+    from rfhoming.host import loopback_key
+
+    def no_proc(path: str) -> list[str]:
+        raise FileNotFoundError(2, "No such file or directory", path)
+
+    monkeypatch.setattr(loopback_key.os, "listdir", no_proc)
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        assert loopback_key.lock(listener.getsockname()[1]) is None
