@@ -282,9 +282,9 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
     names = {d.name: d.type for d in sc.devices}
     controller, role, sensors = sensors_of(list(names))
     with contextlib.closing(Output(out / "truth.jsonl")) as truth:
-        truth.own()  # the scenario is loaded: this run's truth replaces the old however it ends
         em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=truth.file)
         await em.start()
+        truth.own()  # its devices are up: this run's truth replaces the old however it ends
         world = asyncio.create_task(em.run())
         sensed = [Device(role, port=PipePort(n, pipe_end(em.device(n).link)), kind=devices.BOARDS[names[n]][0].name)
                   for n in sensors]

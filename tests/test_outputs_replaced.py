@@ -155,6 +155,19 @@ def test_every_output_of_a_command_whose_input_does_not_open_is_left_as_it_was(t
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names)  # no .part left either
 
 
+def test_an_emulator_that_cannot_start_leaves_the_old_truth_file(tmp_path: Path, capsys) -> None:
+    """The world is built but a device's link cannot be made (a folder where the link goes):
+    the truth file was replaced by an empty one."""
+    links = tmp_path / "links"
+    (links / "aoa" / "in-the-way").mkdir(parents=True)
+    truth = tmp_path / "truth.jsonl"
+    truth.write_text(OLD)
+    assert main(["emulate", "s0-open", "--link-dir", str(links), "--truth", str(truth), "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "aoa" in err, err
+    assert truth.read_text() == OLD and not outputs.part_of(truth).exists()
+
+
 def test_an_output_replaces_its_file_whole_and_keeps_its_permissions(tmp_path: Path) -> None:
     site = tmp_path / "site.toml"
     site.write_text(OLD)
