@@ -133,6 +133,28 @@ def test_a_failed_locate_o_leaves_the_old_output(tmp_path: Path, capsys) -> None
         assert "rfhoming locate:" in capsys.readouterr().err
 
 
+def test_a_locate_interrupted_while_its_sources_open_leaves_the_old_outputs(tmp_path: Path, capsys,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C that lands before the event loop's own handler (or while the anchors' ports open)
+    comes out of the command as KeyboardInterrupt: ``-o``'s and ``--capture``'s NAME.part were
+    left behind, and the next ``locate -o NAME`` refused to run until they were removed."""
+    from test_locate import SITE
+
+    from rfhoming.cli import site_sources
+
+    async def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(site_sources, "open_drivers", interrupted)
+    previous, capture = tmp_path / "prev.jsonl", tmp_path / "prev.pcapng"
+    for path in (previous, capture):
+        path.write_text(OLD)
+    assert main(["locate", str(SITE), "-o", str(previous), "--capture", str(capture)]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert previous.read_text() == OLD and capture.read_text() == OLD
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["prev.jsonl", "prev.pcapng"]  # no .part
+
+
 def test_every_output_of_a_command_whose_input_does_not_open_is_left_as_it_was(tmp_path: Path, capsys) -> None:
     """run --log/--capture, capture -o, serve -o, locate --capture, emulate --truth."""
     from test_locate import SITE
