@@ -118,13 +118,15 @@ def _spec(endpoint: dict[str, Any]) -> str:
 
 
 async def home(plan: Homing, out: Path) -> Outcome:
-    with contextlib.closing(Output(out / "run.jsonl")) as runlog:
-        plan.runlog = RunLog(runlog)
-        try:
+    """The run, its log in OUT/run.jsonl; the plan's capture is closed however it ends (a run
+    log that cannot be opened too: its capture's .part is not left behind)."""
+    try:
+        with contextlib.closing(Output(out / "run.jsonl")) as runlog:
+            plan.runlog = RunLog(runlog)
             return await assembly.run(plan)
-        finally:
-            if plan.capture is not None:
-                plan.capture.close()
+    finally:
+        if plan.capture is not None:
+            plan.capture.close()
 
 
 def trilat_config(config: Config, truth: Path, target: str | None) -> Config:

@@ -190,6 +190,16 @@ def test_an_emulator_that_cannot_start_leaves_the_old_truth_file(tmp_path: Path,
     assert truth.read_text() == OLD and not outputs.part_of(truth).exists()
 
 
+def test_a_demo_whose_run_log_cannot_be_written_leaves_no_capture_part(tmp_path: Path, capsys) -> None:
+    """A killed demo's run.jsonl.part in its folder: the next demo says so, and must not leave a
+    capture.pcapng.part of its own (the user removed the one named, and was then refused again)."""
+    (tmp_path / "run.jsonl.part").write_text("a killed demo's\n")
+    assert main(["demo", "--scenario", "s0-open", "--in-process", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "run.jsonl.part exists" in err, err
+    assert not (tmp_path / "capture.pcapng.part").exists() and not (tmp_path / "capture.pcapng").exists()
+
+
 def test_an_output_replaces_its_file_whole_and_keeps_its_permissions(tmp_path: Path) -> None:
     site = tmp_path / "site.toml"
     site.write_text(OLD)
