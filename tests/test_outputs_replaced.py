@@ -200,6 +200,15 @@ def test_a_demo_whose_run_log_cannot_be_written_leaves_no_capture_part(tmp_path:
     assert not (tmp_path / "capture.pcapng.part").exists() and not (tmp_path / "capture.pcapng").exists()
 
 
+def test_a_dissector_whose_part_is_there_says_so(tmp_path: Path, capsys) -> None:
+    """It said "cannot write rfhoming.lua: None" (a WriteFailed has no strerror)."""
+    lua = tmp_path / "rfhoming.lua"
+    outputs.part_of(lua).write_text("a killed writer's\n")
+    assert main(["dissector", "-o", str(lua)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "rfhoming.lua.part exists" in err and "None" not in err, err
+
+
 def test_an_output_replaces_its_file_whole_and_keeps_its_permissions(tmp_path: Path) -> None:
     site = tmp_path / "site.toml"
     site.write_text(OLD)
