@@ -177,6 +177,23 @@ def test_every_output_of_a_command_whose_input_does_not_open_is_left_as_it_was(t
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names)  # no .part left either
 
 
+def test_a_run_whose_devices_never_connect_leaves_the_old_run_log(tmp_path: Path, capsys) -> None:
+    """The loop writes records of its own before any device answers -- "no brake mode: speed
+    bounded" as it is built (a MAVLink base), "stall" on a loaded machine -- and the first of
+    them made the run log the run's: a typo in --aoa replaced the user's log with that line."""
+    pytest.importorskip("pymavlink")
+    import socket
+
+    log = tmp_path / "run.jsonl"
+    log.write_text(OLD)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:  # a vehicle that never answers
+        silent.bind(("127.0.0.1", 0))
+        assert main(["run", "--aoa", f"xplr-aoa:{tmp_path / 'no-such-device'}", "--base",
+                     f"mavlink:udpout:127.0.0.1:{silent.getsockname()[1]},arm=1", "--log", str(log)]) == 2
+    assert "no-such-device" in capsys.readouterr().err
+    assert log.read_text() == OLD and not outputs.part_of(log).exists()
+
+
 def test_an_emulator_that_cannot_start_leaves_the_old_truth_file(tmp_path: Path, capsys) -> None:
     """The world is built but a device's link cannot be made (a folder where the link goes):
     the truth file was replaced by an empty one."""
