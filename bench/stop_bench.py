@@ -25,6 +25,8 @@ from pathlib import Path
 
 import psutil
 
+from rfhoming.host.outputs import part_of
+
 RFHOMING = [sys.executable, "-m", "rfhoming"]
 READY_S = 180.0  # a hang guard for start-up on a loaded machine
 
@@ -35,6 +37,12 @@ def _until(condition: Callable[[], bool], what: str) -> None:
         if time.monotonic() > end:
             raise RuntimeError(f"{what}: not ready after {READY_S:g} s")
         time.sleep(0.05)
+
+
+def _begun(log: Path) -> bool:
+    """A run log has its first record: while the run goes on it is LOG.part (host/outputs.py)."""
+    part = part_of(log)
+    return part.exists() and part.stat().st_size > 0
 
 
 def _connected_to(pid: int, port: int) -> bool:
@@ -84,10 +92,10 @@ def case(name: str, tmp: Path) -> tuple[list[str], Callable[[subprocess.Popen], 
             return [*RFHOMING, "listen", f"xplr-aoa:{ends['aoa']}", "--json"], lambda p: bool(p.stdout.readline()), [em]
         log = tmp / f"run-{time.monotonic_ns()}.jsonl"
         return ([*RFHOMING, "run", "--aoa", f"xplr-aoa:{ends['aoa']}", "--base", f"base:{ends['base']}", "--log",
-                 str(log)], lambda p: log.exists() and log.stat().st_size > 0, [em])
+                 str(log)], lambda p: _begun(log), [em])
     if name == "demo":
         out = tmp / f"demo-{time.monotonic_ns()}"
-        return ([*RFHOMING, "demo", "--speed", "1", "--out", str(out)], lambda p: (out / "run.jsonl").exists(), [])
+        return ([*RFHOMING, "demo", "--speed", "1", "--out", str(out)], lambda p: _begun(out / "run.jsonl"), [])
     if name == "campaign":
         return ([*RFHOMING, "campaign", "s2-scenarios", "--workers", "2", "--quiet", "--out", str(tmp / "camp")],
                 lambda p: len(psutil.Process(p.pid).children()) >= 2, [])

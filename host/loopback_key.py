@@ -6,10 +6,11 @@ and no other kind of socket, and its handshake checks only the subprotocol (foxg
 ``start_server`` has no authentication option). Its listener sits behind the Foxglove front
 (host/foxglove_front.py), whose limits a client that connected to the listener directly
 would pass by. So the listener gets a TCP-MD5 key (RFC 2385, Linux's ``TCP_MD5SIG_EXT``, no
-privilege needed): the kernel then drops every segment from a loopback address (127.0.0.0/8)
-that is not signed with the key -- a connection without it never opens (the SYN is dropped
-and counted as ``TcpExtTCPMD5NotFound`` in /proc/net/netstat) -- and the front signs its own
-connections. The key is random, made for each server, and never leaves this process.
+privilege needed): the kernel then drops every segment that is not signed with the key,
+from any IPv4 source (0.0.0.0/0: a local program may bind its end to this machine's own LAN
+address and still reach 127.0.0.1, so a key for 127.0.0.0/8 alone would let it by) -- a
+connection without it never opens (the SYN is dropped and counted as ``TcpExtTCPMD5NotFound``
+in /proc/net/netstat) -- and the front signs its own connections. The key is random, made for each server, and never leaves this process.
 
 The listening socket is the SDK's: it is found among this process's own descriptors by its
 address. A connection that opened in the instant between the SDK's ``listen`` and the key is
@@ -33,7 +34,7 @@ from rfhoming.protocol.errors import Error
 TCP_MD5SIG_EXT = 32  # linux/tcp.h: a key for an address prefix (Linux 4.13)
 TCP_MD5SIG_FLAG_PREFIX = 1
 KEY_BYTES = 32  # at most TCP_MD5SIG_MAXKEYLEN, 80
-LOOPBACK = "127.0.0.0"
+EVERY_SOURCE = ("0.0.0.0", 0)  # the key is asked of every IPv4 peer, whatever its address
 _OPEN_STATES = frozenset({"01", "03"})  # /proc/net/tcp: ESTABLISHED, SYN_RECV (closing ones may be an older server's)
 
 
@@ -74,18 +75,18 @@ def connections_to(port: int) -> int:
 
 
 def lock(port: int) -> bytes | None:
-    """Set a new key on this process's listener at 127.0.0.1:``port`` for every loopback source;
+    """Set a new key on this process's listener at 127.0.0.1:``port`` for every source;
     the key (for :func:`keyed_socket`), or None where the system cannot (not Linux, no listener
     of ours there). ListenerExposed when a connection got in before the key."""
     if sys.platform != "linux":
         return None
     key = secrets.token_bytes(KEY_BYTES)
-    fds = _listening(port)
     try:
+        fds = _listening(port)
         for fd in fds:
             with socket.socket(fileno=os.dup(fd)) as sock:
-                sock.setsockopt(socket.IPPROTO_TCP, TCP_MD5SIG_EXT, _md5sig(key, LOOPBACK, 8))
-    except OSError:  # a kernel without TCP-MD5
+                sock.setsockopt(socket.IPPROTO_TCP, TCP_MD5SIG_EXT, _md5sig(key, *EVERY_SOURCE))
+    except OSError:  # no /proc to find the listener in (a sandbox), or a kernel without TCP-MD5
         return None
     if not fds:
         return None

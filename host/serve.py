@@ -561,8 +561,9 @@ class ItemServer:
                     await client.ready.wait()
                     continue
                 client.writer.write(line)
-                try:
-                    await asyncio.wait_for(client.writer.drain(), self.stall_s)
+                try:  # asyncio.timeout, not wait_for: no task per line sent
+                    async with asyncio.timeout(self.stall_s):
+                        await client.writer.drain()
                 except TimeoutError:
                     self.counters["disconnected_stalled"] += 1
                     log.warning("client %s took nothing for %g s: disconnecting it", client.peer, self.stall_s)

@@ -118,13 +118,15 @@ def _spec(endpoint: dict[str, Any]) -> str:
 
 
 async def home(plan: Homing, out: Path) -> Outcome:
-    with contextlib.closing(Output(out / "run.jsonl")) as runlog:
-        plan.runlog = RunLog(runlog)
-        try:
+    """The run, its log in OUT/run.jsonl; the plan's capture is closed however it ends (a run
+    log that cannot be opened too: its capture's .part is not left behind)."""
+    try:
+        with contextlib.closing(Output(out / "run.jsonl")) as runlog:
+            plan.runlog = RunLog(runlog)
             return await assembly.run(plan)
-        finally:
-            if plan.capture is not None:
-                plan.capture.close()
+    finally:
+        if plan.capture is not None:
+            plan.capture.close()
 
 
 def trilat_config(config: Config, truth: Path, target: str | None) -> Config:
@@ -282,9 +284,9 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
     names = {d.name: d.type for d in sc.devices}
     controller, role, sensors = sensors_of(list(names))
     with contextlib.closing(Output(out / "truth.jsonl")) as truth:
-        truth.own()  # the scenario is loaded: this run's truth replaces the old however it ends
         em = Emulator(sc, transport="pipe", seed=seed, lockstep=True, lockstep_timeout=2.0, truth=truth.file)
         await em.start()
+        truth.own()  # its devices are up: this run's truth replaces the old however it ends
         world = asyncio.create_task(em.run())
         sensed = [Device(role, port=PipePort(n, pipe_end(em.device(n).link)), kind=devices.BOARDS[names[n]][0].name)
                   for n in sensors]

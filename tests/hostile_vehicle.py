@@ -87,6 +87,8 @@ class HostileVehicle:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join(10)
+        while select.select([self._sock], [], [], 0)[0]:  # what came before it stopped (a run's last HOLD,
+            self._receive()  # sent as it exited) is read too, however late the thread would have woken
         self._sock.close()
 
     def switch_to(self, mode: str) -> None:

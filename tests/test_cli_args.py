@@ -27,6 +27,7 @@ from hypothesis import strategies as st
 
 from rfhoming.cli.main import build_parser
 from rfhoming.demo import DemoError, start_emulator
+from rfhoming.host.outputs import part_of
 
 RFHOMING = [sys.executable, "-m", "rfhoming"]
 SITE = str(Path(__file__).resolve().parent.parent / "docs" / "sites" / "kit-room.toml")
@@ -227,7 +228,8 @@ def test_sigterm_to_demo_ends_its_emulator(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     proc = subprocess.Popen([*RFHOMING, "demo", "--speed", "1", "--out", str(out)], cwd=tmp_path,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    _wait_for(lambda: (out / "run.jsonl.part").exists() or proc.poll() is not None, "the homing to start")
+    _wait_for(lambda: part_of(out / "run.jsonl").exists() or proc.poll() is not None,  # run.jsonl once it ended
+              "the homing to start")
     children = psutil.Process(proc.pid).children(recursive=True)
     assert children and any("emulate" in c.cmdline() for c in children)
     _terminate_and_check_no_child_survives(proc, children)

@@ -154,6 +154,21 @@ def test_the_front_keeps_at_most_max_idle_clients_of_one_address(view) -> None:
         sock.close()
 
 
+def _md5_lockable() -> bool:
+    """Whether this system takes a listener's TCP-MD5 key (Linux with CONFIG_TCP_MD5SIG, a
+    container that allows it); where it does not, the view warns and stays open (no test)."""
+    from rfhoming.host.loopback_key import lock
+
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        return lock(listener.getsockname()[1]) is not None
+
+
+needs_md5 = pytest.mark.skipif(not os.path.exists("/proc/net/netstat") or not _md5_lockable(),
+                               reason="a kernel that takes TCP-MD5 keys (and counts their drops) is needed")
+
+
 def _md5_drops() -> int:
     """Linux's count of TCP segments dropped for want of a TCP-MD5 signature."""
     with open("/proc/net/netstat") as table:
@@ -164,28 +179,63 @@ def _md5_drops() -> int:
     raise AssertionError("no TcpExt line")
 
 
-@pytest.mark.skipif(not os.path.exists("/proc/net/netstat"), reason="Linux's TCP-MD5 counters are needed")
-def test_the_sdks_listener_takes_no_connection_but_the_fronts(view) -> None:
-    """A plain connection to the SDK's port never opens: its SYN is dropped (counted by the
-    kernel), while the front's signed connections carry a client's handshake as before."""
+def _refused(port: int, source: str = "127.0.0.1") -> None:
+    """A plain connection from ``source`` to 127.0.0.1:``port`` never opens: the kernel drops
+    its SYN (and counts it)."""
     before = _md5_drops()
     direct = socket.socket()
     direct.setblocking(False)
-    assert direct.connect_ex(("127.0.0.1", view.server.port)) in (0, errno.EINPROGRESS)
+    direct.bind((source, 0))
+    assert direct.connect_ex(("127.0.0.1", port)) in (0, errno.EINPROGRESS)
     deadline = time.monotonic() + SAFETY_S
     while _md5_drops() == before:  # until the kernel has seen its SYN and dropped it
         _, writable, _ = select.select([], [direct], [], 0.05)
         if writable:
             error = direct.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
-            pytest.fail(f"a plain connection reached the SDK's listener directly (error {error})")
+            pytest.fail(f"a plain connection from {source} reached the listener directly (error {error})")
         assert time.monotonic() < deadline, "the kernel saw no SYN"
     _, writable, _ = select.select([], [direct], [], 0)
     assert not writable
     direct.close()
+
+
+@needs_md5
+def test_the_sdks_listener_takes_no_connection_but_the_fronts(view) -> None:
+    """A plain connection to the SDK's port never opens, while the front's signed connections
+    carry a client's handshake as before."""
+    _refused(view.server.port)
     _handshake(view.front.port).close()  # through the front, as before
 
 
-@pytest.mark.skipif(not os.path.exists("/proc/net/tcp"), reason="Linux's TCP-MD5 is needed")
+def _lan_address() -> str:
+    """This machine's own address towards other machines (found by the route alone: nothing is
+    sent), or the test is skipped."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect(("192.0.2.1", 9))
+        except OSError:
+            pytest.skip("this machine has no route off loopback")
+        address = str(probe.getsockname()[0])
+    if address.startswith("127."):
+        pytest.skip("this machine has no address but loopback")
+    return address
+
+
+@needs_md5
+def test_a_local_program_bound_to_the_lan_address_is_refused_too() -> None:
+    """127.0.0.1 takes connections from this machine's own LAN address as well: a key asked only
+    of 127.0.0.0/8 let such a program in."""
+    from rfhoming.host.loopback_key import lock
+
+    source = _lan_address()
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        assert lock(listener.getsockname()[1]) is not None
+        _refused(listener.getsockname()[1], source)
+
+
+@needs_md5
 def test_a_connection_that_came_before_the_key_is_found() -> None:
     """The instant between the SDK's listen and its key: a connection made in it is looked for."""
     from rfhoming.host.loopback_key import ListenerExposed, keyed_socket, lock
@@ -210,3 +260,18 @@ def test_a_connection_that_came_before_the_key_is_found() -> None:
         accepted, _ = listener.accept()
         accepted.close()
         signed.close()
+
+
+def test_a_system_without_proc_leaves_the_listener_unlocked_and_says_so(monkeypatch) -> None:
+    """No /proc/self/fd (a sandbox): the listener cannot be found, so lock() returns None (the
+    view warns) instead of raising out of the Foxglove view."""
+    from rfhoming.host import loopback_key
+
+    def no_proc(path: str) -> list[str]:
+        raise FileNotFoundError(2, "No such file or directory", path)
+
+    monkeypatch.setattr(loopback_key.os, "listdir", no_proc)
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        assert loopback_key.lock(listener.getsockname()[1]) is None

@@ -133,6 +133,28 @@ def test_a_failed_locate_o_leaves_the_old_output(tmp_path: Path, capsys) -> None
         assert "rfhoming locate:" in capsys.readouterr().err
 
 
+def test_a_locate_interrupted_while_its_sources_open_leaves_the_old_outputs(tmp_path: Path, capsys,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C that lands before the event loop's own handler (or while the anchors' ports open)
+    comes out of the command as KeyboardInterrupt: ``-o``'s and ``--capture``'s NAME.part were
+    left behind, and the next ``locate -o NAME`` refused to run until they were removed."""
+    from test_locate import SITE
+
+    from rfhoming.cli import site_sources
+
+    async def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(site_sources, "open_drivers", interrupted)
+    previous, capture = tmp_path / "prev.jsonl", tmp_path / "prev.pcapng"
+    for path in (previous, capture):
+        path.write_text(OLD)
+    assert main(["locate", str(SITE), "-o", str(previous), "--capture", str(capture)]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert previous.read_text() == OLD and capture.read_text() == OLD
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["prev.jsonl", "prev.pcapng"]  # no .part
+
+
 def test_every_output_of_a_command_whose_input_does_not_open_is_left_as_it_was(tmp_path: Path, capsys) -> None:
     """run --log/--capture, capture -o, serve -o, locate --capture, emulate --truth."""
     from test_locate import SITE
@@ -153,6 +175,55 @@ def test_every_output_of_a_command_whose_input_does_not_open_is_left_as_it_was(t
     for name in names:
         assert (tmp_path / name).read_text() == OLD, name
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names)  # no .part left either
+
+
+def test_a_run_whose_devices_never_connect_leaves_the_old_run_log(tmp_path: Path, capsys) -> None:
+    """The loop writes records of its own before any device answers -- "no brake mode: speed
+    bounded" as it is built (a MAVLink base), "stall" on a loaded machine -- and the first of
+    them made the run log the run's: a typo in --aoa replaced the user's log with that line."""
+    pytest.importorskip("pymavlink")
+    import socket
+
+    log = tmp_path / "run.jsonl"
+    log.write_text(OLD)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:  # a vehicle that never answers
+        silent.bind(("127.0.0.1", 0))
+        assert main(["run", "--aoa", f"xplr-aoa:{tmp_path / 'no-such-device'}", "--base",
+                     f"mavlink:udpout:127.0.0.1:{silent.getsockname()[1]},arm=1", "--log", str(log)]) == 2
+    assert "no-such-device" in capsys.readouterr().err
+    assert log.read_text() == OLD and not outputs.part_of(log).exists()
+
+
+def test_an_emulator_that_cannot_start_leaves_the_old_truth_file(tmp_path: Path, capsys) -> None:
+    """The world is built but a device's link cannot be made (a folder where the link goes):
+    the truth file was replaced by an empty one."""
+    links = tmp_path / "links"
+    (links / "aoa" / "in-the-way").mkdir(parents=True)
+    truth = tmp_path / "truth.jsonl"
+    truth.write_text(OLD)
+    assert main(["emulate", "s0-open", "--link-dir", str(links), "--truth", str(truth), "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "aoa" in err, err
+    assert truth.read_text() == OLD and not outputs.part_of(truth).exists()
+
+
+def test_a_demo_whose_run_log_cannot_be_written_leaves_no_capture_part(tmp_path: Path, capsys) -> None:
+    """A killed demo's run.jsonl.part in its folder: the next demo says so, and must not leave a
+    capture.pcapng.part of its own (the user removed the one named, and was then refused again)."""
+    (tmp_path / "run.jsonl.part").write_text("a killed demo's\n")
+    assert main(["demo", "--scenario", "s0-open", "--in-process", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "run.jsonl.part exists" in err, err
+    assert not (tmp_path / "capture.pcapng.part").exists() and not (tmp_path / "capture.pcapng").exists()
+
+
+def test_a_dissector_whose_part_is_there_says_so(tmp_path: Path, capsys) -> None:
+    """It said "cannot write rfhoming.lua: None" (a WriteFailed has no strerror)."""
+    lua = tmp_path / "rfhoming.lua"
+    outputs.part_of(lua).write_text("a killed writer's\n")
+    assert main(["dissector", "-o", str(lua)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "rfhoming.lua.part exists" in err and "None" not in err, err
 
 
 def test_an_output_replaces_its_file_whole_and_keeps_its_permissions(tmp_path: Path) -> None:

@@ -97,14 +97,24 @@ class RunLog:
     """JSON lines, one per event, flushed as they come (a killed run keeps its log: in
     ``NAME.part`` when written through an :class:`~rfhoming.host.outputs.Output`).
 
+    Written through an Output, the log is the run's (it replaces NAME however the run ends)
+    once the run has begun (:meth:`began`: its base answered): the loop's own records before
+    that -- "no brake mode", a stall while the ports open -- do not make a run whose devices
+    never connected replace the old log.
+
     A write that fails (a full disk) ends the run with an error naming the file and how many
     records it kept: a run without its record is not what was asked for."""
 
     def __init__(self, out: IO[str] | outputs.Output | None,
                  listeners: list[Callable[[dict[str, Any]], None]] | None = None) -> None:
-        self.out = out  # an Output is owned from the first record on: the run's log replaces the old one
+        self.out = out
         self.listeners = listeners or []  # each record also goes to these (an MCAP recorder, a live view)
         self.written = 0  # records on disk
+
+    def began(self) -> None:
+        """The run has begun: from now on its log replaces the old one, however it ends."""
+        if isinstance(self.out, outputs.Output):
+            self.out.own()
 
     def write(self, kind: str, t: float, **fields: Any) -> None:
         """One record; a non-finite number in it is a bug (every decoder refuses one), raised
@@ -116,8 +126,9 @@ class RunLog:
             except ValueError:
                 raise ValueError(f"a {kind} record at t={t} holds a number that is not finite: {record!r}") from None
             try:
-                self.out.write(line + "\n")
-                self.out.flush()
+                file = self.out.file if isinstance(self.out, outputs.Output) else self.out  # owned at began()
+                file.write(line + "\n")
+                file.flush()
             except OSError as exc:
                 out, self.out = self.out, None
                 kept = f"it holds the run's first {self.written} records (export skips a torn last line)"
@@ -217,6 +228,7 @@ class HomingLoop:
         try:
             async with self.stalls as stalls, self.base:
                 await self._base_connected(tasks[0])
+                self.log.began()  # the base answered: the run's log is this one now
                 self.base.stop()  # a known state, and the emulator's lockstep gets its first answer
                 self.last_odometry_wall = time.monotonic()  # the base's silence counts once it is there
                 outcome = await self._loop()

@@ -54,9 +54,11 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
         drivers: list[Driver] = await open_drivers(specs, baud=baud, flow=flow,
                                                    taps=[capture.tap] if capture else [],
                                                    describe=capture.describe if capture else None)
-    except (OSError, Error) as exc:
+    except BaseException as exc:  # a port that does not open, or Ctrl-C while they open
         if capture is not None:
             capture.close()  # nothing came: the old file stays
+        if not isinstance(exc, (OSError, Error)):
+            raise
         said = f"cannot read {exc.filename}: {exc.strerror}" if isinstance(exc, OSError) else str(exc)
         print(f"rfhoming {command}: {said}", file=sys.stderr)
         return 2

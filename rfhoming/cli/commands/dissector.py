@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from rfhoming.host.outputs import replace_text
+from rfhoming.host.outputs import WriteFailed, replace_text
 from rfhoming.protocol.frames.wireshark import lua_dissector
 
 
@@ -18,6 +18,9 @@ def run(args: argparse.Namespace) -> int:
         path = Path(args.output).expanduser()
         path.parent.mkdir(parents=True, exist_ok=True)
         replace_text(path, lua_dissector())
+    except WriteFailed as exc:  # its .part is there, or the write failed: the message says which, and what is kept
+        print(f"rfhoming dissector: {exc}", file=sys.stderr)
+        return 2
     except OSError as exc:
         print(f"rfhoming dissector: cannot write {args.output}: {exc.strerror}", file=sys.stderr)
         return 2

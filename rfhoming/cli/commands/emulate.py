@@ -32,30 +32,28 @@ def run(args: argparse.Namespace) -> int:
         return 2
     truth = Output(args.truth) if args.truth else None  # TRUTH.part while it runs, TRUTH once it stops
     try:
-        emulator = Emulator(
-            scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
-            speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
-            faults=faults, truth=truth.file if truth else None, link_dir=args.link_dir, robot=args.robot,
-            pose_from=args.pose_from,
-        )
-    except Error as exc:
-        if truth is not None:
-            truth.close()  # the old truth file stays
-        print(f"rfhoming emulate: {exc}", file=sys.stderr)
-        return 2
-    try:
-        if truth is not None:
-            truth.own()  # the world is built: this run's truth replaces the old however it ends
-        asyncio.run(_serve(emulator, args.duration))
+        try:
+            emulator = Emulator(
+                scenario, transport="tcp" if args.tcp else "pty", seed=args.seed,
+                speed=math.inf if args.speed == 0 else args.speed, lockstep=args.lockstep,
+                faults=faults, truth=truth.file if truth else None, link_dir=args.link_dir, robot=args.robot,
+                pose_from=args.pose_from,
+            )
+        except Error as exc:
+            print(f"rfhoming emulate: {exc}", file=sys.stderr)
+            return 2
+        asyncio.run(_serve(emulator, args.duration, truth))
     finally:
         if truth is not None:
-            truth.close()
+            truth.close()  # renamed into place once the emulator started, else the old truth file stays
     return 0
 
 
-async def _serve(emulator: Emulator, duration: float | None) -> None:
+async def _serve(emulator: Emulator, duration: float | None, truth: Output | None) -> None:
     for endpoint in await emulator.start():
         print(json.dumps(endpoint), flush=True)
+    if truth is not None:
+        truth.own()  # its devices are up: this run's truth replaces the old however it ends
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
     assert task is not None  # run by asyncio.run

@@ -57,32 +57,32 @@ def run(args: argparse.Namespace) -> int:
             ros2.on_item("", t, event)
         show(locator.feed(t, event))
 
-    smoothed = args.smooth
-    stalls = StallMonitor()
-    code = asyncio.run(watching(gather("locate", site, args.sources, feed, locator.disconnected, baud=args.baud,
-                                       flow=args.flow, duration=args.duration, capture_to=args.capture), stalls))
-    if code:
-        if isinstance(out, Output):
-            out.close()  # renamed into place if it got a line, else the old file stays
+    try:
+        smoothed = args.smooth
+        stalls = StallMonitor()
+        code = asyncio.run(watching(gather("locate", site, args.sources, feed, locator.disconnected, baud=args.baud,
+                                           flow=args.flow, duration=args.duration, capture_to=args.capture), stalls))
+        if code:
+            return code
+        show(locator.flush())
+        if args.smooth:
+            args.smooth = False
+            show(smooth(fixes, args.accel_psd))
+        if ros2 is not None:
+            ros2.close()
+        names = {a.id: a.name for a in site.anchors}
+        summary = {"kind": "summary", "site": site.name,
+                   "estimate": "smoothed (RTS over the whole recording)" if smoothed else
+                   "raw fixes" if args.no_track else f"causal ({args.tracker} tracker)",
+                   "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
+                            for tag, v in sorted(per_tag.items())},
+                   "anchors": sorted(names.values()), **locator.counters,
+                   "losses": losses.WARNINGS.check("locate", locator.counters), **stalls.summary()}
+        out.write(json.dumps(summary) + "\n")
         return code
-    show(locator.flush())
-    if args.smooth:
-        args.smooth = False
-        show(smooth(fixes, args.accel_psd))
-    if ros2 is not None:
-        ros2.close()
-    names = {a.id: a.name for a in site.anchors}
-    summary = {"kind": "summary", "site": site.name,
-               "estimate": "smoothed (RTS over the whole recording)" if smoothed else
-               "raw fixes" if args.no_track else f"causal ({args.tracker} tracker)",
-               "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
-                        for tag, v in sorted(per_tag.items())},
-               "anchors": sorted(names.values()), **locator.counters,
-               "losses": losses.WARNINGS.check("locate", locator.counters), **stalls.summary()}
-    out.write(json.dumps(summary) + "\n")
-    if out is not sys.stdout:
-        out.close()
-    return code
+    finally:
+        if isinstance(out, Output):
+            out.close()  # renamed into place once it got a line (however the command ended), else the old file stays
 
 
 def _calibration_in_use(site: sites.Site) -> str:
