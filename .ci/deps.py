@@ -45,8 +45,12 @@ def read_lock(path: Path) -> dict[str, Version]:
 
 
 def installed() -> dict[str, Version]:
-    """Every distribution of the running interpreter's environment, but pip and rfhoming."""
-    found = {canonicalize_name(d.metadata["Name"]): Version(d.version) for d in metadata.distributions()}
+    """Every distribution an installer put in the running interpreter's environment, but pip and
+    rfhoming. Metadata a wheel carries inside it for its own modules (ROS 2's wheels ship
+    ``rclpy-7.1.5.egg-info`` beside ``ros_rclpy-7.1.6.dist-info``) has no INSTALLER: not a package
+    of the index, and never in a lock."""
+    found = {canonicalize_name(d.metadata["Name"]): Version(d.version) for d in metadata.distributions()
+             if d.read_text("INSTALLER") is not None}
     return {name: version for name, version in found.items() if name not in NOT_OURS}
 
 
