@@ -36,8 +36,8 @@ def run(args: argparse.Namespace) -> int:
     from rfhoming.host.sitebus import Broker, Worker  # paho-mqtt: the "site" extra
 
     given = [flag for key, flag in NOT_WITH_A_BROKER.items() if getattr(args, key, None)]
-    if args.tracker != "cv" or args.loss != "huber":
-        given.append(f"--tracker {args.tracker}" if args.tracker != "cv" else f"--loss {args.loss}")
+    if args.tracker not in (None, "cv") or args.loss != "huber":
+        given.append(f"--tracker {args.tracker}" if args.tracker not in (None, "cv") else f"--loss {args.loss}")
     if len(args.sources) > 1 or given:
         print("rfhoming locate: --from mqtt:// is the one source of a site worker, which tracks with the batched "
               f"cv filter and publishes to the broker; leave out {', '.join(given) or 'the other --from'}",
