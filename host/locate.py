@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, Fix, Ray, angle_sigma_deg, locate, make_ray
-from rfhoming.host.estimation.angle_tracker import AngleNoise, AngleTracker
+from rfhoming.host.estimation.angle_tracker import AngleNoise, AngleTracker, TrackerBank
 from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
 from rfhoming.host.site import Anchor, Calibration, Site, uncompress
 from rfhoming.protocol.uconnect import AngleEvent
@@ -39,6 +39,12 @@ on the fixes (cheapest); ekf: the same state updated by every angle pair, no err
 ACCEL_PSD = {"angles": 0.05, "cv": 1.0, "ekf": 1.0}
 """Each tracker's default white acceleration (m^2/s^3): the angles tracker's chosen by
 cross-validation on real walks (docs/estimation.md), the others' for walking."""
+
+AGILE_ACCEL_PSD = 1.0
+"""The angles tracker runs its smooth model (``accel_psd``) beside an agile one of this white
+acceleration and mixes them by how well each foresees the reports (angle_tracker.TrackerBank):
+the real walks' steady walker wants the smooth model, a turn, a start or a faster walker (the
+emulator's walk at 1.2 m/s) the agile one."""
 
 MAX_PENDING = 100_000
 """Events held for reordering at most (then the oldest are processed early, counted)."""
@@ -119,10 +125,12 @@ class Locator:
         self._windows: dict[tuple[str, str], deque[tuple[float, float, float]]] = {}
         self._trackers: dict[str, ConstantVelocity] = {}
         self._ekfs: dict[str, BearingEkf] = {}
-        self._angle_trackers: dict[str, AngleTracker] = {}
-        self.log_density = [0.0, 0]
-        """The angles tracker's reports: (sum of their predictive log densities, count); its mean
-        says how well a site (its calibration) lets the tracker foresee the reports."""
+        self._angle_trackers: dict[str, AngleTracker | TrackerBank] = {}
+        self.log_density = 0.0
+        """The sum of the angles tracker's reports' predictive log densities (in the reported
+        angles' units), over ``reports_scored`` reports: its mean says how well a site (its
+        calibration) lets the tracker foresee the reports."""
+        self.reports_scored = 0
         self._lost: dict[str, float] = {}  # anchor id -> host time its driver last reported it gone
         self.counters = {"events": 0, "unknown_anchor": 0, "other_tag": 0, "late": 0, "overflow": 0,
                          "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0, "restarts": 0,
@@ -182,8 +190,8 @@ class Locator:
         if tracker is not None and not tracker.lost:
             before, density = tracker.counters["downweighted"], tracker.log_density
             if math.isfinite(tracker.update(t, self._index[anchor_id], a, e)):  # the density of the reading
-                self.log_density[0] += tracker.log_density - density - (cal.log_stretch(a) if self.calibrated else 0.0)
-                self.log_density[1] += 1
+                self.log_density += tracker.log_density - density - (cal.log_stretch(a) if self.calibrated else 0.0)
+                self.reports_scored += 1
             self.counters["downweighted"] += tracker.counters["downweighted"] - before
             if tracker.lost:  # its reports disagreed with it for too long: the next tick fixes afresh
                 self.counters["restarts"] += 1
@@ -283,11 +291,17 @@ class Locator:
             out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, _chi2_per_dof(fix, height, self.height_sigma)))
         return out
 
-    def _new_angle_tracker(self, height: float | None) -> AngleTracker:
+    def _new_angle_tracker(self, height: float | None) -> AngleTracker | TrackerBank:
         anchors = self.site.anchors
-        return AngleTracker([a.position for a in anchors], [self.rotations[a.id] for a in anchors],
-                            [a.angle_model for a in anchors], self.noise, self.accel_psd, height, self.height_sigma,
-                            self.site.az_compression)
+
+        def one(q: float) -> AngleTracker:
+            return AngleTracker([a.position for a in anchors], [self.rotations[a.id] for a in anchors],
+                                [a.angle_model for a in anchors], self.noise, q, height, self.height_sigma,
+                                self.site.az_compression)
+
+        if self.accel_psd >= AGILE_ACCEL_PSD:
+            return one(self.accel_psd)
+        return TrackerBank([one(self.accel_psd), one(AGILE_ACCEL_PSD)])
 
 
 def smooth(fixes: list[Position], accel_psd: float = 1.0) -> list[Position]:

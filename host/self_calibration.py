@@ -556,8 +556,8 @@ def _foresight(site: Site, calibrations: Sequence[Calibration], models: Sequence
         for t, event in recording:
             locator.feed(t, event)
         locator.flush()
-        total += locator.log_density[0]
-        count += locator.log_density[1]
+        total += locator.log_density
+        count += locator.reports_scored
     return total / count if count else -math.inf
 
 

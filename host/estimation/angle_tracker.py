@@ -250,10 +250,63 @@ class AngleTracker:
 
 def _inverse2(s: np.ndarray) -> np.ndarray:
     (a, b), (c, d) = s.tolist()
-    return np.array([[d, -b], [-c, a]]) / (a * d - b * c)
+    inverse: np.ndarray = np.array([[d, -b], [-c, a]]) / (a * d - b * c)
+    return inverse
 
 
 def _log_density(d2: float, det: float, dof: float) -> float:
     """A 2-D report's predictive log density (less the constants): Student-t of ``dof`` (0: Gaussian)."""
     spread = -0.5 * math.log(max(det, 1e-300))
     return spread - (0.5 * d2 if dof <= 0 else (dof + 2) / 2 * math.log1p(d2 / dof))
+
+
+class TrackerBank:
+    """Several :class:`AngleTracker` s that differ only in how the tag moves (their white
+    acceleration), run side by side on the same reports; the position is their mixture, each
+    weighted by how well it has foreseen the recent reports (its predictive density, with
+    ``forget`` per report so that a walker who turns or stops moves the weight within seconds).
+    A steady walker is followed by the smooth model, a turn or a start by the agile one."""
+
+    def __init__(self, trackers: Sequence[AngleTracker], forget: float = 0.98) -> None:
+        self.trackers = list(trackers)
+        self.forget = forget
+        self.log_weights = np.zeros(len(self.trackers))
+        self.counters = self.trackers[0].counters  # the first's: one count per report
+        self.log_density = 0.0
+        """The sum of each report's predictive log density under the mixture."""
+
+    @property
+    def t(self) -> float | None:
+        return self.trackers[0].t
+
+    @property
+    def lost(self) -> bool:
+        return any(tr.lost for tr in self.trackers)
+
+    def start(self, t: float, point: np.ndarray, covariance: np.ndarray) -> None:
+        for tr in self.trackers:
+            tr.start(t, point, covariance)
+        self.log_weights[:] = 0.0
+
+    def weights(self) -> np.ndarray:
+        w = np.exp(self.log_weights - self.log_weights.max())
+        return np.asarray(w / w.sum())
+
+    def predicted(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        w = self.weights()
+        parts = [tr.predicted(t) for tr in self.trackers]
+        mean = sum(wk * p for wk, (p, _) in zip(w, parts))
+        cov = sum(wk * (c + np.outer(p - mean, p - mean)) for wk, (p, c) in zip(w, parts))
+        return np.asarray(mean), np.asarray(cov)
+
+    def update(self, t: float, k: int, azimuth_deg: float, elevation_deg: float) -> float:
+        before = [tr.log_density for tr in self.trackers]
+        d2 = [tr.update(t, k, azimuth_deg, elevation_deg) for tr in self.trackers]
+        gained = np.array([tr.log_density - b for tr, b in zip(self.trackers, before)])
+        top = float(gained.max())
+        self.log_density += top + math.log(float(self.weights() @ np.exp(gained - top)))
+        self.log_weights = self.forget * self.log_weights + gained
+        if any(tr.lost for tr in self.trackers):
+            for tr in self.trackers:
+                tr.t = None
+        return d2[0]
