@@ -19,8 +19,8 @@ def emulated_site(name: str, seed: int) -> Site:
     from rfhoming.emulator.site import SiteScenario
 
     sc = SiteScenario.named(name, seed=seed)
-    return Site(name, tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg) for a in sc.anchors),
-                sigma_deg=sc.sigma_deg)
+    return Site(name, tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg, angle_model="spherical")
+                            for a in sc.anchors), sigma_deg=sc.sigma_deg, az_compression=0.0)  # the emulator's boards
 
 
 def resolve_site(text: str, seed: int) -> Site:
