@@ -71,9 +71,11 @@ elevation, |azimuth| compression, where the data determine them) are fitted join
 epoch's position (the scales' geometric mean is fixed to 1: an overall scale is not
 observable). The epochs are cut into 10 s blocks dealt into three folds, each scored by a fit
 of the others: the calibration is written only when it beats the uncalibrated site on these
-held-out epochs, else nothing is written and one line says why. A parameter that runs to its
-bound or that the folds do not agree on is held at its default ("held", with the reason).
-Refused when the tags did not cover the room.
+held-out epochs and locate's tracker foresees the recordings' reports better with it, else
+nothing is written and the verdict says why. A parameter that runs to its bound or that the
+folds do not agree on is held at its default ("held", with the reason). Refused when the tags
+did not cover the room. One progress line on stderr, one summary line on stdout (--verbose:
+each anchor's fit, sigmas and reasons, and each device's counters).
 
 examples:
   rfhoming calibrate site.toml --points points.toml --duration 20
