@@ -40,6 +40,13 @@ removed when it ends, on Ctrl-C and on SIGTERM too.
     python bench/budget_bench.py --json                       # everything, ~25 min
     python bench/budget_bench.py --runs s0-open,s1-dock --quotas 25
     python bench/budget_bench.py --mechanism duty --runs s2-a  # the fallback, to compare
+    python bench/budget_bench.py --runs locate/replay --quotas 25   # rfhoming locate live on a real recording
+
+``locate/replay`` is not a homing: ``rfhoming locate`` reads a real four-anchor recording
+(``--capture``; default ../shared/data/girolami_xplr_aoa's uc1_run1, ~150 +UUDF lines/s) at its
+recorded pace (``--from capture:FILE,speed=1``: the live drivers, the bytes when they came); its
+latency is each position line's arrival less its tick, less that of the first lines (the
+recording's clock is not the machine's), and its targets are LOCATE_TARGETS.
 """
 
 from __future__ import annotations
@@ -58,10 +65,19 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 RUNS = ["s0-open", "s0-house", "s1-dock", "s2-a", "s2-b", "s2-c", "s2-d", "s2-e",
-        "s3-arena/esp32", "s3-arena/esp-at", "s3-arena/hci", "kit-home/anchors"]
+        "s3-arena/esp32", "s3-arena/esp-at", "s3-arena/hci", "kit-home/anchors", "locate/replay"]
 TARGETS = {25: {"success": True, "stale_stops": 0, "latency_ms_p99": 50.0},
            100: {"latency_ms_p99": 10.0, "loop_stall_ms_max": 20.0}}
+LOCATE_TARGETS = {25: {"success": True, "latency_ms_p99": 100.0}, 100: {"latency_ms_p99": 50.0}}
+"""locate/replay: its latency is how much later after its tick a position line arrives than the
+first lines did (the recording's clock is not the machine's: a locate that keeps up stays near 0,
+one that falls behind grows); success: positions over the whole recording, none a second late."""
+LOCATE_CAPTURE = (Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "girolami_xplr_aoa" / "captures"
+                  / "uc1_run1.pcapng")
+"""locate/replay's recording: a real four-anchor walk, ~150 +UUDF lines/s (--capture: another)."""
 PERIOD_US = 10_000  # the cgroup's period: the quota is spent in slices of at most this
 DUTY_PERIOD_S = 0.1
 SITE = Path(__file__).resolve().parent.parent / "docs" / "sites" / "kit-home.toml"
@@ -250,6 +266,48 @@ def _cpu_now(usage_file: str | None, pids: list[int]) -> float:
     return total
 
 
+def locate_worker(capture: Path, site: Path, out: Path, usage_file: str | None) -> dict[str, Any]:
+    """``rfhoming locate`` on a recording replayed at its recorded pace (``--from
+    capture:FILE,speed=1``: the same drivers as live, the bytes arriving when they were
+    recorded), each position line timed as it arrives: its lag behind its tick, and the CPU
+    per second of recording."""
+    out.mkdir(parents=True, exist_ok=True)
+    cpu0 = _cpu_now(usage_file, [os.getpid()])
+    with (out / "locate.err").open("w") as err:
+        locate = subprocess.Popen([sys.executable, "-m", "rfhoming", "locate", str(site), "--from",
+                                   f"capture:{capture},speed=1"], stdout=subprocess.PIPE, stderr=err, text=True)
+        lags, ticks, summary = [], [], {}
+        for line in locate.stdout:  # type: ignore[union-attr]
+            got = json.loads(line)
+            if got.get("kind") == "position":
+                lags.append(time.time() - got["t"])
+                ticks.append(got["t"])
+            elif got.get("kind") == "summary":
+                summary = got
+        locate.wait()
+    cpu = _cpu_now(usage_file, [os.getpid()]) - cpu0 + (0.0 if usage_file else _children_cpu())
+    span = ticks[-1] - ticks[0] if len(ticks) > 1 else 0.0
+    # a capture's ticks are its recorded host times: the lag is counted from the first lines' (the
+    # median of the first 50: no backlog yet); the last ticks, flushed at the end, come early
+    lag = (np.array(lags) - float(np.median(lags[:50]))) * 1000 if lags else np.array([np.nan])
+    return {"run": "locate/replay", "success": bool(lags) and span > 0 and float(lag.max()) < 1000.0,
+            "reason": f"{len(ticks)} positions over {span:.1f} s of {capture.name}" if ticks else
+                      "no position: " + " ".join((out / "locate.err").read_text().splitlines()[-1:]),
+            "stale_stops": None, "latency_ms_p50": round(float(np.percentile(lag, 50)), 1),
+            "latency_ms_p99": round(float(np.percentile(lag, 99)), 1),
+            "loop_stall_ms_max": summary.get("loop_stall_ms_max"), "loop_stall_ms_p99": summary.get("loop_stall_ms_p99"),
+            "simulated_time_s": round(span, 2), "wall_s": round(span, 2), "cpu_s": round(cpu, 2),
+            "cpu_s_per_sim_s": round(cpu / span, 4) if span else None}
+
+
+def _children_cpu() -> float:
+    """CPU seconds of this process's waited-for children (where no cgroup counts them)."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def worker(run: str, seed: int, out: Path, usage_file: str | None) -> dict[str, Any]:
     """One homing at robot time, as ``rfhoming demo --speed 1`` (or emulate + run for the
     anchors) makes it; the CPU counted over the homing only (not the interpreters' start or
@@ -322,11 +380,11 @@ def _start_kit_home(seed: int, truth: Path, out: Path) -> tuple[subprocess.Popen
 # ---------------------------------------------------------------- the bench (parent)
 
 
-def run_one(run: str, percent: float, kind: type[Quota], seed: int, out: Path, reserve: bool = True
-            ) -> dict[str, Any]:
+def run_one(run: str, percent: float, kind: type[Quota], seed: int, out: Path, reserve: bool = True,
+            capture: Path = LOCATE_CAPTURE) -> dict[str, Any]:
     quota = kind(percent, reserve)
     try:
-        cmd = [sys.executable, __file__, "--worker", run, "--seed", str(seed), "--out", str(out)]
+        cmd = [sys.executable, __file__, "--worker", run, "--seed", str(seed), "--out", str(out), "--capture", str(capture)]
         if quota.usage_file() is not None:
             cmd += ["--usage-file", str(quota.usage_file())]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -363,7 +421,8 @@ def _end(proc: subprocess.Popen) -> None:
 def verdict(row: dict[str, Any]) -> dict[str, Any]:
     """Each target of the row's quota: True, False or None (not measured)."""
     checks: dict[str, bool | None] = {}
-    for key, want in TARGETS.get(int(row["quota_percent"]), {}).items():
+    targets = LOCATE_TARGETS if row.get("run") == "locate/replay" else TARGETS
+    for key, want in targets.get(int(row["quota_percent"]), {}).items():
         got = row.get(key)
         if got is None and key != "success":
             checks[key] = None
@@ -411,9 +470,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="keep each run's capture, run log and truth here (default: a "
                    "temporary folder, removed)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    p.add_argument("--capture", type=Path, default=LOCATE_CAPTURE,
+                   help="locate/replay's recording, in a folder laid out as girolami_xplr_aoa/ (site.toml beside "
+                        "captures/; default the real uc1_run1 in ../shared/data)")
     p.add_argument("--worker", metavar="RUN", help=argparse.SUPPRESS)
     p.add_argument("--usage-file", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.worker == "locate/replay":
+        print(json.dumps(locate_worker(args.capture, args.capture.parent.parent / "site.toml", args.out,
+                                       args.usage_file)))
+        return 0
     if args.worker:
         print(json.dumps(worker(args.worker, args.seed, args.out, args.usage_file)))
         return 0
@@ -444,7 +510,7 @@ def main(argv: list[str] | None = None) -> int:
         for q in quotas:
             for run in runs:
                 print(f"[budget] {run} at {q:g} % of one core ({kind.mechanism}) ...", file=sys.stderr, flush=True)
-                row = run_one(run, q, kind, args.seed, out / f"{q:g}" / run.replace("/", "-"), args.reserve)
+                row = run_one(run, q, kind, args.seed, out / f"{q:g}" / run.replace("/", "-"), args.reserve, args.capture)
                 row["verdict"] = verdict(row)
                 print(f"[budget]   {json.dumps({k: v for k, v in row.items() if k != 'verdict'})}",
                       file=sys.stderr, flush=True)

@@ -875,8 +875,8 @@ class SitebusTarget:
         from rfhoming.host.sitebus import Broker, Worker
 
         sc = SiteScenario(4, 2, seed=1, clock_spread_s=0.0)
-        site = Site("fuzz", tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg) for a in sc.anchors),
-                    sigma_deg=sc.sigma_deg)
+        site = Site("fuzz", tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg, angle_model="spherical")
+                                  for a in sc.anchors), sigma_deg=sc.sigma_deg, az_compression=0.0)
         self.now = 1e9
         # no broker is ever reached (port 1): positions wait in the publisher's bounded buffer
         worker = Worker(site, Broker("127.0.0.1", 1, False, None), worker_id="fuzz", partitions=1,

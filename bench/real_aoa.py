@@ -16,6 +16,10 @@ use case ``uc1``).
 every *other* use case (a copy of the site file, no ground truth), then locate this use case's
 recordings with that calibration: what a user gets who calibrated on an earlier walk of the room.
 ``--locate ARGS``: extra arguments for every `rfhoming locate` (one string, e.g. "--tracker ekf").
+``--cv``: how the angles tracker's defaults were chosen (docs/estimation.md): for each use case,
+a coordinate search over the report model's and the motion's settings (CV_STEPS) from the
+defaults, scored on that use case alone (in-process, the same scoring rule), then judged on
+every other use case; the defaults themselves scored beside (~25 scorings a fold, minutes).
 
     python bench/real_aoa.py --data DIR [--self-cal] [--json]
 """
@@ -79,7 +83,8 @@ def self_calibrated(site: Path, captures: Sequence[Path], into: Path) -> tuple[P
     lines = [ln for ln in (done.stdout + done.stderr).splitlines() if ln.strip()]
     if done.returncode:  # refused (the walks do not determine it): the user keeps the uncalibrated site
         return copy, "refused: " + (lines[-1] if lines else f"exit {done.returncode}")
-    return copy, (lines[-1] if lines else "")
+    summary = [json.loads(ln) for ln in done.stdout.splitlines() if ln.startswith('{"kind": "self_calibration"')]
+    return copy, (summary[-1]["verdict"] if summary else lines[-1] if lines else "")
 
 
 def summary(errors: np.ndarray) -> dict[str, float]:
@@ -95,9 +100,13 @@ def score_case(site: Path, runs: Sequence[tuple[Path, Path]], extra: Sequence[st
                                                          for (c, _), e in zip(runs, per_run)}}
 
 
-def angle_figures(site_path: Path, runs: Sequence[tuple[Path, Path]]) -> dict[str, object]:
-    """The residual statistics of every anchor, pooled over ``runs``, and of all anchors together."""
+def angle_figures(site_path: Path, runs: Sequence[tuple[Path, Path]], model: str = "spherical") -> dict[str, object]:
+    """The residual statistics of every anchor, pooled over ``runs``, and of all anchors together,
+    in the angle ``model`` (spherical by default: the issue's figures; the site's default is cone)."""
+    from dataclasses import replace
+
     site = sites.load(site_path)
+    site = replace(site, anchors=tuple(replace(a, angle_model=model) for a in site.anchors))
     groups = []
     for capture, truth in runs:
         events = [(got.t, got.item) for got in rfhoming.read(f"capture:{capture}", kinds={"angle"})]
@@ -108,12 +117,74 @@ def angle_figures(site_path: Path, runs: Sequence[tuple[Path, Path]]) -> dict[st
     return out
 
 
+CV_STEPS: dict[str, list[float]] = {
+    "accel_psd": [0.02, 0.05, 0.2], "white_deg": [6.0, 8.0, 10.0], "slow_deg": [3.0, 4.5, 6.0],
+    "slow_s": [1.0, 2.0, 4.0], "el_slow_deg": [3.0, 5.0, 8.0], "dof": [2.0, 4.0, 8.0],
+    "az_compression": [0.1, 0.2, 0.3]}
+"""The settings the cross-validation searches, one at a time, each over these values."""
+
+CV_ROUNDS = 1
+"""Passes over CV_STEPS (one: each setting moved once, from the defaults; ~25 scorings a fold)."""
+
+
+def cross_validate(site_path: Path, cases: dict[str, list[tuple[Path, Path]]]) -> dict[str, object]:
+    """Per use case: the settings a coordinate search on it alone picks, its score there, and
+    the score of those settings on each other use case (held out); and the defaults' scores."""
+    from dataclasses import fields, replace
+
+    from rfhoming.host.estimation.angle_tracker import AngleNoise
+    from rfhoming.host.locate import ACCEL_PSD, Locator
+
+    site = sites.load(site_path)
+    events = {c: [(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})]
+              for runs in cases.values() for c, _ in runs}
+    noise_keys = {f.name for f in fields(AngleNoise)}
+    defaults = {k: float(getattr(AngleNoise(), k)) for k in CV_STEPS if k in noise_keys}
+    defaults |= {"accel_psd": ACCEL_PSD["angles"], "az_compression": site.az_compression}
+    cache: dict[tuple[tuple[tuple[str, float], ...], str], float] = {}
+
+    def mean_error(setting: dict[str, float], uc: str) -> float:
+        key = (tuple(sorted(setting.items())), uc)
+        if key not in cache:
+            noise = AngleNoise(**{k: v for k, v in setting.items() if k in noise_keys})
+            s = replace(site, az_compression=setting["az_compression"])
+            errors = []
+            for capture, truth in cases[uc]:
+                loc = Locator(s, noise=noise, accel_psd=setting["accel_psd"])
+                out = [p for t, e in events[capture] for p in loc.feed(t, e)] + loc.flush()
+                errors.append(score(load_waypoints(truth), [(p.t, float(p.point[0]), float(p.point[1])) for p in out]))
+            cache[key] = float(np.mean(np.concatenate(errors)))
+            print(f"[cv] {uc} {json.dumps(setting)}: {cache[key]:.3f} m", file=sys.stderr, flush=True)
+        return cache[key]
+
+    folds = {}
+    for train in cases:
+        best, best_score = dict(defaults), mean_error(defaults, train)
+        for _ in range(CV_ROUNDS):  # rounds of one-setting-at-a-time moves, until none helps
+            moved = False
+            for key, values in CV_STEPS.items():
+                for value in values:
+                    trial = best | {key: value}
+                    got = mean_error(trial, train)
+                    if got < best_score - 1e-4:
+                        best, best_score, moved = trial, got, True
+            if not moved:
+                break
+        folds[train] = {"chosen": best, "train_mean_m": round(best_score, 3),
+                        "held_out_mean_m": {uc: round(mean_error(best, uc), 3) for uc in cases if uc != train}}
+    return {"defaults": defaults, "defaults_mean_m": {uc: round(mean_error(defaults, uc), 3) for uc in cases},
+            "folds": folds}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, required=True, help="a folder laid out as girolami_xplr_aoa/")
     ap.add_argument("--self-cal", action="store_true", help="also: self-calibrate on the other use cases, then locate")
     ap.add_argument("--locate", default="", metavar="ARGS", help="extra arguments for every rfhoming locate")
     ap.add_argument("--jobs", type=int, default=2, help="locate processes at once (default 2)")
+    ap.add_argument("--cv", action="store_true", help="also: the cross-validation of the angles tracker's defaults")
+    ap.add_argument("--angle-model", choices=("spherical", "cone"), default="spherical",
+                    help="the angle table's reading of the reports (default spherical, as issue 43's figures)")
     ap.add_argument("--json", action="store_true", help="one JSON object instead of tables")
     args = ap.parse_args(argv)
     data = args.data
@@ -131,8 +202,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 calibrated[uc] = {**score_case(cal_site, runs, extra, args.jobs), "calibrated_on":
                                   sorted({c.stem.rsplit("_run", 1)[0] for c in others}), "verdict": verdict}
         result["self_calibrated"] = calibrated
-    result["angles"] = {uc: angle_figures(site, runs) for uc, runs in cases.items()}
-    result["angles"]["all"] = angle_figures(site, [r for runs in cases.values() for r in runs])  # type: ignore[index]
+    if args.cv:
+        result["cross_validation"] = cross_validate(site, cases)
+    result["angles"] = {uc: angle_figures(site, runs, args.angle_model) for uc, runs in cases.items()}
+    result["angles"]["all"] = angle_figures(site, [r for runs in cases.values() for r in runs],  # type: ignore[index]
+                                            args.angle_model)
     result["load_after"] = os.getloadavg()[0]
     if args.json:
         print(json.dumps(result, indent=1))
@@ -142,6 +216,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def print_tables(result: dict[str, object]) -> None:
+    if "cross_validation" in result:
+        cv = result["cross_validation"]
+        print(f"cross-validation: the defaults {json.dumps(cv['defaults'])} score {json.dumps(cv['defaults_mean_m'])}")  # type: ignore[index]
+        for train, fold in cv["folds"].items():  # type: ignore[index]
+            print(f"  tuned on {train}: {json.dumps(fold['chosen'])}, {fold['train_mean_m']:.3f} m there; held out: "
+                  f"{json.dumps(fold['held_out_mean_m'])}")
+        print()
     rows = [("default", result["default"])] + ([("self-calibrated on the other use cases", result["self_calibrated"])]
                                                if "self_calibrated" in result else [])
     print("| pipeline | use case | mean | median | p95 | ticks |\n|---|---|---|---|---|---|")

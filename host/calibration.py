@@ -87,11 +87,15 @@ class AnchorFit:
     rms_by_model: dict[str, float] = field(default_factory=dict)
 
 
-def _predict(anchor: Anchor, theta: np.ndarray, points: np.ndarray, model: str) -> np.ndarray:
+def _predict(anchor: Anchor, theta: np.ndarray, points: np.ndarray, model: str, compression: float = 0.0
+             ) -> np.ndarray:
+    """The reported angles of ``points``: the boards' shared |azimuth| ``compression`` (the
+    site's az_compression, which locate models) first, then this anchor's scale and bias."""
     yaw_off, s_az, b_az, s_el, b_el = theta
     rot = rotation(anchor.yaw_deg + yaw_off, anchor.pitch_deg, anchor.roll_deg)
     ang = board_angles_many((points - np.asarray(anchor.position)) @ rot, model)
-    return np.stack([s_az * ang[:, 0] + b_az, s_el * ang[:, 1] + b_el], axis=1)
+    az = ang[:, 0] * (1 - compression * (ang[:, 0] / 90) ** 2)
+    return np.stack([s_az * az + b_az, s_el * ang[:, 1] + b_el], axis=1)
 
 
 def _jacobian(f: Callable[[np.ndarray], np.ndarray], theta: np.ndarray, free: list[int]) -> np.ndarray:
@@ -105,9 +109,10 @@ def _jacobian(f: Callable[[np.ndarray], np.ndarray], theta: np.ndarray, free: li
 
 
 def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray, *, model: str = "spherical",
-               azimuth_only: bool = False) -> AnchorFit:
-    """One anchor's fit from its (point, median angles) pairs in one angle model."""
-    truth = _predict(anchor, DEFAULT, points, model)
+               azimuth_only: bool = False, compression: float = 0.0) -> AnchorFit:
+    """One anchor's fit from its (point, median angles) pairs in one angle model, on top of
+    the boards' shared |azimuth| ``compression``."""
+    truth = _predict(anchor, DEFAULT, points, model, compression)
     held: dict[str, str] = {}
     free = [2]
     if np.ptp(truth[:, 0]) >= MIN_AZ_SPAN_DEG:
@@ -134,7 +139,7 @@ def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray, *, mode
         weights[1] = 0.0  # elevation held: its residuals say nothing about the azimuth parameters
 
     def resid(theta: np.ndarray) -> np.ndarray:
-        return np.asarray((_predict(anchor, theta, points, model) - measured) * weights, float).ravel()
+        return np.asarray((_predict(anchor, theta, points, model, compression) - measured) * weights, float).ravel()
 
     jac = _jacobian(resid, DEFAULT, [0, 2])
     corr = abs(float(jac[:, 0] @ jac[:, 1]) / (np.linalg.norm(jac[:, 0]) * np.linalg.norm(jac[:, 1]) + 1e-12))
@@ -251,7 +256,7 @@ def _samples(events: list[tuple[float, AngleEvent]], points: list[Point]) -> dic
 
 
 def _fit_one(anchor: Anchor, samples: dict[tuple[str, int], list[tuple[int, int]]], points: list[Point], model: str,
-             azimuth_only: bool) -> AnchorFit:
+             azimuth_only: bool, compression: float) -> AnchorFit:
     """One anchor's fit in one angle model, from the median angles of each point it saw."""
     seen = [(i, v) for (a, i), v in sorted(samples.items()) if a == anchor.id and len(v) >= MIN_EVENTS]
     if len(seen) < 3:
@@ -262,7 +267,7 @@ def _fit_one(anchor: Anchor, samples: dict[tuple[str, int], list[tuple[int, int]
     measured = np.array([(statistics.median(a for a, _ in v), statistics.median(e for _, e in v))
                          for _, v in seen])
     return fit_anchor(replace(anchor, calibration=Calibration()), pts, measured, model=model,
-                      azimuth_only=azimuth_only)
+                      azimuth_only=azimuth_only, compression=compression)
 
 
 def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]],
@@ -281,7 +286,8 @@ def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]],
     errors: dict[str, CalibrationError] = {}
     for model in models:
         try:
-            per_model[model] = [_fit_one(anchor, samples, points, model, azimuth_only) for anchor in site.anchors]
+            per_model[model] = [_fit_one(anchor, samples, points, model, azimuth_only, site.az_compression)
+                                for anchor in site.anchors]
         except CalibrationError as exc:
             errors[model] = exc
     if not per_model:

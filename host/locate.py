@@ -6,8 +6,10 @@ ports are stamped in arrival order but may reach us slightly out of it), keeps e
 (tag, anchor) pair's angles of the last ``window_s`` seconds, and at its own rate (ticks at
 multiples of 1/rate_hz of host time) fixes every tag from the anchors still fresh (heard
 within ``stale_s``): each anchor's median corrected angles become a world ray; the rays give a
-robust 3-D (or known-height) fix; a constant-velocity filter tracks the fixes (``tracker="cv"``)
-or, from a first fix on, takes every angle pair as it arrives (``tracker="ekf"``). Output depends only on
+robust 3-D (or known-height) fix. From a first fix on, the default tracker (``tracker="angles"``,
+estimation/angle_tracker.py) takes every angle pair as it arrives with each anchor's slow error
+as a state and heavy-tailed reports; the older ones are a constant-velocity filter on the fixes
+(``tracker="cv"``) and a bearing EKF without error states (``tracker="ekf"``). Output depends only on
 the events and their stamps, so a live run and a replay of its capture print the same lines.
 Board timestamps (each board's uptime) are not used.
 """
@@ -24,13 +26,25 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, Fix, Ray, angle_sigma_deg, locate, make_ray
+from rfhoming.host.estimation.angle_tracker import AngleNoise, AngleTracker, TrackerBank
 from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
-from rfhoming.host.site import Anchor, Calibration, Site
+from rfhoming.host.site import Anchor, Calibration, Site, uncompress
 from rfhoming.protocol.uconnect import AngleEvent
 
-TRACKERS = ("cv", "ekf")
-"""cv: a constant-velocity filter on the fixes (default: cheaper); ekf: the same state updated
-by every angle pair as it arrives, fixes only (re)starting it (more accurate, docs/RESULTS.md)."""
+TRACKERS = ("angles", "cv", "ekf")
+"""angles (default): every angle pair updates position, velocity and each anchor's slow error
+(heavy-tailed reports; made for real boards, docs/estimation.md); cv: a constant-velocity filter
+on the fixes (cheapest); ekf: the same state updated by every angle pair, no error states."""
+
+ACCEL_PSD = {"angles": 0.05, "cv": 1.0, "ekf": 1.0}
+"""Each tracker's default white acceleration (m^2/s^3): the angles tracker's chosen by
+cross-validation on real walks (docs/estimation.md), the others' for walking."""
+
+AGILE_ACCEL_PSD = 1.0
+"""The angles tracker runs its smooth model (``accel_psd``) beside an agile one of this white
+acceleration and mixes them by how well each foresees the reports (angle_tracker.TrackerBank):
+the real walks' steady walker wants the smooth model, a turn, a start or a faster walker (the
+emulator's walk at 1.2 m/s) the agile one."""
 
 MAX_PENDING = 100_000
 """Events held for reordering at most (then the oldest are processed early, counted)."""
@@ -79,11 +93,13 @@ def _chi2_per_dof(fix: Fix, height: float | None, height_sigma: float | None) ->
 
 
 class Locator:
-    def __init__(self, site: Site, *, track: bool = True, tracker: str = "cv", accel_psd: float = 1.0,
+    def __init__(self, site: Site, *, track: bool = True, tracker: str = "angles", accel_psd: float | None = None,
                  reorder_s: float = 0.2, calibrated: bool = True, loss: str = "huber",
-                 height_sigma: float | None = None) -> None:
+                 height_sigma: float | None = None, noise: AngleNoise = AngleNoise()) -> None:
         """``loss``: the fix's robust loss (anchors3d.LOSSES); ``height_sigma``: a known tag
-        height is a prior of this sigma (m) rather than a constraint (None)."""
+        height is a prior of this sigma (m) rather than a constraint (None); ``accel_psd``: the
+        tracker's white acceleration (None: its default, ACCEL_PSD); ``noise``: the angles
+        tracker's report model."""
         if tracker not in TRACKERS:
             raise ValueError(f"tracker must be one of {', '.join(TRACKERS)}")
         if loss not in LOSSES:
@@ -98,7 +114,9 @@ class Locator:
         self.wanted = {t.id for t in site.tags}
         self.track = track
         self.tracker = tracker
-        self.accel_psd = accel_psd
+        self.accel_psd = ACCEL_PSD[tracker] if accel_psd is None else accel_psd
+        self.noise = noise
+        self._index = {a.id: k for k, a in enumerate(site.anchors)}
         self.reorder_s = reorder_s
         self.period = 1.0 / site.rate_hz
         self._pending: list[tuple[float, str, str, int, int]] = []
@@ -107,10 +125,16 @@ class Locator:
         self._windows: dict[tuple[str, str], deque[tuple[float, float, float]]] = {}
         self._trackers: dict[str, ConstantVelocity] = {}
         self._ekfs: dict[str, BearingEkf] = {}
+        self._angle_trackers: dict[str, AngleTracker | TrackerBank] = {}
+        self.log_density = 0.0
+        """The sum of the angles tracker's reports' predictive log densities (in the reported
+        angles' units), over ``reports_scored`` reports: its mean says how well a site (its
+        calibration) lets the tracker foresee the reports."""
+        self.reports_scored = 0
         self._lost: dict[str, float] = {}  # anchor id -> host time its driver last reported it gone
         self.counters = {"events": 0, "unknown_anchor": 0, "other_tag": 0, "late": 0, "overflow": 0,
                          "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0, "restarts": 0,
-                         "disconnects": 0}
+                         "disconnects": 0, "downweighted": 0}
 
     # -- input -------------------------------------------------------------------------
     def feed(self, t: float, event: AngleEvent) -> list[Position]:
@@ -162,10 +186,20 @@ class Locator:
         cal = self.anchors[anchor_id].calibration
         a, e = cal.correct(az, el) if self.calibrated else (float(az), float(el))
         window.append((t, a, e))
+        tracker = self._angle_trackers.get(tag)
+        if tracker is not None and not tracker.lost:
+            before, density = tracker.counters["downweighted"], tracker.log_density
+            if math.isfinite(tracker.update(t, self._index[anchor_id], a, e)):  # the density of the reading
+                self.log_density += tracker.log_density - density - (cal.log_stretch(a) if self.calibrated else 0.0)
+                self.reports_scored += 1
+            self.counters["downweighted"] += tracker.counters["downweighted"] - before
+            if tracker.lost:  # its reports disagreed with it for too long: the next tick fixes afresh
+                self.counters["restarts"] += 1
         ekf = self._ekfs.get(tag)
         if ekf is not None and ekf.t is not None:
             info = self.site.tag(tag)
             sigma = math.hypot(angle_sigma_deg(a, e, self.site.sigma_deg), self.site.sigma_deg * SYSTEMATIC)
+            a = float(uncompress(a, self.site.az_compression))  # the bearing EKF's model has no compression
             if not ekf.update_angles(t, self._origins[anchor_id], self.rotations[anchor_id], a, e, sigma,
                                      info.height if info else None, self.anchors[anchor_id].angle_model):
                 self.counters["gated"] += 1
@@ -191,7 +225,7 @@ class Locator:
                 continue
             first = max(since, last - self.site.window_s)
             recent = [w for w in window if first < w[0] <= last]
-            az = statistics.median(w[1] for w in recent)
+            az = float(uncompress(statistics.median(w[1] for w in recent), self.site.az_compression))
             el = statistics.median(w[2] for w in recent)
             sigma = math.hypot(sigma0 * 1.25 / math.sqrt(len(recent)), sigma0 * SYSTEMATIC)
             rays.append(make_ray(anchor.name, anchor.position, self.rotations[anchor_id], az, el, sigma,
@@ -207,13 +241,15 @@ class Locator:
             if not any(k[0] == key[0] for k in self._windows):
                 self._trackers.pop(key[0], None)
                 self._ekfs.pop(key[0], None)
+                self._angle_trackers.pop(key[0], None)
         for tag in sorted({k[0] for k in self._windows}):
             info = self.site.tag(tag)
             height = info.height if info else None
-            ekf = self._ekfs.get(tag)
+            ekf = self._ekfs.get(tag) or self._angle_trackers.get(tag)
             if ekf is not None and ekf.t is not None and ekf.t >= t - self.site.stale_s:
                 fresh = tuple(a.name for a_id, a in self.anchors.items()
-                              if (w := self._windows.get((tag, a_id))) and w[-1][0] >= t - self.site.stale_s)
+                              if (w := self._windows.get((tag, a_id))) and w[-1][0] >= t - self.site.stale_s
+                              and not w[-1][0] <= self._lost.get(a_id, -math.inf) <= t)  # none since lost
                 point, cov = ekf.predicted(t)
                 out.append(Position(t, tag, point, cov, fresh, (), True))
                 continue
@@ -232,6 +268,12 @@ class Locator:
                 out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False, _chi2_per_dof(fix, height, self.height_sigma),
                                     t_fix=t_fix))
                 continue
+            if self.tracker == "angles":  # a fix starts (or restarts) the tracker; angles drive it
+                angles = self._angle_trackers[tag] = self._new_angle_tracker(height)
+                angles.start(t_fix, fix.point, fix.covariance)
+                point, cov = angles.predicted(t)
+                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, _chi2_per_dof(fix, height, self.height_sigma)))
+                continue
             if self.tracker == "ekf":  # a fix starts (or restarts) the filter; angles drive it
                 ekf = self._ekfs[tag] = BearingEkf(self.accel_psd)
                 ekf.start(t_fix, fix.point, fix.covariance)
@@ -248,6 +290,18 @@ class Locator:
                 point = np.array([point[0], point[1], height])
             out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, _chi2_per_dof(fix, height, self.height_sigma)))
         return out
+
+    def _new_angle_tracker(self, height: float | None) -> AngleTracker | TrackerBank:
+        anchors = self.site.anchors
+
+        def one(q: float) -> AngleTracker:
+            return AngleTracker([a.position for a in anchors], [self.rotations[a.id] for a in anchors],
+                                [a.angle_model for a in anchors], self.noise, q, height, self.height_sigma,
+                                self.site.az_compression)
+
+        if self.accel_psd >= AGILE_ACCEL_PSD:
+            return one(self.accel_psd)
+        return TrackerBank([one(self.accel_psd), one(AGILE_ACCEL_PSD)])
 
 
 def smooth(fixes: list[Position], accel_psd: float = 1.0) -> list[Position]:

@@ -9,6 +9,7 @@ calibrated, and which tags to locate.
     window_s = 0.3        # each anchor's angles for a fix: its last window_s seconds
     stale_s = 1.0         # an anchor silent this long about a tag is left out
     sigma_deg = 3.0       # one angle's error at boresight (grows toward +-90)
+    az_compression = 0.2  # the boards' shared |azimuth| compression (default: XPLR-AOA's, measured)
 
     [anchors.north]
     id = "CCF9578E0D01"               # its +UUDF anchor id (AT+UDFCFG tag 4; default its MAC)
@@ -18,7 +19,7 @@ calibrated, and which tags to locate.
     pitch_deg = -20                   # boresight tilt, negative = down (ceiling: -90)
     roll_deg = 0
     two_sided = false                 # true when tags can be behind it (a pole, not a wall)
-    angle_model = "spherical"         # or "cone" (direction cosines); `calibrate` may choose it
+    angle_model = "cone"              # or "spherical" (atan2 angles); `calibrate` may choose it
     [anchors.north.calibration]       # written by `rfhoming calibrate`
     yaw_offset_deg = 0.0
     az_scale = 1.0
@@ -35,7 +36,7 @@ calibrated, and which tags to locate.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +75,12 @@ class Calibration:
         a = float(uncompress(u, self.az_compression)) if self.az_compression else u
         return a, (elevation_deg - self.el_bias_deg) / self.el_scale
 
+    def log_stretch(self, azimuth_deg: float) -> float:
+        """log |d reported / d corrected| at a corrected azimuth: what a density of the corrected
+        angles gains over one of the reported angles (to compare sites with different calibrations)."""
+        slope = self.az_scale * (1 - 3 * self.az_compression * (azimuth_deg / 90) ** 2)
+        return math.log(max(abs(slope), 1e-6)) + math.log(abs(self.el_scale))
+
 
 def uncompress(u: Any, c: float) -> Any:
     """The true azimuth(s) (degrees, a float or an array) whose ``compress`` is ``u``, by Newton
@@ -100,7 +107,7 @@ class Anchor:
     roll_deg: float = 0.0
     two_sided: bool = False
     calibration: Calibration = Calibration()
-    angle_model: str = "spherical"
+    angle_model: str = "cone"
 
     def rotation(self) -> np.ndarray:
         """Board -> world, the calibrated yaw offset included."""
@@ -110,6 +117,17 @@ class Anchor:
 CALIBRATION_LIMITS = {"yaw_offset_deg": (-45.0, 45.0), "az_scale": (0.5, 2.0), "az_bias_deg": (-45.0, 45.0),
                       "el_scale": (0.5, 2.0), "el_bias_deg": (-45.0, 45.0), "az_compression": (-0.3, 0.3)}
 """What a site file accepts in [anchors.NAME.calibration]; `calibrate` keeps its fits inside."""
+
+DEFAULT_ANGLE_MODEL = "cone"
+"""An anchor's angle model when its table gives none: real XPLR-AOA boards' angles fit the
+direction cosines of a planar array (docs/estimation.md, "Real angles")."""
+
+BOARD_COMPRESSION = 0.2
+"""The boards' shared |azimuth| compression when [site] gives none: real XPLR-AOA boards read
+|azimuth| short toward +-90 beyond what the cone model explains (az (1 - c (az / 90)^2));
+chosen by cross-validation on real walks (docs/estimation.md). Per-anchor calibrations are
+fitted on top of it (self-calibration cannot tell a compression all boards share from the
+positions)."""
 
 MAX_COORD_M = 10_000.0
 """Anchor coordinates beyond this (metres) are a typo, not a site: the solver would lose its precision."""
@@ -139,6 +157,7 @@ class Site:
     stale_s: float = 1.0
     sigma_deg: float = 3.0
     path: Path | None = field(default=None, compare=False)
+    az_compression: float = BOARD_COMPRESSION
 
     def anchor_by_id(self) -> dict[str, Anchor]:
         return {a.id: a for a in self.anchors}
@@ -205,7 +224,7 @@ def _anchor(name: str, table: Any) -> Anchor:
     _check_keys(cal, known, f"{where}.calibration")
     calibration = Calibration(**{k: _number(cal, k, f"{where}.calibration", getattr(Calibration(), k),
                                             *CALIBRATION_LIMITS[k]) for k in known})
-    model = table.get("angle_model", "spherical")
+    model = table.get("angle_model", DEFAULT_ANGLE_MODEL)
     if model not in ANGLE_MODELS:
         raise SiteError(f"[{where}] angle_model = {model!r}: expected \"spherical\" (atan2 angles) or \"cone\" "
                         "(direction cosines of the array's axes; docs/estimation.md)")
@@ -239,7 +258,7 @@ def parse(raw: dict[str, Any], where: str = "site") -> Site:
     tags = raw.get("tags", {})
     if not isinstance(head, dict) or not isinstance(tags, dict):
         raise SiteError(f"{where}: [site] and [tags.ID] must be tables (see the site file example in docs/usage.md)")
-    _check_keys(head, {"name", "rate_hz", "window_s", "stale_s", "sigma_deg"}, "site")
+    _check_keys(head, {"name", "rate_hz", "window_s", "stale_s", "sigma_deg", "az_compression"}, "site")
     anchors = raw.get("anchors")
     if not isinstance(anchors, dict) or len(anchors) < 2:
         raise SiteError(f"{where} needs two or more [anchors.NAME] tables (each with id, port, position)")
@@ -255,14 +274,15 @@ def parse(raw: dict[str, Any], where: str = "site") -> Site:
                                 f"(at least {MIN_SEPARATION_M:g} m apart, in metres)")
     return Site(str(head.get("name", where)), parsed, tuple(_tag(k, v) for k, v in tags.items()),
                 _number(head, "rate_hz", "site", 10.0, 0.1, 1000), _number(head, "window_s", "site", 0.3, 0.01, 60),
-                _number(head, "stale_s", "site", 1.0, 0.01, 600), _number(head, "sigma_deg", "site", 3.0, 0.1, 45))
+                _number(head, "stale_s", "site", 1.0, 0.01, 600), _number(head, "sigma_deg", "site", 3.0, 0.1, 45),
+                az_compression=_number(head, "az_compression", "site", BOARD_COMPRESSION,
+                                       *CALIBRATION_LIMITS["az_compression"]))
 
 
 def load(path: str | Path) -> Site:
     """Read and validate a site file."""
     path = Path(path)
-    site = parse(read_toml(path, "site file", SiteError), str(path))
-    return Site(site.name, site.anchors, site.tags, site.rate_hz, site.window_s, site.stale_s, site.sigma_deg, path)
+    return replace(parse(read_toml(path, "site file", SiteError), str(path)), path=path)
 
 
 def write_calibration(path: str | Path, calibrations: dict[str, Calibration],

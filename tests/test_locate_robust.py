@@ -359,7 +359,8 @@ def test_rts_smoother_beats_the_causal_filter_on_a_recording():
 
     site = sites.load(SITE)
     rec = record(seed=1, duration=20.0)
-    raw, cv = run(Locator(site, reorder_s=0.0, track=False), rec.events), run(Locator(site, reorder_s=0.0), rec.events)
+    raw, cv = (run(Locator(site, reorder_s=0.0, track=False), rec.events),
+               run(Locator(site, reorder_s=0.0, tracker="cv"), rec.events))  # the smoother's own model, causal
     smoothed = smooth(raw)
 
     def error(out):
@@ -461,9 +462,16 @@ def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path)
     cli = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run",
                           "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True, timeout=300)
     assert cli.returncode == 0, cli.stderr
-    assert "geometric mean 1" in cli.stderr and "held-out azimuth rms" in cli.stderr
-    report = [json.loads(line) for line in cli.stdout.splitlines()]
+    assert len(cli.stderr.splitlines()) == 2 and cli.stderr.startswith("rfhoming calibrate: reading 1 recording")
+    summary = json.loads(cli.stdout)  # one line: the verdict, each anchor's fit and what was held
+    assert "geometric mean 1" in summary["gauge"] and "held-out azimuth rms" in summary["verdict"]
+    assert set(summary["anchors"]) == {"west", "east", "south", "north"} and not summary["written"]
+    verbose = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run", "--verbose",
+                              "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True,
+                             timeout=300)
+    report = [json.loads(line) for line in verbose.stdout.splitlines()][:-1]
     assert len(report) == 4 and all(r["self"] and set(r["sigma"]) >= {"az_scale", "az_bias_deg"} for r in report)
+    assert '"kind": "counters"' in verbose.stderr
     # boards with no hidden error: nothing to gain on held-out epochs, so the site file is left as it was
     perfect = {"mount_error_deg": 0.0, "scale_error": 0.0, "bias_deg": 0.0, "reflection": 0.0}
     _capture_of(record(seed=6, duration=30.0, boards=perfect).events, tmp_path / "plain.pcapng", site)
@@ -472,7 +480,7 @@ def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path)
     kept = subprocess.run([*RFHOMING, "calibrate", str(own_site), "--self", "--from",
                            f"capture:{tmp_path / 'plain.pcapng'}"], capture_output=True, text=True, timeout=300)
     assert kept.returncode == 0, kept.stderr
-    assert "self-calibration not written: on held-out epochs" in kept.stderr
+    assert json.loads(kept.stdout)["verdict"].startswith("not written: on held-out epochs")
     assert own_site.read_text() == SITE.read_text()
     located = subprocess.run([*RFHOMING, "locate", str(own_site), "--from", f"capture:{tmp_path / 'plain.pcapng'}"],
                              capture_output=True, text=True, timeout=300)

@@ -204,8 +204,8 @@ def test_fix_batch_equals_anchors3d_locate(seed: int) -> None:
 
 
 def _site(sc: SiteScenario) -> Site:
-    return Site("w", tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg) for a in sc.anchors),
-                sigma_deg=sc.sigma_deg)
+    return Site("w", tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg, angle_model="spherical")
+                           for a in sc.anchors), sigma_deg=sc.sigma_deg, az_compression=0.0)  # the emulator's boards
 
 
 def test_batch_locator_equals_the_per_tag_locator() -> None:

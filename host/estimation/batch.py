@@ -416,8 +416,12 @@ class BatchLocator:
         return out + raw
 
     def _ray(self, ai: int, med: np.ndarray, sigma_deg: float) -> Ray:
+        """The anchor's ray from its median angles: the boards' shared compression undone and
+        read in its angle model, as locate's Locator does."""
         a = self._anchors[ai]
-        return make_ray(a.name, a.position, self.rotations[ai], float(med[0]), float(med[1]), sigma_deg, a.two_sided)
+        az = float(uncompress(float(med[0]), self.site.az_compression))
+        return make_ray(a.name, a.position, self.rotations[ai], az, float(med[1]), sigma_deg, a.two_sided,
+                        a.angle_model)
 
 
 class BatchConstantVelocity:

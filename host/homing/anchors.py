@@ -55,7 +55,9 @@ class AnchorsController(ControllerDefaults):
         self.params = params
         self.robot_tag = site.tag_with_role("robot").id
         self.target_tag = site.tag_with_role("target").id
-        self.locator = Locator(site, reorder_s=0.0)  # one stream, already in arrival order
+        # one stream, already in arrival order; the fixes' constant-velocity tracker, as this
+        # controller was tuned with (the angles tracker's motion models are a walker's)
+        self.locator = Locator(site, reorder_s=0.0, tracker="cv")
         self._poses: deque[tuple[float, Pose]] = deque(maxlen=500)
         self._pairs: deque[tuple[tuple[float, float], tuple[float, float]]] = deque(maxlen=300)
         self.robot_world: np.ndarray | None = None

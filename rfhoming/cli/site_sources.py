@@ -43,11 +43,13 @@ def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
 
 async def gather(command: str, site: sites.Site, sources: list[str] | None, on_angle: Callable[[float, Any], None],
                  on_lost: Callable[[float, set[str]], None] = lambda t, ids: None, *, baud: int | None = None,
-                 flow: str | None = None, duration: float | None = None, capture_to: Path | None = None) -> int:
+                 flow: str | None = None, duration: float | None = None, capture_to: Path | None = None,
+                 counters: bool = True) -> int:
     """Open the site's anchors (or ``sources``, locate's --from), feed every angle event to
     ``on_angle`` in arrival order until ``duration`` or the end of a capture, and tell
     ``on_lost`` the anchor ids of a device that went away; ``capture_to``: also record every
-    byte there. 2 on a port/capture error, said in one line naming ``command``."""
+    byte there; ``counters``: print each device's counters on stderr at the end (losses are
+    warned of either way). 2 on a port/capture error, said in one line naming ``command``."""
     specs = _specs(site, sources)
     capture = CaptureWriter(capture_to) if capture_to else None
     try:
@@ -89,8 +91,9 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
         print(f"rfhoming {command}: {exc}", file=sys.stderr)
         return 2
     finally:
-        for h in health(drivers):
-            print(json.dumps({"kind": "counters", **h}), file=sys.stderr)
+        for h in health(drivers):  # losses are warned of here, printed or not
+            if counters:
+                print(json.dumps({"kind": "counters", **h}), file=sys.stderr)
         if capture is not None:
             capture.close()
             print(capture.said(), file=sys.stderr)

@@ -62,19 +62,23 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
-    """--self: each --from recording gathered on its own (their clocks need not line up)."""
+    """--self: each --from recording gathered on its own (their clocks need not line up). One
+    progress line on stderr, one summary line on stdout (--verbose: each anchor's fit and each
+    device's counters too)."""
     if args.points is not None:
         print("rfhoming calibrate: --self fits without known points; leave out --points", file=sys.stderr)
         return 2
+    sources = args.sources or [None]
+    print(f"rfhoming calibrate: reading {len(sources)} recording(s)", end="", file=sys.stderr, flush=True)
     recordings = []
-    for source in args.sources or [None]:
+    for source in sources:
         events: list[tuple[float, Any]] = []
 
         def keep(t: float, event: Any, into: list[tuple[float, Any]] = events) -> None:
             into.append((t, event))
 
-        code = asyncio.run(gather("calibrate", site, [source] if source else None, keep,
-                                  baud=args.baud, flow=args.flow, duration=args.duration))
+        code = asyncio.run(gather("calibrate", site, [source] if source else None, keep, baud=args.baud,
+                                  flow=args.flow, duration=args.duration, counters=args.verbose))
         if code:
             return code
         recordings.append(events)
@@ -86,23 +90,34 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
         site = replace(site, anchors=tuple(replace(a, angle_model=args.angle_model) for a in site.anchors))
     try:
         result = self_calibrate(site, recordings, height=args.height, models=models,
-                                progress=lambda text: print(text, end="", file=sys.stderr, flush=True))
+                                progress=lambda text: print(text if text.startswith(("\n", ";", ".")) else f"; {text}",
+                                                            end="", file=sys.stderr, flush=True))
     except CalibrationError as exc:
-        print(f"rfhoming calibrate: {exc}", file=sys.stderr)
+        print(f"\nrfhoming calibrate: {exc}", file=sys.stderr)
         return 2
-    print(f"self-calibration: {result.epochs} epochs; gauge: {result.gauge}", file=sys.stderr)
-    for f in result.fits:
-        c = f.calibration
-        print(json.dumps({"kind": "calibration", "anchor": f.anchor, "self": True, "epochs": f.points,
-                          "angle_model": f.angle_model, "held_out_rms_before_deg": round(f.rms_before_deg, 2),
-                          "held_out_rms_after_deg": round(f.rms_after_deg, 2), "az_scale": round(c.az_scale, 4),
-                          "az_bias_deg": round(c.az_bias_deg, 2), "az_compression": round(c.az_compression, 4),
-                          "el_scale": round(c.el_scale, 4), "el_bias_deg": round(c.el_bias_deg, 2),
-                          "sigma": f.sigma, "held": f.held, "held_out_rms_by_model_deg": result.model_scores[f.anchor]}))
-    print(f"self-calibration {result.verdict}", file=sys.stderr)
+    anchors = [_self_fit(f, result.model_scores[f.anchor]) for f in result.fits]
+    if args.verbose:
+        for line in anchors:
+            print(json.dumps(line))
+    print(json.dumps({"kind": "self_calibration", "written": result.write and not args.dry_run, "epochs": result.epochs,
+                      "verdict": result.verdict, "gauge": result.gauge,
+                      "anchors": {a["anchor"]: {k: a[k] for k in ("angle_model", "az_scale", "az_bias_deg",
+                                                                  "az_compression", "el_scale", "el_bias_deg")}
+                                  | {"held": sorted(a["held"])} for a in anchors}}))
     if not result.write:
         return 0
     return _write(args, {f.anchor: f.calibration for f in result.fits}, {f.anchor: f.angle_model for f in result.fits})
+
+
+def _self_fit(f: Any, model_scores: dict[str, float]) -> dict[str, Any]:
+    """One anchor's self-calibration as a JSON object: the fit, its sigmas, what was held and why."""
+    c = f.calibration
+    return {"kind": "calibration", "anchor": f.anchor, "self": True, "epochs": f.points, "angle_model": f.angle_model,
+            "held_out_rms_before_deg": round(f.rms_before_deg, 2), "held_out_rms_after_deg": round(f.rms_after_deg, 2),
+            "az_scale": round(c.az_scale, 4), "az_bias_deg": round(c.az_bias_deg, 2),
+            "az_compression": round(c.az_compression, 4), "el_scale": round(c.el_scale, 4),
+            "el_bias_deg": round(c.el_bias_deg, 2), "sigma": f.sigma, "held": f.held,
+            "held_out_rms_by_model_deg": model_scores}
 
 
 def _write(args: argparse.Namespace, calibrations: dict[str, Any], models: dict[str, str]) -> int:

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import json
 import sys
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -24,14 +25,14 @@ def run(args: argparse.Namespace) -> int:
     if site is None:
         return 2
     if args.rate:
-        site = sites.Site(site.name, site.anchors, site.tags, args.rate, site.window_s, site.stale_s,
-                          site.sigma_deg, site.path)
+        site = replace(site, rate_hz=args.rate)
     if args.smooth and not (args.sources and all(s.startswith("capture:") for s in args.sources)):
         print("rfhoming locate: --smooth needs a whole recording (--from capture:FILE); a live run stays causal",
               file=sys.stderr)
         return 2
     print(f"rfhoming locate: {_calibration_in_use(site)}", file=sys.stderr)
-    locator = Locator(site, track=not (args.no_track or args.smooth), tracker=args.tracker,
+    tracker = args.tracker or "angles"
+    locator = Locator(site, track=not (args.no_track or args.smooth), tracker=tracker,
                       accel_psd=args.accel_psd, loss=args.loss, height_sigma=args.height_sigma)
     # --ros2: the anchors' angles (in anchor_<id>, placed in map by /tf_static) and the fixes
     ros2 = (ros2_publisher(args.ros2, source="anchors", site=site, robot=False)
@@ -67,13 +68,13 @@ def run(args: argparse.Namespace) -> int:
         show(locator.flush())
         if args.smooth:
             args.smooth = False
-            show(smooth(fixes, args.accel_psd))
+            show(smooth(fixes, 1.0 if args.accel_psd is None else args.accel_psd))
         if ros2 is not None:
             ros2.close()
         names = {a.id: a.name for a in site.anchors}
         summary = {"kind": "summary", "site": site.name,
                    "estimate": "smoothed (RTS over the whole recording)" if smoothed else
-                   "raw fixes" if args.no_track else f"causal ({args.tracker} tracker)",
+                   "raw fixes" if args.no_track else f"causal ({tracker} tracker)",
                    "tags": {tag: {"positions": len(v), "mean_sigma_m": round(float(np.sqrt(np.mean(v))), 3)}
                             for tag, v in sorted(per_tag.items())},
                    "anchors": sorted(names.values()), **locator.counters,

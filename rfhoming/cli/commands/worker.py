@@ -19,8 +19,8 @@ def emulated_site(name: str, seed: int) -> Site:
     from rfhoming.emulator.site import SiteScenario
 
     sc = SiteScenario.named(name, seed=seed)
-    return Site(name, tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg) for a in sc.anchors),
-                sigma_deg=sc.sigma_deg)
+    return Site(name, tuple(Anchor(a.name, a.id, None, a.position, 0.0, a.pitch_deg, angle_model="spherical")
+                            for a in sc.anchors), sigma_deg=sc.sigma_deg, az_compression=0.0)  # the emulator's boards
 
 
 def resolve_site(text: str, seed: int) -> Site:
@@ -36,8 +36,8 @@ def run(args: argparse.Namespace) -> int:
     from rfhoming.host.sitebus import Broker, Worker  # paho-mqtt: the "site" extra
 
     given = [flag for key, flag in NOT_WITH_A_BROKER.items() if getattr(args, key, None)]
-    if args.tracker != "cv" or args.loss != "huber":
-        given.append(f"--tracker {args.tracker}" if args.tracker != "cv" else f"--loss {args.loss}")
+    if args.tracker not in (None, "cv") or args.loss != "huber":
+        given.append(f"--tracker {args.tracker}" if args.tracker not in (None, "cv") else f"--loss {args.loss}")
     if len(args.sources) > 1 or given:
         print("rfhoming locate: --from mqtt:// is the one source of a site worker, which tracks with the batched "
               f"cv filter and publishes to the broker; leave out {', '.join(given) or 'the other --from'}",

@@ -25,8 +25,9 @@ from rfhoming.cli.parsers.common import GROWING, add_login_arguments, add_port_d
 LOCATE_HELP = """\
 Locate tags from a site's fixed XPLR-AOA anchors (a site file: docs/usage.md, "Fixed anchors").
 Every anchor's angle events are merged by host arrival time; at --rate (default: the site's
-rate_hz) each tag seen by enough fresh anchors gets a fix (3-D rays, weighted, one bad anchor
-left out) that a constant-velocity filter tracks. Output: one JSON line per position
+rate_hz) each tag has a position: a first fix (3-D rays, weighted, one bad anchor left out)
+starts a tracker that every angle pair then updates, with each anchor's slow error as a state
+and heavy-tailed reports (docs/estimation.md). Output: one JSON line per position
 (kind "position": t, tag, x, y, z in metres, cov 3x3 in m^2, anchors used, rejected,
 chi2_per_dof = the fix's quality, as on the site bus), and on exit one "summary" line (its
 "estimate" says causal or smoothed). A capture of the anchors gives the same lines as the live run did; --smooth on a capture gives
@@ -71,9 +72,11 @@ elevation, |azimuth| compression, where the data determine them) are fitted join
 epoch's position (the scales' geometric mean is fixed to 1: an overall scale is not
 observable). The epochs are cut into 10 s blocks dealt into three folds, each scored by a fit
 of the others: the calibration is written only when it beats the uncalibrated site on these
-held-out epochs, else nothing is written and one line says why. A parameter that runs to its
-bound or that the folds do not agree on is held at its default ("held", with the reason).
-Refused when the tags did not cover the room.
+held-out epochs and locate's tracker foresees the recordings' reports better with it, else
+nothing is written and the verdict says why. A parameter that runs to its bound or that the
+folds do not agree on is held at its default ("held", with the reason). Refused when the tags
+did not cover the room. One progress line on stderr, one summary line on stdout (--verbose:
+each anchor's fit, sigmas and reasons, and each device's counters).
 
 examples:
   rfhoming calibrate site.toml --points points.toml --duration 20
@@ -130,11 +133,13 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
             p.add_argument("-o", "--output", type=output_file, help="write the JSON lines here instead of stdout" + GROWING)
             p.add_argument("--rate", type=rate_hz, help="positions per second per tag (default: the site's rate_hz)")
             p.add_argument("--no-track", action="store_true", help="raw fixes, no tracking filter")
-            p.add_argument("--tracker", choices=("cv", "ekf"), default="cv",
-                           help="cv: constant-velocity filter on the fixes (default, cheaper); ekf: every angle "
-                                "pair updates the track as it arrives (more accurate, ~3x the CPU: docs/BENCHMARKS.md)")
-            p.add_argument("--accel-psd", type=accel_psd, default=1.0,
-                           help="tracking process noise: white acceleration, m^2/s^3 (default 1: walking)")
+            p.add_argument("--tracker", choices=("angles", "cv", "ekf"),
+                           help="angles (default): every angle pair updates the track and each anchor's slow "
+                                "error, heavy-tailed (made for real boards); cv: constant-velocity filter on the "
+                                "fixes (cheapest); ekf: every angle pair updates the track, no error states")
+            p.add_argument("--accel-psd", type=accel_psd,
+                           help="tracking process noise: white acceleration, m^2/s^3 (default: 0.05 for angles, "
+                                "chosen on real walks; 1 for cv and ekf)")
             p.add_argument("--smooth", action="store_true",
                            help="recordings only (--from capture:): RTS-smooth each tag's fixes over the whole "
                                 "recording; positions are labelled \"smoothed\" (not causal)")
@@ -162,4 +167,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
                            help="--self: the height (m) of tags the site file gives none (else free about 1 m); "
                                 "elevation is fitted only from tags of known height")
             p.add_argument("--dry-run", action="store_true", help="report the fit, leave the site file alone")
+            p.add_argument("--verbose", action="store_true",
+                           help="--self: also each anchor's fit (sigmas, held parameters and why, each angle model's "
+                                "held-out rms) as JSON lines before the summary, and each device's counters")
             p.set_defaults(func=command("calibrate"))
