@@ -43,7 +43,8 @@ removed when it ends, on Ctrl-C and on SIGTERM too.
     python bench/budget_bench.py --runs locate/replay --quotas 25   # rfhoming locate live on a real recording
 
 ``locate/replay`` is not a homing: ``rfhoming locate`` reads a real four-anchor recording
-(``--capture``; default ../shared/data/girolami_xplr_aoa's uc1_run1, ~150 +UUDF lines/s) at its
+(``--capture FILE``, e.g. the Girolami et al. recordings' uc1_run1, ~150 +UUDF lines/s; docs/RESULTS.md,
+"Real recordings"; without it the default set of runs leaves this one out) at its
 recorded pace (``--from capture:FILE,speed=1``: the live drivers, the bytes when they came); its
 latency is each position line's arrival less its tick, less that of the first lines (the
 recording's clock is not the machine's), and its targets are LOCATE_TARGETS.
@@ -75,9 +76,6 @@ LOCATE_TARGETS = {25: {"success": True, "latency_ms_p99": 100.0}, 100: {"latency
 """locate/replay: its latency is how much later after its tick a position line arrives than the
 first lines did (the recording's clock is not the machine's: a locate that keeps up stays near 0,
 one that falls behind grows); success: positions over the whole recording, none a second late."""
-LOCATE_CAPTURE = (Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "girolami_xplr_aoa" / "captures"
-                  / "uc1_run1.pcapng")
-"""locate/replay's recording: a real four-anchor walk, ~150 +UUDF lines/s (--capture: another)."""
 PERIOD_US = 10_000  # the cgroup's period: the quota is spent in slices of at most this
 DUTY_PERIOD_S = 0.1
 SITE = Path(__file__).resolve().parent.parent / "docs" / "sites" / "kit-home.toml"
@@ -381,10 +379,11 @@ def _start_kit_home(seed: int, truth: Path, out: Path) -> tuple[subprocess.Popen
 
 
 def run_one(run: str, percent: float, kind: type[Quota], seed: int, out: Path, reserve: bool = True,
-            capture: Path = LOCATE_CAPTURE) -> dict[str, Any]:
+            capture: Path | None = None) -> dict[str, Any]:
     quota = kind(percent, reserve)
     try:
-        cmd = [sys.executable, __file__, "--worker", run, "--seed", str(seed), "--out", str(out), "--capture", str(capture)]
+        cmd = [sys.executable, __file__, "--worker", run, "--seed", str(seed), "--out", str(out),
+               *(["--capture", str(capture)] if capture else [])]
         if quota.usage_file() is not None:
             cmd += ["--usage-file", str(quota.usage_file())]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -470,13 +469,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="keep each run's capture, run log and truth here (default: a "
                    "temporary folder, removed)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
-    p.add_argument("--capture", type=Path, default=LOCATE_CAPTURE,
-                   help="locate/replay's recording, in a folder laid out as girolami_xplr_aoa/ (site.toml beside "
-                        "captures/; default the real uc1_run1 in ../shared/data)")
+    p.add_argument("--capture", type=Path,
+                   help="locate/replay's recording: a real four-anchor capture in a folder laid out as "
+                        "bench/real_aoa.py --help says (site.toml beside captures/); the run needs it")
     p.add_argument("--worker", metavar="RUN", help=argparse.SUPPRESS)
     p.add_argument("--usage-file", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.worker == "locate/replay":
+        assert args.capture is not None  # the parent passes its --capture (checked there)
         print(json.dumps(locate_worker(args.capture, args.capture.parent.parent / "site.toml", args.out,
                                        args.usage_file)))
         return 0
@@ -487,6 +487,13 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [r for r in runs if r not in RUNS]
     if unknown:
         p.error(f"unknown run {', '.join(unknown)}; the runs are {', '.join(RUNS)}")
+    if "locate/replay" in runs and args.capture is None:
+        if args.runs != ",".join(RUNS):
+            p.error("locate/replay needs --capture FILE: a real four-anchor recording (docs/RESULTS.md, "
+                    "\"Real recordings\")")
+        runs.remove("locate/replay")
+        print("[budget] locate/replay left out: give --capture FILE (a real four-anchor recording) to run it",
+              file=sys.stderr)
     try:
         quotas = [float(q) for q in args.quotas.split(",")]
     except ValueError:

@@ -184,7 +184,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="locate processes at once (default 2)")
     ap.add_argument("--cv", action="store_true", help="also: the cross-validation of the angles tracker's defaults")
     ap.add_argument("--angle-model", choices=("spherical", "cone"), default="spherical",
-                    help="the angle table's reading of the reports (default spherical, as issue 43's figures)")
+                    help="the angle table's reading of the reports (default spherical: the reading the data set's figures were measured in)")
     ap.add_argument("--json", action="store_true", help="one JSON object instead of tables")
     args = ap.parse_args(argv)
     data = args.data
