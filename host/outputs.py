@@ -6,6 +6,8 @@ the user needs to know which output it was and whether what is on disk is usable
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 from rfhoming.protocol.errors import Error
@@ -39,3 +41,17 @@ def remove_if_empty(path: Path | str) -> bool:
     except OSError:
         pass
     return False
+
+
+def replace_text(path: Path | str, text: str) -> None:
+    """Write ``text`` to ``path`` whole or not at all: a temporary file beside it, renamed over it
+    (a reader never sees half a file; a failed write leaves the old one)."""
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, target)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise failed(target, exc, "what was there before is unchanged") from None
