@@ -69,7 +69,8 @@ class FixedAnchorRunner(AoaRunner):
         super().__init__(name, link, faults, rng, options, aoa, path_loss, robot_tag, measured)
         o = options
         self.position = np.array([float(v) for v in o["position"]])
-        self.nominal = rotation(float(o.get("yaw_deg", 0.0)), float(o.get("pitch_deg", 0.0)), float(o.get("roll_deg", 0.0)))
+        self.nominal_yaw = float(o.get("yaw_deg", 0.0))
+        self.nominal = rotation(self.nominal_yaw, float(o.get("pitch_deg", 0.0)), float(o.get("roll_deg", 0.0)))
         mount_sigma = float(o.get("mount_error_deg", 3.0))
         scale_error = float(o.get("scale_error", 0.12))
         bias = float(o.get("bias_deg", 1.5))
@@ -95,6 +96,8 @@ class FixedAnchorRunner(AoaRunner):
 
     def truth(self) -> dict[str, Any]:
         """The hidden error model, for the truth log and the calibration test's cross-check."""
+        if self.measured is not None:
+            return {"device": self.name, "error_model": "radio profile", "true_yaw_deg": float(self.nominal_yaw)}
         return {"device": self.name, "true_yaw_deg": self.true_pose[0], "true_pitch_deg": self.true_pose[1],
                 "az_scale": self.az_scale, "az_bias_deg": self.az_bias,
                 "el_scale": self.el_scale, "el_bias_deg": self.el_bias, "angle_model": self.angle_model,
@@ -181,8 +184,8 @@ class FixedAnchorRunner(AoaRunner):
             az_ccw = fold_front(math.degrees(math.atan2(d[1], d[0])))
             el = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
         assert self.measured is not None
-        yaw = math.atan2(self.nominal[1, 0], self.nominal[0, 0])
-        got = self.measured.report(tag_id, t, -az_ccw, el, (*self.position, yaw), (tag[0], tag[1], tag[2], heading))
+        board = (float(self.position[0]), float(self.position[1]), float(self.position[2]), math.radians(self.nominal_yaw))
+        got = self.measured.report(tag_id, t, -az_ccw, el, board, (float(tag[0]), float(tag[1]), float(tag[2]), heading))
         if got is not None:
             fw.on_advertisement(Advertisement(tag_id, C209_NAMESPACE, got[0], got[1], rssi,
                                               rssi + float(self.rng.normal(0, 1.5))))

@@ -25,6 +25,7 @@ walk and no return), all of the slow error is put in the field and the profile s
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -54,6 +55,9 @@ BURST_GAP_S = 0.2
 PAIR_GRID_S = 0.1
 """Reports are thinned to one per this many seconds for the pair products."""
 
+ACROSS_THIN = 2
+"""Pairs across recordings take every this many thinned reports of each (their bins fill anyway)."""
+
 FAR_S = 10.0
 """Pairs of one recording further apart in time than this see no slow wander: the field and bias alone."""
 
@@ -65,15 +69,21 @@ DISTANCE_EDGES_M = (0.0, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, FAR_
 LENGTH_GRID_M = tuple(float(v) for v in np.geomspace(0.05, 10.0, 25))
 TIME_GRID_S = tuple(float(v) for v in np.geomspace(0.05, FAR_S / 3, 20))
 
+GRID_STRIDE = 3
+"""The grid search first takes every third point of each grid, then every point near the best."""
+
 MIN_PAIRS = 50
 """Pairs a bin needs before it is an equation of the fit."""
 
 ZERO_LAG_WEIGHT = 100.0
 """The variance's equation weighs this many times the biggest bin: the parts add up to it."""
 
+REVISIT_M = 1.0
+"""Two reports of one anchor this close in place, from two recordings or one recording FAR_S
+apart, are the same place visited again ..."""
+
 MIN_SPATIAL_PAIRS = 500
-"""Pairs closer than the field's reach that only the field links (another recording, or the same
-one more than FAR_S later) needed to tell the field from the slow wander."""
+"""... and this many such pairs (thinned) tell the field from the slow wander."""
 
 
 @dataclass(frozen=True)
@@ -185,7 +195,7 @@ def fit_axis(series: list[_Series], compress: bool) -> AxisFit:
     fit = AxisFit(error, _sources(everyone, slow, threshold, compress))
     if not slow.identified:
         fit.assumed["slow_sigma_deg"] = ("no place was visited twice (a second walk, or a return more than "
-                                         f"{FAR_S:g} s later, within {FAR_M:g} m): the slow error cannot be told apart "
+                                         f"{FAR_S:g} s later, within {REVISIT_M:g} m): the slow error cannot be told apart "
                                          "from a field over position, and is all put in the field (real dwells show "
                                          "errors that stay put)")
         fit.sources.pop("slow_sigma_deg")
@@ -406,10 +416,11 @@ def _moments(core: list[tuple[_Series, np.ndarray]], bias: float, clip: float) -
                 near, far = upper & (dt < FAR_S), upper & (dt >= FAR_S)
                 pairs.add(WITHIN, dt[near], d[near], chord[near], prod[near])
                 pairs.add(LATER, dt[far], d[far], chord[far], prod[far])
-                close = int((far & (d < FAR_M)).sum())
-            else:
+                close = int((far & (d < REVISIT_M)).sum())
+            else:  # every other pair each way: the field needs far fewer than recordings hold
+                d, chord, prod, dt = (m[::ACROSS_THIN, ::ACROSS_THIN] for m in (d, chord, prod, dt))
                 pairs.add(ACROSS, dt, d, chord, prod)
-                close = int((d < FAR_M).sum())
+                close = int((d < REVISIT_M).sum())
             if close:
                 spatial_pairs += close
                 spatial_walks |= {si.walk, sj.walk}
@@ -418,7 +429,8 @@ def _moments(core: list[tuple[_Series, np.ndarray]], bias: float, clip: float) -
 
 def _solve(pairs: _Pairs, variance: float, events: int, spatial_pairs: int, spatial_walks: set[str]) -> _Moments:
     """The levels are the far pairs' mean products (across recordings; within one); less them,
-    for each (length, heading scale, time) of the grid, non-negative least squares for the
+    for each (length, heading scale, time) of the grid (every third point, then every point
+    about the best of those), non-negative least squares for the
     field's, the wander's and the white variance, each bin weighted by the square root of its
     pairs and the three held to add up to the variance (the zero-lag equation, less a positive
     level: the bias's); the best fit wins."""
@@ -439,17 +451,21 @@ def _solve(pairs: _Pairs, variance: float, events: int, spatial_pairs: int, spat
     weight = np.sqrt(np.r_[n, ZERO_LAG_WEIGHT * max(float(n.max()), events)])
     within = np.r_[(kind == WITHIN).astype(float), 1.0]
     white = np.r_[np.zeros(len(rows)), 1.0]
-    best: tuple[float, np.ndarray, float, float, float] | None = None
-    for length in LENGTH_GRID_M:
-        for heading in HEADING_GRID_M:
-            rho = np.r_[np.exp(-np.hypot(d, heading * chord) / length), 1.0]
-            for time_s in TIME_GRID_S if identified else (TIME_GRID_S[0],):
-                slow = within * np.exp(-np.r_[dt, 0.0] / time_s) if identified else np.zeros(len(white))
-                coef, miss = nnls(np.column_stack([rho, slow, white]) * weight[:, None], target * weight)
-                if best is None or miss < best[0]:
-                    best = (float(miss), coef, length, heading, time_s)
-    assert best is not None
-    residual, coef, length, heading, time_s = best
+    times = TIME_GRID_S if identified else TIME_GRID_S[:1]
+
+    def miss(k: tuple[int, ...]) -> tuple[float, np.ndarray]:
+        rho = np.r_[np.exp(-np.hypot(d, HEADING_GRID_M[k[1]] * chord) / LENGTH_GRID_M[k[0]]), 1.0]
+        slow = within * np.exp(-np.r_[dt, 0.0] / times[k[2]]) if identified else np.zeros(len(white))
+        coef, r = nnls(np.column_stack([rho, slow, white]) * weight[:, None], target * weight)
+        return float(r), coef
+
+    sizes = (len(LENGTH_GRID_M), len(HEADING_GRID_M), len(times))
+    coarse = itertools.product(*(range(0, size, GRID_STRIDE) for size in sizes))
+    at = min(coarse, key=lambda k: miss(k)[0])
+    near = itertools.product(*(range(max(0, i - GRID_STRIDE + 1), min(size, i + GRID_STRIDE)) for i, size in zip(at, sizes)))
+    at = min(near, key=lambda k: miss(k)[0])
+    residual, coef = miss(at)
+    length, heading, time_s = LENGTH_GRID_M[at[0]], HEADING_GRID_M[at[1]], times[at[2]]
     field_var, slow_var, white_var = (float(v) for v in coef)
     return _Moments(max(level_within, 0.0), field_var, slow_var, white_var, length, heading,
                     time_s if identified else 1.0, identified, spatial_pairs, spatial_walks,

@@ -74,10 +74,12 @@ def fit(site: Site, recordings: Sequence[Recording], name: str, *, tag: str | No
     return RadioProfile(header, entries, aoa), report
 
 
-def track_truth(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *, height: float | None = None,
-                progress: Callable[[str], None] = lambda _: None) -> list[WalkedPath]:
+def track_truth(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *, tag: str | None = None,
+                height: float | None = None, progress: Callable[[str], None] = lambda _: None) -> list[WalkedPath]:
     """A stand-in truth for each recording: the anchors self-calibrated on all of them (kept
-    uncalibrated where that is refused), each recording located and smoothed."""
+    uncalibrated where that is refused), each recording located and smoothed, the walked
+    ``tag``'s track (the site's first tag by default)."""
+    walked = tag or (site.tags[0].id if site.tags else None)
     from rfhoming.host.calibration import CalibrationError
     from rfhoming.host.self_calibration import self_calibrate
 
@@ -95,7 +97,7 @@ def track_truth(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEven
     for events in recordings:
         locator = Locator(calibrated, track=False)
         fixes = [p for t, e in events for p in locator.feed(t, e)] + locator.flush()
-        track = sorted({round(p.t, 6): p for p in smooth(fixes)}.items())
+        track = sorted({round(p.t, 6): p for p in smooth(fixes) if walked is None or p.tag == walked}.items())
         if len(track) < 2:
             raise RadioFitError("a recording without --truth gave fewer than two positions: it cannot stand in "
                                 "for its own truth; give --truth FILE for it")

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         print(f"radio-fit: {len(missing)} recording(s) without --truth: self-calibrating and locating them to stand "
               "in for it", file=sys.stderr)
-        proxies = track_truth(site, [recordings[k] for k in missing], height=args.height,
+        proxies = track_truth(site, [recordings[k] for k in missing], tag=args.tag, height=args.height,
                               progress=lambda text: print(text, end="", file=sys.stderr, flush=True))
         for k, path in zip(missing, proxies):
             walks[k] = path
