@@ -97,7 +97,8 @@ class AngleProcess:
         shift = self.compression * p.compression(abs(azimuth_deg)) * sign + p.offset(abs(azimuth_deg))
         field = self.field(self.where(board, tag_pose)) if self.field is not None else 0.0
         core = field + s.slow + float(rng.normal(0.0, p.white_sigma_deg))
-        noise = core * (1.0 + p.skew if core > 0 else 1.0 - p.skew) + burst
+        skew = p.skew_at(abs(azimuth_deg))
+        noise = core * (1.0 + skew if core * (sign or 1.0) > 0 else 1.0 - skew) + burst
         return shift + s.bias + p.spread_at(abs(azimuth_deg)) * noise
 
 

@@ -171,10 +171,8 @@ def fit_axis(series: list[_Series], compress: bool) -> AxisFit:
     bursts, in_burst = _bursts(series, level, threshold)
     core_time = sum(float(s.t[-1] - s.t[0]) for s in series) - sum(b.duration for b in bursts)
     core = [(s, ~mask) for s, mask in zip(series, in_burst)]
-    kept = np.concatenate([s.err[keep] for s, keep in core])
-    bias = float(np.median(kept))
-    low, high = np.percentile(kept, SKEW_QUANTILES)
-    skew = float((high - bias - (bias - low)) / (high - low)) if high > low else 0.0
+    bias = float(np.median(np.concatenate([s.err[keep] for s, keep in core])))
+    skew = skew_curve(core, knots)
     slow = _moments(core, bias, threshold)
     spread_sd = float(np.std(factors, ddof=1)) if len(factors) >= 2 else 0.0
     error = AngleError(
@@ -182,7 +180,7 @@ def fit_axis(series: list[_Series], compress: bool) -> AxisFit:
         field_sigma_deg=round(math.sqrt(slow.field_var), 2), field_length_m=round(slow.length_m, 3),
         field_heading_m=round(slow.heading_m, 3),
         slow_sigma_deg=round(math.sqrt(slow.slow_var), 2), slow_time_s=round(slow.time_s, 3),
-        white_sigma_deg=round(math.sqrt(slow.white_var), 2), skew=round(skew, 3),
+        white_sigma_deg=round(math.sqrt(slow.white_var), 2),
         burst_rate_hz=round(len(bursts) / max(core_time, 1e-9), 4),
         burst_duration_s=round(float(np.mean([b.duration for b in bursts])) if bursts else 0.1, 3),
         burst_offset_min_deg=round(threshold, 2),
@@ -191,7 +189,7 @@ def fit_axis(series: list[_Series], compress: bool) -> AxisFit:
         burst_outward=round(float(np.mean([b.outward for b in bursts])) if bursts else 0.5, 3),
         curve_at_deg=tuple(knots), compression_deg=tuple(round(v, 2) for v in shifts),
         compression_spread=round(spread_sd, 3), offset_deg=tuple(round(v, 2) for v in offsets),
-        spread=tuple(round(v, 3) for v in spread))
+        spread=tuple(round(v, 3) for v in spread), skew=tuple(round(v, 3) for v in skew))
     fit = AxisFit(error, _sources(everyone, slow, threshold, compress))
     if not slow.identified:
         fit.assumed["slow_sigma_deg"] = ("no place was visited twice (a second walk, or a return more than "
@@ -227,7 +225,8 @@ def _sources(everyone: tuple[str, ...], slow: _Moments, threshold: float, compre
         "slow_sigma_deg": moments + f": pairs within a recording by time apart (up to {FAR_S:g} s), less the field",
         "slow_time_s": "as slow_sigma_deg: exp(-dt / time) fitted by a grid over the time",
         "white_sigma_deg": "the variance outside bursts less the bias, field and slow parts",
-        "skew": "(q84 - 2 median + q16) / (q84 - q16) of the reports outside bursts, in units of the spread",
+        "skew": "(q84 - 2 median + q16) / (q84 - q16) of the outward-signed reports outside bursts, in units of "
+                f"the spread, in the same {CURVE_STEP_DEG:g}-degree bins",
         "burst_rate_hz": f"runs of reports {cut} (joined across {BURST_GAP_S:g} s) per second outside them",
         "burst_duration_s": "mean length of those runs (first to last report)",
         "burst_offset_min_deg": "the threshold that defines a burst",
@@ -292,6 +291,19 @@ def offset_curve(series: list[_Series], knots: tuple[float, ...]) -> tuple[float
         return ()
     overall = float(np.median(err))
     return tuple(float(np.median(err[_in_bin(az, k)])) - overall for k in knots)
+
+
+def skew_curve(core: list[tuple[_Series, np.ndarray]], knots: tuple[float, ...]) -> tuple[float, ...]:
+    """Each knot's outward skew: (q84 - 2 median + q16) / (q84 - q16) of the outward-signed
+    reports outside bursts (0 where a bin has too few)."""
+    az = np.concatenate([s.azimuth[keep] for s, keep in core])
+    out = np.concatenate([s.err[keep] * np.where(s.true[keep] < 0, -1.0, 1.0) for s, keep in core])
+    values = []
+    for k in knots:
+        inside = out[_in_bin(az, k)]
+        low, mid, high = np.percentile(inside, (SKEW_QUANTILES[0], 50.0, SKEW_QUANTILES[1])) if len(inside) else (0, 0, 0)
+        values.append(float((high - 2 * mid + low) / (high - low)) if len(inside) >= MIN_BIN_EVENTS and high > low else 0.0)
+    return tuple(values)
 
 
 def spread_curve(series: list[_Series], knots: tuple[float, ...], level: dict[int, float]) -> tuple[float, ...]:

@@ -62,8 +62,8 @@ class AngleError:
       put while they stand and comes back where, and as, they come back;
     - a slow wander in time: Ornstein-Uhlenbeck, ``slow_sigma_deg`` and ``slow_time_s``;
     - white noise, ``white_sigma_deg``; the sum of these three stretched by 1 + ``skew`` where it
-      is positive and 1 - ``skew`` where negative (an error more often up than down, or the
-      reverse, its median kept);
+      points outward (away from boresight) and 1 - ``skew`` where inward (a curve over the
+      knots: wide angles err further inward than outward; the median is kept);
     - bursts (the heavy tail, a mixture): starting at ``burst_rate_hz``, lasting
       ``burst_duration_s`` on average (exponential), each adding one offset,
       ``burst_offset_min_deg`` plus an exponential excess of mean ``burst_offset_excess_deg``,
@@ -78,7 +78,6 @@ class AngleError:
     slow_sigma_deg: float = setting(0.0, low=0.0, high=90.0, unit=DEG)
     slow_time_s: float = setting(1.0, low=0.0, above=True, high=3600.0, unit=S)
     white_sigma_deg: float = setting(0.0, low=0.0, high=90.0, unit=DEG)
-    skew: float = setting(0.0, low=-0.9, high=0.9)
     burst_rate_hz: float = setting(0.0, low=0.0, high=100.0, unit="Hz")
     burst_duration_s: float = setting(0.1, low=0.0, above=True, high=3600.0, unit=S)
     burst_offset_min_deg: float = setting(20.0, low=0.0, high=180.0, unit=DEG)
@@ -89,6 +88,7 @@ class AngleError:
     compression_spread: float = setting(0.0, low=0.0, high=10.0)
     offset_deg: tuple[float, ...] = setting((), low=-90.0, high=90.0, unit=DEG)
     spread: tuple[float, ...] = setting((), low=0.0, high=100.0)
+    skew: tuple[float, ...] = setting((), low=-0.9, high=0.9)
 
     def compression(self, azimuth_abs_deg: float) -> float:
         """The outward shift (degrees) at a true |azimuth| off boresight (0 without a curve)."""
@@ -101,6 +101,10 @@ class AngleError:
     def spread_at(self, azimuth_abs_deg: float) -> float:
         """The factor on the random parts at a true |azimuth| off boresight (1 without a curve)."""
         return _interpolate(self.curve_at_deg, self.spread, azimuth_abs_deg, 1.0)
+
+    def skew_at(self, azimuth_abs_deg: float) -> float:
+        """The outward stretch at a true |azimuth| off boresight (0 without a curve)."""
+        return _interpolate(self.curve_at_deg, self.skew, azimuth_abs_deg, 0.0)
 
 
 def _interpolate(at: tuple[float, ...], values: tuple[float, ...], x: float, default: float) -> float:
@@ -216,7 +220,7 @@ def _check_aoa(aoa: AoaProfile, raw: dict[str, Any], recordings: dict[str, Recor
     for axis in ("azimuth", "elevation"):
         e: AngleError = getattr(aoa, axis)
         at = e.curve_at_deg
-        for key in ("compression_deg", "offset_deg", "spread"):
+        for key in ("compression_deg", "offset_deg", "spread", "skew"):
             values = getattr(e, key)
             if values and len(values) != len(at):
                 raise ProfileError(f"{where}: [aoa.{axis}] {key} has {len(values)} values for the {len(at)} knots of "

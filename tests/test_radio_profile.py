@@ -32,7 +32,6 @@ from rfhoming.protocol.radio_profile import (
     Missing,
     ProfileError,
     load,
-    parse,
     resolve,
     to_toml,
 )
@@ -200,10 +199,12 @@ def test_events_are_lost_at_the_drawn_rate_in_runs() -> None:
     assert runs.mean() == pytest.approx(3.0, rel=0.15)
 
 
-def test_skew_stretches_one_side_and_keeps_the_median() -> None:
-    board = MeasuredAoa(only(white_sigma_deg=4.0, skew=0.5), "w", np.random.default_rng(5), 0)
-    errors = np.array([board.report(TAG, t * 0.02, 0.0, 0.0, BOARD, (1.0, 1.0, 1.0, 0.0))[0]  # type: ignore[index]
-                       for t in range(20_000)])
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_skew_stretches_the_outward_side_and_keeps_the_median(side: float) -> None:
+    board = MeasuredAoa(only(white_sigma_deg=4.0, curve_at_deg=(0.0, 60.0), skew=(0.5, 0.5)), "w",
+                        np.random.default_rng(5), 0)
+    errors = side * np.array([board.report(TAG, t * 0.02, side * 30.0, 0.0, BOARD, (1.0, 1.0, 1.0, 0.0))[0]  # type: ignore[index]
+                              for t in range(20_000)]) - 30.0
     low, mid, high = np.percentile(errors, [15.87, 50, 84.13])
     assert mid == pytest.approx(0.0, abs=0.15)
     assert high - mid == pytest.approx(6.0, rel=0.1) and mid - low == pytest.approx(2.0, rel=0.15)
