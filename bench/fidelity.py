@@ -4,7 +4,8 @@ DIR is laid out as ``../shared/data/girolami_xplr_aoa/`` (bench/real_aoa.py). Fo
 the emulator is put at its geometry and its walk: the site's anchors (``site.toml``) as fixed
 XPLR-AOA anchors at their poses, the tag walked along the ground truth's waypoints on their own
 clock (a scenario timetable) at the site's tag height, sending at the recording's event rate,
-under a radio profile (the project's ``measured``, or ``--profile FILE``). The emulated anchors'
+under a radio profile (the project's ``measured``, ``--profile FILE``, or ``--profile ideal``:
+the idealised anchors of docs/emulator.md, to compare). The emulated anchors'
 bytes are written as a capture laid out like the real ones (one interface per anchor), and both
 captures go through the same code: the angle statistics of host/angle_residuals.py against the
 same walk, and ``rfhoming locate SITE --from capture:FILE`` in its own process, scored by the
@@ -161,7 +162,9 @@ def angle_groups(site: sites.Site, captures: Sequence[tuple[Path, WalkedPath]]) 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, required=True, help="a folder laid out as girolami_xplr_aoa/")
-    ap.add_argument("--profile", default="measured", help="a radio profile file (default: the project's measured)")
+    ap.add_argument("--profile", default="measured",
+                    help="a radio profile file, measured (the project's, default) or ideal (the emulator's idealised "
+                         "anchors, for comparison)")
     ap.add_argument("--only", default="", help="judge only these use cases or recordings (comma-separated prefixes)")
     ap.add_argument("--repeats", type=int, default=1, help="emulated runs of each walk (default 1)")
     ap.add_argument("--jobs", type=int, default=2, help="locate processes at once (default 2)")

@@ -99,7 +99,7 @@ examples:
   rfhoming radio-fit site.toml --from capture:walk1.pcapng --truth walk1.csv -o room.toml
   rfhoming radio-fit site.toml --from capture:a.pcapng --truth a.csv --from capture:b.pcapng --truth b.csv -o room.toml
   rfhoming radio-fit site.toml --from capture:walk.pcapng -o room.toml      (no ground truth)
-  rfhoming demo --radio room.toml                                           (then rehearse with it)
+then rehearse with it: --radio room.toml on emulate, demo or campaign.
 """
 
 WORKER_HELP = """\
