@@ -53,7 +53,7 @@ LEAD_S = 1.0
 
 ROOM_SEED = 1
 """Every emulated recording of one repeat meets the same room (its profile's error field); each
-repeat is another room (ROOM_SEED + repeat)."""
+repeat is another room (the first room's seed + repeat)."""
 
 STATS = ("az_std", "az_mad_sigma", "az_tail", "el_std", "el_tail", "compression_45_60", "compression_60_90",
          "corr_time_s", "missing")
@@ -166,7 +166,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="a radio profile file, measured (the project's, default) or ideal (the emulator's idealised "
                          "anchors, for comparison)")
     ap.add_argument("--only", default="", help="judge only these use cases or recordings (comma-separated prefixes)")
-    ap.add_argument("--repeats", type=int, default=1, help="emulated runs of each walk (default 1)")
+    ap.add_argument("--repeats", type=int, default=1, help="emulated runs of each walk, each repeat another room "
+                    "(default 1)")
+    ap.add_argument("--first-room", type=int, default=ROOM_SEED, help=f"the first repeat's room seed (default {ROOM_SEED})")
     ap.add_argument("--jobs", type=int, default=2, help="locate processes at once (default 2)")
     ap.add_argument("--keep", type=Path, help="keep the emulated captures in this folder")
     ap.add_argument("--json", action="store_true", help="one JSON object instead of tables")
@@ -180,6 +182,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not cases:
         raise SystemExit(f"fidelity: no recording of {args.data} starts with {args.only}")
     result: dict[str, Any] = {"data": str(args.data), "profile": args.profile, "repeats": args.repeats,
+                              "rooms": [args.first_room, args.first_room + args.repeats - 1],
                               "load_before": os.getloadavg()[0]}
     with tempfile.TemporaryDirectory(prefix="rfhoming-fidelity-") as tmp:
         folder = args.keep or Path(tmp)
@@ -191,7 +194,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 real_runs.append((uc, 0, capture, path))
                 for r in range(args.repeats):
                     seed = 1000 * r + 10 * len(emu_runs) + k
-                    out = emulated_capture(site, capture, path, args.profile, seed, ROOM_SEED + r,
+                    out = emulated_capture(site, capture, path, args.profile, seed, args.first_room + r,
                                            folder / f"{capture.stem}_emu{r}.pcapng")
                     emu_runs.append((uc, r, out, path))
         real_groups = angle_groups(site, [(c, p) for _, _, c, p in real_runs])
@@ -205,6 +208,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     result["stats"] = {k: {"real": round(v, 4), "emulated": round(float(np.mean([p[k] for p in per_repeat])), 4)}
                        for k, v in real_stats.items()}
     result["repeats_stats"] = {k: [round(p[k], 4) for p in per_repeat] for k in real_stats}
+    result["per_anchor"] = {a.name: {side: stat_values(angle_stats(groups, [a.name])) for side, groups in
+                                     (("real", real_groups), ("emulated", emu_groups))} for a in site.anchors}
     for axis in ("az", "el"):
         real = np.concatenate([getattr(r, f"{axis}_err") for g in real_groups for r in g.values()])
         emu = np.concatenate([getattr(r, f"{axis}_err") for g in emu_groups for r in g.values()])
@@ -237,6 +242,14 @@ def print_table(result: dict[str, Any]) -> None:
     for k, uc in enumerate(result["use_cases"]):
         real, emu = result["locate_mean_m"]["real"][k], result["locate_mean_m"]["emulated"][k]
         print(f"| locate mean, {uc} | {real:.3f} m | {emu:.3f} m | {emu / real:.2f} | {_yes(met[f'locate_{uc}'])} |")
+
+
+    print("\nper anchor (emulated: all repeats pooled; the autocorrelation time is the median over walks):\n")
+    print("| anchor | az std real / emulated | az tail | el std | autocorrelation s |\n|---|---|---|---|---|")
+    for name, sides in result["per_anchor"].items():
+        r, e = sides["real"], sides["emulated"]
+        print(f"| {name} | {r['az_std']:.1f} / {e['az_std']:.1f}° | {100 * r['az_tail']:.1f} / {100 * e['az_tail']:.1f} % "
+              f"| {r['el_std']:.1f} / {e['el_std']:.1f}° | {r['corr_time_s']:.2f} / {e['corr_time_s']:.2f} |")
 
 
 def _yes(ok: bool | None) -> str:

@@ -4,16 +4,20 @@ The process is protocol/radio_profile.py's :class:`AngleError` per axis and :cla
 (docs/emulator.md, "Radio profiles"). From each recording's residuals (host/angle_residuals.py:
 each report less the angle the board would give for the true position), per axis:
 
-1. compression (azimuth): the median outward-signed error in 7.5-degree bins of the true |angle|,
-   0 at boresight (the error is odd in the angle: a shift there would tear the angles apart);
+1. curves over the true |azimuth| (7.5-degree bins with enough reports): the compression
+   (azimuth: the median outward-signed error, 0 at boresight, since the error is odd in the
+   angle and a shift there would tear the angles apart; each anchor's factor on it) or the
+   offset (elevation: each bin's median less the median of all); the spread (each bin's robust
+   sigma over all) and, after the bursts are set aside, the outward skew;
 2. bursts: runs of reports more than :data:`BURST_SIGMAS` core sigmas from their recording's
    level, joined across gaps up to :data:`BURST_GAP_S`: how often they start, how long they
-   last, how far off they are;
-3. the rest, from the core's pair products (the method of moments): within a recording against
-   time apart (the slow wander plus the field), across recordings of one anchor and within one
-   far apart in time against distance apart (the field alone), and far apart in both (the bias);
-   a grid over the field's length and the wander's time, non-negative least squares for the
-   variances at each; white noise is what is left of the variance;
+   last, how far off they are and which way;
+3. the rest, in units of the spread, from the pair products of the reports outside bursts (the
+   method of moments), binned by time, distance and turn apart: within a recording (the slow
+   wander plus the field), across recordings of one anchor and within one far apart in time
+   (the field alone: its length and heading scale), far apart in place (the levels, and the
+   bias); a grid over length, heading scale and time, non-negative least squares for the
+   variances at each point, the three held to the variance; white noise is what is left;
 4. missing events: each anchor's share of the advertisements it did not report, against the
    anchor of its recording that reported most (as the statistic of host/angle_residuals.py), and
    the mean run of losses from the gaps in its stream.
