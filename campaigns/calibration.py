@@ -222,16 +222,16 @@ def with_noise(scenario: Scenario, noise: tuple[float, float, float] | None) -> 
     return scenario
 
 
-def load(name: str, seed: int, aoa_preset: int | None = None) -> Scenario:
+def load(name: str, seed: int, aoa_preset: int | None = None, radio: str = "ideal") -> Scenario:
     from rfhoming.emulator.scenario import load as load_scenario
 
-    return load_scenario(name, seed=seed, aoa_preset=aoa_preset)
+    return load_scenario(name, seed=seed, aoa_preset=aoa_preset, radio=radio)
 
 
 @lru_cache(maxsize=32)
 def cached(name: str, seed: int, aoa_preset: int | None = None,
-           noise: tuple[float, float, float] | None = None) -> Fit:
-    """One calibration per (scenario, campaign seed, noise), reused by a process's jobs:
+           noise: tuple[float, float, float] | None = None, radio: str = "ideal") -> Fit:
+    """One calibration per (scenario, campaign seed, noise, radios), reused by a process's jobs:
     deterministic, so inline, processes and Dask agree."""
     session = CALIBRATION_SEED + seed
-    return calibrate(with_noise(load(name, session, aoa_preset), noise), session)
+    return calibrate(with_noise(load(name, session, aoa_preset, radio), noise), session)

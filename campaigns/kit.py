@@ -70,12 +70,14 @@ height is known. The surveyed points keep their own heights."""
 
 
 def record(seed: int = 0, duration: float = 30.0, calibration: bool = False,
-           boards: dict[str, Any] | None = None, room: dict[str, Any] | None = None) -> Recording:
+           boards: dict[str, Any] | None = None, room: dict[str, Any] | None = None,
+           radio: str = "ideal") -> Recording:
     """A run of the kit scenario (or, with ``calibration``, kit-room-cal: the same anchors --
     same seed, same hidden errors -- with static tags at :data:`CALIBRATION_POINTS`); ``boards``:
     error-model options set on every anchor (e.g. :data:`HARD_BOARDS`); ``room``: the room's
-    geometry changed as :data:`WALL_ROOM`."""
-    sc = scenarios.load("kit-room-cal" if calibration else "kit-room", seed=seed)
+    geometry changed as :data:`WALL_ROOM`; ``radio``: the boards' errors from a radio profile
+    instead (``measured`` or a file: docs/emulator.md)."""
+    sc = scenarios.load("kit-room-cal" if calibration else "kit-room", seed=seed, radio=radio)
     for device in sc.devices:
         device.options.update(boards or {})
         if room:

@@ -22,11 +22,12 @@ import os
 import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.radio_profile import IDEAL
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +62,16 @@ class Campaign:
     jobs: Callable[[int, int], list[Job]]  # (runs, seed) -> jobs
     report: Callable[[list[dict[str, Any]]], Report]
     requires: tuple[str, ...] = ()  # optional packages its jobs import
+    radios: bool = False  # its runs go through the emulator's radios: its jobs take radio= (--radio)
+
+    def make_jobs(self, runs: int, seed: int, radio: str = IDEAL) -> list[Job]:
+        """The jobs, each told the radios (``--radio``) when they are not the idealised ones."""
+        if radio == IDEAL:
+            return self.jobs(runs, seed)
+        if not self.radios:
+            raise CampaignError(f"{self.name} simulates its paper's own noise without the emulator's radios: "
+                                "--radio applies to campaigns that run through the emulator; leave it out")
+        return [replace(job, kwargs={**job.kwargs, "radio": radio}) for job in self.jobs(runs, seed)]
 
     def check_requirements(self) -> None:
         """Fail before the first job, not after hours of them, when a package is missing."""

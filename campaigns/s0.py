@@ -62,21 +62,25 @@ OURS = replace(Config(), s0=replace(Config().s0, ray_fusion=True))
 """Ours on the board: k 0.3 per reading, the near-goal and the ray fusion (on a calibrated host)."""
 
 
-def host_config(scenario: str, campaign_seed: int, preset: int | None = None, base: Config = OURS) -> Config:
-    """``base`` with the RSSI -> distance constants of a calibration session."""
-    fit = calibration.cached(scenario, campaign_seed, preset)
+def host_config(scenario: str, campaign_seed: int, preset: int | None = None, base: Config = OURS,
+                radio: str = "ideal") -> Config:
+    """``base`` with the RSSI -> distance constants of a calibration session (through ``radio``)."""
+    fit = calibration.cached(scenario, campaign_seed, preset, None, radio)
     return replace(base, calibration=Calibration(p0_dbm=round(fit.p0_dbm, 2), n=round(fit.n, 3)))
 
 
-def table3_run(config: int, mode: str, target: tuple[float, float], seed: int, campaign_seed: int = 0) -> dict[str, Any]:
+def table3_run(config: int, mode: str, target: tuple[float, float], seed: int, campaign_seed: int = 0,
+               radio: str = "ideal") -> dict[str, Any]:
     """One homing: idealised (the paper's measurements, a kinematic robot) or realistic (the
-    emulator's XPLR-AOA with the fold and integer fields, RSSI through the calibration)."""
+    emulator's XPLR-AOA with the fold and integer fields, RSSI through the calibration; under
+    measured radios, ``radio``, the profile's angles in place of the configuration's noise)."""
     if mode in PARAMS:
         params, reading_s = PARAMS[mode]
         row = kinematic.home(target, *S0_PRESETS[config], seed=seed, params=params, reading_s=reading_s)
     else:
-        scenario = load("s0-open", seed=seed, target=target, aoa_preset=config)
-        run = closed_loop.run(scenario, host_config("s0-open", campaign_seed, config), seed)
+        preset = config if radio == "ideal" else None
+        scenario = load("s0-open", seed=seed, target=target, aoa_preset=preset, radio=radio)
+        run = closed_loop.run(scenario, host_config("s0-open", campaign_seed, preset, radio=radio), seed)
         row = closed_loop.metrics(run, target)
     return {"config": config, "mode": mode, "target": [round(v, 3) for v in target], **row}
 
@@ -146,14 +150,16 @@ def _probe_ring(p: tuple[float, float], r: float = 0.7) -> list[tuple[float, flo
     return [(p[0] + r * math.cos(a), p[1] + r * math.sin(a)) for a in np.linspace(0, 2 * math.pi, 12, endpoint=False)]
 
 
-def house_run(seed: int, pair: int, mode: str = "planner", campaign_seed: int = 0) -> dict[str, Any]:
-    """Experiment 2: the four-room house, configuration 5; start and tag in random points of
-    start/goal room pair ``pair`` (0–15), the same for both modes of a seed."""
+def house_run(seed: int, pair: int, mode: str = "planner", campaign_seed: int = 0,
+              radio: str = "ideal") -> dict[str, Any]:
+    """Experiment 2: the four-room house, configuration 5 (or ``radio``'s measured angles);
+    start and tag in random points of start/goal room pair ``pair`` (0–15), the same for both
+    modes of a seed."""
     rng = np.random.default_rng([seed, 0x40])
     scenario = load("s0-house", seed=seed)
     start_room, goal_room = divmod(pair, 4)
     target = room_point(goal_room, rng, scenario)
-    scenario = load("s0-house", seed=seed, target=target)
+    scenario = load("s0-house", seed=seed, target=target, radio=radio)
     x, y = room_point(start_room, rng, scenario)
     while math.dist((x, y), target) < 2.0:  # a homing, not a start on the tag
         x, y = room_point(start_room, rng, scenario)
@@ -161,7 +167,7 @@ def house_run(seed: int, pair: int, mode: str = "planner", campaign_seed: int = 
     scenario.world.robot.theta = float(rng.uniform(-math.pi, math.pi))
     base = HOUSE_CONFIG if mode == "planner" else replace(
         HOUSE_CONFIG, plan=replace(HOUSE_CONFIG.plan, enabled=False), s0=PAPER_S0)
-    run = closed_loop.run(scenario, host_config("s0-house", campaign_seed, None, base), seed)
+    run = closed_loop.run(scenario, host_config("s0-house", campaign_seed, None, base, radio), seed)
     row = closed_loop.metrics(run, target)
     goal, odometry = run.outcome.goal, run.outcome.pose
     relative = None if goal is None or odometry is None else goal_seen_from_robot(goal, odometry, run.robot)
@@ -222,7 +228,8 @@ def house_report(rows: list[dict[str, Any]]) -> Report:
 
 TABLE3_CAMPAIGN = Campaign(
     "s0-table3", "S0 Table 3: 5 noise configurations x targets, idealised and realistic",
-    "targets per configuration (split evenly over the quadrants)", 40, table3_jobs, table3_report)
+    "targets per configuration (split evenly over the quadrants)", 40, table3_jobs, table3_report, radios=True)
 HOUSE_CAMPAIGN = Campaign(
     "s0-house", "S0 Experiment 2: four-room house, configuration 5, S0's rules and ours (A*)",
-    "runs (random start and tag over the 16 room pairs; each run with both methods)", 80, house_jobs, house_report)
+    "runs (random start and tag over the 16 room pairs; each run with both methods)", 80, house_jobs, house_report,
+    radios=True)

@@ -42,9 +42,9 @@ NOISE = {"S1-like": (2.0, 1.0, 2.0), "real-data": (3.5, 4.0, 3.0)}
 the fit, per-link bias; docs/RESULTS.md, "Estimation on real recordings") and is the scenario file's own."""
 
 
-def host_config(mode: str, seed: int, noise: str = "real-data") -> Config:
+def host_config(mode: str, seed: int, noise: str = "real-data", radio: str = "ideal") -> Config:
     """The host's config for one mode, its radio constants from a calibration session."""
-    fit = calibration.cached(SCENARIO, seed, None, NOISE[noise])
+    fit = calibration.cached(SCENARIO, seed, None, NOISE[noise], radio)
     s1 = replace(Config().s1, align=MODES[mode], rssi_arrival_dbm=round(fit.stop_dbm, 2), path_n=round(fit.n, 3),
                  enter_dbm=round(fit.stop_dbm - 22.0, 2), leave_dbm=round(fit.stop_dbm - 25.0, 2),
                  mission_goal=STATION_ON_MAP)
@@ -52,10 +52,10 @@ def host_config(mode: str, seed: int, noise: str = "real-data") -> Config:
 
 
 def trial(mode: str, start: tuple[float, float, float], seed: int, campaign_seed: int = 0,
-          noise: str = "real-data") -> dict[str, Any]:
+          noise: str = "real-data", radio: str = "ideal") -> dict[str, Any]:
     """Dock from ``start``: the final pose, and its error against the docked pose (ours)."""
-    config = host_config(mode, campaign_seed, noise)
-    scenario = calibration.with_noise(load(SCENARIO, seed=seed), NOISE[noise])
+    config = host_config(mode, campaign_seed, noise, radio)
+    scenario = calibration.with_noise(load(SCENARIO, seed=seed, radio=radio), NOISE[noise])
     scenario.world.robot.x, scenario.world.robot.y, scenario.world.robot.theta = start
     run = closed_loop.run(scenario, config, seed)
     station = scenario.world.targets[0]
@@ -151,4 +151,4 @@ def report(rows: list[dict[str, Any]]) -> Report:
 
 
 CAMPAIGN = Campaign("s1-dock", "S1 docking from random starts, S1's rule and with final alignment",
-                    "trials (each run in both modes at both noise levels)", 50, jobs, report)
+                    "trials (each run in both modes at both noise levels)", 50, jobs, report, radios=True)

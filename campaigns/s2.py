@@ -70,9 +70,9 @@ def paper_time(scenario: str, system: str) -> float | None:
     return PAPER_TIME_S[scenario][0 if system == "preliminary" else 1]
 
 
-def host_config(scenario: str, system: str, seed: int, campaign_seed: int = 0) -> Config:
+def host_config(scenario: str, system: str, seed: int, campaign_seed: int = 0, radio: str = "ideal") -> Config:
     """The host's config for one run, its radio constants from a calibration session."""
-    fit = calibration.cached(f"s2-{scenario}", campaign_seed)
+    fit = calibration.cached(f"s2-{scenario}", campaign_seed, radio=radio)
     motion, _, likelihood = system.partition("-")
     s2 = replace(Config().s2, motion=motion, seed=seed, likelihood=likelihood or "s2",
                  arrival_range_m=OURS_STOP_M if likelihood == "bounded" else PAPER_STOP_M,
@@ -81,9 +81,9 @@ def host_config(scenario: str, system: str, seed: int, campaign_seed: int = 0) -
     return replace(Config(), s2=s2, loop=replace(LoopSettings(), max_time_s=MAX_TIME_S))
 
 
-def run(scenario: str, system: str, seed: int, campaign_seed: int = 0) -> dict[str, Any]:
-    config = host_config(scenario, system, seed, campaign_seed)
-    sc = load(f"s2-{scenario}", seed=seed)
+def run(scenario: str, system: str, seed: int, campaign_seed: int = 0, radio: str = "ideal") -> dict[str, Any]:
+    config = host_config(scenario, system, seed, campaign_seed, radio)
+    sc = load(f"s2-{scenario}", seed=seed, radio=radio)
     target = sc.world.targets[0].position
     log = io.StringIO()
     result = closed_loop.run(sc, config, seed, timeout_s=3600, runlog=RunLog(log))
@@ -155,4 +155,4 @@ def report(rows: list[dict[str, Any]]) -> Report:
 
 
 CAMPAIGN = Campaign("s2-scenarios", "S2: scenarios A-E, preliminary and full system; particle filter vs instantaneous fixes",
-                    "runs per scenario and system", 3, jobs, report)
+                    "runs per scenario and system", 3, jobs, report, radios=True)

@@ -25,6 +25,11 @@ recordings with ground truth that this repository does not hold; no public sourc
   time constant, on azimuth and (doubled) on elevation.
 
 The host is told none of this: a calibration run through the same anchors has to find it.
+
+Under a radio profile (``--radio measured|PROFILE``) none of these knobs apply: the board sits at
+its nominal pose and its reports carry the profile's measured error process instead
+(emulator/aoa_error.py), fitted to real anchors whose residuals already hold their mounting,
+compression, bias and reflections.
 """
 
 from __future__ import annotations
@@ -35,7 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.emulator.devices import AoaRunner
+from rfhoming.emulator.aoa_error import MeasuredAoa
+from rfhoming.emulator.devices import AoaRunner, Heard
 from rfhoming.emulator.faults import ByteFaults
 from rfhoming.emulator.links import Link
 from rfhoming.emulator.radio import AoaModel, PathLossModel, fold_front
@@ -61,10 +67,13 @@ class FixedAnchorRunner(AoaRunner):
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
-                 robot_tag: tuple[str, float] | None = None, rssi: Mapping[str, RssiProfile] | None = None) -> None:
-        super().__init__(name, link, faults, rng, options, aoa, path_loss, robot_tag, rssi)
+                 robot_tag: tuple[str, float] | None = None, measured: MeasuredAoa | None = None,
+                 rssi: Mapping[str, RssiProfile] | None = None) -> None:
+        super().__init__(name, link, faults, rng, options, aoa, path_loss, robot_tag, measured, rssi)
         o = options
         self.position = np.array([float(v) for v in o["position"]])
+        self.nominal_yaw = float(o.get("yaw_deg", 0.0))
+        self.nominal = rotation(self.nominal_yaw, float(o.get("pitch_deg", 0.0)), float(o.get("roll_deg", 0.0)))
         mount_sigma = float(o.get("mount_error_deg", 3.0))
         scale_error = float(o.get("scale_error", 0.12))
         bias = float(o.get("bias_deg", 1.5))
@@ -90,6 +99,8 @@ class FixedAnchorRunner(AoaRunner):
 
     def truth(self) -> dict[str, Any]:
         """The hidden error model, for the truth log and the calibration test's cross-check."""
+        if self.measured is not None:
+            return {"device": self.name, "error_model": "radio profile", "true_yaw_deg": float(self.nominal_yaw)}
         return {"device": self.name, "true_yaw_deg": self.true_pose[0], "true_pitch_deg": self.true_pose[1],
                 "az_scale": self.az_scale, "az_bias_deg": self.az_bias,
                 "el_scale": self.el_scale, "el_bias_deg": self.el_bias, "angle_model": self.angle_model,
@@ -108,13 +119,14 @@ class FixedAnchorRunner(AoaRunner):
         self._slow[tag_id] = (t, a, e)
         return a, e
 
-    def sources(self, world: World, t: float) -> list[tuple[str, tuple[float, float], float, float, float]]:
+    def sources(self, world: World, t: float) -> list[Heard]:
         """Every tag in the room: the targets' and, if the robot carries one, the robot's."""
-        tags = [(t_.id, t_.position_at(t), t_.height, t_.interval_ms / 1000, t_.tx_power_dbm)
+        tags = [Heard(t_.id, t_.position_at(t), t_.height, t_.interval_ms / 1000, t_.tx_power_dbm, t_.heading_at(t))
                 for t_ in world.targets if t_.kind == "aoa_tag"]
         if self.robot_tag is not None:
             tag_id, interval_ms = self.robot_tag
-            tags.append((tag_id, (world.robot.x, world.robot.y), self.ROBOT_TAG_HEIGHT_M, interval_ms / 1000, 0.0))
+            r = world.robot
+            tags.append(Heard(tag_id, (r.x, r.y), self.ROBOT_TAG_HEIGHT_M, interval_ms / 1000, 0.0, r.theta))
         return tags
 
     def _image(self, world: World, p: np.ndarray) -> np.ndarray:
@@ -130,7 +142,7 @@ class FixedAnchorRunner(AoaRunner):
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: XplrAoaFirmware = self.firmware
-        for tag_id, pos, height, interval, tx in self.sources(world, t1):
+        for tag_id, pos, height, interval, tx, heading in self.sources(world, t1):
             for t in self.schedule.due(tag_id, interval, interval * 0.1, t0, t1):
                 fw.tick(int(t * 1000))
                 link = (tag_id, self.name)
@@ -141,6 +153,9 @@ class FixedAnchorRunner(AoaRunner):
                 sample = self.channel.received_dbm(link, distance, tx, 0, t=t,
                                                    ends=(pos, (float(self.position[0]), float(self.position[1]))))
                 if sample is None or sample < -100:
+                    continue
+                if self.measured is not None:
+                    self._measured(fw, tag_id, t, tag, heading, sample)
                     continue
                 d = self.rot.T @ (self._image(world, tag) - self.position)
                 if d[0] < 0:  # behind the board's plane: the array sees the front image
@@ -161,3 +176,23 @@ class FixedAnchorRunner(AoaRunner):
                                                   max(-90.0, min(90.0, el)), sample,
                                                   self.channel.second_dbm(link, sample)))
         fw.tick(int(t1 * 1000))
+
+    def _measured(self, fw: XplrAoaFirmware, tag_id: str, t: float, tag: np.ndarray, heading: float,
+                  rssi: float) -> None:
+        """One event under the radio profile: the true angles from the nominal pose (the
+        profile's residuals were taken against nominal poses), then its error process."""
+        d = self.nominal.T @ (tag - self.position)
+        if d[0] < 0:  # behind the board's plane: the array sees the front image
+            d = d * np.array([-1.0, 1.0, 1.0])
+        if self.angle_model == "cone":
+            r = float(np.linalg.norm(d))
+            az_ccw, el = math.degrees(math.asin(d[1] / r)), math.degrees(math.asin(d[2] / r))
+        else:
+            az_ccw = fold_front(math.degrees(math.atan2(d[1], d[0])))
+            el = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
+        assert self.measured is not None
+        board = (float(self.position[0]), float(self.position[1]), float(self.position[2]), math.radians(self.nominal_yaw))
+        got = self.measured.report(tag_id, t, -az_ccw, el, board, (float(tag[0]), float(tag[1]), float(tag[2]), heading))
+        if got is not None:
+            fw.on_advertisement(Advertisement(tag_id, C209_NAMESPACE, got[0], got[1], rssi,
+                                              self.channel.second_dbm((tag_id, self.name), rssi)))

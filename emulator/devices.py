@@ -9,10 +9,11 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import Callable, Iterator, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from rfhoming.emulator.aoa_error import MeasuredAoa
 from rfhoming.emulator.faults import ByteFaults, scramble
 from rfhoming.emulator.links import Link, TcpLink
 from rfhoming.emulator.measured_rssi import channel
@@ -20,6 +21,7 @@ from rfhoming.emulator.radio import (
     AoaModel,
     PathLossModel,
     RadioChannel,
+    fold_front,
     idealised_rssi,
     measure_azimuth,
     power_sum_dbm,
@@ -180,8 +182,23 @@ class _Schedule:
         return times
 
 
+class Heard(NamedTuple):
+    """A tag an XPLR-AOA hears: where it is at a time, how often it sends, and the way it faces."""
+
+    id: str
+    position: tuple[float, float]
+    height: float
+    interval_s: float
+    tx_power_dbm: float
+    heading: float
+
+
 class AoaRunner(DeviceRunner):
-    """An XPLR-AOA board on the robot (``mount_yaw_deg``) or fixed (``mount = [x, y, θ]``)."""
+    """An XPLR-AOA board on the robot (``mount_yaw_deg``) or fixed (``mount = [x, y, θ]``).
+
+    Its angle errors are the scenario's idealised ``[aoa]`` model, or, under a radio profile
+    (``--radio``), the profile's measured process (emulator/aoa_error.py); a board carried on the
+    robot takes the fixed anchors' figures (*assumed*: no recording of a carried board)."""
 
     board = "xplr-aoa"
 
@@ -193,11 +210,14 @@ class AoaRunner(DeviceRunner):
 
         tag = (scenario.robot_tag, scenario.robot_tag_interval_ms) if scenario.robot_tag else None
         runner = FixedAnchorRunner if "position" in options else AoaRunner
-        return runner(name, link, faults, rng, options, scenario.aoa, scenario.path_loss, tag, scenario.rssi)
+        profile = scenario.radio.aoa if scenario.radio is not None else None
+        measured = MeasuredAoa(profile, name, rng, scenario.room_seed) if profile is not None else None
+        return runner(name, link, faults, rng, options, scenario.aoa, scenario.path_loss, tag, measured, scenario.rssi)
 
     def __init__(self, name: str, link: Link, faults: ByteFaults, rng: np.random.Generator,
                  options: dict[str, Any], aoa: AoaModel, path_loss: PathLossModel,
-                 robot_tag: tuple[str, float] | None, rssi: Mapping[str, RssiProfile] | None = None) -> None:
+                 robot_tag: tuple[str, float] | None, measured: MeasuredAoa | None = None,
+                 rssi: Mapping[str, RssiProfile] | None = None) -> None:
         dialect = Dialect(str(options.get("dialect", "1.2")))
         mac = str(options.get("mac", "CCF9578E0D89"))
         baud = int(options.get("baud", DEFAULT_BAUD))
@@ -215,6 +235,7 @@ class AoaRunner(DeviceRunner):
         self.upside_down = bool(options.get("upside_down", False))
         self.observe_robot = options.get("observe", "targets") == "robot"
         self.robot_tag = robot_tag
+        self.measured = measured
         self.schedule = _Schedule(rng)
         self._tag_ids: list[str] | None = None
 
@@ -234,18 +255,19 @@ class AoaRunner(DeviceRunner):
     def _quiet_until(self, world: World) -> float:
         """The next transmission time of any tag this board hears (-inf before each has one)."""
         if self._tag_ids is None:  # who is heard never changes
-            self._tag_ids = [s[0] for s in self.sources(world, 0.0)]
+            self._tag_ids = [s.id for s in self.sources(world, 0.0)]
         nexts = self.schedule.next
         return min((nexts.get(tag_id, -math.inf) for tag_id in self._tag_ids), default=math.inf)
 
-    def sources(self, world: World, t: float) -> list[tuple[str, tuple[float, float], float, float, float]]:
-        """(id, position, height, interval_s, tx_power) of every tag this board hears."""
+    def sources(self, world: World, t: float) -> list[Heard]:
+        """Every tag this board hears."""
         if self.observe_robot:
             if self.robot_tag is None:
                 return []
             tag_id, interval_ms = self.robot_tag
-            return [(tag_id, (world.robot.x, world.robot.y), 0.1, interval_ms / 1000, 0.0)]
-        return [(t_.id, t_.position_at(t), t_.height, t_.interval_ms / 1000, t_.tx_power_dbm)
+            r = world.robot
+            return [Heard(tag_id, (r.x, r.y), 0.1, interval_ms / 1000, 0.0, r.theta)]
+        return [Heard(t_.id, t_.position_at(t), t_.height, t_.interval_ms / 1000, t_.tx_power_dbm, t_.heading_at(t))
                 for t_ in world.targets if t_.kind == "aoa_tag"]
 
     def step(self, world: World, t0: float, t1: float) -> None:
@@ -253,7 +275,7 @@ class AoaRunner(DeviceRunner):
         if self._quiet_until(world) > t1:  # no tag sends in this step (most steps)
             fw.tick(int(t1 * 1000))
             return
-        for tag_id, pos, height, interval, tx in self.sources(world, t1):
+        for tag_id, pos, height, interval, tx, heading in self.sources(world, t1):
             for t in self.schedule.due(tag_id, interval, interval * 0.1, t0, t1):
                 fw.tick(int(t * 1000))
                 # the tag's own event counter counts what it sent, whatever the board hears
@@ -267,7 +289,7 @@ class AoaRunner(DeviceRunner):
                 paths = arrivals(world, self.path_loss, pos, (bx, by), tx, walls)
                 # NLOS: the board reads the strongest path's bearing (docs/emulator.md)
                 direction = max(paths, key=lambda p: p[1])[0] if len(paths) > 1 else paths[0][0]
-                if self.aoa.idealised_rssi:
+                if self.aoa.idealised_rssi and self.measured is None:  # S0's presets: idealised distance noise
                     rssi = idealised_rssi(self.aoa, self.path_loss, distance, tx, self.rng)
                 else:
                     if distance > self.path_loss.max_range_m:
@@ -277,11 +299,19 @@ class AoaRunner(DeviceRunner):
                     if rssi < -100:
                         continue
                 relative = math.degrees(direction - bth)
-                azimuth = measure_azimuth(self.aoa, relative, self.rng)
+                elevation = math.degrees(math.atan2(height - BOARD_HEIGHT_M, max(distance, 0.05)))
+                if self.measured is not None:
+                    true_az = -fold_front(relative) if self.aoa.fold else -math.remainder(relative, 360.0)
+                    got = self.measured.report(tag_id, t, true_az, elevation, (bx, by, BOARD_HEIGHT_M, bth),
+                                               (pos[0], pos[1], height, heading))
+                    if got is None:
+                        continue
+                    azimuth, elevation = got
+                else:
+                    azimuth = measure_azimuth(self.aoa, relative, self.rng)
+                    elevation += float(self.rng.normal(0, self.aoa.angle_deg))
                 if self.upside_down:
                     azimuth = -azimuth
-                elevation = math.degrees(math.atan2(height - BOARD_HEIGHT_M, max(distance, 0.05)))
-                elevation += float(self.rng.normal(0, self.aoa.angle_deg))
                 fw.on_advertisement(Advertisement(tag_id, self.namespace, azimuth, elevation, rssi,
                                                   self.channel.second_dbm(link, rssi), counter))
         fw.tick(int(t1 * 1000))

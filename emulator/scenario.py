@@ -22,6 +22,7 @@ from rfhoming.emulator.world import Obstacle, Pose, Target, World
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.rssi_profile import RssiProfile
+from rfhoming.protocol.radio_profile import IDEAL, ProfileError, RadioProfile, resolve
 
 
 
@@ -58,6 +59,13 @@ class Scenario:
     vehicle: dict[str, Any] | None = None  # the base as a MAVLink vehicle (``[robot.mavlink]``), as --robot mavlink
     rssi: dict[str, RssiProfile] = field(default_factory=dict)
     """Measured RSSI by radio (a profile's ``[rssi.NAME]``); a radio left out keeps ``path_loss`` (ideal)."""
+    radio: RadioProfile | None = None  # the measured radios (``--radio``); None: the scenario's idealised noise
+    room_seed: int = 0  # seeds what the room holds still across runs (a profile's error field)
+
+    @property
+    def radio_name(self) -> str:
+        """What ``--radio`` named: ``ideal``, or the profile's name."""
+        return IDEAL if self.radio is None else self.radio.name
 
 
 def presets() -> list[str]:
@@ -96,6 +104,14 @@ def _point(p: Any) -> tuple[float, float]:
     return cast("tuple[float, float]", tuple(map(float, p)))
 
 
+def _timetable(rows: Any, where: str) -> list[tuple[float, float, float]]:
+    """``timetable = [[t, x, y], ...]``: a walk on the clock (seconds, metres), times rising."""
+    out = [cast("tuple[float, float, float]", tuple(map(float, row))) for row in rows]
+    if any(len(row) != 3 for row in out) or any(b[0] <= a[0] for a, b in zip(out, out[1:])):
+        raise ScenarioError(f"{where}: timetable must be [[t, x, y], ...] with the times rising")
+    return out
+
+
 def _random_free_point(bounds: tuple[float, ...], obstacles: list[Obstacle], rng: np.random.Generator,
                        margin: float = 1.0) -> tuple[float, float]:
     x0, y0, x1, y1 = bounds
@@ -111,11 +127,22 @@ BLE_RECEIVERS = tuple(name for name, (kind, _) in devices.BOARDS.items() if "ble
 
 
 def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = None,
-         aoa_preset: int | None = None, receiver: str | None = None) -> Scenario:
+         aoa_preset: int | None = None, receiver: str | None = None, radio: str | RadioProfile = IDEAL,
+         room_seed: int | None = None) -> Scenario:
     """Build a scenario; ``target`` overrides the first target's position, ``aoa_preset`` the
-    AoA noise with S0's configuration 1–5, ``receiver`` the type of every BLE RSSI receiver."""
+    AoA noise with S0's configuration 1–5, ``receiver`` the type of every BLE RSSI receiver,
+    ``radio`` the radios' errors: ``ideal`` (the scenario's own noise, each paper's set-up),
+    ``measured`` (the project's profile, fitted to real recordings) or a profile file or object
+    (docs/emulator.md, "Radio profiles"); ``room_seed`` (default ``seed``) what stays put in the
+    room from run to run under a profile (its error field)."""
     if receiver is not None and receiver not in BLE_RECEIVERS:
         raise ScenarioError(f"receiver must be one of {BLE_RECEIVERS}, not {receiver!r}")
+    if aoa_preset is not None and radio != IDEAL:
+        raise ScenarioError("--aoa-preset is S0's idealised noise: give it with --radio ideal, or leave it out")
+    try:
+        profile = radio if isinstance(radio, RadioProfile) else resolve(radio)
+    except ProfileError as exc:
+        raise ScenarioError(str(exc)) from None
     raw = _read(name_or_path)
     rng = np.random.default_rng(seed)
     try:
@@ -142,6 +169,7 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = No
                 path=[_point(p) for p in t.get("path", [])], speed=float(t.get("speed", 0.0)),
                 interval_ms=float(t.get("interval_ms", 20.0)), jitter_ms=float(t.get("jitter_ms", 0.0)),
                 tx_power_dbm=float(t.get("tx_power_dbm", 0.0)), heading=float(t.get("heading", 0.0)),
+                timetable=_timetable(t.get("timetable", []), f"[[targets]] {t['id']}"),
             ))
         aoa_table = dict(raw.get("aoa", {}))
         preset = aoa_preset if aoa_preset is not None else aoa_table.get("preset")
@@ -180,6 +208,9 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = No
         robot_tag_interval_ms=float(robot.get("tag_interval_ms", 20.0)),
         robot_height=None if robot.get("height") is None else float(robot["height"]),
         vehicle=_vehicle(robot, name_or_path),
+        radio=profile,
+        rssi={} if profile is None else dict(profile.rssi),
+        room_seed=seed if room_seed is None else room_seed,
     )
 
 

@@ -6,6 +6,7 @@ Obstacles are polygons (a rectangle is a 4-gon); walls are thin rectangles.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -46,10 +47,16 @@ class Target:
     interval_ms: float = 20.0
     jitter_ms: float = 0.0
     tx_power_dbm: float = 0.0
-    heading: float = 0.0  # docks: the approach direction
+    heading: float = 0.0  # docks: the approach direction; a tag: the way its carrier faces while static
+    timetable: list[tuple[float, float, float]] = field(default_factory=list)  # (t, x, y): a walk on a clock
 
     def position_at(self, t: float) -> tuple[float, float]:
-        """Static, or moving along ``path`` (looped) at ``speed`` m/s."""
+        """Static, on its ``timetable`` (straight lines between its points, held at the ends), or
+        moving along ``path`` (looped) at ``speed`` m/s."""
+        if self.timetable:
+            times = [p[0] for p in self.timetable]
+            return (float(np.interp(t, times, [p[1] for p in self.timetable])),
+                    float(np.interp(t, times, [p[2] for p in self.timetable])))
         if not self.path or self.speed <= 0:
             return self.position
         points = [self.position, *self.path, self.position]
@@ -61,6 +68,22 @@ class Target:
                 return (a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]))
             s -= length
         return self.position
+
+    def heading_at(self, t: float, dt: float = 0.05) -> float:
+        """The way it moves at ``t`` (rad), or, standing, the way it last moved (``heading``
+        before it ever moved): the way the body that carries a tag faces."""
+        if self.timetable:
+            points = self.timetable
+            after = bisect.bisect_right([p[0] for p in points], t)
+            for i in range(min(after, len(points) - 1), 0, -1):  # the segment into point i, going back
+                dx, dy = points[i][1] - points[i - 1][1], points[i][2] - points[i - 1][2]
+                if math.hypot(dx, dy) > 1e-9:
+                    return math.atan2(dy, dx)
+            return self.heading
+        if not self.path or self.speed <= 0:
+            return self.heading
+        (x0, y0), (x1, y1) = self.position_at(t - dt), self.position_at(t)
+        return math.atan2(y1 - y0, x1 - x0)
 
 
 @dataclass

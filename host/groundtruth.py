@@ -72,6 +72,18 @@ class WalkedPath:
         inside = (tt > self.start_s) & (tt < self.waypoints[-1].leave_s)
         return inside & ~standing
 
+    def heading(self, t: Sequence[float] | np.ndarray) -> np.ndarray:
+        """The walker's heading (rad, CCW from +x) at each of ``t``: the way it moves, or, standing,
+        the way it last moved (the first leg's way before it moves at all)."""
+        times, xy = self._knots()
+        step = np.diff(xy, axis=0)
+        moving = np.hypot(step[:, 0], step[:, 1]) > 1e-9
+        if not moving.any():
+            return np.zeros(np.shape(t))
+        last = np.maximum.accumulate(np.where(moving, np.arange(len(step)), -1))
+        way = np.arctan2(step[:, 1], step[:, 0])[np.where(last >= 0, last, int(np.argmax(moving)))]
+        return np.asarray(way[np.clip(np.searchsorted(times, np.asarray(t, float), side="right") - 1, 0, len(step) - 1)])
+
     def _knots(self) -> tuple[np.ndarray, np.ndarray]:
         times, xy = [], []
         for w in self.waypoints:

@@ -240,3 +240,4 @@ def remove_if_empty(path: Path | str) -> bool:
     except OSError:
         pass
     return False
+

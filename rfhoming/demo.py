@@ -50,13 +50,15 @@ the demo tells it for the emulator's vehicle only."""
 
 
 def start_emulator(scenario: str, seed: int, truth: Path, link_dir: Path, target: str | None,
-                   receiver: str | None = None, speed: float = 0.0) -> tuple[subprocess.Popen[str], dict[str, Any]]:
+                   receiver: str | None = None, speed: float = 0.0,
+                   radio: str = "ideal") -> tuple[subprocess.Popen[str], dict[str, Any]]:
     """The emulator's process and every device it printed, by the scenario's device name (the
     truth file's header says how many). ``speed`` 0: lockstep (as fast as the host answers,
-    deterministic); else the emulator's ``--speed`` (1 = robot time, for a person watching)."""
+    deterministic); else the emulator's ``--speed`` (1 = robot time, for a person watching);
+    ``radio``: its ``--radio``."""
     pace = ["--lockstep"] if speed == 0 else ["--speed", str(speed)]
     cmd = [sys.executable, "-m", "rfhoming", "emulate", scenario, "--pty", *pace, "--seed", str(seed),
-           "--truth", str(truth), "--link-dir", str(link_dir)]
+           "--truth", str(truth), "--link-dir", str(link_dir), "--radio", radio]
     if receiver:
         cmd += ["--receiver", receiver]
     if target:
@@ -265,7 +267,7 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
 
 
 async def _in_process(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-                     receiver: str | None, sinks: tuple[Any, ...] = ()) -> tuple[Outcome, Config]:
+                     receiver: str | None, sinks: tuple[Any, ...] = (), radio: str = "ideal") -> tuple[Outcome, Config]:
     """The same run with the emulator in this process on its byte pipe, in lockstep: the host
     settles after every step, so the result depends on the seed alone (as in the campaigns)."""
     from rfhoming.campaigns.closed_loop import PipePort
@@ -274,7 +276,7 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
     from rfhoming.emulator.scenario import load
 
     xy = tuple(float(v) for v in target.split(",")) if target and scenario != "s3-arena" else None
-    sc = load(scenario, seed=seed, target=xy, receiver=receiver)
+    sc = load(scenario, seed=seed, target=xy, receiver=receiver, radio=radio)
     if scenario == "s3-arena":
         goal = [float(v) for v in target.split(",")] if target else [4.0, 4.0]
         beacons = {t.id: list(t.position) for t in sc.world.targets}
@@ -313,12 +315,13 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
 
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
              receiver: str | None = None, sinks: list[Any] | tuple[Any, ...] = (), speed: float = 0.0,
-             in_process: bool = False) -> dict[str, Any]:
+             in_process: bool = False, radio: str = "ideal") -> dict[str, Any]:
     """One demo run. ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that
     device; ``sinks`` (an MCAP recorder, a live view) see every item and run log record too,
     and stay open. ``speed``: 0 lockstep, else simulated seconds per wall second (on ptys);
     ``in_process``: the emulator in this process, in lockstep (the same summary for the same
-    seed), instead of in its own on ptys."""
+    seed), instead of in its own on ptys; ``radio``: the emulated radios (``ideal``,
+    ``measured`` or a profile file: docs/emulator.md, "Radio profiles")."""
     out.mkdir(parents=True, exist_ok=True)
     if scenario in SURVEYS:
         config = replace(config, loop=replace(config.loop, max_time_s=max(config.loop.max_time_s, SURVEY_TIME_S)))
@@ -327,14 +330,14 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     truth = out / "truth.jsonl"
     if in_process:
         outcome, config = asyncio.run(asyncio.wait_for(
-            _in_process(scenario, seed, out, config, target, receiver, tuple(sinks)), config.loop.max_time_s + 60))
+            _in_process(scenario, seed, out, config, target, receiver, tuple(sinks), radio), config.loop.max_time_s + 60))
         summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
         for key in ("latency_ms_p50", "latency_ms_p99", "loop_stall_ms_max", "loop_stall_ms_p99"):  # wall-clock figures
             summary.pop(key)
-        return _finish(summary, out)
+        return _finish({"radio": radio, **summary}, out)
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
-                                     receiver, speed)
+                                     receiver, speed, radio)
     try:
         if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
             config = trilat_config(config, truth, target)
@@ -350,7 +353,7 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     finally:
         shutil.rmtree(link_dir, ignore_errors=True)
     summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
-    return _finish(summary, out)
+    return _finish({"radio": radio, **summary}, out)
 
 
 async def _home_beside(emulator: subprocess.Popen[str], plan: Homing, out: Path) -> Outcome:

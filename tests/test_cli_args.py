@@ -140,6 +140,7 @@ REQUIRED = {  # what each command needs besides the option under test, none of i
     "capture": ["-o", "/tmp/never-written.pcapng", "auto"], "replay": ["x.pcapng"], "locate": [SITE],
     "calibrate": [SITE], "emulate": ["s0-open"], "campaign": ["s1-dock"], "gateway": ["--broker", BROKER],
     "export": ["run.jsonl", "-o", "/tmp/never-written.mcap"],
+    "radio-fit": [SITE, "--from", "capture:walk.pcapng", "-o", "/tmp/never-written.toml"],
 }
 NAMES = {("locate", "--id"), ("gateway", "--site-name"), ("gateway", "--name")}
 """Options whose value is one level of an MQTT topic: nothing but [A-Za-z0-9._-]{1,64}."""

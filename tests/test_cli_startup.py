@@ -50,7 +50,7 @@ def test_the_parsers_names_match_the_library() -> None:
     """What the light parsers name so as not to load the library is what the library holds."""
     from rfhoming.cli.parsers import common, decode, emulate, io, serve
     from rfhoming.emulator import scenario
-    from rfhoming.protocol import devices
+    from rfhoming.protocol import devices, radio_profile
     from rfhoming.host import serve as server
     from rfhoming.host.homing.assembly import METHODS
 
@@ -59,6 +59,7 @@ def test_the_parsers_names_match_the_library() -> None:
     assert emulate.BLE_RECEIVERS == scenario.BLE_RECEIVERS
     assert emulate.presets() == scenario.presets()
     assert common.KINDS == tuple(devices.KINDS)
+    assert common.RADIOS == radio_profile.RADIOS
     assert decode.PROTOCOLS == tuple(name for p in devices.PROTOCOLS.values() for name in (p.name, *p.aliases))
 
 

@@ -14,14 +14,16 @@ from pathlib import Path
 from rfhoming.campaigns.runner import Campaign, CampaignError, run_jobs
 from rfhoming.cli.parsers.campaign import REGISTRY
 from rfhoming.host.outputs import replace_text
+from rfhoming.protocol.radio_profile import IDEAL, ProfileError, describe
 
 __all__ = ["REGISTRY", "default_folder", "load", "run"]
 
 
-def default_folder(name: str, runs: int, seed: int) -> Path:
+def default_folder(name: str, runs: int, seed: int, radio: str = IDEAL) -> Path:
     """Under the current directory, named for the run (never docs/results): the same command
     finds its own checkpoint there after a crash."""
-    return Path(f"rfhoming-{name}-runs{runs}-seed{seed}")
+    radios = "" if radio == IDEAL else f"-radio-{Path(radio).stem}"
+    return Path(f"rfhoming-{name}-runs{runs}-seed{seed}{radios}")
 
 
 def load(name: str) -> Campaign:
@@ -40,11 +42,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         campaign.check_requirements()
-    except CampaignError as exc:
+        jobs = campaign.make_jobs(runs, args.seed, args.radio)
+        radios = describe(args.radio)
+    except (CampaignError, ProfileError) as exc:
         print(f"rfhoming campaign: {exc}", file=sys.stderr)
         return 2
-    jobs = campaign.jobs(runs, args.seed)
-    args.out = args.out or default_folder(args.name, runs, args.seed)
+    args.out = args.out or default_folder(args.name, runs, args.seed, args.radio)
     args.out.mkdir(parents=True, exist_ok=True)
     checkpoint = args.out / f"{args.name}.partial.jsonl"  # finished jobs survive a crash or Ctrl-C
     where = f"Dask at {args.dask}" if args.dask else f"{args.workers} worker(s)"
@@ -59,19 +62,24 @@ def run(args: argparse.Namespace) -> int:
             return 2
     wall = time.perf_counter() - t0
     report = campaign.report(rows)
-    command = "rfhoming campaign " + " ".join(shlex.quote(a) for a in [args.name, "--runs", str(runs), "--seed", str(args.seed)])
-    meta = {"campaign": args.name, "command": command, "runs": runs, "seed": args.seed, "jobs": len(jobs),
+    radio_args = [] if args.radio == IDEAL else ["--radio", args.radio]
+    command = "rfhoming campaign " + " ".join(shlex.quote(a) for a in [args.name, "--runs", str(runs), "--seed",
+                                                                       str(args.seed), *radio_args])
+    meta = {"campaign": args.name, "command": command, "runs": runs, "seed": args.seed, "radio": args.radio,
+            "radios": radios, "jobs": len(jobs),
             "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
             "machine": platform.machine()}
     replace_text(args.out / f"{args.name}.json", json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
     replace_text(args.out / f"{args.name}.md",
-                 f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where})\n\n{report.markdown}\n")
+                 f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where}); {radios}\n\n"
+                 f"{report.markdown}\n")
     for name, write in report.plots.items():
         write(args.out / name)
     checkpoint.unlink()
     if args.json:
         print(json.dumps({**meta, "summary": report.summary}, indent=1))
     else:
+        print(radios + "\n")
         print(report.markdown)
         print(f"\n{len(jobs)} jobs in {wall:.1f} s; wrote {args.out}/{args.name}.json, .md"
               + "".join(f", {p}" for p in report.plots))

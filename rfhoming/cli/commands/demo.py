@@ -25,7 +25,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         where = "in this process" if args.in_process else "on ptys"
         pace = "in lockstep" if speed == 0 or args.in_process else f"at {speed:g}x robot time"
-        print(f"demo: emulating {args.scenario} (seed {args.seed}) {where} {pace}; homing ...", file=sys.stderr)
+        print(f"demo: emulating {args.scenario} (seed {args.seed}, {args.radio} radios) {where} {pace}; homing ...",
+              file=sys.stderr)
     sinks = []
     view = None
     try:
@@ -33,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
         view = start_foxglove(args, "demo")  # a view that cannot start leaves no MCAP.part behind
         wait_for_viewer(view, args.wait_viewer)
         summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver,
-                           sinks=[*sinks, *([view] if view else [])], speed=speed, in_process=args.in_process)
+                           sinks=[*sinks, *([view] if view else [])], speed=speed, in_process=args.in_process,
+                           radio=args.radio)
     except BaseException:
         if view is not None:
             view.close()
@@ -48,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         ok = "SUCCESS" if summary["success"] else "FAILED"
         print(f"{ok}: {summary['reason']} after {summary['simulated_time_s']} s simulated")
-        for key in ("target", "goal_position_error_m", "final_position_error_m", "path_efficiency",
+        for key in ("radio", "target", "goal_position_error_m", "final_position_error_m", "path_efficiency",
                     "net_velocity_m_s", "stale_stops", "latency_ms_p50", "latency_ms_p99", "loop_stall_ms_max",
                     "loop_stall_ms_p99"):
             if key in summary:

@@ -21,7 +21,7 @@ def run(args: argparse.Namespace) -> int:
     target = tuple(float(v) for v in args.target.split(",")) if args.target else None
     try:
         scenario = load(args.scenario, seed=args.seed, target=target, aoa_preset=args.aoa_preset,
-                        receiver=args.receiver)
+                        receiver=args.receiver, radio=args.radio)
         faults = [Fault.parse(spec) for spec in args.fault]
     except (ScenarioError, FaultError) as exc:
         print(f"rfhoming emulate: {exc}", file=sys.stderr)

@@ -7,6 +7,7 @@ import os
 
 from rfhoming.cli.args import dask_address, output_folder, runs, seed, workers
 from rfhoming.cli.parsers import command
+from rfhoming.cli.parsers.common import add_radio_option
 
 REGISTRY = {  # name -> "module:attribute", imported only when run
     "s0-table3": "rfhoming.campaigns.s0:TABLE3_CAMPAIGN",
@@ -27,7 +28,9 @@ campaigns (default --runs in brackets):
   s4-montecarlo  S4: EKF and UKF on 10,000 simulated beacons, and a filterpy EKF on a subsample [10000]
 
 Each writes OUT/NAME.json (every run and the summary), OUT/NAME.md (the table beside the
-paper's, with the command) and OUT/NAME*.png. Seeds are fixed per job, so a campaign gives the
+paper's, with the command and the radios) and OUT/NAME*.png. --radio takes campaigns that run
+through the emulator (s0-table3's emulated rows, s0-house, s1-dock, s2-scenarios) to measured
+radios; s3-arena and s4-montecarlo simulate their papers' noise themselves. Seeds are fixed per job, so a campaign gives the
 same numbers on 1 worker, on K processes or on a Dask cluster. Finished jobs are kept in
 OUT/NAME.partial.jsonl until the campaign completes: run the same command again after a crash
 or Ctrl-C and only the unfinished jobs run (delete that file after changing the code).
@@ -36,6 +39,7 @@ examples:
   rfhoming campaign s0-table3                    # all cores, results in ./rfhoming-s0-table3-runs40-seed0/
   rfhoming campaign s0-table3 --out docs/results # refresh the committed tables (from the repository)
   rfhoming campaign s1-dock --runs 10 --json     # a quick look, JSON on stdout
+  rfhoming campaign s0-house --radio measured    # the house with radios as bad as real ones
   rfhoming campaign s4-montecarlo --dask tcp://10.0.0.5:8786
 """
 
@@ -51,6 +55,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--dask", type=dask_address, metavar="ADDRESS", help="run the jobs on the Dask scheduler at ADDRESS instead")
     p.add_argument("--out", type=output_folder, help="output directory (default: ./rfhoming-NAME-runsN-seedS, named for the run; "
                    "docs/results to refresh the repository's committed tables)")
+    add_radio_option(p)
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=command("campaign"))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 from rfhoming.cli.args import baud, delay, nonempty, tcp_port
 from rfhoming.protocol.credentials import PASSWORD_ENV
@@ -24,6 +25,12 @@ FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {FOXGL
                  "in Foxglove open a WebSocket connection to it and import the layout "
                  "rfhoming/host/foxglove_layout.json; needs the foxglove extra")
 WAIT_S = 60.0
+
+RADIOS = ("ideal", "measured")
+"""protocol/radio_profile.py's RADIOS (a test holds them equal), named here so the parsers load no profile."""
+RADIO_HELP = ("the emulated radios' errors: ideal (the default, for now: each scenario's own idealised noise, its "
+              "paper's set-up), measured (the project's profile, fitted to real recordings: docs/emulator.md, "
+              "\"Radio profiles\") or a profile file that `rfhoming radio-fit` wrote from your own room's recordings")
 
 
 def add_port_defaults(p: argparse.ArgumentParser) -> None:
@@ -63,3 +70,17 @@ def add_login_arguments(p: argparse._ActionsContainer) -> None:
                    help="the broker login's password: the first line of FILE (the user is the URL's USER@). Or "
                         f"set ${PASSWORD_ENV}. Not in the URL: a command line is visible to every user in ps")
     p.add_argument("--ca", type=nonempty, metavar="PEM", help="CA certificate for mqtts:// (default: the system's)")
+
+
+def radio(text: str) -> str:
+    """``--radio``: a profile's name, or a profile file that exists (read when the scenario is built)."""
+    if text in RADIOS:
+        return text
+    if not Path(text).expanduser().is_file():
+        raise argparse.ArgumentTypeError(f"{text!r}: give {' or '.join(RADIOS)}, or a radio profile file "
+                                         "(rfhoming radio-fit writes one)")
+    return str(Path(text).expanduser())
+
+
+def add_radio_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--radio", type=radio, default="ideal", metavar="ideal|measured|PROFILE", help=RADIO_HELP)

@@ -86,6 +86,26 @@ examples:
 """
 
 
+RADIO_FIT_HELP = """\
+Fit a radio profile to your own room's recordings, so that the emulator's XPLR-AOA anchors
+behave as badly as yours (rfhoming emulate/demo/campaign --radio PROFILE; docs/emulator.md,
+"Radio profiles"). Each --from is one recording of the site's anchors while the site's tag
+(its first, or --tag) was walked over the room; the i-th --truth is the i-th --from's walk: a
+waypoint file (one row per waypoint, arrival_ms,leave_ms,x_cm,y_cm, leave_ms NaN where the walker
+did not stop: the layout of girolami_xplr_aoa/ground_truth/). Recordings past the last --truth,
+or given --truth none, stand in for their own truth: the anchors are self-calibrated on them and
+their track, located and smoothed, is taken as the walk; its own error then counts as the
+radios', so the profile comes out harder than the room, never kinder. Every figure in PROFILE
+names the recordings it came from. Walk the tag back over the same places (or record two walks)
+so that an error that stays with a place can be told from one that wanders in time.
+
+examples:
+  rfhoming radio-fit site.toml --from capture:walk1.pcapng --truth walk1.csv -o room.toml
+  rfhoming radio-fit site.toml --from capture:a.pcapng --truth a.csv --from capture:b.pcapng --truth b.csv -o room.toml
+  rfhoming radio-fit site.toml --from capture:walk.pcapng -o room.toml      (no ground truth)
+then rehearse with it: --radio room.toml on emulate, demo or campaign.
+"""
+
 WORKER_HELP = """\
 With --from mqtt://[USER@]BROKER[:PORT][/PARTITIONS] (mqtts:// = TLS; USER@ a login, whose password
 comes from --password-file or $RFHOMING_MQTT_PASSWORD: never the command line, which ps shows),
@@ -171,3 +191,19 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
                            help="--self: also each anchor's fit (sigmas, held parameters and why, each angle model's "
                                 "held-out rms) as JSON lines before the summary, and each device's counters")
             p.set_defaults(func=command("calibrate"))
+    p = sub.add_parser("radio-fit", help="a radio profile for the emulator from your own room's recordings",
+                       description=RADIO_FIT_HELP, formatter_class=raw)
+    p.add_argument("site", type=path, help="site file (TOML): the anchors as mounted, and the walked tag's height")
+    p.add_argument("--from", dest="sources", type=nonempty, action="append", required=True, metavar="SPEC",
+                   help="a recording of the anchors (repeatable), e.g. capture:walk1.pcapng")
+    p.add_argument("--truth", type=nonempty, action="append", default=[], metavar="FILE",
+                   help="the waypoint file of the --from at the same place in the order (repeatable; none: "
+                        "that recording stands in for its own truth)")
+    p.add_argument("-o", "--output", type=output_file, required=True, metavar="PROFILE",
+                   help="the profile to write (replaced whole)")
+    p.add_argument("--name", type=nonempty, help="the profile's name (default: the output file's stem)")
+    p.add_argument("--description", type=nonempty, metavar="TEXT",
+                   help="what the profile is, in its [profile] table (default: how many recordings of which site)")
+    p.add_argument("--tag", type=nonempty, metavar="ID", help="the walked tag (default: the site file's first)")
+    p.add_argument("--height", type=tag_height, metavar="M", help="the walked tag's height (default: the site file's)")
+    p.set_defaults(func=command("radio_fit"))

@@ -1,0 +1,131 @@
+"""The XPLR-AOA's angle errors as a radio profile measured them (``--radio measured|PROFILE``).
+
+A profile's ``[aoa]`` (protocol/radio_profile.py) made concrete and seeded, for one board: each
+report of a tag is the true angle, shifted by the |angle| compression, plus a bias drawn per
+board, tag and run, a field over where the board and the tag are (so an error stays put while
+both stand and comes back where they come back: what dwells on real recordings show), a slow
+Ornstein-Uhlenbeck wander, white noise and, now and then, a burst (a reflection the board locks
+on to for a while: the heavy tail); some events are not reported at all, in runs.
+
+The field is drawn from the *room's* seed, not the run's: runs in one room (one scenario and
+room seed) meet the same field, as walks through one real room meet the same multipath.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from rfhoming.protocol.radio_profile import AngleError, AoaProfile
+
+FIELD_FEATURES = 256
+"""Random Fourier features per field: enough that its values are Gaussian to the eye."""
+
+
+class RandomField:
+    """A stationary Gaussian field over R^d with covariance sigma^2 exp(-|x - y| / length), as
+    random Fourier features (Rahimi and Recht, NIPS 2007): cosines with frequencies drawn from
+    the exponential kernel's spectral density, a multivariate Cauchy (a normal over sqrt(chi2_1))."""
+
+    def __init__(self, sigma: float, length_m: float, dims: int, rng: np.random.Generator) -> None:
+        z = rng.standard_normal((FIELD_FEATURES, dims))
+        u = rng.chisquare(1.0, FIELD_FEATURES)
+        self.freq = z / (np.sqrt(u)[:, None] * length_m)
+        self.phase = rng.uniform(0.0, 2 * math.pi, FIELD_FEATURES)
+        self.amp = sigma * math.sqrt(2.0 / FIELD_FEATURES)
+
+    def __call__(self, where: np.ndarray) -> float:
+        return float(self.amp * np.cos(self.freq @ where + self.phase).sum())
+
+
+@dataclass
+class _AxisState:
+    """One tag's error state on one axis of one board."""
+
+    bias: float
+    slow: float = 0.0
+    t: float = -math.inf  # of the last report
+    burst_end: float = -math.inf
+    burst_offset: float = 0.0
+
+
+Pose = tuple[float, float, float, float]
+"""(x, y, z, heading): metres, and radians CCW from +x (the way a tag's carrier faces)."""
+
+
+class AngleProcess:
+    """One axis (azimuth or elevation) of one board: every tag's error on it."""
+
+    def __init__(self, p: AngleError, rng: np.random.Generator, room: np.random.Generator) -> None:
+        self.p = p
+        self.rng = rng
+        self.field = RandomField(p.field_sigma_deg, p.field_length_m, 10, room) if p.field_sigma_deg > 0 else None
+        self.compression = max(0.0, 1.0 + float(room.normal(0.0, p.compression_spread)))  # this board's
+        self._tags: dict[str, _AxisState] = {}
+
+    def where(self, board: Pose, tag: Pose) -> np.ndarray:
+        """The field's argument: both ends' places and, scaled by ``field_heading_m``, the ways
+        they face (so a turn moves the field as far as the chord it sweeps times that scale)."""
+        h = self.p.field_heading_m
+        return np.array([*board[:3], h * math.cos(board[3]), h * math.sin(board[3]),
+                         *tag[:3], h * math.cos(tag[3]), h * math.sin(tag[3])])
+
+    def error(self, tag: str, t: float, true_deg: float, azimuth_deg: float, board: Pose, tag_pose: Pose) -> float:
+        """The error (degrees) of a report at ``t`` of a tag at the true angle ``true_deg`` of
+        this axis and the true azimuth ``azimuth_deg`` (what the curves are read at)."""
+        p, rng = self.p, self.rng
+        s = self._tags.get(tag)
+        if s is None:
+            s = self._tags[tag] = _AxisState(p.bias_deg + float(rng.normal(0.0, p.bias_sigma_deg)))
+            s.slow = float(rng.normal(0.0, p.slow_sigma_deg))
+        else:
+            keep = math.exp(-max(0.0, t - s.t) / p.slow_time_s)
+            s.slow = s.slow * keep + math.sqrt(1.0 - keep * keep) * float(rng.normal(0.0, p.slow_sigma_deg))
+        dt = 0.0 if s.t == -math.inf else max(0.0, t - s.t)
+        s.t = t
+        if t >= s.burst_end and p.burst_rate_hz > 0 and rng.random() < 1.0 - math.exp(-p.burst_rate_hz * dt):
+            s.burst_end = t + float(rng.exponential(p.burst_duration_s))
+            size = p.burst_offset_min_deg + (float(rng.exponential(p.burst_offset_excess_deg))
+                                             if p.burst_offset_excess_deg > 0 else 0.0)
+            outward = 1.0 if true_deg >= 0 else -1.0
+            s.burst_offset = size * outward if rng.random() < p.burst_outward else -size * outward
+        burst = s.burst_offset if t < s.burst_end else 0.0
+        sign = 1.0 if true_deg > 0 else -1.0 if true_deg < 0 else 0.0
+        shift = self.compression * p.compression(abs(azimuth_deg)) * sign + p.offset(abs(azimuth_deg))
+        field = self.field(self.where(board, tag_pose)) if self.field is not None else 0.0
+        core = field + s.slow + float(rng.normal(0.0, p.white_sigma_deg))
+        skew = p.skew_at(abs(azimuth_deg))
+        noise = core * (1.0 + skew if core * (sign or 1.0) > 0 else 1.0 - skew) + burst
+        return shift + s.bias + p.spread_at(abs(azimuth_deg)) * noise
+
+
+class MeasuredAoa:
+    """A board's reports under a profile: :meth:`report` gives the reported (azimuth,
+    elevation) in the board's sign and degrees, or None for an event it does not report."""
+
+    def __init__(self, profile: AoaProfile, board: str, rng: np.random.Generator, room_seed: int) -> None:
+        room = np.random.default_rng([room_seed, zlib.crc32(board.encode())])
+        self.azimuth = AngleProcess(profile.azimuth, rng, room)
+        self.elevation = AngleProcess(profile.elevation, rng, room)
+        m = profile.missing
+        self.rng = rng
+        self.loss = float(rng.uniform(m.rate_low, m.rate_high)) if m.rate_high > 0 else 0.0
+        self.stay_lost = 1.0 - 1.0 / m.burst_events
+        self.start_loss = min(1.0, self.loss * (1.0 - self.stay_lost) / (1.0 - self.loss)) if self.loss else 0.0
+        self._lost: dict[str, bool] = {}
+
+    def report(self, tag: str, t: float, azimuth_deg: float, elevation_deg: float, board: Pose,
+               tag_pose: Pose) -> tuple[float, float] | None:
+        """The board's report of a tag whose true board angles (board sign, degrees) are given,
+        the board and the tag where they are, or None: the event is lost."""
+        lost = self._lost.get(tag, False)
+        lost = self.rng.random() < (self.stay_lost if lost else self.start_loss)
+        self._lost[tag] = lost
+        if lost:
+            return None
+        az = azimuth_deg + self.azimuth.error(tag, t, azimuth_deg, azimuth_deg, board, tag_pose)
+        el = elevation_deg + self.elevation.error(tag, t, elevation_deg, azimuth_deg, board, tag_pose)
+        return max(-90.0, min(90.0, az)), max(-90.0, min(90.0, el))

@@ -1,0 +1,75 @@
+"""``rfhoming radio-fit``: a radio profile from a site's recordings, each with its walk (or a
+stand-in for it), for the emulator's ``--radio PROFILE``."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from rfhoming.cli.site_sources import gather, load_site
+from rfhoming.host.groundtruth import load_waypoints
+from rfhoming.host.radio_fit import PROXY, Recording, RadioFitError, fit, track_truth, write
+
+NONE = "none"
+"""``--truth none``: that recording stands in for its own truth."""
+
+
+def run(args: argparse.Namespace) -> int:
+    site = load_site(args.site, "radio-fit")
+    if site is None:
+        return 2
+    if len(args.truth) > len(args.sources):
+        print(f"rfhoming radio-fit: {len(args.truth)} --truth for {len(args.sources)} --from: the i-th --truth is the "
+              "i-th --from's walk; give at most one --truth per --from", file=sys.stderr)
+        return 2
+    truths = [None if t == NONE else Path(t) for t in args.truth] + [None] * (len(args.sources) - len(args.truth))
+    walks = [load_waypoints(t) if t is not None else None for t in truths]  # a bad file fails before any reading
+    recordings: list[list[tuple[float, Any]]] = []
+    for source in args.sources:
+        events: list[tuple[float, Any]] = []
+
+        def keep(t: float, event: Any, into: list[tuple[float, Any]] = events) -> None:
+            into.append((t, event))
+
+        code = asyncio.run(gather("radio-fit", site, [source], keep))
+        if code:
+            return code
+        recordings.append(events)
+    missing = [k for k, w in enumerate(walks) if w is None]
+    if missing:
+        print(f"radio-fit: {len(missing)} recording(s) without --truth: self-calibrating and locating them to stand "
+              "in for it", file=sys.stderr)
+        proxies = track_truth(site, [recordings[k] for k in missing], tag=args.tag, height=args.height,
+                              progress=lambda text: print(text, end="", file=sys.stderr, flush=True))
+        for k, path in zip(missing, proxies):
+            walks[k] = path
+    ids = _ids(args.sources)
+    fitted = [Recording(ids[k], source, recordings[k], walk, str(truths[k]) if truths[k] is not None else PROXY)
+              for k, (source, walk) in enumerate(zip(args.sources, walks)) if walk is not None]
+    try:
+        profile, report = fit(site, fitted, args.name or args.output.stem, tag=args.tag, height=args.height,
+                              description=args.description or "")
+    except RadioFitError as exc:
+        print(f"rfhoming radio-fit: {exc}", file=sys.stderr)
+        return 2
+    write(profile, args.output)
+    print(json.dumps({"kind": "radio-fit", "profile": str(args.output), "recordings": ids, **report}))
+    print(f"wrote radio profile {profile.name!r} ({len(fitted)} recording(s)) to {args.output}: "
+          f"rfhoming demo --radio {args.output}", file=sys.stderr)
+    return 0
+
+
+def _ids(sources: list[str]) -> list[str]:
+    """Each recording's id in the profile: its file's stem, numbered where two share one."""
+    out: list[str] = []
+    for source in sources:
+        stem = Path(source.partition(":")[2] or source).stem or "recording"
+        name, k = stem, 2
+        while name in out:
+            name, k = f"{stem}_{k}", k + 1
+        out.append(name)
+    return out
