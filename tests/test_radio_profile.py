@@ -74,8 +74,30 @@ how = "by hand"
 recordings = ["walk1"]
 how = "by hand"
 
-[rssi.ble]
-n = 2.1
+[rssi.ble.exponent]
+mean = 1.9
+sd = 0.2
+low = 1.1
+high = 3.1
+pivot_m = 5.9
+near_m = 1.0
+far_m = 12.0
+source = "by hand"
+
+[rssi.ble.offset]
+sd_db = 2.3
+source = "by hand"
+
+[rssi.ble.shadowing]
+sd_db = 3.3
+distance_m = 1.4
+source = "by hand"
+
+[rssi.ble.residual]
+sd_db = 2.9
+time_s = 1.6
+white_sd_db = 3.3
+source = "by hand"
 """
 
 
@@ -85,19 +107,20 @@ def write_profile(tmp_path: Path, text: str) -> Path:
     return path
 
 
-def test_a_profile_file_loads_and_keeps_the_rssi_tables_as_they_are(tmp_path: Path) -> None:
+def test_a_profile_file_loads_with_its_rssi_tables(tmp_path: Path) -> None:
     profile = load(write_profile(tmp_path, GOOD))
     assert profile.name == "room" and list(profile.recordings) == ["walk1"]
     assert profile.aoa is not None and profile.aoa.azimuth.white_sigma_deg == 2.0
     assert profile.aoa.azimuth.compression(22.5) == pytest.approx(-4.0)
-    assert profile.rssi == {"ble": {"n": 2.1}}  # the rssi module's, untouched here
+    assert list(profile.rssi) == ["ble"] and profile.rssi["ble"].shadowing.sd_db == 3.3  # read by rssi_profile.py
 
 
 @pytest.mark.parametrize("change, named", [
     (("white_sigma_deg = 2.0", "white_sigma_deg = -1.0"), "white_sigma_deg = -1.0"),
     (("white_sigma_deg = 2.0", "white_sigma = 2.0"), "white_sigma"),
     (("white_sigma_deg = 2.0", 'white_sigma_deg = "lots"'), "white_sigma_deg"),
-    (("[rssi.ble]", "[weather]"), "[weather]"),
+    (("[rssi.ble.exponent]", "[weather]"), "[weather]"),
+    (("sd_db = 2.3", "sd_db = -2.3"), "rssi.ble.offset"),
     (('name = "room"', 'name = "room"\nformat = 2'), "format"),
     (("[profile]\nname = \"room\"\n", ""), "[profile]"),
     (("compression_deg = [0.0, -8.0]", "compression_deg = [0.0, -8.0]\nbias_deg = 1.0"), "azimuth.bias_deg"),
@@ -119,7 +142,7 @@ def test_a_bad_profile_fails_with_one_line_naming_the_key(tmp_path: Path, change
 
 def test_rssi_must_be_tables(tmp_path: Path) -> None:
     with pytest.raises(ProfileError, match=r"\[rssi\] must hold tables"):
-        load(write_profile(tmp_path, "rssi = 3\n" + GOOD.replace("[rssi.ble]\nn = 2.1\n", "")))
+        load(write_profile(tmp_path, "rssi = 3\n" + GOOD[:GOOD.index("[rssi.ble.exponent]")]))
 
 
 def test_no_such_profile_says_what_radio_takes(tmp_path: Path) -> None:

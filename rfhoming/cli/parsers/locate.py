@@ -12,6 +12,7 @@ from rfhoming.cli.args import (
     from_spec,
     height_sigma,
     is_broker,
+    nonempty,
     output_file,
     path,
     rate_hz,
