@@ -1,0 +1,75 @@
+"""Outputs become the command's only once its inputs gave them something, and nothing stale is
+found only at the end: a capture is a run's once a device answered (rfhoming's own heartbeats
+and AT commands do not count); a demo and a campaign refuse a stale ``NAME.part`` before they
+start anything, naming every one; the benches' figures are replaced whole.
+
+Each test fails on the code before: a capture was owned on any packet, so a run with a typo in
+one port replaced the user's capture with the other port's outbound heartbeats; a demo named
+one stale ``.part`` at a time, after its emulator had started; a killed emulator's truth was
+read from the previous run's file; a campaign refused its ``.json.part`` only after every job."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+from rfhoming.cli.main import main
+from rfhoming.host import outputs
+from rfhoming.host.capture import CaptureWriter
+
+OLD = "the user's only copy\n"
+
+
+def test_a_capture_is_the_runs_once_a_device_answered_and_keeps_what_was_sent_before(tmp_path: Path) -> None:
+    from rfhoming.protocol import pcapng
+
+    path = tmp_path / "c.pcapng"
+    path.write_text(OLD)
+    writer = CaptureWriter(path)
+    writer.describe("base", kind="base")
+    writer.tap("base", "out", 1.0, b"a heartbeat")
+    writer.tap("base", "sniffed-out", 1.1, b"AT\r\n")
+    writer.tap("base", "lost", 1.2, b"")
+    writer.close()  # the device never answered
+    assert path.read_text() == OLD and not outputs.part_of(path).exists()
+    assert writer.said() == f"no device answered: {path} is as it was (the 3 chunks rfhoming sent are not kept)"
+    for answer in ("in", "sniffed-in"):
+        writer = CaptureWriter(path)
+        writer.describe("aoa", kind="xplr-aoa")
+        writer.tap("aoa", "out", 1.0, b"AT\r\n")
+        writer.tap("aoa", answer, 1.1, b"OK\r\n")
+        writer.close()
+        _interfaces, packets, _torn = pcapng.read_sections(path.read_bytes(), pcapng.Reader())
+        assert [p.data for p in packets] == [b"AT\r\n", b"OK\r\n"], answer
+        assert writer.said() == f"captured 2 chunks to {path}"
+
+
+def test_a_run_with_a_typo_in_one_port_leaves_the_old_capture_and_says_so(tmp_path: Path, capsys) -> None:
+    """The MAVLink base sends its heartbeats the moment it opens; the typo'd AoA port then
+    fails the run: the capture held only rfhoming's heartbeats and replaced the user's."""
+    pytest.importorskip("pymavlink")
+    capture = tmp_path / "c.pcapng"
+    capture.write_text(OLD)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:  # a vehicle that never answers
+        silent.bind(("127.0.0.1", 0))
+        assert main(["run", "--aoa", f"xplr-aoa:{tmp_path / 'typo'}", "--base",
+                     f"mavlink:udpout:127.0.0.1:{silent.getsockname()[1]},arm=1", "--capture", str(capture)]) == 2
+    err = capsys.readouterr().err
+    assert capture.read_text() == OLD and not outputs.part_of(capture).exists()
+    said = [line for line in err.splitlines() if "c.pcapng" in line]
+    assert len(said) == 1 and said[0].startswith(f"rfhoming run: no device answered: {capture} is as it was ("), err
+
+
+def test_serve_whose_vehicle_never_answers_leaves_the_old_capture_and_says_so(tmp_path: Path, capsys) -> None:
+    pytest.importorskip("pymavlink")
+    capture = tmp_path / "served.pcapng"
+    capture.write_text(OLD)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:
+        silent.bind(("127.0.0.1", 0))
+        assert main(["serve", f"mavlink:udpout:127.0.0.1:{silent.getsockname()[1]}", "--port", "0", "-o", str(capture),
+                     "--duration", "1"]) == 0
+    err = capsys.readouterr().err
+    assert capture.read_text() == OLD and not outputs.part_of(capture).exists()
+    assert err.startswith(f"rfhoming serve: no device answered: {capture} is as it was (the ") and err.count("\n") == 1, err
