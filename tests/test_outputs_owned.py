@@ -73,3 +73,48 @@ def test_serve_whose_vehicle_never_answers_leaves_the_old_capture_and_says_so(tm
     err = capsys.readouterr().err
     assert capture.read_text() == OLD and not outputs.part_of(capture).exists()
     assert err.startswith(f"rfhoming serve: no device answered: {capture} is as it was (the ") and err.count("\n") == 1, err
+
+
+def test_a_demo_names_every_stale_part_in_its_folder_before_it_starts(tmp_path: Path, capsys) -> None:
+    """A killed demo leaves several: the next one named the first it met, after its emulator
+    had started, and the user removed them one run at a time."""
+    import shlex
+
+    out = tmp_path / "rfhoming-demo"
+    out.mkdir()
+    stale = [out / "capture.pcapng.part", out / "truth.jsonl.part"]  # in the order the demo names its files
+    for part in stale:
+        part.write_text("a killed demo's\n")
+    assert main(["demo", "--scenario", "s0-open", "--in-process", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"rfhoming demo: {stale[0]}, {stale[1]} exist: "), err
+    assert f"(rm -- {shlex.join(map(str, stale))})" in err, err
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in stale)  # nothing started, nothing written
+
+
+def test_a_demo_whose_emulator_is_killed_summarises_this_runs_truth(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                    caplog: pytest.LogCaptureFixture) -> None:
+    """An emulator that outlives its grace is killed before it renames truth.jsonl.part: the
+    summary and the plot were made from the previous run's truth.jsonl, without a word."""
+    import json
+    import logging
+
+    from rfhoming import demo
+    from rfhoming.host.homing.config import load
+
+    def killed(proc, grace_s: float) -> None:  # the grace ran out
+        proc.kill()
+        proc.wait()
+
+    monkeypatch.setattr(demo, "stop_emulator", killed)
+    out = tmp_path / "demo"
+    out.mkdir()
+    old = {"scenario": "a previous run", "bounds": [0, 0, 1, 1], "obstacles": []}
+    (out / "truth.jsonl").write_text(json.dumps(old) + "\n")
+    caplog.set_level(logging.WARNING)
+    summary = demo.run_demo("s0-open", 3, out, load(None), None)
+    header, states = demo.read_truth(out / "truth.jsonl")
+    assert summary["scenario"] == header["scenario"] == "s0-open" and states
+    assert sorted(p.name for p in out.iterdir()) == sorted(demo.FILES)  # no .part left to block the next demo
+    said = [r.getMessage() for r in caplog.records if "killed" in r.getMessage()]
+    assert len(said) == 1 and str(out / "truth.jsonl") in said[0], said
