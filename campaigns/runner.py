@@ -49,7 +49,7 @@ def execute(job: Job) -> dict[str, Any]:
 class Report:
     summary: dict[str, Any]  # machine-readable figures
     markdown: str  # the side-by-side tables
-    plots: dict[str, Callable[[Path], None]] = field(default_factory=dict)  # file name -> writer
+    plot: Callable[[Path], None]  # draws the figure to the file it is given (the campaign's NAME.png)
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,11 @@ class Campaign:
     jobs: Callable[[int, int], list[Job]]  # (runs, seed) -> jobs
     report: Callable[[list[dict[str, Any]]], Report]
     requires: tuple[str, ...] = ()  # optional packages its jobs import
+
+    def outputs(self, folder: Path) -> tuple[Path, Path, Path]:
+        """What ``rfhoming campaign`` writes in ``folder``: NAME.json (every run and the summary),
+        NAME.md (the table beside the paper's) and NAME.png (the report's figure)."""
+        return folder / f"{self.name}.json", folder / f"{self.name}.md", folder / f"{self.name}.png"
 
     def check_requirements(self) -> None:
         """Fail before the first job, not after hours of them, when a package is missing."""

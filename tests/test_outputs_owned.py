@@ -118,3 +118,15 @@ def test_a_demo_whose_emulator_is_killed_summarises_this_runs_truth(tmp_path: Pa
     assert sorted(p.name for p in out.iterdir()) == sorted(demo.FILES)  # no .part left to block the next demo
     said = [r.getMessage() for r in caplog.records if "killed" in r.getMessage()]
     assert len(said) == 1 and str(out / "truth.jsonl") in said[0], said
+
+
+def test_a_campaign_names_every_stale_part_before_its_first_job(tmp_path: Path, capsys) -> None:
+    """It found its NAME.json.part only when it wrote NAME.json, after every job (hours of
+    them), and its NAME.png.part after that."""
+    stale = [tmp_path / "s3-arena.json.part", tmp_path / "s3-arena.png.part"]
+    for part in stale:
+        part.write_text("a killed campaign's\n")
+    assert main(["campaign", "s3-arena", "--runs", "1", "--workers", "1", "--out", str(tmp_path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"rfhoming campaign: {stale[0]}, {stale[1]} exist: "), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in stale)  # no job ran: no checkpoint
