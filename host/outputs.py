@@ -241,6 +241,13 @@ def replace_text(path: Path | str, text: str) -> None:
         out.write(text)
 
 
+def save_figure(figure: Any, path: Path | str, **savefig: Any) -> None:
+    """A matplotlib figure saved to ``path`` whole (its format from the suffix, PNG without one):
+    a plot that fails leaves the old figure."""
+    with Output(path, binary=True) as out:
+        figure.savefig(out.file, format=Path(path).suffix.lstrip(".") or "png", **savefig)
+
+
 def failed(where: Output | Path | str, exc: OSError, kept: str) -> WriteFailed:
     """The error to raise for ``exc`` on an output; ``kept`` says what its bytes are good for
     when some were written and are kept. An :class:`Output` is abandoned (its file closed: what

@@ -269,8 +269,7 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
     ax.set_title(f"rfhoming demo: {header['scenario']}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    with Output(out_png, binary=True) as png:
-        fig.savefig(png.file, format="png")
+    outputs.save_figure(fig, out_png)
     plt.close(fig)
 
 

@@ -130,3 +130,50 @@ def test_a_campaign_names_every_stale_part_before_its_first_job(tmp_path: Path, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"rfhoming campaign: {stale[0]}, {stale[1]} exist: "), err
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in stale)  # no job ran: no checkpoint
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_a_bench_figure_that_fails_midway_leaves_the_old_one(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """bench/locate_figure.py saved its figure in place: a plot that failed (a full disk)
+    halfway left a torn PNG where the documentation's figure was."""
+    import errno
+    import os
+    import runpy
+    import sys
+
+    from matplotlib.figure import Figure
+
+    def torn(self: Figure, fname: object, **kwargs: object) -> None:
+        if isinstance(fname, (str, os.PathLike)):
+            with open(fname, "wb") as file:
+                file.write(b"\x89PNG torn")
+        else:
+            fname.write(b"\x89PNG torn")  # type: ignore[attr-defined]
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    figure = tmp_path / "locate-geometry.png"
+    figure.write_bytes(b"the documentation's figure")
+    monkeypatch.setattr(Figure, "savefig", torn)
+    monkeypatch.setattr(sys, "argv", ["locate_figure.py", "-o", str(figure)])
+    monkeypatch.chdir(ROOT)  # it reads docs/sites/kit-room.toml
+    with pytest.raises(OSError, match="No space left"):
+        runpy.run_path(str(ROOT / "bench" / "locate_figure.py"), run_name="__main__")
+    assert figure.read_bytes() == b"the documentation's figure" and not outputs.part_of(figure).exists()
+
+
+def test_every_figure_is_saved_through_outputs() -> None:
+    """Whatever draws a figure for a user (the demo, campaigns, the benches' documentation
+    figures) saves it with host/outputs.py's save_figure, never in place."""
+    import ast
+
+    in_place = []
+    for folder in ("rfhoming", "host", "campaigns", "emulator", "bench", "protocol", "firmware_py"):
+        for source in sorted((ROOT / folder).rglob("*.py")):
+            if source == ROOT / "host" / "outputs.py":
+                continue
+            for node in ast.walk(ast.parse(source.read_text(), str(source))):
+                if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "savefig":
+                    in_place.append(f"{source.relative_to(ROOT)}:{node.lineno}")
+    assert in_place == []
