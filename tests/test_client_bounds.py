@@ -157,12 +157,16 @@ def test_the_front_keeps_at_most_max_idle_clients_of_one_address(view) -> None:
 def _md5_lockable() -> bool:
     """Whether this system takes a listener's TCP-MD5 key (Linux with CONFIG_TCP_MD5SIG, a
     container that allows it); where it does not, the view warns and stays open (no test)."""
-    from rfhoming.host.loopback_key import lock
+    from rfhoming.host.loopback_key import NotLocked, lock
 
     with socket.socket() as listener:
         listener.bind(("127.0.0.1", 0))
         listener.listen()
-        return lock(listener.getsockname()[1]) is not None
+        try:
+            lock(listener.getsockname()[1])
+        except NotLocked:
+            return False
+        return True
 
 
 needs_md5 = pytest.mark.skipif(not os.path.exists("/proc/net/netstat") or not _md5_lockable(),
@@ -263,8 +267,8 @@ def test_a_connection_that_came_before_the_key_is_found() -> None:
 
 
 def test_a_system_without_proc_leaves_the_listener_unlocked_and_says_so(monkeypatch) -> None:
-    """No /proc/self/fd (a sandbox): the listener cannot be found, so lock() returns None (the
-    view warns) instead of raising out of the Foxglove view."""
+    """No /proc/self/fd (a sandbox): the listener cannot be found, so lock() says so (the view
+    warns with it) instead of raising an OSError out of the Foxglove view."""
     from rfhoming.host import loopback_key
 
     def no_proc(path: str) -> list[str]:
@@ -274,4 +278,5 @@ def test_a_system_without_proc_leaves_the_listener_unlocked_and_says_so(monkeypa
     with socket.socket() as listener:
         listener.bind(("127.0.0.1", 0))
         listener.listen()
-        assert loopback_key.lock(listener.getsockname()[1]) is None
+        with pytest.raises(loopback_key.NotLocked, match=r"/proc/self/fd cannot be read \(No such file or directory\)"):
+            loopback_key.lock(listener.getsockname()[1])
