@@ -27,7 +27,7 @@ campaigns (default --runs in brackets):
   s4-montecarlo  S4: EKF and UKF on 10,000 simulated beacons, and a filterpy EKF on a subsample [10000]
 
 Each writes OUT/NAME.json (every run and the summary), OUT/NAME.md (the table beside the
-paper's, with the command) and OUT/NAME*.png. Seeds are fixed per job, so a campaign gives the
+paper's, with the command) and OUT/NAME.png. Seeds are fixed per job, so a campaign gives the
 same numbers on 1 worker, on K processes or on a Dask cluster. Finished jobs are kept in
 OUT/NAME.partial.jsonl until the campaign completes: run the same command again after a crash
 or Ctrl-C and only the unfinished jobs run (delete that file after changing the code).
