@@ -31,6 +31,8 @@ import numpy as np  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
+from rfhoming.host.outputs import save_figure  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
 RFHOMING = [sys.executable, "-m", "rfhoming"]
 
@@ -242,7 +244,7 @@ def main() -> None:
                  fontsize=11)
     fig.tight_layout()
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.output, dpi=110)
+    save_figure(fig, args.output, dpi=110)  # OUTPUT.part, renamed when whole: a failed plot leaves the old one
     print(json.dumps({"figure": str(args.output), "s1_transforms": {f"{p}->{c}": len(v) for (p, c), v in s1.tf.items()},
                       "anchors_transforms": {f"{p}->{c}": len(v) for (p, c), v in anchors.tf.items()}}))
 

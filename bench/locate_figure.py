@@ -19,6 +19,7 @@ import numpy as np  # noqa: E402
 from rfhoming.campaigns.kit import record  # noqa: E402
 from rfhoming.host import site as sites  # noqa: E402
 from rfhoming.host.locate import Locator  # noqa: E402
+from rfhoming.host.outputs import save_figure  # noqa: E402
 
 TAG = "CCF9578E0D8A"
 
@@ -90,7 +91,7 @@ def main() -> None:
     side.legend(loc="lower left", fontsize=7)
     fig.tight_layout()
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.output, dpi=110)
+    save_figure(fig, args.output, dpi=110)  # OUTPUT.part, renamed when whole: a failed plot leaves the old one
     print(f"wrote {args.output}")
 
 

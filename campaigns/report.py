@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rfhoming.host.outputs import Output
+from rfhoming.host.outputs import save_figure
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -52,8 +52,7 @@ def save(fig: Figure, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
-    with Output(path, binary=True) as out:  # replaced whole: a failed plot leaves the old one
-        fig.savefig(out.file, dpi=110, format=path.suffix.lstrip(".") or "png")
+    save_figure(fig, path, dpi=110)  # replaced whole: a failed plot leaves the old one
     plt.close(fig)
 
 

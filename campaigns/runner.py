@@ -50,7 +50,7 @@ def execute(job: Job) -> dict[str, Any]:
 class Report:
     summary: dict[str, Any]  # machine-readable figures
     markdown: str  # the side-by-side tables
-    plots: dict[str, Callable[[Path], None]] = field(default_factory=dict)  # file name -> writer
+    plot: Callable[[Path], None]  # draws the figure to the file it is given (the campaign's NAME.png)
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,11 @@ class Campaign:
             raise CampaignError(f"{self.name} simulates its paper's own noise without the emulator's radios: "
                                 "--radio applies to campaigns that run through the emulator; leave it out")
         return [replace(job, kwargs={**job.kwargs, "radio": radio}) for job in self.jobs(runs, seed)]
+
+    def outputs(self, folder: Path) -> tuple[Path, Path, Path]:
+        """What ``rfhoming campaign`` writes in ``folder``: NAME.json (every run and the summary),
+        NAME.md (the table beside the paper's) and NAME.png (the report's figure)."""
+        return folder / f"{self.name}.json", folder / f"{self.name}.md", folder / f"{self.name}.png"
 
     def check_requirements(self) -> None:
         """Fail before the first job, not after hours of them, when a package is missing."""

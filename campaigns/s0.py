@@ -127,7 +127,7 @@ def table3_report(rows: list[dict[str, Any]]) -> Report:
         axes[0].legend()
         save(fig, path)
 
-    return Report({"configurations": summary, "failures": failures}, md, {"s0-table3.png": plot})
+    return Report({"configurations": summary, "failures": failures}, md, plot)
 
 
 HOUSE_CONFIG = replace(OURS, loop=replace(LoopSettings(), max_time_s=240.0))
@@ -223,7 +223,7 @@ def house_report(rows: list[dict[str, Any]]) -> Report:
         axes[1].set_title("path efficiency")
         save(fig, path)
 
-    return Report({"summary": summary, "failures": failures}, md, {"s0-house.png": plot})
+    return Report({"summary": summary, "failures": failures}, md, plot)
 
 
 TABLE3_CAMPAIGN = Campaign(

@@ -147,7 +147,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
         axes[0].legend()
         save(fig, path)
 
-    return Report(summary, md, {"s1-dock.png": plot})
+    return Report(summary, md, plot)
 
 
 CAMPAIGN = Campaign("s1-dock", "S1 docking from random starts, S1's rule and with final alignment",

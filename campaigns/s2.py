@@ -151,7 +151,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
         axes[1].legend()
         save(fig, path)
 
-    return Report(summary, md, {"s2-scenarios.png": plot})
+    return Report(summary, md, plot)
 
 
 CAMPAIGN = Campaign("s2-scenarios", "S2: scenarios A-E, preliminary and full system; particle filter vs instantaneous fixes",

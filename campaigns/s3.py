@@ -119,7 +119,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
     paper_wins = sum(1 for t, m in PAPER_POINT_CM.values() if t < m)
     md += _comparison_table(summary, paper_wins)
     summary["paper_trilateration_better_at"] = paper_wins
-    return Report(summary, md, {"s3-arena.png": lambda path: _plot(path, filt, summary)})
+    return Report(summary, md, lambda path: _plot(path, filt, summary))
 
 
 def _filters_section(filt: dict[str, Any]) -> str:

@@ -238,7 +238,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
         axes[0].legend()
         save(fig, path)
 
-    return Report(summary, md, {"s4-montecarlo.png": plot})
+    return Report(summary, md, plot)
 
 
 CAMPAIGN = Campaign("s4-montecarlo", "S4 Monte Carlo: EKF and UKF beacon localisation from three moving receivers",

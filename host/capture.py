@@ -5,8 +5,10 @@ they come and are flushed at least once a second, so a killed process loses at m
 second and the file stays readable (a torn last block is skipped by every reader). The section
 header and each interface block are flushed the moment they are written: a capture killed at
 any time holds a whole header. While it records, the file is ``NAME.part`` (host/outputs.py);
-:meth:`CaptureWriter.close` renames it to NAME once a port gave it a packet, and removes it
-(NAME as it was) when none came: a command whose ports never opened leaves the old capture.
+:meth:`CaptureWriter.close` renames it to NAME once a device gave it a packet (an inbound one:
+what rfhoming sent before that stays in it), and removes it (NAME as it was) when none came:
+a command whose ports never opened, or whose devices never answered its heartbeats and
+commands, leaves the old capture.
 
 A write that fails (a full disk) does not stop the devices: the capture ends there, one error
 names the file and what it kept (``error``), and the command reports it at its end.
@@ -96,7 +98,8 @@ class CaptureWriter:
             else:
                 flag = pcapng.INBOUND if direction == "in" else pcapng.OUTBOUND
                 self._file.write(pcapng.packet(iface, t, data, flag, self._comments.pop(port, "")))
-            self._out.own()
+            if data and direction in ("in", f"{SNIFFED}-in"):  # a device answered: the capture is the run's
+                self._out.own()
             self.packets += 1
             self.t_last = t
         self._schedule_flush()
@@ -147,14 +150,27 @@ class CaptureWriter:
                 self._file.flush()
         self._last_flush = time.monotonic()
 
+    @property
+    def kept(self) -> bool:
+        """A device gave the capture a packet: :meth:`close` renames it over NAME."""
+        return self._out.owned
+
+    @property
+    def unanswered(self) -> bool:
+        """rfhoming wrote to the capture but no device answered: it is dropped at :meth:`close`."""
+        return bool(self.packets) and not self.kept
+
     def said(self) -> str:
         """What a command tells of it at its end (after :meth:`close`)."""
         if not self.packets:
             return f"captured nothing: {self.path} is as it was"
+        if not self.kept:
+            sent = f"{self.packets} chunk{'s' if self.packets > 1 else ''}"
+            return f"no device answered: {self.path} is as it was (the {sent} rfhoming sent are not kept)"
         return f"captured {self.packets} chunks to {self.path}"
 
     def close(self) -> None:
-        """The capture renamed into place if a port gave it a packet, else removed (NAME as it was)."""
+        """The capture renamed into place if a device gave it a packet, else removed (NAME as it was)."""
         self.flush()
         try:
             self._out.close()

@@ -91,11 +91,7 @@ class FoxgloveView(Sink):
                                             capabilities=[Capability.Time], server_listener=_Listener(self._subscribed),
                                             message_backlog_size=BACKLOG)
         try:
-            key = loopback_key.lock(self.server.port)  # only the front reaches the SDK's listener
-            if key is None:
-                log.warning("Foxglove view: this system cannot lock the SDK's listener (127.0.0.1:%d, no TCP-MD5); "
-                            "local programs can reach it past the front's limits", self.server.port)
-            self.front = Front(self.server.port, host, port, key=key)
+            self.front = Front(self.server.port, host, port, key=self._lock())
         except BaseException:
             self._stop_server()
             raise
@@ -124,6 +120,16 @@ class FoxgloveView(Sink):
         self.loop: Any = None
         self.published = 0
         self.failed = 0  # items that could not be drawn (logged once)
+
+    def _lock(self) -> bytes | None:
+        """The SDK's listener keyed, so that only the front reaches it; where it cannot be, said
+        with the reason, and the listener is left open to local programs (None)."""
+        try:
+            return loopback_key.lock(self.server.port)
+        except loopback_key.NotLocked as why:
+            log.warning("Foxglove view: the SDK's listener (127.0.0.1:%d) cannot be locked: %s; local programs can "
+                        "reach it past the front's limits", self.server.port, why)
+            return None
 
     def wait_for_viewer(self, timeout: float) -> bool:
         """Block until a client has subscribed to a channel (True) or ``timeout`` seconds pass."""

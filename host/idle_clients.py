@@ -51,6 +51,3 @@ class IdleClients(Generic[Client]):
         idle.pop(client, None)
         if not idle:
             del self._idle[source]
-
-    def count(self, source: str) -> int:
-        return len(self._idle.get(source, ()))

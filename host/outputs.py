@@ -21,7 +21,9 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import shlex
 import stat
+from collections.abc import Iterable
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
@@ -61,17 +63,29 @@ def written_in_place(path: Path | str) -> bool:
 def check(path: Path | str) -> None:
     """Refuse, before anything is opened, an output that cannot be written: OSError (its
     strerror says why) or WriteFailed when NAME.part is there already."""
-    if written_in_place(path):
-        with open(path, "ab"):
-            return
-    part = part_of(path)
-    _refuse_read_only(part)
-    try:
-        with open(part, "xb"):
-            pass
-    except FileExistsError:
-        raise _busy(path, part) from None
-    os.unlink(part)
+    check_all([path])
+
+
+def check_all(paths: Iterable[Path | str]) -> None:
+    """:func:`check` every output a command will write, before it starts: one WriteFailed names
+    every NAME.part in the way (and the command that removes them), so that a user learns of
+    them all at once, not one a run; the first other OSError as it is."""
+    in_the_way: list[tuple[Path | str, Path]] = []
+    for path in paths:
+        if written_in_place(path):
+            with open(path, "ab"):
+                continue
+        part = part_of(path)
+        _refuse_read_only(part)
+        try:
+            with open(part, "xb"):
+                pass
+        except FileExistsError:
+            in_the_way.append((path, part))
+            continue
+        os.unlink(part)
+    if in_the_way:
+        raise _busy(*in_the_way)
 
 
 def _refuse_read_only(part: Path) -> None:
@@ -81,9 +95,14 @@ def _refuse_read_only(part: Path) -> None:
         raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(target))
 
 
-def _busy(path: Path | str, part: Path) -> WriteFailed:
-    return WriteFailed(f"{part} exists: another command is writing {path}, or one was killed while it did (what it "
-                       f"wrote is in it); move {part} away or remove it, then try again")
+def _busy(*in_the_way: tuple[Path | str, Path]) -> WriteFailed:
+    """NAME.part is there (one or several): what it may be, and the command that removes them."""
+    parts = [str(part) for _path, part in in_the_way]
+    names = ", ".join(str(path) for path, _part in in_the_way)
+    them = "them" if len(parts) > 1 else "it"
+    return WriteFailed(f"{', '.join(parts)} {'exist' if len(parts) > 1 else 'exists'}: another command is writing "
+                       f"{names}, or one was killed while it did (what it wrote is in {them}); move {them} away or "
+                       f"remove {them} (rm -- {' '.join(shlex.quote(p) for p in parts)}), then try again")
 
 
 class Output:
@@ -112,7 +131,7 @@ class Output:
         try:
             self.file = open(self.part, "xb" if binary else "x")
         except FileExistsError:
-            raise _busy(self.path, self.part) from None
+            raise _busy((self.path, self.part)) from None
         with contextlib.suppress(OSError):  # a replaced file keeps its permissions
             os.chmod(self.part, stat.S_IMODE(os.stat(self._target).st_mode))
 
@@ -198,10 +217,35 @@ def _sync_folder(folder: Path) -> None:
             os.close(fd)
 
 
+def adopt(path: Path | str) -> bool:
+    """NAME.part left by a writer of ours that is gone (a child process killed before it could
+    rename it) renamed over NAME, as that writer's :meth:`Output.close` would have: what it
+    wrote is the record of its run. True if there was one."""
+    part = part_of(path)
+    try:
+        fd = os.open(part, os.O_RDONLY)
+    except FileNotFoundError:
+        return False
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(part, part.with_name(part.name[:-len(PART)]))
+    _sync_folder(part.parent)
+    return True
+
+
 def replace_text(path: Path | str, text: str) -> None:
     """NAME replaced by ``text`` in one step: its old contents or the new, never a torn file."""
     with Output(path) as out:
         out.write(text)
+
+
+def save_figure(figure: Any, path: Path | str, **savefig: Any) -> None:
+    """A matplotlib figure saved to ``path`` whole (its format from the suffix, PNG without one):
+    a plot that fails leaves the old figure."""
+    with Output(path, binary=True) as out:
+        figure.savefig(out.file, format=Path(path).suffix.lstrip(".") or "png", **savefig)
 
 
 def failed(where: Output | Path | str, exc: OSError, kept: str) -> WriteFailed:

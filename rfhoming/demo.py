@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import logging
 import math
 import shutil
 import signal
@@ -22,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from rfhoming.host import outputs
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.outputs import Output, part_of
 from rfhoming.host.homing import assembly
@@ -30,6 +32,12 @@ from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.loop import Outcome, RunLog
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
+
+
+log = logging.getLogger(__name__)
+
+FILES = ("trajectory.png", "capture.pcapng", "run.jsonl", "truth.jsonl")
+"""What a demo writes in its folder (each NAME.part until it is done: host/outputs.py)."""
 
 
 class DemoError(Error):
@@ -151,7 +159,9 @@ def _started(truth: Path) -> Path:
 
 
 def read_truth(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    lines = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    """The header and the states; a torn last line (an emulator killed while it wrote) is skipped."""
+    text = path.read_text()
+    lines = [json.loads(line) for line in text[:text.rfind("\n") + 1].splitlines() if line.strip()]
     return lines[0], [line for line in lines[1:] if "t" in line]
 
 
@@ -261,8 +271,7 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
     ax.set_title(f"rfhoming demo: {header['scenario']}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    with Output(out_png, binary=True) as png:
-        fig.savefig(png.file, format="png")
+    outputs.save_figure(fig, out_png)
     plt.close(fig)
 
 
@@ -313,6 +322,14 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
     return outcome, config
 
 
+def check_outputs(out: Path) -> None:
+    """The demo's folder made, and every file the demo writes there checked before anything
+    starts: one WriteFailed names every NAME.part a killed demo left (and the ``rm`` that
+    removes them), rather than one of them a run, after the emulator started."""
+    out.mkdir(parents=True, exist_ok=True)
+    outputs.check_all(out / name for name in FILES)
+
+
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
              receiver: str | None = None, sinks: list[Any] | tuple[Any, ...] = (), speed: float = 0.0,
              in_process: bool = False, radio: str = "ideal") -> dict[str, Any]:
@@ -322,7 +339,7 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     ``in_process``: the emulator in this process, in lockstep (the same summary for the same
     seed), instead of in its own on ptys; ``radio``: the emulated radios (``ideal``,
     ``measured`` or a profile file: docs/emulator.md, "Radio profiles")."""
-    out.mkdir(parents=True, exist_ok=True)
+    check_outputs(out)
     if scenario in SURVEYS:
         config = replace(config, loop=replace(config.loop, max_time_s=max(config.loop.max_time_s, SURVEY_TIME_S)))
     if speed == 0 or in_process:
@@ -352,8 +369,19 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
         stop_emulator(proc, grace_s=10)
     finally:
         shutil.rmtree(link_dir, ignore_errors=True)
+        if proc.poll() is not None:  # gone, however it ended (else it is still writing its truth)
+            _truth_of_a_killed_emulator(truth)
     summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
     return _finish({"radio": radio, **summary}, out)
+
+
+def _truth_of_a_killed_emulator(truth: Path) -> None:
+    """An emulator killed when it outlived its grace could not rename TRUTH.part: its lines
+    (flushed one by one) are this run's truth, renamed into place and said, so that the summary
+    and plot are never made from the old TRUTH."""
+    if outputs.adopt(truth):
+        log.warning("demo: the emulator did not stop within its grace and was killed; %s holds this run's truth up "
+                    "to its last whole line", truth)
 
 
 async def _home_beside(emulator: subprocess.Popen[str], plan: Homing, out: Path) -> Outcome:
@@ -368,5 +396,5 @@ async def _home_beside(emulator: subprocess.Popen[str], plan: Homing, out: Path)
 
 def _finish(summary: dict[str, Any], out: Path) -> dict[str, Any]:
     plot(out / "truth.jsonl", out / "run.jsonl", out / "trajectory.png")
-    summary["files"] = {name: str(out / name) for name in ("trajectory.png", "capture.pcapng", "run.jsonl", "truth.jsonl")}
+    summary["files"] = {name: str(out / name) for name in FILES}
     return summary

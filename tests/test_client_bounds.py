@@ -91,6 +91,11 @@ def _upgrade(port: int) -> bytes:
 
 def _handshake(port: int) -> socket.socket:
     """A WebSocket client of the view that has its 101 and sends nothing more."""
+    return _handshake_and_rest(port)[0]
+
+
+def _handshake_and_rest(port: int) -> tuple[socket.socket, bytes]:
+    """:func:`_handshake`, and what the server sent after its 101 in the same reads."""
     sock = socket.create_connection(("127.0.0.1", port), timeout=SAFETY_S)
     sock.sendall(_upgrade(port))
     head = b""
@@ -99,7 +104,28 @@ def _handshake(port: int) -> socket.socket:
         assert got, f"closed during the handshake: {head!r}"
         head += got
     assert head.startswith(b"HTTP/1.1 101"), head
-    return sock
+    return sock, head.split(b"\r\n\r\n", 1)[1]
+
+
+def _until_status(sock: socket.socket, rest: bytes) -> dict:
+    """Read the server's WebSocket frames (unmasked, RFC 6455 §5.2) until a status message."""
+    def take(n: int) -> bytes:
+        nonlocal rest
+        while len(rest) < n:
+            got = sock.recv(65536)
+            assert got, "the view closed the connection"
+            rest += got
+        taken, rest = rest[:n], rest[n:]
+        return taken
+
+    while True:
+        opcode, length = take(2)
+        length &= 0x7F
+        if length >= 126:
+            length = int.from_bytes(take(2 if length == 126 else 8), "big")
+        payload = take(length)
+        if opcode == 0x81 and (message := json.loads(payload)).get("op") == "status":
+            return message
 
 
 def _masked_text(payload: bytes) -> bytes:
@@ -135,12 +161,9 @@ def view():
 def test_the_front_keeps_at_most_max_idle_clients_of_one_address(view) -> None:
     from rfhoming.host.foxglove_front import MAX_IDLE
 
-    talker = _handshake(view.front.port)
-    talker.sendall(_masked_text(b'{"op":"subscribe","subscriptions":[]}'))
-    deadline = time.monotonic() + SAFETY_S
-    while view.front._idle.count("127.0.0.1"):  # until the front has passed it on: idle no more
-        assert time.monotonic() < deadline, "the front never took the talker's message"
-        time.sleep(0.01)
+    talker, rest = _handshake_and_rest(view.front.port)
+    talker.sendall(_masked_text(b'{"op":"subscribe","subscriptions":[{"id":1,"channelId":999999}]}'))
+    _until_status(talker, rest)  # the SDK's answer (no such channel): the front passed it on, idle no more
     idle = [_handshake(view.front.port) for _ in range(MAX_IDLE)]
     for k in range(5):  # each new idle client closes the one idle longest
         idle.append(_handshake(view.front.port))
@@ -157,12 +180,16 @@ def test_the_front_keeps_at_most_max_idle_clients_of_one_address(view) -> None:
 def _md5_lockable() -> bool:
     """Whether this system takes a listener's TCP-MD5 key (Linux with CONFIG_TCP_MD5SIG, a
     container that allows it); where it does not, the view warns and stays open (no test)."""
-    from rfhoming.host.loopback_key import lock
+    from rfhoming.host.loopback_key import NotLocked, lock
 
     with socket.socket() as listener:
         listener.bind(("127.0.0.1", 0))
         listener.listen()
-        return lock(listener.getsockname()[1]) is not None
+        try:
+            lock(listener.getsockname()[1])
+        except NotLocked:
+            return False
+        return True
 
 
 needs_md5 = pytest.mark.skipif(not os.path.exists("/proc/net/netstat") or not _md5_lockable(),
@@ -263,8 +290,8 @@ def test_a_connection_that_came_before_the_key_is_found() -> None:
 
 
 def test_a_system_without_proc_leaves_the_listener_unlocked_and_says_so(monkeypatch) -> None:
-    """No /proc/self/fd (a sandbox): the listener cannot be found, so lock() returns None (the
-    view warns) instead of raising out of the Foxglove view."""
+    """No /proc/self/fd (a sandbox): the listener cannot be found, so lock() says so (the view
+    warns with it) instead of raising an OSError out of the Foxglove view."""
     from rfhoming.host import loopback_key
 
     def no_proc(path: str) -> list[str]:
@@ -274,4 +301,5 @@ def test_a_system_without_proc_leaves_the_listener_unlocked_and_says_so(monkeypa
     with socket.socket() as listener:
         listener.bind(("127.0.0.1", 0))
         listener.listen()
-        assert loopback_key.lock(listener.getsockname()[1]) is None
+        with pytest.raises(loopback_key.NotLocked, match=r"/proc/self/fd cannot be read \(No such file or directory\)"):
+            loopback_key.lock(listener.getsockname()[1])

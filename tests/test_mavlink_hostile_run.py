@@ -99,6 +99,8 @@ def test_every_exit_is_one_line_and_leaves_the_vehicle_holding(
         assert asked == ["GUIDED"] and vehicle.mode == 0  # nothing over the pilot's MANUAL
     else:
         assert asked[0] == "GUIDED" and asked[-1] == "HOLD" and vehicle.mode == 4, asked
-    if log.exists():  # strict JSON: no bare NaN or Infinity, whatever the vehicle sent
+    began = name not in ("arm", "ack")  # arming refused or unanswered: the run never began, no log replaced
+    assert log.exists() == began and not log.with_name("run.jsonl.part").exists(), name
+    if began:  # strict JSON: no bare NaN or Infinity, whatever the vehicle sent
         for record in log.read_text().splitlines():
             json.loads(record, parse_constant=lambda token: pytest.fail(f"{token} in the run log"))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from rfhoming.campaigns.runner import Campaign, CampaignError, run_jobs
 from rfhoming.cli.parsers.campaign import REGISTRY
-from rfhoming.host.outputs import replace_text
+from rfhoming.host.outputs import check_all, replace_text
 from rfhoming.protocol.radio_profile import IDEAL, ProfileError, describe
 
 __all__ = ["REGISTRY", "default_folder", "load", "run"]
@@ -49,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     args.out = args.out or default_folder(args.name, runs, args.seed, args.radio)
     args.out.mkdir(parents=True, exist_ok=True)
+    results, table, figure = campaign.outputs(args.out)
+    check_all((results, table, figure))  # a stale NAME.part is named now, not after hours of jobs
     checkpoint = args.out / f"{args.name}.partial.jsonl"  # finished jobs survive a crash or Ctrl-C
     where = f"Dask at {args.dask}" if args.dask else f"{args.workers} worker(s)"
     t0 = time.perf_counter()
@@ -69,18 +71,15 @@ def run(args: argparse.Namespace) -> int:
             "radios": radios, "jobs": len(jobs),
             "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
             "machine": platform.machine()}
-    replace_text(args.out / f"{args.name}.json", json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
-    replace_text(args.out / f"{args.name}.md",
-                 f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where}); {radios}\n\n"
+    replace_text(results, json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
+    replace_text(table, f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where}); {radios}\n\n"
                  f"{report.markdown}\n")
-    for name, write in report.plots.items():
-        write(args.out / name)
+    report.plot(figure)
     checkpoint.unlink()
     if args.json:
         print(json.dumps({**meta, "summary": report.summary}, indent=1))
     else:
         print(radios + "\n")
         print(report.markdown)
-        print(f"\n{len(jobs)} jobs in {wall:.1f} s; wrote {args.out}/{args.name}.json, .md"
-              + "".join(f", {p}" for p in report.plots))
+        print(f"\n{len(jobs)} jobs in {wall:.1f} s; wrote {results}, {table.name}, {figure.name}")
     return 0

@@ -13,7 +13,7 @@ from rfhoming.host.portspec import PortSpecError
 
 
 def run(args: argparse.Namespace) -> int:
-    from rfhoming.demo import SUPPORTED, run_demo
+    from rfhoming.demo import SUPPORTED, check_outputs, run_demo
 
     if args.scenario not in SUPPORTED:
         raise PortSpecError(f"scenario {args.scenario!r} is not wired to a controller yet; "
@@ -21,6 +21,7 @@ def run(args: argparse.Namespace) -> int:
     config = load(args.config)
     if args.receiver and args.scenario != "s3-arena":
         raise PortSpecError("--receiver swaps the BLE RSSI receiver of --scenario s3-arena")
+    check_outputs(args.out)  # a killed demo's NAME.part files, all named, before a view or an emulator starts
     speed = args.speed if args.speed is not None else (1.0 if args.foxglove is not None else 0.0)
     if not args.json:
         where = "in this process" if args.in_process else "on ptys"

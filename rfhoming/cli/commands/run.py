@@ -66,6 +66,12 @@ def _one(given: str | list[str] | None) -> str | None:
     return given[0] if isinstance(given, list) else given
 
 
+def _say_if_unanswered(capture: CaptureWriter) -> None:
+    """A run whose devices never answered what it sent leaves the old capture: said in one line."""
+    if capture.unanswered:
+        print(f"rfhoming run: {capture.said()}", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     config = load(args.config)
     role = METHODS[args.controller].role
@@ -89,7 +95,9 @@ def run(args: argparse.Namespace) -> int:
         plan.runlog = RunLog(opened.enter_context(contextlib.closing(Output(args.log))) if args.log else None)
         if args.capture:
             record = run_record(plan, args.site.read_text() if site is not None else None)
-            plan.capture = opened.enter_context(contextlib.closing(CaptureWriter(args.capture, comment=record)))
+            plan.capture = capture = CaptureWriter(args.capture, comment=record)
+            opened.callback(_say_if_unanswered, capture)  # after its close (the stack unwinds last in, first out)
+            opened.enter_context(contextlib.closing(capture))
         try:
             outcome = asyncio.run(assembly.run(plan))
         except KeyboardInterrupt:

@@ -25,6 +25,8 @@ async def _serve(args: argparse.Namespace) -> int:
     finally:
         if capture is not None:
             capture.close()  # renamed into place once a device gave it a packet, else the old file stays
+            if capture.unanswered:
+                print(f"rfhoming serve: {capture.said()}", file=sys.stderr)
 
 
 async def _serve_into(args: argparse.Namespace, capture: CaptureWriter | None) -> int:

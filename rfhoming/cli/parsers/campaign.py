@@ -28,7 +28,7 @@ campaigns (default --runs in brackets):
   s4-montecarlo  S4: EKF and UKF on 10,000 simulated beacons, and a filterpy EKF on a subsample [10000]
 
 Each writes OUT/NAME.json (every run and the summary), OUT/NAME.md (the table beside the
-paper's, with the command and the radios) and OUT/NAME*.png. --radio takes campaigns that run
+paper's, with the command and the radios) and OUT/NAME.png. --radio takes campaigns that run
 through the emulator (s0-table3's emulated rows, s0-house, s1-dock, s2-scenarios) to measured
 radios; s3-arena and s4-montecarlo simulate their papers' noise themselves. Seeds are fixed per job, so a campaign gives the
 same numbers on 1 worker, on K processes or on a Dask cluster. Finished jobs are kept in
