@@ -1,6 +1,6 @@
 """How real the emulated XPLR-AOA is: each angle statistic and locate's error, real vs emulated.
 
-DIR is laid out as ``../shared/data/girolami_xplr_aoa/`` (bench/real_aoa.py). For every recording
+DIR holds real XPLR-AOA recordings laid out as bench/real_aoa.py --help says. For every recording
 the emulator is put at its geometry and its walk: the site's anchors (``site.toml``) as fixed
 XPLR-AOA anchors at their poses, the tag walked along the ground truth's waypoints on their own
 clock (a scenario timetable) at the site's tag height, sending at the recording's event rate,
@@ -17,7 +17,7 @@ Printed: each statistic real vs emulated and their ratio, the KS distance of the
 errors, and locate's mean error per use case on both. Targets (docs/RESULTS.md): every statistic
 within +-25 % of the real, KS <= 0.05, locate's emulated mean within +-20 % of the real.
 
-    python bench/fidelity.py --data ../shared/data/girolami_xplr_aoa [--profile FILE] [--json]
+    python bench/fidelity.py --data DIR [--profile FILE] [--json]
     python bench/fidelity.py --data DIR --only uc2 --profile uc1.toml   # fitted on uc1, judged on uc2
 """
 

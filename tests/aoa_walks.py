@@ -1,7 +1,7 @@
 """Walks the project makes itself, for the radio-profile tests: a tag carried around a loop
 in front of fixed anchors, its reports drawn from the emulator's measured error process
 (emulator/aoa_error.py) with known parameters. No recording is read (tests never read
-../shared/data)."""
+the real recordings)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Radio profiles: the file and its loader, the emulator's measured XPLR-AOA errors, the fitter on
 walks the project makes (tests/aoa_walks.py), rfhoming radio-fit, and --radio on the commands.
-Never reads ../shared/data: the recordings are for the benches."""
+Never reads the real recordings: they are for the benches."""
 
 from __future__ import annotations
 
