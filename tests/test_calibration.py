@@ -42,8 +42,8 @@ def test_host_radio_constants_come_from_measurements(campaign, monkeypatch) -> N
 
     original = calibration.load
 
-    def shifted(name, seed, aoa_preset=None):  # the same scenario, its radio 6 dB stronger and steeper
-        sc = original(name, seed, aoa_preset)
+    def shifted(name, seed, aoa_preset=None, radio="ideal"):  # the same scenario, its radio 6 dB stronger and steeper
+        sc = original(name, seed, aoa_preset, radio)
         sc.path_loss = replace(sc.path_loss, p0_dbm=sc.path_loss.p0_dbm + SHIFT_DB, n=sc.path_loss.n + SHIFT_N)
         return sc
 

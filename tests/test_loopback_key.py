@@ -17,6 +17,7 @@ import subprocess
 import sys
 
 import pytest
+import rigs
 from test_client_bounds import SAFETY_S, needs_md5
 
 from rfhoming.host import loopback_key
@@ -73,9 +74,9 @@ def test_another_processs_connection_on_the_same_port_is_no_early_connection() -
     other = subprocess.Popen([sys.executable, "-c", CONNECTED_ELSEWHERE], stdin=subprocess.PIPE,
                              stdout=subprocess.PIPE, text=True)
     try:
-        port = int(other.stdout.readline())
+        port = int(rigs.readline(other))
         with socket.create_connection(("127.0.0.1", port), timeout=SAFETY_S):
-            assert other.stdout.readline() == "accepted\n"
+            assert rigs.readline(other) == "accepted\n"
             with socket.socket() as listener:
                 listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 listener.bind(("127.0.0.1", port))

@@ -105,7 +105,7 @@ def test_locate_at_the_recorded_pace_prints_what_as_fast_as_possible_does(long_c
 @pytest.mark.slow  # end to end on 14,400 events: 15-40 s each on a shared machine
 def test_self_calibration_takes_every_event_of_a_long_capture(long_capture):
     """Old code: each anchor's queue counted about half its events as dropped."""
-    runs = [_cli("calibrate", str(SITE), "--self", "--from", f"capture:{long_capture}{speed}", "--dry-run")
+    runs = [_cli("calibrate", str(SITE), "--self", "--from", f"capture:{long_capture}{speed}", "--dry-run", "--verbose")
             for speed in ("", ",speed=50")]
     for run in runs:
         assert run.returncode == 0, run.stderr

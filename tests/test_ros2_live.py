@@ -116,7 +116,9 @@ def test_locate_publishes_each_tags_fix_in_map_and_the_anchors_in_tf_static(tmp_
         last = poses[-1]
         assert 0 <= last["xyz"][0] <= 12 and 0 <= last["xyz"][1] <= 6
         cov = last["covariance"]
-        assert all(cov[7 * i] > 0 for i in range(3)) and cov[21] == cov[28] == cov[35] == 1e6  # no orientation
+        held = tag != "CCF9578E0D8C"  # the site gives the cart's and the trolley's height: z is not estimated
+        assert cov[0] > 0 and cov[7] > 0 and (cov[14] < 1e-12 if held else cov[14] > 1e-12), (tag, cov[:15])
+        assert cov[21] == cov[28] == cov[35] == 1e6  # no orientation
         assert last["orientation"] == [0.0, 0.0, 0.0, 1.0]
 
 
