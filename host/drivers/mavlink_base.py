@@ -22,9 +22,9 @@ Each of these ends the run with one line (an Error the supervisor raises):
   (after, it is ignored: counted, warned once);
 - a command is refused or unanswered during the set-up.
 
-Every exit after rfhoming asked for the guided mode -- an error, the end of the run, Ctrl-C,
-SIGTERM -- sends zero velocity and then the holding mode: HOLD (Rover, PX4) or BRAKE (Copter),
-or the spec's ``end=``.
+Every exit after rfhoming asked for the guided mode (or, the vehicle already in it, to arm) -- an
+error, a refused arming, the end of the run, Ctrl-C, SIGTERM -- sends zero velocity and then the
+holding mode: HOLD (Rover, PX4) or BRAKE (Copter), or the spec's ``end=``.
 
 Every write follows an input (a vehicle HEARTBEAT is answered with the ground station's; each
 setpoint follows an odometry), so a replay of the capture writes the same bytes.
@@ -102,7 +102,7 @@ class MavlinkBaseDriver(CommandedBase):
         self._local: tuple[Any, float] | None = None  # the newest LOCAL_POSITION_NED and when it came
         self._heartbeat = asyncio.Event()
         self.step = "waiting"  # of the set-up: waiting, streaming, switching, arming, driving, failed, done
-        self.took = False  # rfhoming asked for the guided mode (or drove): every exit leaves the vehicle holding
+        self.took = False  # rfhoming asked for the guided mode, to arm, or drove: every exit leaves the vehicle holding
         self.taken_over = False  # the pilot or a failsafe changed its mode or disarmed it: their choice stands
         self._asked: int | None = None  # the command whose COMMAND_ACK the set-up waits for
         self._heartbeat_asked = False
@@ -268,7 +268,8 @@ class MavlinkBaseDriver(CommandedBase):
             self.step = "streaming"  # _on_position sends the setpoints, then the switch
         elif self.mode != ap.guided:
             self._switch()
-        elif not self.armed:
+        elif not self.armed:  # already in the guided mode: arming is rfhoming's first command that takes it
+            self.took = True
             self._ask(ml.arm(system, component), "arming")
         else:
             self._drive()
