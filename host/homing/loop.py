@@ -343,6 +343,7 @@ class HomingLoop:
             self.odometry_stale = False
             self.log.write("event", self.t, what="odometry fresh again")
         self._advance_clock(odo)
+        self.base.acting_on(odo)  # what it sends from here on is stamped on this odometry, live and in a replay
         if self._read_while_odometry_stale:
             # readings kept coming while the base was silent: their robot time is unknown, and the
             # newest is as old as the gap at most -- the sensor was not stale, the base was
