@@ -168,3 +168,51 @@ async def test_a_backlog_is_worked_through_in_bounded_steps(tmp_path: Path, monk
     await asyncio.gather(homing, return_exceptions=True)
     steps = [b - a for a, b in zip(seen, seen[1:] + [50]) if b > a]
     assert len(steps) >= 10 and max(steps) <= 3, steps  # a 5 ms budget: three readings a pass
+
+
+async def test_a_replay_stops_where_the_live_runs_odometry_watchdog_fired(tmp_path: Path) -> None:
+    """The watchdog fires on the wall clock, which a capture does not hold: the live run notes the
+    robot time and the items taken after that odometry, and its replay (watchdog off) stops there
+    too -- the same run log, the same stops. Without the note the replay drives through."""
+    from dataclasses import replace
+
+    def loop(config: Config, **plan: Any) -> tuple[HomingLoop, io.StringIO, list[float]]:
+        out, stops = io.StringIO(), []
+        made = loop_on(Steady(), HostPort(str(tmp_path / "base")), HostPort(str(tmp_path / "aoa")), config, RunLog(out),
+                       role="aoa", **plan)
+        made.base.send_velocity = lambda v, w: True  # type: ignore[method-assign]  # nothing is open
+        made.base.brake = lambda on: True  # type: ignore[method-assign]
+        made.base.stop = lambda: stops.append(made.t) or True  # type: ignore[method-assign]
+        return made, out, stops
+
+    async def feed(loop: HomingLoop, silent_before: int | None = None) -> None:
+        """Odometry every 20 ms for 2 s, a reading before each; after the one at 1 s, three
+        readings and no odometry (live: the wall clock says silent before the ``silent_before``-th)."""
+        items: list[Any] = []
+        for k in range(100):
+            items += [object(), odometry(k * 0.02)] + ([object(), object(), object()] if k == 50 else [])
+        for i, item in enumerate(items):
+            if i == silent_before:
+                loop.last_odometry_wall -= 2 * loop.config.loop.odometry_wall_timeout_s
+            loop.inputs.put(item)
+            got = await loop._next_item()
+            if isinstance(got, Pose2D):
+                loop._on_odometry(got)
+            else:
+                loop._on_reading(got)
+
+    # live, its watchdog long (no machine's load fires it here), told it fired before the third reading
+    live_config = replace(Config(), loop=replace(Config().loop, odometry_wall_timeout_s=3600.0))
+    live, live_out, live_stops = loop(live_config)
+    noted: list[dict[str, Any]] = []
+    live.note = noted.append
+    await feed(live, silent_before=2 * 51 + 2)
+    assert noted == [{"odometry_stale": 1.0, "after_items": 2}]
+    assert events(live_out).count("odometry stale: stop") == 1 and "odometry fresh again" in events(live_out)
+    at = frozenset((n["odometry_stale"], n["after_items"]) for n in noted)
+    replayed, replay_out, replay_stops = loop(Config().for_lockstep(), odometry_stale_at=at)
+    await feed(replayed)
+    assert replay_out.getvalue() == live_out.getvalue() and replay_stops == live_stops == [1.0]
+    unnoted, unnoted_out, unnoted_stops = loop(Config().for_lockstep())
+    await feed(unnoted)
+    assert "odometry stale: stop" not in events(unnoted_out) and unnoted_stops == []

@@ -135,6 +135,7 @@ def test_arm_1_arms_switches_to_guided_and_drives_in_the_body_frame() -> None:
     assert driver.state == "streaming" and driver.error is None and driver.connected.is_set()
     assert link.vehicle.armed and link.vehicle.mode == ml.ARDUPILOT_ROVER.guided
     assert isinstance(driver.latest, Pose2D) and driver.latest.t_robot == pytest.approx(2.5)
+    driver.acting_on(driver.latest)  # the loop takes it
     assert driver.send_velocity(0.4, 0.25)
     setpoint = link.written[-1]
     assert setpoint.get_type() == "SET_POSITION_TARGET_LOCAL_NED"
@@ -142,6 +143,31 @@ def test_arm_1_arms_switches_to_guided_and_drives_in_the_body_frame() -> None:
     assert (setpoint.vx, setpoint.vy, setpoint.yaw_rate) == pytest.approx((0.4, 0.0, -0.25))
     assert setpoint.time_boot_ms == 2500  # the vehicle's clock, so a replay writes the same bytes
     assert link.vehicle.velocity(link.t) == pytest.approx((0.4, 0.25))
+
+
+def test_the_loops_writes_follow_the_odometry_it_acts_on_not_the_newest_read() -> None:
+    """Live, the driver reads datagrams the loop has not taken yet as the machine's load has it; a
+    replay reads them in the recording's order. So what the loop writes -- a setpoint's
+    ``time_boot_ms``, the ground station's HEARTBEAT -- follows the odometry it acts on alone
+    (before the fix a setpoint carried the newest read, and the HEARTBEAT answered the vehicle's
+    as it was read: a replay under load wrote other bytes)."""
+    driver, link = driven(VehicleOptions(mode="HOLD"), arm=True)
+    first = driver.latest
+    assert first is not None and driver.send_velocity(0.0, 0.0)
+    assert link.written[-1].time_boot_ms < 500  # the loop starts on the odometry the set-up handed it
+    written = len(link.written)
+    exchange(driver, link, 1.0)  # a second read ahead, a vehicle HEARTBEAT in it; the loop still on `first`
+    assert driver.latest.t_robot == pytest.approx(3.5) and driver.counters["heartbeats"] >= 1
+    assert link.written[written:] == []  # nothing answered as it was read: driving, the loop writes
+    driver.acting_on(first)
+    assert driver.send_velocity(0.2, 0.0) and link.written[-1].time_boot_ms == round(first.t_robot * 1000)
+    kinds = [m.get_type() for m in link.written[written:]]
+    assert kinds == ["HEARTBEAT", "SET_POSITION_TARGET_LOCAL_NED"]  # the loop's first odometry of a second
+    for ms in (2520, 2980, 3000, 3020):  # the ground station's HEARTBEAT once a second of the vehicle's clock
+        driver.acting_on(first._replace(t_robot=ms / 1000))
+    beats = [m for m in link.written[written:] if m.get_type() == "HEARTBEAT"]
+    assert len(beats) == 2 and beats[0].type == mav.MAV_TYPE_GCS
+    assert driver.send_velocity(0.2, 0.0) and link.written[-1].time_boot_ms == 3020
 
 
 def test_a_refused_arming_fails_the_run() -> None:

@@ -146,6 +146,15 @@ def test_a_refused_arming_leaves_the_vehicle_in_hold() -> None:
     assert modes_asked(link) == [15, HOLD] and link.vehicle.mode == HOLD
 
 
+def test_a_refused_arming_of_a_vehicle_already_guided_leaves_it_in_hold() -> None:
+    """No mode switch was needed: arming was rfhoming's first command, and the exit still holds
+    (before the fix the vehicle was left in GUIDED, no mode command sent)."""
+    driver, link = driven(VehicleOptions(mode="GUIDED", prearm_ok=False), arm=True)
+    assert "refused arming" in str(driver.error) and not link.vehicle.armed
+    end(driver)
+    assert modes_asked(link) == [HOLD] and link.vehicle.mode == HOLD
+
+
 @pytest.mark.parametrize("command", [mav.MAV_CMD_COMPONENT_ARM_DISARM, mav.MAV_CMD_DO_SET_MODE])
 def test_an_unanswered_set_up_leaves_the_vehicle_in_hold(command: int) -> None:
     async def make() -> tuple[MavlinkBaseDriver, FakeLink]:

@@ -1,7 +1,7 @@
 """A lying vehicle, in processes: ``rfhoming run --base mavlink:udpout:...,arm=1`` against a
 vehicle that lies (tests/hostile_vehicle.py, on UDP loopback; the AoA board is the emulator's).
 A vehicle sending NaN, one whose HEARTBEAT stops, someone speaking as it from another port, a
-refused or unanswered arming: the run stops (or refuses to start) with one line and exit 2, and
+refused (also of a vehicle already in GUIDED) or unanswered arming: the run stops (or refuses to start) with one line and exit 2, and
 the vehicle was last told HOLD. A pilot's mode change stops it too, and the pilot's mode stands.
 SIGTERM and the run's own end leave it in HOLD as well. Before the fix the vehicle stayed in
 GUIDED after a refusal, NaN, a lost HEARTBEAT and another port's packets were driven on for
@@ -65,6 +65,8 @@ CASES: list[Any] = [
     pytest.param("heartbeat", {}, heartbeat_stops, 2, "no HEARTBEAT", id="heartbeat-stops", marks=pytest.mark.slow),
     pytest.param("port", {}, another_port, 2, "speaks as the vehicle", id="another-port", marks=pytest.mark.slow),
     pytest.param("arm", {"refuse_arm": True}, None, 2, "refused arming", id="refused-arm", marks=pytest.mark.slow),
+    pytest.param("arm-guided", {"refuse_arm": True, "mode": 15}, None, 2, "refused arming", id="refused-arm-in-guided",
+                 marks=pytest.mark.slow),
     pytest.param("ack", {"unanswered": {mav.MAV_CMD_COMPONENT_ARM_DISARM}}, None, 2, "no COMMAND_ACK", id="no-ack",
                  marks=pytest.mark.slow),
     pytest.param("pilot", {}, pilot, 2, "left GUIDED for MANUAL", id="pilot-mode", marks=pytest.mark.slow),
@@ -97,9 +99,11 @@ def test_every_exit_is_one_line_and_leaves_the_vehicle_holding(
     asked = vehicle.modes_asked()
     if name == "pilot":
         assert asked == ["GUIDED"] and vehicle.mode == 0  # nothing over the pilot's MANUAL
+    elif name == "arm-guided":  # already in GUIDED: no switch asked, and still left holding
+        assert asked == ["HOLD"] and vehicle.mode == 4, asked
     else:
         assert asked[0] == "GUIDED" and asked[-1] == "HOLD" and vehicle.mode == 4, asked
-    began = name not in ("arm", "ack")  # arming refused or unanswered: the run never began, no log replaced
+    began = name not in ("arm", "arm-guided", "ack")  # arming refused or unanswered: the run never began, no log replaced
     assert log.exists() == began and not log.with_name("run.jsonl.part").exists(), name
     if began:  # strict JSON: no bare NaN or Infinity, whatever the vehicle sent
         for record in log.read_text().splitlines():

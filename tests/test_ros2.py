@@ -135,6 +135,37 @@ async def until(test, what: str, seconds: float = 60.0) -> None:
             await asyncio.sleep(0.02)
 
 
+class Wire:
+    """A port that keeps what the driver writes (sans-IO)."""
+
+    name, taps, description = "wire", [], {"stamped": "1"}
+
+    def __init__(self) -> None:
+        self.counters = {"opens": 1}
+        self.written: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        self.written.append(data)
+
+
+async def test_a_twist_stamped_carries_the_odometry_the_loop_acts_on_not_the_newest_read() -> None:
+    """The driver may read odometry the loop has not taken yet (live, as the load has it; a
+    replay, as the recording's order has it): the stamp is the loop's odometry's, exactly as its
+    sample carried it (before, the newest read's: a replay under load wrote other bytes)."""
+    wire = Wire()
+    driver = Ros2BaseDriver(wire)
+    stamps = [ros2.Stamp(1796455203, 726_982_001), ros2.Stamp(1796455203, 746_982_001)]
+    for k, at in enumerate(stamps):
+        odometry = ros2.Odometry(at, "odom", "base_link", 0.1 * k, 0.0, 0.0, 0.0, 0.0)
+        driver.on_chunk(ros2.encode_record("/odom", ros2.ODOMETRY, ros2.encode_odometry(odometry)), float(k))
+    first = driver.out.get_nowait()
+    assert isinstance(first, Pose2D) and driver.latest is not None and driver.latest.t_robot > first.t_robot
+    driver.acting_on(first)
+    assert driver.send_velocity(0.25, 0.0)
+    twist = ros2.decode_twist(ros2.decode_record(wire.written[-1]).data, stamped=True)
+    assert twist.stamp == stamps[0] and (twist.v, twist.frame_id) == (0.25, "base_link")
+
+
 @pytest.mark.parametrize("stamped", [False, True])
 async def test_the_driver_drives_a_ros2_robot(stamped: bool) -> None:
     domain = random_domain()

@@ -22,12 +22,18 @@ Each of these ends the run with one line (an Error the supervisor raises):
   (after, it is ignored: counted, warned once);
 - a command is refused or unanswered during the set-up.
 
-Every exit after rfhoming asked for the guided mode -- an error, the end of the run, Ctrl-C,
-SIGTERM -- sends zero velocity and then the holding mode: HOLD (Rover, PX4) or BRAKE (Copter),
-or the spec's ``end=``.
+Every exit after rfhoming asked for the guided mode (or, the vehicle already in it, to arm) -- an
+error, a refused arming, the end of the run, Ctrl-C, SIGTERM -- sends zero velocity and then the
+holding mode: HOLD (Rover, PX4) or BRAKE (Copter), or the spec's ``end=``.
 
-Every write follows an input (a vehicle HEARTBEAT is answered with the ground station's; each
-setpoint follows an odometry), so a replay of the capture writes the same bytes.
+Every write follows an input, so a replay of the capture writes the same bytes. During the
+set-up each follows a message the driver reads (a vehicle HEARTBEAT is answered with the ground
+station's). Once driving, every write is the loop's and carries the odometry the loop acts on
+(:meth:`acting_on`), never the newest the driver read: the capture stamps a datagram when it
+came, and how many came before the loop took its odometry is the machine's load live and the
+recording's order in a replay. So the setpoints carry that odometry's ``time_boot_ms``, and the
+ground station's HEARTBEAT goes out once a second of the vehicle's clock, with the first of the
+loop's odometries in it, not when the vehicle's came in.
 """
 
 from __future__ import annotations
@@ -97,12 +103,14 @@ class MavlinkBaseDriver(CommandedBase):
         self.autopilot: ml.Autopilot | None = None
         self.mode: int | None = None
         self.armed = False
-        self.time_boot_ms = 0
+        self.time_boot_ms = 0  # the newest odometry's the driver read
+        self._acting_ms: int | None = None  # the odometry's the loop acts on (acting_on): what setpoints carry
+        self._beat_second: int | None = None  # the vehicle's second of the ground station's last HEARTBEAT, driving
         self._attitude: Any = None
         self._local: tuple[Any, float] | None = None  # the newest LOCAL_POSITION_NED and when it came
         self._heartbeat = asyncio.Event()
         self.step = "waiting"  # of the set-up: waiting, streaming, switching, arming, driving, failed, done
-        self.took = False  # rfhoming asked for the guided mode (or drove): every exit leaves the vehicle holding
+        self.took = False  # rfhoming asked for the guided mode, to arm, or drove: every exit leaves the vehicle holding
         self.taken_over = False  # the pilot or a failsafe changed its mode or disarmed it: their choice stands
         self._asked: int | None = None  # the command whose COMMAND_ACK the set-up waits for
         self._heartbeat_asked = False
@@ -233,7 +241,8 @@ class MavlinkBaseDriver(CommandedBase):
             return
         self.mode, self.armed = message.custom_mode, ml.armed(message)
         self._heartbeat.set()
-        self._send(ml.gcs_heartbeat(), counted=False)  # a ground station is there: the GCS failsafe's input
+        if self.step != "driving":  # driving, the loop's odometry says when (acting_on)
+            self._send(ml.gcs_heartbeat(), counted=False)  # a ground station is there: the GCS failsafe's input
         if self.step == "waiting":
             self._begin()
         elif self.step == "driving" and self.mode != ap.guided:
@@ -268,7 +277,8 @@ class MavlinkBaseDriver(CommandedBase):
             self.step = "streaming"  # _on_position sends the setpoints, then the switch
         elif self.mode != ap.guided:
             self._switch()
-        elif not self.armed:
+        elif not self.armed:  # already in the guided mode: arming is rfhoming's first command that takes it
+            self.took = True
             self._ask(ml.arm(system, component), "arming")
         else:
             self._drive()
@@ -296,11 +306,24 @@ class MavlinkBaseDriver(CommandedBase):
         self._send(message)
 
     def _drive(self) -> None:
-        """Set up: the loop starts (``connected``) with the newest odometry already in its stream."""
+        """Set up: the loop starts (``connected``) with the newest odometry already in its stream,
+        and acts on it (its first stop carries it) until it takes the next."""
         self.step, self.state, self.problem, self.took = "driving", "streaming", None, True
+        self._acting_ms = self.time_boot_ms
         if self._local is not None:
             self._emit_pose(*self._local)
         self.connected.ready()
+
+    def acting_on(self, odometry: Pose2D) -> None:
+        """The loop acts on ``odometry``: its setpoints carry its ``time_boot_ms``; the first of a
+        second of the vehicle's clock brings the ground station's HEARTBEAT (1 Hz, as the
+        vehicle's own) -- so the bytes written follow the loop's odometry alone."""
+        super().acting_on(odometry)
+        ms = round(odometry.t_robot * 1000)
+        self._acting_ms = ms
+        if self.step == "driving" and ms // 1000 != self._beat_second:  # a rebooted clock starts a second too
+            self._beat_second = ms // 1000
+            self._send(ml.gcs_heartbeat(), counted=False)
 
     def _on_position(self, local: Any, t_host: float) -> None:
         self._check_heartbeat(local.time_boot_ms)
@@ -309,7 +332,7 @@ class MavlinkBaseDriver(CommandedBase):
         if self.step == "driving":
             self._emit_pose(local, t_host)
         elif self.step == "streaming":  # PX4 engages offboard only on a stream that is already there
-            self._setpoint(0.0, 0.0)
+            self._setpoint(0.0, 0.0, self.time_boot_ms)
             self._stream_from = self.time_boot_ms if self._stream_from is None else self._stream_from
             if self.time_boot_ms - self._stream_from >= STREAM_BEFORE_SWITCH_S * 1000:
                 self._switch()
@@ -347,10 +370,15 @@ class MavlinkBaseDriver(CommandedBase):
             return False
         return True
 
-    def _setpoint(self, v: float, w: float) -> bool:
+    def _setpoint(self, v: float, w: float, time_boot_ms: int) -> bool:
         assert self.autopilot is not None and self.sysid is not None
-        return self._send(ml.velocity_setpoint(self.time_boot_ms, self.sysid, self.compid or 0,
-                                               self.autopilot.frame, v, w))
+        return self._send(ml.velocity_setpoint(time_boot_ms, self.sysid, self.compid or 0, self.autopilot.frame, v, w))
+
+    @property
+    def _loop_ms(self) -> int:
+        """What the loop's setpoints carry: the time of the odometry it acts on (the driver's
+        newest before the driving began, as the set-up's own zero setpoints do)."""
+        return self.time_boot_ms if self._acting_ms is None else self._acting_ms
 
     def send_velocity(self, v: float, w: float) -> bool:
         """A body velocity setpoint (v m/s forward, ω rad/s counter-clockwise); False (counted)
@@ -358,7 +386,7 @@ class MavlinkBaseDriver(CommandedBase):
         if self.step != "driving":
             self.counters["unsent"] += 1
             return False
-        sent = self._setpoint(v, w)
+        sent = self._setpoint(v, w, self._loop_ms)
         self.counters["commands"] += sent
         return sent
 
@@ -393,7 +421,7 @@ class MavlinkBaseDriver(CommandedBase):
             return
         self.step = "done"
         self.counters["stops"] += 1
-        stopped = self._setpoint(0.0, 0.0)
+        stopped = self._setpoint(0.0, 0.0, self._loop_ms)
         end = self.autopilot.end_mode(self.end)
         if not (self._send(ml.set_mode(self.sysid, self.compid or 0, self.autopilot, end)) and stopped):
             log.warning("%s: could not send the final stop and %s; %s stops the vehicle", self.port.name,

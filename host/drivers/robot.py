@@ -71,6 +71,13 @@ class RobotBase(Protocol):
         """Set while the base can be driven (the loop starts on it)."""
         ...
 
+    def acting_on(self, odometry: Pose2D) -> None:
+        """The odometry the loop acts on now, one of this base's own from ``out``: what it sends
+        until the next call is stamped on it, not on a newer one the driver has read meanwhile
+        (how far a driver reads ahead of the loop is the machine's load, live, and the
+        recording's order in a replay: a stamp taken from it differs between the two)."""
+        ...
+
     def send_velocity(self, v: float, w: float) -> bool:
         """(v m/s, ω rad/s) in base_link (REP 103 FLU); False when it could not be sent."""
         ...
@@ -105,7 +112,12 @@ class CommandedBase(Driver):
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.latest: Pose2D | None = None
         self.latest_scan: Scan | None = None
+        self.acting: Pose2D | None = None  # the odometry the loop acts on (:meth:`acting_on`)
         self.counters.update(commands=0, stops=0, unsent=0, brakes=0, brakes_off=0)
+
+    def acting_on(self, odometry: Pose2D) -> None:
+        """A base whose commands carry no time (rfhoming's serial base) only keeps it."""
+        self.acting = odometry
 
     def send_velocity(self, v: float, w: float) -> bool:
         raise NotImplementedError

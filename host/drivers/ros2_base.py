@@ -6,8 +6,8 @@ serial base. Differences, by the nature of ROS 2: there is no brake mode (``brak
 counted, nothing is sent: a ROS 2 base ramps to a zero command by its own limits) and no
 command timeout on the wire -- a ROS 2 base's own cmd_vel watchdog is the second line of
 defence. A stop is published STOP_REPEATS times, so that a best-effort reader gets one. A
-TwistStamped carries the stamp of the latest odometry (robot time), so a replay writes the
-same bytes as the live run did.
+TwistStamped carries the stamp of the odometry the loop acts on (robot time; ``acting_on``), not
+of the newest the driver read, so a replay writes the same bytes as the live run did.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from rfhoming.host.portspec import PortSpec
 from rfhoming.protocol import ros2
 
 STOP_REPEATS = 3
+STAMPS_KEPT = 4096  # odometry stamps kept for acting_on: more than the loop's stream holds (assembly.INPUT_QUEUE)
 
 
 class Topics:
@@ -78,7 +79,8 @@ class Ros2BaseDriver(CommandedBase):
         self.command_timeout_ms = command_timeout_ms  # the loop's; a ROS 2 command carries none
         self.topics: Topics = getattr(port, "topics", None) or Topics.of_settings(getattr(port, "description", {}))
         self.counters.update(samples=0, bad_samples=0, other_types=0)
-        self._stamp = ros2.Stamp(0, 0)
+        self._stamp = ros2.Stamp(0, 0)  # what a TwistStamped carries: the odometry's the loop acts on
+        self._stamps: dict[float, ros2.Stamp] = {}  # of the odometries read, newest last (bounded)
         t = self.topics
         odom = t.name(t.odom)
         self.problem = (f"no {odom} ({ros2.dds_topic(odom)}) on ROS 2 domain {t.domain} yet: is the robot up, on "
@@ -111,8 +113,10 @@ class Ros2BaseDriver(CommandedBase):
             record = ros2.decode_record(data)
             if record.type == ros2.ODOMETRY:
                 odometry = ros2.decode_odometry(record.data)
-                self._stamp = odometry.stamp
                 item: Any = pose_of(odometry, t_host)
+                self._stamps[item.t_robot] = odometry.stamp
+                if len(self._stamps) > STAMPS_KEPT:
+                    del self._stamps[next(iter(self._stamps))]
                 self.latest = item
             elif record.type == ros2.LASER_SCAN:
                 item = scan_of(ros2.decode_scan(record.data), t_host)
@@ -127,6 +131,11 @@ class Ros2BaseDriver(CommandedBase):
         self.counters["samples"] += 1
         self.emit(t_host, item)
         self.out.put(item)
+
+    def acting_on(self, odometry: Pose2D) -> None:
+        """Its commands carry this odometry's stamp (exact: the one its sample carried)."""
+        super().acting_on(odometry)
+        self._stamp = self._stamps.get(odometry.t_robot) or ros2.Stamp.of(odometry.t_robot)
 
     def send_velocity(self, v: float, w: float) -> bool:
         """Publish (v m/s, ω rad/s); False (counted) when the base is not connected."""

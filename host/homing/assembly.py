@@ -135,6 +135,7 @@ class Homing:
     flow: str | None = None
     planner: Planner | None = None  # the grid's path planner (host/homing/planner.py); None: libtcod's A*
     plans_taken: dict[float, float] = field(default_factory=dict)  # a replay: when the live run's late plans took effect
+    odometry_stale_at: frozenset[tuple[float, int]] = frozenset()  # a replay: where the live run's odometry watchdog fired
 
 
 def sensor_role(plan: Homing) -> str | None:
@@ -296,10 +297,10 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
     recorded global order, the loop's writes matched against the recorded ones. ``controller``
     and ``config`` replace the recorded ones (the replay then reports where it diverged). A replay
     runs on the recorded bytes, not the wall clock, so the wall-clock odometry watchdog is off
-    (``Config.for_lockstep``): a loaded machine must not change it. A live run whose watchdog
-    fired replays with a divergence from that point: the capture holds the bytes, not their silence.
-    A plan that took effect late in the live run (on the wall clock) takes effect at the same
-    robot time in the replay: the capture notes when."""
+    (``Config.for_lockstep``): a loaded machine must not change it. Where the live run's watchdog
+    fired (the capture holds the bytes, not their silence: it notes the robot time and the items
+    taken after that odometry), the replay's fires too. A plan that took effect late in the live
+    run (on the wall clock) takes effect at the same robot time in the replay: the capture notes when."""
     interfaces, packets, _torn, comments = read_capture(path)
     record = _record(path, comments)
     specs: dict[str, list[str | None]] = {}
@@ -321,13 +322,15 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
         site = sites.parse(tomllib.loads(record["site"]), f"{path}: the recorded site") if record["site"] else None
     except tomllib.TOMLDecodeError as exc:
         raise CaptureFormatError(0, f"{path}: its run record's site file is not TOML ({exc})") from None
+    noted = notes(path)
     taken = {n["plan_asked"]: math.inf if n["plan_taken"] is None else n["plan_taken"]  # the last note of each
-             for n in notes(path) if "plan_asked" in n}
+             for n in noted if "plan_asked" in n}
+    stale = frozenset((float(n["odometry_stale"]), int(n["after_items"])) for n in noted if "odometry_stale" in n)
     return Homing(controller or record["controller"], roles,
                   (config if config is not None else from_tables(record["config"], f"{path}: the recorded config"))
                   .for_lockstep(),
                   site=site, tags=tuple(record["tags"]), choose_tag_s=record["choose_tag_s"],
-                  probe_baud=record["probe_baud"], plans_taken=taken)
+                  probe_baud=record["probe_baud"], plans_taken=taken, odometry_stale_at=stale)
 
 
 RECORD_KEYS: dict[str, type | tuple[type, ...]] = {"controller": str, "config": dict, "tags": list, "choose_tag_s": (float, int, type(None)),
@@ -387,7 +390,8 @@ def build(plan: Homing) -> Assembled:
     runlog.listeners += [sink.on_runlog for sink in plan.sinks]
     for _, driver, _ in built:
         driver.listeners += [sink.on_item for sink in plan.sinks]
-    loop = HomingLoop(base, sensors, controller, plan.config, runlog, inputs, plan.planner, plan.plans_taken)
+    loop = HomingLoop(base, sensors, controller, plan.config, runlog, inputs, plan.planner, plan.plans_taken,
+                      plan.odometry_stale_at)
     if plan.capture is not None:
         capture, port = plan.capture, base.port.name
         loop.note = lambda record: capture.note(port, time.time(), record)

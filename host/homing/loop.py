@@ -151,7 +151,8 @@ class HomingLoop:
 
     def __init__(self, base: RobotBase, sensors: list[Driver], controller: Controller, config: Config,
                  runlog: RunLog, inputs: BoundedStream[Any], planner: Planner | None = None,
-                 plans_taken: dict[float, float] | None = None) -> None:
+                 plans_taken: dict[float, float] | None = None,
+                 odometry_stale_at: frozenset[tuple[float, int]] = frozenset()) -> None:
         assert base.out is inputs and all(d.out is inputs for d in sensors), "every driver hands its items to the loop's stream"
         self.base, self.sensors, self.config = base, sensors, config
         self.controller = controller
@@ -198,6 +199,10 @@ class HomingLoop:
         self.last_odometry_wall = time.monotonic()
         self.odometry_stale = False
         self._read_while_odometry_stale = False
+        self._since_odometry = 0  # items taken since the last odometry: where the watchdog fired, with self.t
+        self.odometry_stale_at = odometry_stale_at
+        """A replay's: where the live run's wall-clock odometry watchdog fired (robot time, items
+        taken after that odometry), from the capture's notes; the replay's watchdog is off."""
         if self.speed_limit < math.inf:
             cfg = self.config.loop
             self.log.write("event", 0.0, what="no brake mode: speed bounded", v_max=round(self.speed_limit, 4),
@@ -296,6 +301,9 @@ class HomingLoop:
         if _step_clock() - self._step_began > STEP_BUDGET_S and self._wall_time_matters():
             await asyncio.sleep(0)  # lockstep and replays need not: the world waits for the host
             self._step_began = _step_clock()
+        if (self.odometry_stale_at and not self.odometry_stale
+                and (round(self.t, 6), self._since_odometry) in self.odometry_stale_at):
+            self._odometry_went_stale()  # a replay, where the live run's watchdog fired
         item = self.inputs.get_nowait()  # most items are already here: no timer, no task
         if item is None:
             try:  # asyncio.timeout, not wait_for: no task per item, and a cancellation stays one
@@ -306,11 +314,19 @@ class HomingLoop:
             self._step_began = _step_clock()
         if (not isinstance(item, Pose2D) and not self.odometry_stale
                 and time.monotonic() - self.last_odometry_wall > cfg.odometry_wall_timeout_s):
-            self.odometry_stale = True
-            log.warning("odometry stale: stopping the robot (its watchdog stops it too)")
-            self.log.write("event", self.t, what="odometry stale: stop")
-            self.base.stop()
+            if self.note is not None:  # the wall clock's doing: the capture says where, for a replay
+                self.note({"odometry_stale": round(self.t, 6), "after_items": self._since_odometry})
+            self._odometry_went_stale()
+        if item is not None:
+            self._since_odometry = 0 if isinstance(item, Pose2D) else self._since_odometry + 1
         return item
+
+    def _odometry_went_stale(self) -> None:
+        """The base has been silent too long on the wall clock: stop it, until odometry comes again."""
+        self.odometry_stale = True
+        log.warning("odometry stale: stopping the robot (its watchdog stops it too)")
+        self.log.write("event", self.t, what="odometry stale: stop")
+        self.base.stop()
 
     def _on_scan(self, scan: Scan) -> None:
         if self.avoidance is not None:
@@ -343,6 +359,7 @@ class HomingLoop:
             self.odometry_stale = False
             self.log.write("event", self.t, what="odometry fresh again")
         self._advance_clock(odo)
+        self.base.acting_on(odo)  # what it sends from here on is stamped on this odometry, live and in a replay
         if self._read_while_odometry_stale:
             # readings kept coming while the base was silent: their robot time is unknown, and the
             # newest is as old as the gap at most -- the sensor was not stale, the base was

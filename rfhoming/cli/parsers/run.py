@@ -65,6 +65,7 @@ examples:
   rfhoming run --controller rss --rss /dev/ttyACM1 --base /dev/ttyACM0
   rfhoming run --controller anchors --site site.toml --base /dev/ttyACM0
   rfhoming run --aoa serve://127.0.0.1:2948 --base /dev/ttyACM0   # share the XPLR-AOA with viewers
+  rfhoming run --aoa /dev/ttyUSB0 --base mavlink:udpin:127.0.0.1:14550,arm=1   # ArduPilot/PX4: arms it, ends in HOLD
 """
 
 
