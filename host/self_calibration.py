@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -515,15 +515,20 @@ def _hold_undetermined(cv: _CrossValidated, free: np.ndarray, held: list[dict[st
 
 def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *,
                    height: float | None = None, models: str = "auto", elevation: bool = False,
-                   progress: Callable[[str], None] = lambda _: None) -> SelfCalibration:
+                   hold: Collection[str] = (), progress: Callable[[str], None] = lambda _: None) -> SelfCalibration:
     """Each anchor's angle corrections from tags moving over the room (module docstring).
 
     ``height``: the height (m) of tags the site gives none (else each epoch's height is free
     about 1 +- 0.5 m); ``models``: "auto" scores the candidates per anchor on held-out epochs,
     "site" keeps the site's angle models (compression still scored); ``elevation``: fit each
     anchor's elevation scale and bias where observable (default: held), and then write only if
-    locate's tracker foresees the recordings better with the calibration. CalibrationError when the
-    epochs do not spread over the room or an anchor sees too narrow a span of azimuth."""
+    locate's tracker foresees the recordings better with the calibration; ``hold``: parameters
+    (NAMES) held on every anchor whatever the data say (bench/selfcal_parts.py: which parts
+    help). CalibrationError when the epochs do not spread over the room or an anchor sees too
+    narrow a span of azimuth."""
+    unknown = set(hold) - set(NAMES)
+    if unknown:
+        raise ValueError(f"hold: unknown parameters {sorted(unknown)} (of {', '.join(NAMES)})")
     progress("gathering epochs")
     ep = _gather(site, recordings, height)
     anchors = list(site.anchors)
@@ -533,8 +538,12 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
                                f"per {SELF_EPOCH_S:g} s); the recordings give {n_e}: record longer")
     _check_coverage(ep, anchors)
     base_free, held = _observable(ep, n_a, elevation)
+    for name in hold:
+        base_free[:, NAMES.index(name)] = False
+        for h in held:
+            h[name] = "held by the caller"
     site_models = [a.angle_model for a in anchors]
-    candidates = _candidates(models, site_models, n_a)
+    candidates = [c for c in _candidates(models, site_models, n_a) if not (c[2] and "az_compression" in hold)]
     # the uncalibrated site, scored on every epoch (each is held out of the fits that score it)
     plain = _Model(site, site_models, np.zeros((n_a, 5), bool))
     progress(f"{n_e} epochs, {FOLDS} folds; the uncalibrated site")
@@ -544,7 +553,7 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
     free = base_free.copy()
     free[:, 2] = chosen_comp
     for k in range(n_a):
-        if not chosen_comp[k]:
+        if not chosen_comp[k] and "az_compression" not in hold:
             held[k]["az_compression"] = "the angle model without compression won on held-out epochs"
     cv = _final_fit(site, chosen_models, free, held, ep, progress)
     sd = _jackknife(cv.folds)
