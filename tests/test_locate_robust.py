@@ -264,6 +264,22 @@ def test_self_calibration_holds_elevation_that_the_data_cannot_determine():
     assert held.write == held.held_out.improves
 
 
+def test_self_calibration_holds_what_the_caller_names():
+    """bench/selfcal_parts.py's variants: a named parameter stays at its default on every anchor,
+    with the reason; an unknown name is refused before any fit."""
+    from rfhoming.campaigns.kit import record
+    from rfhoming.host.self_calibration import self_calibrate
+
+    site = sites.load(SITE)
+    with pytest.raises(ValueError, match="az_scal"):
+        self_calibrate(site, [], hold=("az_scal",))
+    result = self_calibrate(site, [record(seed=4, duration=30.0).events], hold=("az_scale", "az_compression"))
+    for f in result.fits:
+        assert f.calibration.az_scale == 1.0 and f.calibration.az_compression == 0.0 and "az_scale" not in f.sigma
+        assert f.held["az_scale"] == f.held["az_compression"] == "held by the caller"
+    assert result.held["az_scale"] == "held by the caller"
+
+
 def test_self_calibration_asks_the_tracker_only_when_elevation_is_fitted():
     """The write rule: beating the site on held-out epochs is enough while elevation is held;
     with an elevation fitted, locate's tracker must also foresee the reports better."""
