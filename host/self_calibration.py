@@ -11,9 +11,13 @@ sparse least-squares fit (soft-L1). What keeps it honest on real rooms:
   calibration that does not beat the uncalibrated site on unseen data is not written.
 - **Only what the data determine.** A parameter that runs to its bound, or whose fold fits
   spread more than ``DETERMINED`` allows (a flat profile), is held at its default with the
-  reason; sigmas are the folds' jackknife spread, not a Jacobian at a bound. Elevation is
-  fitted only when tags of known height see elevation over ``MIN_EL_SPAN_DEG`` (high wall
-  anchors over tags at one unknown height trade the height against elevation bias).
+  reason; sigmas are the folds' jackknife spread, not a Jacobian at a bound.
+- **Elevation held unless asked for** (``elevation=True``, ``--fit-elevation``). From anchors
+  high on the walls a tag's elevation changes little over the room, and its bias trades
+  against the tag's height and range: on real walks the fitted elevation biases were the walk's
+  multipath and made the other walk worse. Asked for, it is fitted only when tags of known
+  height see elevation over ``MIN_EL_SPAN_DEG``, and the calibration must also make locate's
+  tracker foresee the recordings' reports better (``_foresight``).
 - **The angle model on unseen data.** Spherical, cone, and each with |azimuth| compression
   are scored per anchor on the held-out residual; a model replaces the site's only when it
   wins by ``MODEL_MARGIN``.
@@ -29,7 +33,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -121,11 +125,18 @@ class SelfCalibration:
     gauge: str = "the anchors' free azimuth scales have geometric mean 1 (an overall scale is not observable)"
     foresight: tuple[float, float] = (math.nan, math.nan)
     """locate's tracker on the recordings, uncalibrated and calibrated: the mean predictive log
-    density of the reports (higher: the reports foreseen better)."""
+    density of the reports (higher: the reports foreseen better); nan when not asked (no
+    elevation fitted)."""
+    held: dict[str, str] = field(default_factory=dict)
+    """Parameters held on every anchor for one reason (name -> reason): elevation by default."""
+
+    @property
+    def elevation_fitted(self) -> bool:
+        return any("el_scale" in f.sigma or "el_bias_deg" in f.sigma for f in self.fits)
 
     @property
     def write(self) -> bool:
-        return self.held_out.improves and self.foresight[1] > self.foresight[0]
+        return self.held_out.improves and (not self.elevation_fitted or self.foresight[1] > self.foresight[0])
 
 
 @dataclass
@@ -453,14 +464,22 @@ def _check_coverage(ep: _Epochs, anchors: Sequence[Anchor]) -> None:
                                    f"{SELF_MIN_AZ_SPAN_DEG:g}+ needed to tell its scale: walk the tags across its view")
 
 
-def _observable(ep: _Epochs, n_a: int) -> tuple[np.ndarray, list[dict[str, str]]]:
-    """(A, 5) which parameters the geometry lets a fit determine, and why the rest are held."""
+ELEVATION_HELD = ("held by default: from anchors high on the walls its bias trades against the tag's height and "
+                  "range, and fitted it followed one walk's multipath (--fit-elevation fits it)")
+
+
+def _observable(ep: _Epochs, n_a: int, elevation: bool) -> tuple[np.ndarray, list[dict[str, str]]]:
+    """(A, 5) which parameters the geometry (and ``elevation``: fit it at all) lets a fit
+    determine, and why the rest are held."""
     held: list[dict[str, str]] = [{"yaw_offset_deg": "moves a near-level board's azimuths like its bias: fitted "
                                                      "as the bias"} for _ in range(n_a)]
     base_free = np.zeros((n_a, 5), bool)
     base_free[:, :2] = True
     known = ~np.isnan(ep.height)
     for k in range(n_a):
+        if not elevation:
+            held[k]["el_scale"] = held[k]["el_bias_deg"] = ELEVATION_HELD
+            continue
         el_seen = ep.el[(ep.row_a == k) & known[ep.row_e]]
         el_span = float(np.percentile(el_seen, 95) - np.percentile(el_seen, 5)) if len(el_seen) >= SELF_MIN_EPOCHS else 0.0
         if el_span >= MIN_EL_SPAN_DEG:
@@ -495,14 +514,21 @@ def _hold_undetermined(cv: _CrossValidated, free: np.ndarray, held: list[dict[st
 
 
 def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *,
-                   height: float | None = None, models: str = "auto",
-                   progress: Callable[[str], None] = lambda _: None) -> SelfCalibration:
+                   height: float | None = None, models: str = "auto", elevation: bool = False,
+                   hold: Collection[str] = (), progress: Callable[[str], None] = lambda _: None) -> SelfCalibration:
     """Each anchor's angle corrections from tags moving over the room (module docstring).
 
     ``height``: the height (m) of tags the site gives none (else each epoch's height is free
     about 1 +- 0.5 m); ``models``: "auto" scores the candidates per anchor on held-out epochs,
-    "site" keeps the site's angle models (compression still scored). CalibrationError when the
-    epochs do not spread over the room or an anchor sees too narrow a span of azimuth."""
+    "site" keeps the site's angle models (compression still scored); ``elevation``: fit each
+    anchor's elevation scale and bias where observable (default: held), and then write only if
+    locate's tracker foresees the recordings better with the calibration; ``hold``: parameters
+    (NAMES) held on every anchor whatever the data say (bench/selfcal_parts.py: which parts
+    help). CalibrationError when the epochs do not spread over the room or an anchor sees too
+    narrow a span of azimuth."""
+    unknown = set(hold) - set(NAMES)
+    if unknown:
+        raise ValueError(f"hold: unknown parameters {sorted(unknown)} (of {', '.join(NAMES)})")
     progress("gathering epochs")
     ep = _gather(site, recordings, height)
     anchors = list(site.anchors)
@@ -511,9 +537,13 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
         raise CalibrationError(f"self-calibration needs {SELF_MIN_EPOCHS}+ epochs (a tag heard by 3+ anchors, one "
                                f"per {SELF_EPOCH_S:g} s); the recordings give {n_e}: record longer")
     _check_coverage(ep, anchors)
-    base_free, held = _observable(ep, n_a)
+    base_free, held = _observable(ep, n_a, elevation)
+    for name in hold:
+        base_free[:, NAMES.index(name)] = False
+        for h in held:
+            h[name] = "held by the caller"
     site_models = [a.angle_model for a in anchors]
-    candidates = _candidates(models, site_models, n_a)
+    candidates = [c for c in _candidates(models, site_models, n_a) if not (c[2] and "az_compression" in hold)]
     # the uncalibrated site, scored on every epoch (each is held out of the fits that score it)
     plain = _Model(site, site_models, np.zeros((n_a, 5), bool))
     progress(f"{n_e} epochs, {FOLDS} folds; the uncalibrated site")
@@ -523,7 +553,7 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
     free = base_free.copy()
     free[:, 2] = chosen_comp
     for k in range(n_a):
-        if not chosen_comp[k]:
+        if not chosen_comp[k] and "az_compression" not in hold:
             held[k]["az_compression"] = "the angle model without compression won on held-out epochs"
     cv = _final_fit(site, chosen_models, free, held, ep, progress)
     sd = _jackknife(cv.folds)
@@ -531,13 +561,22 @@ def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleE
     held_out = HeldOut(_rms(r0, r0), _rms(cv.r, cv.r), _rms(miss0, r0), _rms(cv.miss, cv.r))
     fits = [_anchor_fit(k, a, p, sd, free, ep, cv, r0, chosen_models[k], held[k]) for k, a in enumerate(anchors)]
     foresight = (math.nan, math.nan)
-    if held_out.improves:
+    el_fitted = bool(free[:, 3:].any())
+    if held_out.improves and el_fitted:
         progress("; locate on the recordings")
         foresight = (_foresight(site, [Calibration()] * n_a, site_models, recordings),
                      _foresight(site, [f.calibration for f in fits], [f.angle_model for f in fits], recordings))
     progress("\n")
     return SelfCalibration(fits, n_e, held_out.az_rms_before_deg, held_out.az_rms_after_deg, held_out,
-                           _verdict(held_out, foresight), scores, foresight=foresight)
+                           _verdict(held_out, foresight, el_fitted), scores, foresight=foresight,
+                           held=_held_everywhere(held))
+
+
+def _held_everywhere(held: list[dict[str, str]]) -> dict[str, str]:
+    """The parameters every anchor holds for one and the same reason (name -> reason)."""
+    if not held:
+        return {}
+    return {name: why for name, why in held[0].items() if all(h.get(name) == why for h in held[1:])}
 
 
 def _foresight(site: Site, calibrations: Sequence[Calibration], models: Sequence[str],
@@ -630,15 +669,18 @@ def _anchor_fit(k: int, a: Anchor, p: np.ndarray, sd: np.ndarray, free: np.ndarr
                      _rms(cv.r[mine_after], cv.r[mine_after]), model, sigma, held)
 
 
-def _verdict(held_out: HeldOut, foresight: tuple[float, float]) -> str:
+def _verdict(held_out: HeldOut, foresight: tuple[float, float], el_fitted: bool) -> str:
     figures = (f"held-out azimuth rms {held_out.az_rms_before_deg:.2f} -> {held_out.az_rms_after_deg:.2f} deg, "
                f"ray miss {held_out.miss_before_m:.3f} -> {held_out.miss_after_m:.3f} m")
+    if held_out.improves and not el_fitted:
+        return f"{figures} (elevation held)"
     if held_out.improves and foresight[1] > foresight[0]:
         return f"{figures}; locate's tracker foresees the reports better ({foresight[0]:.3f} -> {foresight[1]:.3f})"
     if held_out.improves:
         return (f"not written: {figures}, but locate's tracker foresees the recordings' reports worse with it "
                 f"(mean log density {foresight[0]:.3f} -> {foresight[1]:.3f}): what it fitted is this walk's "
-                "multipath, which the tracker follows anyway, not the boards'; calibrate on known points (--points)")
+                "multipath, which the tracker follows anyway, not the boards'; leave out --fit-elevation (elevation "
+                "held), or calibrate on known points (--points)")
     return (f"not written: on held-out epochs it does not beat the uncalibrated site (azimuth rms "
             f"{held_out.az_rms_before_deg:.2f} -> {held_out.az_rms_after_deg:.2f} deg, ray miss "
             f"{held_out.miss_before_m:.3f} -> {held_out.miss_after_m:.3f} m; {MIN_GAIN:.0%} cut needed): "

@@ -192,18 +192,28 @@ NOMINAL_YAW = {"west": 0.0, "east": 180.0, "south": 90.0, "north": -90.0}
 
 
 def test_self_calibration_recovers_the_emulated_boards_hidden_errors():
-    """The emulator draws each board's azimuth scale, bias and mounting yaw from the seed and
-    tells the host nothing; the walk of three tags over the room gives them back, up to the
-    gauge (the scales' geometric mean)."""
+    """The emulator draws each board's azimuth scale, bias and mounting yaw, and elevation
+    errors, from the seed and tells the host nothing; the walk of three tags (of known heights)
+    over the room gives them back with elevation fitted, up to the gauge (the scales' geometric
+    mean). By default elevation is held (reported once for every anchor) and the tracker's
+    check is not run: the boards' hidden elevation scales then leak into the azimuth fit (north's
+    scale 1.04 for 0.95), yet it still cuts the held-out azimuth rms by half and is written."""
     from rfhoming.campaigns.kit import record
     from rfhoming.host.self_calibration import self_calibrate
 
     site = sites.load(SITE)
     rec = record(seed=4, duration=30.0)
-    result = self_calibrate(site, [rec.events])
-    assert result.write and result.held_out.miss_after_m < result.held_out.miss_before_m
     truth = {t["device"]: t for t in rec.anchors_truth}
     gauge = math.exp(np.mean([math.log(t["az_scale"]) for t in truth.values()]))
+    held = self_calibrate(site, [rec.events])
+    assert held.write and held.held_out.miss_after_m < held.held_out.miss_before_m
+    assert held.held["el_scale"].startswith("held by default") and "el_bias_deg" in held.held
+    assert not held.elevation_fitted and math.isnan(held.foresight[0])
+    assert all(f.calibration.el_scale == 1.0 and f.calibration.el_bias_deg == 0.0 for f in held.fits)
+    assert held.held_out.az_rms_after_deg < 0.5 * held.held_out.az_rms_before_deg
+    result = self_calibrate(site, [rec.events], elevation=True)
+    assert result.write and result.held_out.miss_after_m < result.held_out.miss_before_m
+    assert result.elevation_fitted and result.foresight[1] > result.foresight[0]
     assert result.rms_after_deg < 0.5 * result.rms_before_deg
     for f in result.fits:
         t = truth[f.anchor]
@@ -229,8 +239,9 @@ def test_self_calibration_refuses_tags_that_did_not_cover_the_room():
 @pytest.mark.slow
 def test_self_calibration_holds_elevation_that_the_data_cannot_determine():
     """High wall anchors over tags all carried at one height nobody gave: the height and the
-    elevation bias trade off, so elevation is held, with the reason; the same walk with the
-    height given (--height) fits it."""
+    elevation bias trade off, so elevation asked for (--fit-elevation) is still held, with the
+    reason; the same walk with the height given (--height) fits it, and then the tracker's
+    check is run too; without --fit-elevation it is held by default, the check not run."""
     from rfhoming.campaigns.kit import WALL_ROOM, record
     from rfhoming.host.self_calibration import self_calibrate
 
@@ -238,12 +249,53 @@ def test_self_calibration_holds_elevation_that_the_data_cannot_determine():
     site = replace(site, anchors=tuple(replace(a, position=(*a.position[:2], 2.3)) for a in site.anchors),
                    tags=tuple(replace(t, height=None) for t in site.tags))
     rec = record(seed=5, duration=40.0, room=WALL_ROOM)
-    unknown = self_calibrate(site, [rec.events])
+    unknown = self_calibrate(site, [rec.events], elevation=True)
     for f in unknown.fits:
         assert "not observable" in f.held["el_scale"] and "el_scale" not in f.sigma
         assert f.calibration.el_scale == 1.0 and f.calibration.el_bias_deg == 0.0
-    given_height = self_calibrate(site, [rec.events], height=WALL_ROOM["tag_height_m"])
-    assert any("el_bias_deg" in f.sigma for f in given_height.fits)
+    given_height = self_calibrate(site, [rec.events], height=WALL_ROOM["tag_height_m"], elevation=True)
+    assert any("el_bias_deg" in f.sigma for f in given_height.fits) and given_height.elevation_fitted
+    assert given_height.write == (given_height.held_out.improves
+                                  and given_height.foresight[1] > given_height.foresight[0])
+    if given_height.held_out.improves:
+        assert not math.isnan(given_height.foresight[1])
+    held = self_calibrate(site, [rec.events], height=WALL_ROOM["tag_height_m"])
+    assert not held.elevation_fitted and "el_scale" in held.held and math.isnan(held.foresight[1])
+    assert held.write == held.held_out.improves
+
+
+def test_self_calibration_holds_what_the_caller_names():
+    """bench/selfcal_parts.py's variants: a named parameter stays at its default on every anchor,
+    with the reason; an unknown name is refused before any fit."""
+    from rfhoming.campaigns.kit import record
+    from rfhoming.host.self_calibration import self_calibrate
+
+    site = sites.load(SITE)
+    with pytest.raises(ValueError, match="az_scal"):
+        self_calibrate(site, [], hold=("az_scal",))
+    result = self_calibrate(site, [record(seed=4, duration=30.0).events], hold=("az_scale", "az_compression"))
+    for f in result.fits:
+        assert f.calibration.az_scale == 1.0 and f.calibration.az_compression == 0.0 and "az_scale" not in f.sigma
+        assert f.held["az_scale"] == f.held["az_compression"] == "held by the caller"
+    assert result.held["az_scale"] == "held by the caller"
+
+
+def test_self_calibration_asks_the_tracker_only_when_elevation_is_fitted():
+    """The write rule: beating the site on held-out epochs is enough while elevation is held;
+    with an elevation fitted, locate's tracker must also foresee the reports better."""
+    from rfhoming.host.calibration import AnchorFit
+    from rfhoming.host.self_calibration import HeldOut, SelfCalibration
+
+    better = HeldOut(5.0, 4.5, 0.6, 0.5)
+    azimuth = [AnchorFit("west", sites.Calibration(), 100, 5.0, 4.5, sigma={"az_bias_deg": 0.5})]
+    with_el = [AnchorFit("west", sites.Calibration(), 100, 5.0, 4.5, sigma={"az_bias_deg": 0.5, "el_bias_deg": 1.0})]
+    worse_foresight = (-5.2, -5.3)
+    assert SelfCalibration(azimuth, 100, 5.0, 4.5, better, "", foresight=worse_foresight).write
+    assert SelfCalibration(azimuth, 100, 5.0, 4.5, better, "").write  # not asked: nan
+    assert not SelfCalibration(with_el, 100, 5.0, 4.5, better, "", foresight=worse_foresight).write
+    assert not SelfCalibration(with_el, 100, 5.0, 4.5, better, "").write
+    assert SelfCalibration(with_el, 100, 5.0, 4.5, better, "", foresight=(-5.3, -5.2)).write
+    assert not SelfCalibration(azimuth, 100, 5.0, 4.9, HeldOut(5.0, 4.95, 0.6, 0.5), "").write  # under the 2 % cut
 
 
 @pytest.mark.slow
@@ -466,6 +518,13 @@ def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path)
     summary = json.loads(cli.stdout)  # one line: the verdict, each anchor's fit and what was held
     assert "geometric mean 1" in summary["gauge"] and "held-out azimuth rms" in summary["verdict"]
     assert set(summary["anchors"]) == {"west", "east", "south", "north"} and not summary["written"]
+    assert summary["held"]["el_scale"].startswith("held by default") and "el_bias_deg" in summary["held"]
+    assert all({"el_scale", "el_bias_deg"} <= set(a["held"]) for a in summary["anchors"].values())
+    fitted = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run", "--fit-elevation",
+                             "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True,
+                            timeout=300)
+    assert fitted.returncode == 0, fitted.stderr
+    assert "el_scale" not in json.loads(fitted.stdout)["held"]  # asked for: fitted (or held per anchor, with why)
     verbose = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run", "--verbose",
                               "--from", f"capture:{tmp_path / 'walk.pcapng'}"], capture_output=True, text=True,
                              timeout=300)

@@ -89,7 +89,7 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
         models = "site"
         site = replace(site, anchors=tuple(replace(a, angle_model=args.angle_model) for a in site.anchors))
     try:
-        result = self_calibrate(site, recordings, height=args.height, models=models,
+        result = self_calibrate(site, recordings, height=args.height, models=models, elevation=args.fit_elevation,
                                 progress=lambda text: print(text if text.startswith(("\n", ";", ".")) else f"; {text}",
                                                             end="", file=sys.stderr, flush=True))
     except CalibrationError as exc:
@@ -100,7 +100,7 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
         for line in anchors:
             print(json.dumps(line))
     print(json.dumps({"kind": "self_calibration", "written": result.write and not args.dry_run, "epochs": result.epochs,
-                      "verdict": result.verdict, "gauge": result.gauge,
+                      "verdict": result.verdict, "gauge": result.gauge, "held": result.held,
                       "anchors": {a["anchor"]: {k: a[k] for k in ("angle_model", "az_scale", "az_bias_deg",
                                                                   "az_compression", "el_scale", "el_bias_deg")}
                                   | {"held": sorted(a["held"])} for a in anchors}}))

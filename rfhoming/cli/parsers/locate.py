@@ -69,14 +69,16 @@ With known points (--points FILE):
 Every anchor must see three or more points (spread out, not on one line through it).
 
 Without (--self): tags walked over the whole room; each anchor's azimuth scale and bias (and
-elevation, |azimuth| compression, where the data determine them) are fitted jointly with every
-epoch's position (the scales' geometric mean is fixed to 1: an overall scale is not
-observable). The epochs are cut into 10 s blocks dealt into three folds, each scored by a fit
-of the others: the calibration is written only when it beats the uncalibrated site on these
-held-out epochs and locate's tracker foresees the recordings' reports better with it, else
-nothing is written and the verdict says why. A parameter that runs to its bound or that the
-folds do not agree on is held at its default ("held", with the reason). Refused when the tags
-did not cover the room. One progress line on stderr, one summary line on stdout (--verbose:
+|azimuth| compression, where the data determine it) are fitted jointly with every epoch's
+position (the scales' geometric mean is fixed to 1: an overall scale is not observable).
+Elevation is held (its bias trades against the tag's height from anchors high on the walls):
+--fit-elevation fits it too. The epochs are cut into 10 s blocks dealt into three folds, each
+scored by a fit of the others: the calibration is written only when it beats the uncalibrated
+site on these held-out epochs (and, with --fit-elevation, locate's tracker foresees the
+recordings' reports better with it), else nothing is written and the verdict says why. A
+parameter that runs to its bound or that the folds do not agree on is held at its default
+("held", with the reason). Refused when the tags did not cover the room. One progress line on
+stderr, one summary line on stdout (the verdict, each anchor's fit, what was held; --verbose:
 each anchor's fit, sigmas and reasons, and each device's counters).
 
 examples:
@@ -184,6 +186,10 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
                            help="the boards' angle model; auto (default): with --points the one with the smaller "
                                 "residual, with --self each anchor's winner on held-out epochs (spherical, cone, "
                                 "each with |azimuth| compression) if it beats the site file's by 3 percent")
+            p.add_argument("--fit-elevation", action="store_true",
+                           help="--self: also fit each anchor's elevation scale and bias where tags of known height "
+                                "see 10+ deg of elevation; then written only if locate's tracker also foresees the "
+                                "recordings' reports better with it (default: elevation held, reported under held)")
             p.add_argument("--height", type=tag_height, metavar="M",
                            help="--self: the height (m) of tags the site file gives none (else free about 1 m); "
                                 "elevation is fitted only from tags of known height")
