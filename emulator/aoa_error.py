@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from rfhoming.protocol.radio_profile import AngleError, AoaProfile
+from rfhoming.firmware.xplr_aoa import output_angles
+from rfhoming.protocol.radio_profile import AngleError, AoaProfile, BoardWalk, Reported
 
 FIELD_FEATURES = 256
 """Random Fourier features per field: enough that its values are Gaussian to the eye."""
@@ -129,3 +131,32 @@ class MeasuredAoa:
         az = azimuth_deg + self.azimuth.error(tag, t, azimuth_deg, azimuth_deg, board, tag_pose)
         el = elevation_deg + self.elevation.error(tag, t, elevation_deg, azimuth_deg, board, tag_pose)
         return max(-90.0, min(90.0, az)), max(-90.0, min(90.0, el))
+
+
+CALIBRATION_TAG = "CCF9578E0D8A"
+"""The tag id :func:`simulated_errors` reports (one tag per walk: any id will do)."""
+
+
+def simulated_errors(profile: AoaProfile, walk: Sequence[BoardWalk], seed: int, room_seed: int) -> list[Reported]:
+    """Each board's reports of one walk under ``profile``, as the emulator's board gives them:
+    the measured process of :class:`MeasuredAoa` (the room's field and compression factors from
+    ``room_seed``, the rest from ``seed``), then the firmware's rounding and median buffering
+    (firmware_py/xplr_aoa.py's ``output_angles``). What ``rfhoming radio-fit`` calibrates a
+    profile against (host/aoa_calibrate.py): a :data:`~rfhoming.protocol.radio_profile.Board`."""
+    rng = np.random.default_rng(seed)
+    out: list[Reported] = []
+    for b in walk:
+        board = MeasuredAoa(profile, b.board, rng, room_seed)
+        kept: list[int] = []
+        raw_az: list[float] = []
+        raw_el: list[float] = []
+        for k, (t, az, el, pose) in enumerate(zip(b.t.tolist(), b.azimuth.tolist(), b.elevation.tolist(),
+                                                  b.tag.tolist())):
+            got = board.report(CALIBRATION_TAG, t, az, el, b.pose, (pose[0], pose[1], pose[2], pose[3]))
+            if got is not None:
+                kept.append(k)
+                raw_az.append(got[0])
+                raw_el.append(got[1])
+        out.append((np.array(kept, int), np.array(output_angles(raw_az), float),
+                    np.array(output_angles(raw_el), float)))
+    return out

@@ -37,6 +37,7 @@ import copy
 import re
 import struct
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from rfhoming.protocol.uconnect import AngleEvent, Dialect, encode_angle_event, encode_answer, encode_startup
@@ -150,13 +151,17 @@ class Advertisement:
     sent, so missed packets leave gaps. None: the board counts what it heard."""
 
 
+MEDIAN_EVENTS = 3
+"""``AT+UDFCFG=8,1`` (the default): each output angle is the median of a tag's last this many raw ones."""
+
+
 @dataclass
 class _Tag:
     last_heard_ms: int
     last_event_ms: int | None = None
     seq: int = 0
-    raw_azimuths: deque[int] = field(default_factory=lambda: deque(maxlen=3))
-    raw_elevations: deque[int] = field(default_factory=lambda: deque(maxlen=3))
+    raw_azimuths: deque[int] = field(default_factory=lambda: deque(maxlen=MEDIAN_EVENTS))
+    raw_elevations: deque[int] = field(default_factory=lambda: deque(maxlen=MEDIAN_EVENTS))
 
 
 class XplrAoaFirmware:
@@ -426,6 +431,19 @@ class XplrAoaFirmware:
             dialect = Dialect.V2
         self._emit(encode_angle_event(event, dialect))
         self.counters["events"] += 1
+
+
+def output_angles(raw_deg: Sequence[float], smooth: bool = True) -> list[int]:
+    """The angles a board prints for one tag's successive measured angles (degrees): rounded,
+    clamped to +-90 and, with median buffering (``smooth``, tag 8's default), the median of the
+    last :data:`MEDIAN_EVENTS`, as :meth:`XplrAoaFirmware.on_advertisement` does one by one."""
+    buffer: deque[int] = deque(maxlen=MEDIAN_EVENTS)
+    out = []
+    for value in raw_deg:
+        raw = _clamp(round(value), -90, 90)
+        buffer.append(raw)
+        out.append(_median(buffer) if smooth else raw)
+    return out
 
 
 def _clamp(value: int, low: int, high: int) -> int:

@@ -20,14 +20,17 @@ from pathlib import Path
 
 import tomlkit
 
+import numpy as np
+
 from rfhoming.host import outputs
 from rfhoming.host.angle_residuals import residuals
+from rfhoming.host.aoa_calibrate import calibrate, walk_to_calibrate
 from rfhoming.host.aoa_fit import Walk, fit_aoa
 from rfhoming.host.groundtruth import WalkedPath, Waypoint
 from rfhoming.host.locate import Locator, smooth
 from rfhoming.host.site import Calibration, Site
 from rfhoming.protocol.errors import Error
-from rfhoming.protocol.radio_profile import Header, RadioProfile, parse, to_toml
+from rfhoming.protocol.radio_profile import Board, Header, RadioProfile, parse, to_toml
 from rfhoming.protocol.radio_profile import Recording as RecordingEntry
 from rfhoming.protocol.uconnect import AngleEvent
 
@@ -51,9 +54,13 @@ class Recording:
 
 
 def fit(site: Site, recordings: Sequence[Recording], name: str, *, tag: str | None = None,
-        height: float | None = None, description: str = "") -> tuple[RadioProfile, dict[str, object]]:
+        height: float | None = None, description: str = "", board: Board | None = None,
+        progress: Callable[[str], None] = lambda _: None) -> tuple[RadioProfile, dict[str, object]]:
     """The profile of these recordings (its ``[aoa]``), and what the fit saw; ``tag``: the walked
-    tag (the site's first by default), ``height``: its height (the site's by default)."""
+    tag (the site's first by default), ``height``: its height (the site's by default). With
+    ``board`` (the emulator's, emulator/aoa_error.py's ``simulated_errors``: the CLI passes it),
+    the direct fit is then calibrated through it on the same walks (host/aoa_calibrate.py), so
+    the emulator reproduces the recordings' statistics rather than the fit's parameters."""
     plain = replace(site, anchors=tuple(replace(a, calibration=Calibration()) for a in site.anchors))
     if tag is None and not plain.tags:
         raise RadioFitError("the site names no tag: add [tags.ID] with the walked tag's height to the site file, "
@@ -68,6 +75,12 @@ def fit(site: Site, recordings: Sequence[Recording], name: str, *, tag: str | No
             raise RadioFitError(f"{r.source}: none of its angle events is of the site's anchors and first tag "
                                 "within the truth's span: check the site file and the --truth that goes with it")
     aoa, report = fit_aoa(walks)
+    if board is not None:
+        info = plain.tag(tag or plain.tags[0].id) if (tag or plain.tags) else None
+        z = height if height is not None else info.height if info is not None and info.height is not None else 1.0
+        rng = np.random.default_rng(0)  # the schedules: fixed, so a fit is repeatable
+        to_match = [walk_to_calibrate(plain, w.id, w.path, w.residuals, z, rng) for w in walks]
+        aoa, report["calibration"] = calibrate(aoa, to_match, board, progress=progress)
     header = Header(name=name, description=description or f"fitted to {len(recordings)} recording(s) of {site.name}",
                     fitted_by=f"rfhoming radio-fit, {datetime.date.today().isoformat()}")
     entries = {r.id: RecordingEntry(r.source, r.truth_name) for r in recordings}

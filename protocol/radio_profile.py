@@ -19,10 +19,13 @@ profiles and the emulator reads them, so the format sits here, below both.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.rssi_profile import RssiProfile, RssiProfileError, sections
@@ -146,6 +149,32 @@ class AoaProfile:
     missing: Missing = field(default_factory=Missing)
     sources: dict[str, Source] = field(default_factory=dict)
     assumed: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class BoardWalk:
+    """One board's view of one walk, as ``rfhoming radio-fit``'s calibration hands it to the
+    emulator's board (host/aoa_calibrate.py, emulator/aoa_error.py's ``simulated_errors``): the
+    board's name (its compression factor and field are drawn from it and the room's seed), where
+    it is and faces (x, y, z in metres, yaw in radians), and per advertisement the time (s), the
+    true board angles (board sign, degrees) and the tag's pose (N x 4: x, y, z, heading)."""
+
+    board: str
+    pose: tuple[float, float, float, float]
+    t: np.ndarray
+    azimuth: np.ndarray
+    elevation: np.ndarray
+    tag: np.ndarray
+
+
+Reported = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""One board's reports of a walk: the indices of the advertisements it reported, and their
+azimuths and elevations as it printed them (degrees)."""
+
+Board = Callable[[AoaProfile, Sequence[BoardWalk], int, int], list[Reported]]
+"""The emulator's board as a function: (profile, one walk's boards, seed, room seed) -> each
+board's reports. The host fits profiles and cannot import the emulator, so whoever wires the
+layers (the CLI) passes it in."""
 
 
 @dataclass(frozen=True)

@@ -381,11 +381,23 @@ def test_radio_fit_writes_a_profile_every_scenario_can_take(tmp_path: Path, site
     assert list(profile.recordings) == ["walk1", "walk2"] and profile.recordings["walk2"].truth == str(tb)
     assert profile.aoa is not None and profile.aoa.elevation.bias_deg == pytest.approx(-4.0, abs=1.0)
     assert scenarios.load("kit-room", radio=str(tmp_path / "room.toml")).radio_name == "room"
+    assert "calibrated (host/aoa_calibrate.py)" in profile.aoa.sources["azimuth.slow_time_s"].how  # the CLI's board
+    assert not profile.rssi
+
+
+def test_radio_fit_copies_the_rssi_tables_it_is_told(tmp_path: Path, site_file: Path) -> None:
+    a, ta = recorded(tmp_path, "walk1", 0.0, 1)
+    done = radio_fit(site_file, "--from", f"capture:{a}", "--truth", ta, "--rssi-from", "measured", "-o", "room.toml",
+                     cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    mine, measured = load(tmp_path / "room.toml"), load("measured")
+    assert mine.rssi and {k: v.to_table() for k, v in mine.rssi.items()} == {k: v.to_table() for k, v in measured.rssi.items()}
 
 
 @pytest.mark.parametrize("extra, says", [
     (["--truth", "walk1.csv", "--truth", "walk1.csv"], "2 --truth for 1 --from"),
     (["--truth", "absent.csv"], "absent.csv"),
+    (["--rssi-from", "absent.toml"], "--rssi-from"),
 ])
 def test_radio_fit_fails_fast_with_one_line(tmp_path: Path, site_file: Path, extra: list[str], says: str) -> None:
     capture, _ = recorded(tmp_path, "walk1", 0.0, 1)

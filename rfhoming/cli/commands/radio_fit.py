@@ -1,5 +1,7 @@
 """``rfhoming radio-fit``: a radio profile from a site's recordings, each with its walk (or a
-stand-in for it), for the emulator's ``--radio PROFILE``."""
+stand-in for it), for the emulator's ``--radio PROFILE``; the fit is calibrated through the
+emulator's own board (emulator/aoa_error.py's ``simulated_errors``, handed to the host here,
+where the layers meet: host/aoa_calibrate.py)."""
 
 from __future__ import annotations
 
@@ -7,12 +9,15 @@ import argparse
 import asyncio
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from rfhoming.cli.site_sources import gather, load_site
+from rfhoming.emulator.aoa_error import simulated_errors
 from rfhoming.host.groundtruth import load_waypoints
 from rfhoming.host.radio_fit import PROXY, Recording, RadioFitError, fit, track_truth, write
+from rfhoming.protocol.radio_profile import ProfileError, load
 
 NONE = "none"
 """``--truth none``: that recording stands in for its own truth."""
@@ -21,6 +26,11 @@ NONE = "none"
 def run(args: argparse.Namespace) -> int:
     site = load_site(args.site, "radio-fit")
     if site is None:
+        return 2
+    try:  # before the recordings are read: a wrong name fails at once
+        rssi = load(args.rssi_from).rssi if args.rssi_from else None
+    except ProfileError as exc:
+        print(f"rfhoming radio-fit: --rssi-from: {exc}", file=sys.stderr)
         return 2
     if len(args.truth) > len(args.sources):
         print(f"rfhoming radio-fit: {len(args.truth)} --truth for {len(args.sources)} --from: the i-th --truth is the "
@@ -52,10 +62,13 @@ def run(args: argparse.Namespace) -> int:
               for k, (source, walk) in enumerate(zip(args.sources, walks)) if walk is not None]
     try:
         profile, report = fit(site, fitted, args.name or args.output.stem, tag=args.tag, height=args.height,
-                              description=args.description or "")
+                              description=args.description or "", board=simulated_errors,
+                              progress=lambda text: print(text, end="", file=sys.stderr, flush=True))
     except RadioFitError as exc:
         print(f"rfhoming radio-fit: {exc}", file=sys.stderr)
         return 2
+    if rssi is not None:
+        profile = replace(profile, rssi=rssi)
     write(profile, args.output)
     print(json.dumps({"kind": "radio-fit", "profile": str(args.output), "recordings": ids, **report}))
     print(f"wrote radio profile {profile.name!r} ({len(fitted)} recording(s)) to {args.output}: "
