@@ -1,0 +1,154 @@
+"""A static tag's position from many bearings taken along the robot's path, fitted robustly.
+
+Real XPLR-AOA bearings are not S0's white noise (docs/emulator.md, "Radio profiles": the
+project's measured profile): their errors have heavy tails (bursts of 15-30°), are slow (the
+same few degrees for a second or more, and over a metre or two of the room), and the board
+reads wide angles too near its boresight. S0's estimates rest on the last readings (Kohonen's
+k per reading, a 20-reading vector goal), so a slow error or a burst drags its goal along for
+as long as it lasts. Here every kept ray of the run votes:
+
+- rays are kept sparsely along the path (one per ``spacing_m`` travelled, ``spacing_deg``
+  turned or ``spacing_s`` elapsed): readings taken in one place share its slow error, and
+  many of them must not outvote the rest of the path;
+- the position minimises Σ ρ(angle residual / ``scale_deg``) over the rays, ρ the Cauchy loss
+  (``scipy.optimize.least_squares``): a burst's rays or a wrong-branch fold have bounded pull;
+- each ray's RSSI range enters too, weakly (``range_rel_sigma`` relative, the same loss): along
+  a straight approach every ray agrees and only ranges tell how far the tag is;
+- the fit is trusted (:meth:`BearingFit.estimate` gives it) once its rays span enough parallax
+  (``min_spread_deg`` of bearing change seen from the fitted point) and the fitted point is in
+  front of every ray's robust majority.
+
+Frames: world x/y in metres, bearings in radians counter-clockwise from +x.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+
+@dataclass(frozen=True)
+class Fit:
+    position: tuple[float, float]
+    rays: int
+    spread_deg: float  # the kept rays' bearings from the fitted point, max - min (parallax seen)
+    inliers: float  # the fraction of rays within 2 scales of the fitted point
+    median_residual_deg: float
+    recent_inliers: float  # the same fraction over the newest ``recent`` rays
+
+
+@dataclass
+class BearingFit:
+    """Rays (x, y, bearing, range) kept along the path; :meth:`estimate` the robust fit."""
+
+    spacing_m: float = 0.05
+    spacing_deg: float = 4.0
+    spacing_s: float = 0.25
+    max_rays: int = 600
+    min_rays: int = 25
+    scale_deg: float = 6.0
+    range_rel_sigma: float = 0.6  # a ray's RSSI range: this fraction of itself is one scale
+    min_spread_deg: float = 20.0
+    min_inliers: float = 0.5
+    refit_every: int = 5  # kept rays between fits (a fit costs a few ms)
+    recent: int = 20  # the newest rays, checked against the fit
+    min_recent_inliers: float = 0.3  # fewer of them agree with the fit: the older rays are dropped
+    _rays: deque[tuple[float, float, float, float]] | None = None
+    _last: tuple[float, float, float, float] | None = None  # t, x, y, bearing of the last kept ray
+    _fit: Fit | None = None
+    _since_fit: int = 0
+
+    def __post_init__(self) -> None:
+        self._rays = deque(maxlen=self.max_rays)
+
+    @property
+    def rays(self) -> int:
+        assert self._rays is not None
+        return len(self._rays)
+
+    def clear(self) -> None:
+        assert self._rays is not None
+        self._rays.clear()
+        self._last, self._fit, self._since_fit = None, None, 0
+
+    def add(self, t: float, x: float, y: float, bearing: float, distance: float,
+            guess: tuple[float, float] | None = None) -> bool:
+        """Keep the ray if the robot moved, turned or waited enough since the last kept one; refit
+        now and then (from ``guess``, the caller's current goal, or the last fit). True: kept."""
+        assert self._rays is not None
+        last = self._last
+        if last is not None:
+            moved = math.hypot(x - last[1], y - last[2])
+            turned = abs(math.degrees(math.remainder(bearing - last[3], 2 * math.pi)))
+            if moved < self.spacing_m and turned < self.spacing_deg and t - last[0] < self.spacing_s:
+                return False
+        self._last = (t, x, y, bearing)
+        self._rays.append((x, y, bearing, distance))
+        self._since_fit += 1
+        if len(self._rays) >= self.min_rays and (self._fit is None or self._since_fit >= self.refit_every):
+            self._since_fit = 0
+            self._fit = self.fit(guess)
+            if self._fit is not None and self._fit.recent_inliers < self.min_recent_inliers:
+                # the robot now sees the tag elsewhere than the older rays said (they were taken
+                # out of its sight, or through a doorway): forget them, the recent ones tell
+                for _ in range(len(self._rays) - self.recent):
+                    self._rays.popleft()
+                self._fit = self.fit(None)
+        return True
+
+    def estimate(self) -> tuple[float, float] | None:
+        """The fitted position once it is trusted (enough rays, parallax and agreement), else None."""
+        f = self._fit
+        if f is None or f.spread_deg < self.min_spread_deg or f.inliers < self.min_inliers:
+            return None
+        return f.position
+
+    @property
+    def last_fit(self) -> Fit | None:
+        return self._fit
+
+    def fit(self, guess: tuple[float, float] | None = None) -> Fit | None:
+        """The robust fit over every kept ray, from ``guess`` (or the last fit, or the ranges' mean
+        point); None with too few rays or a failed solve."""
+        assert self._rays is not None
+        if len(self._rays) < 2:
+            return None
+        rays = np.array(self._rays, dtype=float)
+        x, y, a, d = rays[:, 0], rays[:, 1], rays[:, 2], rays[:, 3]
+        scale = math.radians(self.scale_deg)
+        range_sigma = np.maximum(self.range_rel_sigma * d, 0.3)
+
+        def residuals(p: np.ndarray) -> np.ndarray:
+            dx, dy = p[0] - x, p[1] - y
+            angle = np.remainder(np.arctan2(dy, dx) - a + math.pi, 2 * math.pi) - math.pi
+            rng = (np.hypot(dx, dy) - d) / range_sigma
+            return np.concatenate([angle / scale, rng])
+
+        starts = []
+        if guess is not None:
+            starts.append(np.array(guess, dtype=float))
+        if self._fit is not None:
+            starts.append(np.array(self._fit.position, dtype=float))
+        starts.append(np.array([np.mean(x + d * np.cos(a)), np.mean(y + d * np.sin(a))]))  # the vector goals' mean
+        best = None
+        for start in starts:
+            try:
+                sol = least_squares(residuals, start, loss="cauchy", f_scale=1.0, max_nfev=60, x_scale=1.0)
+            except ValueError:
+                continue
+            if np.all(np.isfinite(sol.x)) and (best is None or sol.cost < best.cost):
+                best = sol
+        if best is None:
+            return None
+        p = best.x
+        seen = np.arctan2(p[1] - y, p[0] - x)
+        angle_res = np.degrees(np.abs(np.remainder(seen - a + math.pi, 2 * math.pi) - math.pi))
+        inliers = float(np.mean(angle_res < 2 * self.scale_deg))
+        mean_dir = math.atan2(float(np.mean(np.sin(seen))), float(np.mean(np.cos(seen))))
+        spread = np.degrees(np.remainder(seen - mean_dir + math.pi, 2 * math.pi) - math.pi)
+        return Fit((float(p[0]), float(p[1])), len(rays), float(np.max(spread) - np.min(spread)), inliers,
+                   float(np.median(angle_res)), float(np.mean(angle_res[-self.recent:] < 2 * self.scale_deg)))
