@@ -12,11 +12,17 @@ as long as it lasts. Here every kept ray of the run votes:
   many of them must not outvote the rest of the path;
 - the position minimises Σ ρ(angle residual / ``scale_deg``) over the rays, ρ the Cauchy loss
   (``scipy.optimize.least_squares``): a burst's rays or a wrong-branch fold have bounded pull;
+  within ``near_m`` of a ray's origin its residual shrinks to the ray's miss distance over
+  ``near_m`` (an angle seen from a point next to the robot says nothing, and a point there would
+  fit the newest rays however they point);
 - each ray's RSSI range enters too, weakly (``range_rel_sigma`` relative, the same loss): along
   a straight approach every ray agrees and only ranges tell how far the tag is;
 - the fit is trusted (:meth:`BearingFit.estimate` gives it) once its rays span enough parallax
-  (``min_spread_deg`` of bearing change seen from the fitted point) and the fitted point is in
-  front of every ray's robust majority.
+  (``min_spread_deg`` of bearing change seen from the fitted point), most rays agree with it,
+  and the bearings alone (without the ranges) place it well enough: their standard deviation,
+  inflated for the errors' correlation, below ``trust_abs_m`` + ``trust_rel`` × its distance
+  from the robot. On a straight approach only the ranges tell how far the tag is, and RSSI
+  ranges can read short: S0's own estimates are reported then.
 
 Frames: world x/y in metres, bearings in radians counter-clockwise from +x.
 """
@@ -39,6 +45,7 @@ class Fit:
     inliers: float  # the fraction of rays within 2 scales of the fitted point
     median_residual_deg: float
     recent_inliers: float  # the same fraction over the newest ``recent`` rays
+    bearing_std_m: float  # the position's largest standard deviation from the bearings alone (no ranges)
 
 
 @dataclass
@@ -57,6 +64,10 @@ class BearingFit:
     refit_every: int = 5  # kept rays between fits (a fit costs a few ms)
     recent: int = 20  # the newest rays, checked against the fit
     min_recent_inliers: float = 0.3  # fewer of them agree with the fit: the older rays are dropped
+    near_m: float = 1.0  # nearer a ray's origin than this, its residual is the miss distance / near_m
+    std_inflation: float = 1.0  # the kept rays' errors are not independent (slow errors), but the scale is generous: 1
+    trust_abs_m: float = 0.1  # trusted when the bearings alone place it within this
+    trust_rel: float = 0.15  # ... plus this fraction of its distance from the robot
     _rays: deque[tuple[float, float, float, float]] | None = None
     _last: tuple[float, float, float, float] | None = None  # t, x, y, bearing of the last kept ray
     _fit: Fit | None = None
@@ -102,9 +113,11 @@ class BearingFit:
 
     def estimate(self) -> tuple[float, float] | None:
         """The fitted position once it is trusted (enough rays, parallax and agreement), else None."""
-        f = self._fit
-        if f is None or f.spread_deg < self.min_spread_deg or f.inliers < self.min_inliers:
+        f, last = self._fit, self._last
+        if f is None or last is None or f.spread_deg < self.min_spread_deg or f.inliers < self.min_inliers:
             return None
+        if f.bearing_std_m > self.trust_abs_m + self.trust_rel * math.dist(f.position, last[1:3]):
+            return None  # the bearings alone do not place it (a straight approach: only ranges would)
         return f.position
 
     @property
@@ -125,8 +138,9 @@ class BearingFit:
         def residuals(p: np.ndarray) -> np.ndarray:
             dx, dy = p[0] - x, p[1] - y
             angle = np.remainder(np.arctan2(dy, dx) - a + math.pi, 2 * math.pi) - math.pi
-            rng = (np.hypot(dx, dy) - d) / range_sigma
-            return np.concatenate([angle / scale, rng])
+            r = np.hypot(dx, dy)
+            near = np.minimum(r / self.near_m, 1.0)  # within near_m of a ray's origin: its miss distance
+            return np.concatenate([angle * near / scale, (r - d) / range_sigma])
 
         starts = []
         if guess is not None:
@@ -150,5 +164,12 @@ class BearingFit:
         inliers = float(np.mean(angle_res < 2 * self.scale_deg))
         mean_dir = math.atan2(float(np.mean(np.sin(seen))), float(np.mean(np.cos(seen))))
         spread = np.degrees(np.remainder(seen - mean_dir + math.pi, 2 * math.pi) - math.pi)
+        j = best.jac[:len(rays)]  # the angle rows, as the loss weighs them at the solution
+        try:
+            cov = np.linalg.inv(j.T @ j)
+            std = float(np.sqrt(max(float(np.max(np.linalg.eigvalsh(cov))), 0.0))) * self.std_inflation
+        except np.linalg.LinAlgError:
+            std = math.inf
         return Fit((float(p[0]), float(p[1])), len(rays), float(np.max(spread) - np.min(spread)), inliers,
-                   float(np.median(angle_res)), float(np.mean(angle_res[-self.recent:] < 2 * self.scale_deg)))
+                   float(np.median(angle_res)), float(np.mean(angle_res[-self.recent:] < 2 * self.scale_deg)),
+                   std if math.isfinite(std) else math.inf)

@@ -281,7 +281,8 @@ class S0Homing:
                  and math.dist(self.g_p, self.g_v) < p.arrival_agreement)
         if self.fitted is not None and self.g_v is not None:  # the fit reported: the vector goal confirms it
             agree = math.dist(self.fitted, self.g_v) < p.arrival_agreement
-        if d_g < p.arrival_radius and (agree or (self.g_p is None and len(self._raw) == self._raw.maxlen)):
+        no_parallax = self.g_p is None and self.fitted is None and len(self._raw) == self._raw.maxlen
+        if d_g < p.arrival_radius and (agree or no_parallax):
             return Decision(0.0, 0.0, goal, True, "arrived")
         if steer_to is not None:
             dx, dy = steer_to[0] - pose.x, steer_to[1] - pose.y
