@@ -164,7 +164,7 @@ class BearingFit:
         inliers = float(np.mean(angle_res < 2 * self.scale_deg))
         mean_dir = math.atan2(float(np.mean(np.sin(seen))), float(np.mean(np.cos(seen))))
         spread = np.degrees(np.remainder(seen - mean_dir + math.pi, 2 * math.pi) - math.pi)
-        j = best.jac[:len(rays)]  # the angle rows, as the loss weighs them at the solution
+        j = np.asarray(best.jac, dtype=float)[:len(rays)]  # the angle rows, as the loss weighs them at the solution
         try:
             cov = np.linalg.inv(j.T @ j)
             std = float(np.sqrt(max(float(np.max(np.linalg.eigvalsh(cov))), 0.0))) * self.std_inflation
