@@ -103,3 +103,18 @@ def test_s0_reports_the_fit_and_a_slow_error_does_not_drag_it() -> None:
         reports[robust] = math.dist(ctrl.reported, TAG)
         assert (ctrl.fitted is not None) is robust
     assert reports[True] < 0.3 < reports[False] and 3 * reports[True] < reports[False]
+
+
+def test_rays_from_beside_the_fit_do_not_vouch_for_it() -> None:
+    """A robot that turns and creeps 0.4 m, 1.1 m from the tag, with ±20° bearing noise (S0's
+    configuration 5) and RSSI ranges that read short: a point beside the robot is "seen" from
+    every side by its own rays, but nothing taken from afar places it: no estimate."""
+    rng = np.random.default_rng(1)
+    fit = BearingFit(min_rays=10, refit_every=1)
+    tag = (1.1, 0.2)
+    for k in range(60):
+        x, y = 0.0, 0.4 * k / 60
+        a = math.atan2(tag[1] - y, tag[0] - x) + math.radians(rng.uniform(-20, 20))
+        fit.add(0.3 * k, x, y, a, 0.3 * float(rng.lognormal(0.0, 0.3)))
+    assert fit.last_fit is not None
+    assert fit.estimate() is None

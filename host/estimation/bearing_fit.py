@@ -41,7 +41,7 @@ from scipy.optimize import least_squares
 class Fit:
     position: tuple[float, float]
     rays: int
-    spread_deg: float  # the kept rays' bearings from the fitted point, max - min (parallax seen)
+    spread_deg: float  # the bearings of the rays taken near_m or farther, seen from the fitted point, max - min
     inliers: float  # the fraction of rays within 2 scales of the fitted point
     median_residual_deg: float
     recent_inliers: float  # the same fraction over the newest ``recent`` rays
@@ -162,14 +162,20 @@ class BearingFit:
         seen = np.arctan2(p[1] - y, p[0] - x)
         angle_res = np.degrees(np.abs(np.remainder(seen - a + math.pi, 2 * math.pi) - math.pi))
         inliers = float(np.mean(angle_res < 2 * self.scale_deg))
-        mean_dir = math.atan2(float(np.mean(np.sin(seen))), float(np.mean(np.cos(seen))))
-        spread = np.degrees(np.remainder(seen - mean_dir + math.pi, 2 * math.pi) - math.pi)
-        j = np.asarray(best.jac, dtype=float)[:len(rays)]  # the angle rows, as the loss weighs them at the solution
-        try:
-            cov = np.linalg.inv(j.T @ j)
-            std = float(np.sqrt(max(float(np.max(np.linalg.eigvalsh(cov))), 0.0))) * self.std_inflation
-        except np.linalg.LinAlgError:
-            std = math.inf
-        return Fit((float(p[0]), float(p[1])), len(rays), float(np.max(spread) - np.min(spread)), inliers,
+        # parallax and precision from the rays taken at least near_m away only: rays from beside
+        # the fitted point would vouch for any point there (their residuals are miss distances)
+        far = np.hypot(p[0] - x, p[1] - y) >= self.near_m
+        std, spread_deg = math.inf, 0.0
+        if np.count_nonzero(far) >= max(2, self.min_rays // 2):
+            mean_dir = math.atan2(float(np.mean(np.sin(seen[far]))), float(np.mean(np.cos(seen[far]))))
+            spread = np.degrees(np.remainder(seen[far] - mean_dir + math.pi, 2 * math.pi) - math.pi)
+            spread_deg = float(np.max(spread) - np.min(spread))
+            j = np.asarray(best.jac, dtype=float)[:len(rays)][far]  # their angle rows, as the loss weighs them
+            try:
+                cov = np.linalg.inv(j.T @ j)
+                std = float(np.sqrt(max(float(np.max(np.linalg.eigvalsh(cov))), 0.0))) * self.std_inflation
+            except np.linalg.LinAlgError:
+                std = math.inf
+        return Fit((float(p[0]), float(p[1])), len(rays), spread_deg, inliers,
                    float(np.median(angle_res)), float(np.mean(angle_res[-self.recent:] < 2 * self.scale_deg)),
                    std if math.isfinite(std) else math.inf)
