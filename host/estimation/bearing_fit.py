@@ -17,11 +17,12 @@ as long as it lasts. Here every kept ray of the run votes:
   fit the newest rays however they point);
 - each ray's RSSI range enters too, weakly (``range_rel_sigma`` relative, the same loss): along
   a straight approach every ray agrees and only ranges tell how far the tag is;
-- the fit is trusted (:meth:`BearingFit.estimate` gives it) once its rays span enough parallax
-  (``min_spread_deg`` of bearing change seen from the fitted point), most rays agree with it,
-  and the bearings alone (without the ranges) place it well enough: their standard deviation,
-  inflated for the errors' correlation, below ``trust_abs_m`` + ``trust_rel`` × its distance
-  from the robot. On a straight approach only the ranges tell how far the tag is, and RSSI
+- the fit is trusted (:meth:`BearingFit.estimate` gives it) once most rays agree with it and,
+  counting only the rays taken ``near_m`` or farther from it (the robot's own rays beside a
+  point vouch for any point there), they span enough parallax (``min_spread_deg`` of bearing
+  change seen from the fitted point) and the bearings alone (without the ranges) place it well
+  enough: their standard deviation (times ``std_inflation``) below ``trust_abs_m`` +
+  ``trust_rel`` × its distance from the robot. On a straight approach only the ranges tell how far the tag is, and RSSI
   ranges can read short: S0's own estimates are reported then.
 
 Frames: world x/y in metres, bearings in radians counter-clockwise from +x.
