@@ -49,3 +49,27 @@ def test_no_window_is_the_papers_instant_stop() -> None:
     dock = DockController(S1Params(rssi_arrival_dbm=-51.0, align=False, confirm_s=0.0))
     _, decision = _feed(dock, 0.0, [-51] * 10)
     assert decision.arrived
+
+
+def test_the_last_try_docks() -> None:
+    """Standing readings that never confirm: the third confirmation docks anyway (stepping on
+    for ever would carry the robot past the station)."""
+    dock = DockController(PARAMS)
+    t, decision = _feed(dock, 0.0, [-51] * 10)
+    tries = 0
+    for _ in range(10):
+        t, decision = _feed(dock, t, [-57] * 60 + [-51] * 10)  # stand, then a lucky stretch again
+        tries += 1
+        if decision.arrived:
+            break
+    assert dock.confirmed and decision.arrived and tries == 3
+
+
+def test_a_confirmation_runs_its_window_even_if_the_average_rises() -> None:
+    """The moving average rises above alpha a moment after the robot stopped: it keeps
+    standing until the window is over, rather than stepping on from the average."""
+    dock = DockController(PARAMS)
+    t, decision = _feed(dock, 0.0, [-51] * 10)
+    t, decision = _feed(dock, t, [-60] * 5)
+    assert dock.rssi_diff > PARAMS.alpha_db
+    assert decision.v == 0.0 and decision.w == 0.0 and decision.note.startswith("confirming")

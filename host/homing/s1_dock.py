@@ -19,9 +19,10 @@ then a turn of −sign(AoA), and a drift of AoA by ΔAoA is corrected by −G_a�
 
 Beyond the paper: confirmation. RSSI_diff ≤ α on the moving average taken while driving can be
 one lucky stretch of a heavy-tailed channel (a real board's): the robot stops and stands
-``confirm_s``, and is docked only if the median of the RSSI received while it stands is within
-α of the arrival RSSI; otherwise it takes a step from that figure and goes on
-(``confirm_s = 0``: the paper's instant stop).
+``confirm_s``, and is docked only if the mean of the RSSI received while it stands is within
+α of the arrival RSSI; otherwise it takes a step from that figure and goes on, and the
+``confirm_tries``-th confirmation docks whatever it says (``confirm_s = 0``: the paper's
+instant stop).
 
 Beyond the paper: final heading. S1's steps steer the robot's position onto the station's
 axis but nothing aligns its heading (the paper's trial ended 12.5° off). Every reading is also a
@@ -73,6 +74,7 @@ class S1Params:
     mission_stop_m: float = setting(0.8, low=0, high=100, unit=M)  # the mission stage stops this far from mission_goal
     confirm_s: float = setting(1.0, low=0, high=60, unit=S)  # stand this long and confirm RSSI_diff <= alpha on the standing readings (0: the paper's instant stop)
     confirm_settle_s: float = setting(0.2, low=0, high=10, unit=S)  # readings this soon after stopping are left out of the confirmation
+    confirm_tries: int = setting(3, low=1, high=100, unit="confirmations")  # the last one docks whatever it says (steps past the station only lose it)
 
 
 class DockController(ControllerDefaults):
@@ -96,6 +98,7 @@ class DockController(ControllerDefaults):
         self._standing: list[float] = []  # confirming: the raw RSSI received while it stands
         self.confirmed = False  # RSSI_diff <= alpha held on the standing readings
         self._hold_until = 0  # after a failed confirmation, the moving average is not trusted before this reading
+        self._tries = 0  # confirmations taken
 
     @property
     def phase(self) -> str:
@@ -149,7 +152,8 @@ class DockController(ControllerDefaults):
         p = self.params
         if self.stage != "docking" or self.rssi is None:
             return self._mission(pose)
-        if not self.confirmed and self.rssi_diff <= p.alpha_db and self.readings >= self._hold_until:
+        standing = self._standing_since is not None  # a confirmation, once begun, runs its window
+        if not self.confirmed and (standing or (self.rssi_diff <= p.alpha_db and self.readings >= self._hold_until)):
             confirming = self._confirm(pose)
             if confirming is not None:
                 return confirming
@@ -176,8 +180,8 @@ class DockController(ControllerDefaults):
         return Decision(v, max(-p.w_max, min(p.w_max, 1.5 * turn)), (x, y), False, "driving")
 
     def _confirm(self, pose: Pose) -> Decision | None:
-        """Docked only if the readings received while the robot stands say so: their median RSSI
-        within alpha of the arrival RSSI. A moving average taken while driving can dip under
+        """Docked only if the readings received while the robot stands say so: their mean RSSI
+        within alpha of the arrival RSSI (or on the last try). A moving average taken while driving can dip under
         alpha on one lucky stretch of a heavy-tailed channel. None: confirmed (or no window)."""
         p = self.params
         if p.confirm_s <= 0:
@@ -189,9 +193,10 @@ class DockController(ControllerDefaults):
         assert self._standing_since is not None and self._t is not None
         if self._t - self._standing_since < p.confirm_s or len(self._standing) < 3:
             return Decision(0.0, 0.0, (pose.x, pose.y), False, "confirming: standing")
-        diff = p.rssi_arrival_dbm - float(np.median(self._standing))
+        diff = p.rssi_arrival_dbm - float(np.mean(self._standing))  # the mean, as the calibration's and S1's averages
         self._standing_since, self._standing = None, []
-        if diff <= p.alpha_db:
+        self._tries += 1
+        if diff <= p.alpha_db or self._tries >= p.confirm_tries:
             self.confirmed = True
             return None
         self._hold_until = self.readings + p.n  # a step from the standing figure, then fresh readings
