@@ -30,6 +30,12 @@ paper's rule and report):
   from a calibration. Without one, a link whose ranges read short by a factor makes every
   older (farther) reading land shorter still, and the mean trails the tag further than the
   hybrid does. The campaigns calibrate first and turn it on.
+- robust fit (``robust_fit``, on; off restores S0's estimates): every few centimetres of path a
+  ray is kept, and the tag's position fitted to all of them with a Cauchy loss
+  (:mod:`rfhoming.host.estimation.bearing_fit`) is reported once the bearings alone place it
+  (parallax from rays taken a metre or more away); a real board's bursts and slow errors
+  otherwise drag S0's last-readings estimates. With the fit reported, arrival needs the
+  vector goal within ``arrival_agreement`` of it.
 Arrival also needs g_p, or a full buffer of vector goals when no parallax formed: one noisy
 first reading must not end a run.
 
