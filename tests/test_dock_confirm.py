@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.homing.s1_dock import DockController, S1Params
 from rfhoming.host.homing.types import Decision, Pose
@@ -73,3 +75,18 @@ def test_a_confirmation_runs_its_window_even_if_the_average_rises() -> None:
     t, decision = _feed(dock, t, [-60] * 5)
     assert dock.rssi_diff > PARAMS.alpha_db
     assert decision.v == 0.0 and decision.w == 0.0 and decision.note.startswith("confirming")
+
+
+def test_a_failed_confirmation_steps_on_a_little() -> None:
+    """Standing 9 dB short asks S1's rule for a 0.4 m step (0.08 m/dB, capped); after a failed
+    confirmation the robot may stand at the docked pose with a weak link, and steps 0.1 m."""
+    dock = DockController(PARAMS)
+    t, decision = _feed(dock, 0.0, [-51] * 10)
+    decisions = []
+    for r in [-60] * 60:
+        dock.on_input(t, POSE, _reading(t, r))
+        decisions.append(dock.decide(POSE))
+        t += 0.02
+    stepped = [d for d in decisions if d.note == "not confirmed: stepping on"]
+    assert len(stepped) == 1 and stepped[0].goal is not None
+    assert math.dist(stepped[0].goal, (POSE.x, POSE.y)) <= PARAMS.confirm_step_m + 1e-9 < PARAMS.max_step_m

@@ -20,7 +20,9 @@ then a turn of −sign(AoA), and a drift of AoA by ΔAoA is corrected by −G_a�
 Beyond the paper: confirmation. RSSI_diff ≤ α on the moving average taken while driving can be
 one lucky stretch of a heavy-tailed channel (a real board's): the robot stops and stands
 ``confirm_s``, and is docked only if the mean of the RSSI received while it stands is within
-α of the arrival RSSI; otherwise it takes a step from that figure and goes on, and the
+α of the arrival RSSI; otherwise it takes a step from that figure, at most ``confirm_step_m``
+(it may stand at the docked pose already, and the station's link read weak: a full step
+carried a measured-radio trial past the station, out of its docking stage), and goes on; the
 ``confirm_tries``-th confirmation docks whatever it says (``confirm_s = 0``: the paper's
 instant stop).
 
@@ -75,6 +77,7 @@ class S1Params:
     confirm_s: float = setting(1.0, low=0, high=60, unit=S)  # stand this long and confirm RSSI_diff <= alpha on the standing readings (0: the paper's instant stop)
     confirm_settle_s: float = setting(0.2, low=0, high=10, unit=S)  # readings this soon after stopping are left out of the confirmation
     confirm_tries: int = setting(3, low=1, high=100, unit="confirmations")  # the last one docks whatever it says (steps past the station only lose it)
+    confirm_step_m: float = setting(0.1, low=0, high=10, unit=M)  # the step after a failed confirmation, at most (the robot may stand at the docked pose already: a full step carries it past the station)
 
 
 class DockController(ControllerDefaults):
@@ -132,7 +135,7 @@ class DockController(ControllerDefaults):
             self.stage, self._step, self._standing_since = "mission", None, None
         return {"rssi": e.rssi1, "azimuth": e.azimuth, "rssi_ma": round(self.rssi, 2), "aoa_ma": round(self.aoa, 2)}
 
-    def _next_step(self, pose: Pose, diff: float | None = None) -> None:
+    def _next_step(self, pose: Pose, diff: float | None = None, cap_m: float | None = None) -> None:
         p = self.params
         diff = self.rssi_diff if diff is None else diff
         aoa = self.aoa or 0.0
@@ -143,7 +146,7 @@ class DockController(ControllerDefaults):
         else:
             d_aoa = 0.0 if self._aoa_prev_step is None else aoa - self._aoa_prev_step
             heading = wrap_rad(pose.theta - math.radians(p.g_a * diff * d_aoa))
-        step = min(p.g_d * diff, p.max_step_m)
+        step = min(p.g_d * diff, p.max_step_m if cap_m is None else cap_m)
         self._step = (pose.x + step * math.cos(heading), pose.y + step * math.sin(heading), heading)
         self._aoa_prev_step = aoa
         self.steps += 1
@@ -200,7 +203,7 @@ class DockController(ControllerDefaults):
             self.confirmed = True
             return None
         self._hold_until = self.readings + p.n  # a step from the standing figure, then fresh readings
-        self._next_step(pose, diff)
+        self._next_step(pose, diff, p.confirm_step_m)
         return Decision(0.0, 0.0, self._step[:2] if self._step else None, False, "not confirmed: stepping on")
 
     def _mission(self, pose: Pose) -> Decision:
