@@ -10,6 +10,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from rfhoming.emulator import arrival
 from rfhoming.emulator.links import PipeEnd, pipe_end
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import Scenario
@@ -119,6 +120,10 @@ async def _run(scenario: Scenario, config: Config, seed: int, timeout_s: float, 
     return Run(outcome, trajectory, em, time.perf_counter() - wall0)
 
 
+ARRIVED_M = 1.0
+"""A run succeeds with the robot this near the target and in its line of sight (S0's metric)."""
+
+
 def run(scenario: Scenario, config: Config, seed: int, timeout_s: float = 600.0, runlog: RunLog | None = None) -> Run:
     """Run one homing to its end (arrival or the config's time limit).
 
@@ -136,7 +141,8 @@ def metrics(run_: Run, target: tuple[float, float]) -> dict[str, Any]:
     final = math.dist((x, y), target)
     goal = run_.outcome.goal
     t = run_.outcome.robot_time_s
-    return {"arrived": run_.outcome.arrived, "success": run_.outcome.arrived and final < 1.0,
+    seen = arrival.arrived((x, y), target, ARRIVED_M, [o.polygon for o in run_.emulator.world.obstacles])
+    return {"arrived": run_.outcome.arrived, "success": run_.outcome.arrived and seen,
             "time_s": round(t, 3), "net_velocity_mps": round(straight / t, 4) if t > 0 else None,
             "goal_error_m": None if goal is None else round(math.dist(goal, target), 4),
             "final_error_m": round(final, 4),

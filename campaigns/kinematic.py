@@ -13,12 +13,14 @@ from typing import Any
 
 import numpy as np
 
+from rfhoming.emulator import arrival
 from rfhoming.emulator.world import Pose as WorldPose
 from rfhoming.firmware.robot_base import BaseLimits
 from rfhoming.host.estimation.fixed import wrap_rad
 from rfhoming.host.homing.s0_aoa import S0Homing, S0Params
 from rfhoming.host.homing.types import Pose
 
+ARRIVED_M = 1.0  # success: this near the target (open field: always in its line of sight)
 LIMITS = BaseLimits()  # the emulated base's speed and acceleration limits
 READING_S, CONTROL_S = 0.02, 0.1  # the tag's 50 Hz, the loop's 10 Hz
 
@@ -65,7 +67,7 @@ def home(target: tuple[float, float], angle_deg: float, distance_rel: float, dis
             travelled += math.hypot(robot.x - x0, robot.y - y0)
     straight = math.hypot(robot.x, robot.y)
     final = math.dist((robot.x, robot.y), target)
-    return {"arrived": arrived, "success": arrived and final < 1.0, "time_s": round(t, 3),
+    return {"arrived": arrived, "success": arrived and arrival.arrived((robot.x, robot.y), target, ARRIVED_M, []), "time_s": round(t, 3),
             "net_velocity_mps": round(straight / t, 4) if t > 0 else None,
             "goal_error_m": None if goal is None else round(math.dist(goal, target), 4),
             "final_error_m": round(final, 4),

@@ -41,8 +41,9 @@ MODE_LABELS = {"idealised-10hz-paper": "S0's method, idealised, 10 Hz (k 0.8)",
                "idealised-50hz-paper": "S0's method, idealised, 50 Hz (k 0.8)",
                "idealised": "ours, idealised, 50 Hz (k 0.3 + near-goal and ray fusion)",
                "realistic": "ours, emulated XPLR-AOA, 50 Hz, calibrated RSSI (as ours at 50 Hz)"}
-PAPER_S0 = S0Params(k=0.8, close_fusion_m=0.0, ray_fusion=False)
-"""S0's estimator: the paper's k per reading, its hybrid's report, none of our fusions."""
+PAPER_S0 = S0Params(k=0.8, close_fusion_m=0.0, ray_fusion=False, robust_fit=False)
+"""S0's estimator: the paper's k per reading, its hybrid's report, none of our fusions (nor our
+robust fit of the path's bearings)."""
 PARAMS = {"idealised-10hz-paper": (replace(PAPER_S0, folded=False), 0.1),
           "idealised-10hz": (S0Params(folded=False, k=0.8, ray_fusion=True), 0.1),
           "idealised-50hz-paper": (replace(PAPER_S0, folded=False), kinematic.READING_S),

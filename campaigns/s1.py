@@ -45,7 +45,8 @@ the fit, per-link bias; docs/RESULTS.md, "Estimation on real recordings") and is
 def host_config(mode: str, seed: int, noise: str = "real-data", radio: str = "ideal") -> Config:
     """The host's config for one mode, its radio constants from a calibration session."""
     fit = calibration.cached(SCENARIO, seed, None, NOISE[noise], radio)
-    s1 = replace(Config().s1, align=MODES[mode], rssi_arrival_dbm=round(fit.stop_dbm, 2), path_n=round(fit.n, 3),
+    s1 = replace(Config().s1, align=MODES[mode], confirm_s=Config().s1.confirm_s if MODES[mode] else 0.0,
+                 rssi_arrival_dbm=round(fit.stop_dbm, 2), path_n=round(fit.n, 3),
                  enter_dbm=round(fit.stop_dbm - 22.0, 2), leave_dbm=round(fit.stop_dbm - 25.0, 2),
                  mission_goal=STATION_ON_MAP)
     return replace(Config(), s1=s1)
@@ -123,7 +124,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
              "heading_error_deg": mean(r, "heading_error_deg", 2),
              "max_heading_error_deg": round(max(x["heading_error_deg"] for x in r), 2)}
         summary[f"{noise}/{mode}"] = s
-        label = ("S1's rule" if mode == "paper" else "ours: S1's rule + final alignment") + f", {noise} noise"
+        label = ("S1's rule" if mode == "paper" else "ours: S1's rule + standing confirmation + final alignment") + f", {noise} noise"
         lines.append([f"{label}, simulated ({s['trials']} trials, {s['groups']} groups)", s["docked_pct"], s["time_s"],
                       s["paper_final_error_m"], s["paper_max_final_error_m"], s["paper_heading_error_deg"],
                       s["paper_max_heading_error_deg"]])

@@ -29,6 +29,7 @@ import numpy as np
 from rfhoming.campaigns import calibration, closed_loop
 from rfhoming.campaigns.report import failed_runs, figure, grouped_bars, mean, save, table
 from rfhoming.campaigns.runner import Campaign, Job, Report
+from rfhoming.emulator import arrival
 from rfhoming.emulator.scenario import load
 from rfhoming.host.homing.config import Config, LoopSettings
 from rfhoming.host.homing.loop import RunLog
@@ -91,7 +92,8 @@ def run(scenario: str, system: str, seed: int, campaign_seed: int = 0, radio: st
     x, y, _ = result.robot
     final = math.dist((x, y), target)
     return {"scenario": scenario, "system": system, "seed": seed, "arrived": result.outcome.arrived,
-            "success": result.outcome.arrived and final < SUCCESS_M, "time_s": round(result.outcome.robot_time_s, 2),
+            "success": result.outcome.arrived and arrival.arrived((x, y), target, SUCCESS_M,
+                                                                  [o.polygon for o in sc.world.obstacles]), "time_s": round(result.outcome.robot_time_s, 2),
             "final_error_m": round(final, 3), "path_m": round(result.trajectory.length_m, 2),
             "instant_error_m": None if instant is None else round(instant, 3),
             "filtered_error_m": None if filtered is None else round(filtered, 3)}

@@ -16,6 +16,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from rfhoming.emulator.arrival import TARGET_CLEARANCE_M, clearance
 from rfhoming.emulator.links import not_plain
 from rfhoming.emulator.radio import AoaModel, PathLossModel
 from rfhoming.emulator.world import Obstacle, Pose, Target, World
@@ -113,13 +114,16 @@ def _timetable(rows: Any, where: str) -> list[tuple[float, float, float]]:
 
 
 def _random_free_point(bounds: tuple[float, ...], obstacles: list[Obstacle], rng: np.random.Generator,
-                       margin: float = 1.0) -> tuple[float, float]:
+                       margin: float = 1.0, clear_m: float = TARGET_CLEARANCE_M) -> tuple[float, float]:
+    """A point ``margin`` inside the bounds and ``clear_m`` from every obstacle
+    (:mod:`rfhoming.emulator.arrival`: a robot can stand beside it, in its line of sight)."""
     x0, y0, x1, y1 = bounds
+    polygons = [o.polygon for o in obstacles]
     for _ in range(1000):
         p = (float(rng.uniform(x0 + margin, x1 - margin)), float(rng.uniform(y0 + margin, y1 - margin)))
-        if not any(o.contains(*p) for o in obstacles):
+        if clearance(p, polygons) >= clear_m:
             return p
-    raise ScenarioError("no free point for a random target: the bounds are full of obstacles")
+    raise ScenarioError(f"no free point for a random target: nowhere in the bounds is {clear_m} m from every obstacle")
 
 
 BLE_RECEIVERS = tuple(name for name, (kind, _) in devices.BOARDS.items() if "ble" in kind.roles)

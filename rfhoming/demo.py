@@ -52,6 +52,8 @@ S4_PAPER = {"mean_m": 0.234, "p95_below_m": 0.65}
 """S4's EKF over 10,000 simulated beacons: mean error 0.234 m, 95 % below 0.65 m."""
 SURVEY_TIME_S = 600.0
 """S4's pattern takes 260 s at 0.2 m/s: a survey run's time limit is at least this."""
+ARRIVED_M = 1.0
+"""A run succeeds with the robot this near the tag (and in its line of sight)."""
 ARM = ",arm=1"
 """The demo arms the emulated MAVLink vehicle: rfhoming never arms one unless told (arm=1), and
 the demo tells it for the emulator's vehicle only."""
@@ -200,6 +202,11 @@ def localisation(runlog_path: Path, targets: list[dict[str, Any]]) -> dict[str, 
 
 
 def summarise(outcome: Outcome, truth_path: Path, links: dict[str, Any], goal: list[float] | None = None) -> dict[str, Any]:
+    """The run against the truth file. Success: the host said it arrived and, by the truth,
+    it did (:mod:`rfhoming.emulator.arrival`: within ``ARRIVED_M`` of the tag, in its line of
+    sight)."""
+    from rfhoming.emulator import arrival  # geometry only: no emulator runs for this
+
     header, states = read_truth(truth_path)
     target = states[-1]["targets"][0] if goal is None else {"x": goal[0], "y": goal[1]}
     start, end = states[0]["robot"], states[-1]["robot"]
@@ -213,7 +220,8 @@ def summarise(outcome: Outcome, truth_path: Path, links: dict[str, Any], goal: l
     return {
         "scenario": header["scenario"],
         **({"localisation": located} if header["scenario"] in SURVEYS else {}),
-        "success": outcome.arrived and final_error < 1.0,
+        "success": outcome.arrived and arrival.arrived((end["x"], end["y"]), (target["x"], target["y"]), ARRIVED_M,
+                                                       header.get("obstacles", [])),
         "reason": outcome.reason,
         "simulated_time_s": round(outcome.robot_time_s, 2),
         "target": [target["x"], target["y"]],

@@ -69,7 +69,7 @@ def test_s0_method_rows_run_the_papers_estimator() -> None:
     fusions -- so that the tables set it beside ours, not a tuned copy."""
     for mode in ("idealised-10hz-paper", "idealised-50hz-paper"):
         params, _ = s0.PARAMS[mode]
-        assert (params.k, params.close_fusion_m, params.ray_fusion) == (0.8, 0.0, False)
+        assert (params.k, params.close_fusion_m, params.ray_fusion, params.robust_fit) == (0.8, 0.0, False, False)
     assert s0.PARAMS["idealised-10hz-paper"][1] == 0.1
     assert s0.PAPER_S0.folded  # the house runs the board: S0's estimator behind the fold handling
 

@@ -30,6 +30,12 @@ paper's rule and report):
   from a calibration. Without one, a link whose ranges read short by a factor makes every
   older (farther) reading land shorter still, and the mean trails the tag further than the
   hybrid does. The campaigns calibrate first and turn it on.
+- robust fit (``robust_fit``, on; off restores S0's estimates): every few centimetres of path a
+  ray is kept, and the tag's position fitted to all of them with a Cauchy loss
+  (:mod:`rfhoming.host.estimation.bearing_fit`) is reported once the bearings alone place it
+  (parallax from rays taken a metre or more away); a real board's bursts and slow errors
+  otherwise drag S0's last-readings estimates. With the fit reported, arrival needs the
+  vector goal within ``arrival_agreement`` of it.
 Arrival also needs g_p, or a full buffer of vector goals when no parallax formed: one noisy
 first reading must not end a run.
 
@@ -53,6 +59,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.estimation.bearing_fit import BearingFit
 from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update
 from rfhoming.host.estimation.fixed import wrap_rad
 from rfhoming.host.estimation.ranging import LogDistance
@@ -85,6 +92,7 @@ class S0Params:
     close_fusion_gain: float = setting(0.1, low=0, high=1, unit="(fraction per reading)")
     ray_fusion: bool = setting(False)  # report the fusion of readings near the goal (needs calibrated ranges)
     fusion_min_readings: int = setting(10, low=1, high=10000, unit="readings")  # readings near the goal before the fusion is reported
+    robust_fit: bool = setting(True)  # report the robust fit of the path's bearings once trusted (host/estimation/bearing_fit.py; False: S0's estimates alone)
 
 
 @dataclass
@@ -104,6 +112,8 @@ class S0Homing:
     _raw: deque[tuple[float, float]] = field(init=False)  # the last ``buffer`` raw vector goals
     _weights: list[float] = field(init=False)  # g_v's weights, newest first
     _fusion: RayRangeFusion | None = field(init=False)  # ours: every reading near the goal
+    _fit: BearingFit | None = field(init=False)  # ours: the robust fit of the path's bearings
+    fitted: tuple[float, float] | None = None  # its trusted estimate, None before it is trusted
     _sums: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # Σx, Σy, Σx², Σy² of _raw
     _z_outlier: bool = False
     _first: _Ray | None = None
@@ -119,6 +129,7 @@ class S0Homing:
         self._raw = deque(maxlen=self.params.buffer)
         self._weights = [math.exp(-k / self.params.tau) for k in range(self.params.buffer)]
         self._fusion = RayRangeFusion() if self.params.ray_fusion else None
+        self._fit = BearingFit() if self.params.robust_fit else None
 
     def world_bearing(self, pose: Pose, theta_s: float) -> float:
         """The reading's world bearing under the current front/back choice."""
@@ -163,6 +174,12 @@ class S0Homing:
         self._update_parallax(pose, alpha)
         previous = self.reported
         self._hybrid(pose)
+        if self._fit is not None:
+            self._fit.add(t, pose.x, pose.y, alpha, distance, guess=self.fitted or self.reported)
+            self.fitted = self._fit.estimate()
+            if self.fitted is not None:
+                self.reported = self.fitted
+                return  # the path's bearings outvote the last few readings (and the fusion's ranges)
         if self._fusion is not None:
             self._fusion.add(t, pose.x, pose.y, alpha, distance, previous)
             fused = self._fusion.estimate()
@@ -268,7 +285,10 @@ class S0Homing:
         d_g = math.hypot(dx, dy)
         agree = (self.g_v is not None and self.g_p is not None
                  and math.dist(self.g_p, self.g_v) < p.arrival_agreement)
-        if d_g < p.arrival_radius and (agree or (self.g_p is None and len(self._raw) == self._raw.maxlen)):
+        if self.fitted is not None and self.g_v is not None:  # the fit reported: the vector goal confirms it
+            agree = math.dist(self.fitted, self.g_v) < p.arrival_agreement
+        no_parallax = self.g_p is None and self.fitted is None and len(self._raw) == self._raw.maxlen
+        if d_g < p.arrival_radius and (agree or no_parallax):
             return Decision(0.0, 0.0, goal, True, "arrived")
         if steer_to is not None:
             dx, dy = steer_to[0] - pose.x, steer_to[1] - pose.y

@@ -17,6 +17,15 @@ Signs (the paper gives none): the station's array faces the approaching robot an
 azimuth negative when the robot is to the station's left; turning toward the station's axis is
 then a turn of −sign(AoA), and a drift of AoA by ΔAoA is corrected by −G_a·RSSI_diff·ΔAoA.
 
+Beyond the paper: confirmation. RSSI_diff ≤ α on the moving average taken while driving can be
+one lucky stretch of a heavy-tailed channel (a real board's): the robot stops and stands
+``confirm_s``, and is docked only if the mean of the RSSI received while it stands is within
+α of the arrival RSSI; otherwise it takes a step from that figure, at most ``confirm_step_m``
+(it may stand at the docked pose already, and the station's link read weak: a full step
+carried a measured-radio trial past the station, out of its docking stage), and goes on; the
+``confirm_tries``-th confirmation docks whatever it says (``confirm_s = 0``: the paper's
+instant stop).
+
 Beyond the paper: final heading. S1's steps steer the robot's position onto the station's
 axis but nothing aligns its heading (the paper's trial ended 12.5° off). Every reading is also a
 point of the robot in the station's frame (range from RSSI with ``path_n`` and the arrival
@@ -37,7 +46,7 @@ import numpy as np
 from rfhoming.host.drivers.aoa import TimedAngle
 from rfhoming.host.estimation.filters import MovingAverage
 from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
-from rfhoming.host.homing.schema import DB, DBM, DEG, M_S, RAD_S, M, setting
+from rfhoming.host.homing.schema import DB, DBM, DEG, M_S, RAD_S, M, S, setting
 from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose, velocity_law
 
 
@@ -65,6 +74,10 @@ class S1Params:
     align_min_spread_m: float = setting(0.5, low=0, high=100, unit=M)  # the fit needs the robot to have moved this far along the approach
     mission_goal: tuple[float, float] | None = setting(None, low=-10000, high=10000, unit=M)  # the station on the robot's map (mission stage)
     mission_stop_m: float = setting(0.8, low=0, high=100, unit=M)  # the mission stage stops this far from mission_goal
+    confirm_s: float = setting(1.0, low=0, high=60, unit=S)  # stand this long and confirm RSSI_diff <= alpha on the standing readings (0: the paper's instant stop)
+    confirm_settle_s: float = setting(0.2, low=0, high=10, unit=S)  # readings this soon after stopping are left out of the confirmation
+    confirm_tries: int = setting(3, low=1, high=100, unit="confirmations")  # the last one docks whatever it says (steps past the station only lose it)
+    confirm_step_m: float = setting(0.1, low=0, high=10, unit=M)  # the step after a failed confirmation, at most (the robot may stand at the docked pose already: a full step carries it past the station)
 
 
 class DockController(ControllerDefaults):
@@ -83,6 +96,12 @@ class DockController(ControllerDefaults):
         self.steps = 0
         self._pairs: deque[tuple[float, float, float, float]] = deque(maxlen=2000)  # odometry x, y; station-frame x, y
         self.axis: float | None = None  # the fitted approach heading, set when aligning
+        self._t: float | None = None  # the newest reading's time
+        self._standing_since: float | None = None  # confirming: when the robot stopped
+        self._standing: list[float] = []  # confirming: the raw RSSI received while it stands
+        self.confirmed = False  # RSSI_diff <= alpha held on the standing readings
+        self._hold_until = 0  # after a failed confirmation, the moving average is not trusted before this reading
+        self._tries = 0  # confirmations taken
 
     @property
     def phase(self) -> str:
@@ -100,6 +119,9 @@ class DockController(ControllerDefaults):
         if not isinstance(item, TimedAngle):
             return None
         e = item.event
+        self._t = t
+        if self._standing_since is not None and t - self._standing_since >= self.params.confirm_settle_s:
+            self._standing.append(float(e.rssi1))
         self.rssi = from_q8(self._rssi.update(to_q8(e.rssi1)))
         self.aoa = from_q8(self._aoa.update(to_q8(e.azimuth)))
         self.readings += 1
@@ -110,12 +132,12 @@ class DockController(ControllerDefaults):
         if self.stage == "mission" and self.rssi > p.enter_dbm and self.readings >= p.n:
             self.stage = "docking"
         elif self.stage == "docking" and self.rssi < p.leave_dbm:
-            self.stage, self._step = "mission", None
+            self.stage, self._step, self._standing_since = "mission", None, None
         return {"rssi": e.rssi1, "azimuth": e.azimuth, "rssi_ma": round(self.rssi, 2), "aoa_ma": round(self.aoa, 2)}
 
-    def _next_step(self, pose: Pose) -> None:
+    def _next_step(self, pose: Pose, diff: float | None = None, cap_m: float | None = None) -> None:
         p = self.params
-        diff = self.rssi_diff
+        diff = self.rssi_diff if diff is None else diff
         aoa = self.aoa or 0.0
         if diff < p.beta_db and abs(aoa) > p.gamma_deg:
             # re-align: rotate δ toward the axis *before* the step (a rotation alone leaves the
@@ -124,7 +146,7 @@ class DockController(ControllerDefaults):
         else:
             d_aoa = 0.0 if self._aoa_prev_step is None else aoa - self._aoa_prev_step
             heading = wrap_rad(pose.theta - math.radians(p.g_a * diff * d_aoa))
-        step = min(p.g_d * diff, p.max_step_m)
+        step = min(p.g_d * diff, p.max_step_m if cap_m is None else cap_m)
         self._step = (pose.x + step * math.cos(heading), pose.y + step * math.sin(heading), heading)
         self._aoa_prev_step = aoa
         self.steps += 1
@@ -133,7 +155,12 @@ class DockController(ControllerDefaults):
         p = self.params
         if self.stage != "docking" or self.rssi is None:
             return self._mission(pose)
-        if self.rssi_diff <= p.alpha_db or self.axis is not None:
+        standing = self._standing_since is not None  # a confirmation, once begun, runs its window
+        if not self.confirmed and (standing or (self.rssi_diff <= p.alpha_db and self.readings >= self._hold_until)):
+            confirming = self._confirm(pose)
+            if confirming is not None:
+                return confirming
+        if self.confirmed or self.axis is not None:
             if p.align and self.axis is None:
                 self.axis = self.approach_heading()
             if self.axis is not None:
@@ -154,6 +181,30 @@ class DockController(ControllerDefaults):
             return Decision(0.0, 0.0, (x, y), False, "step done")
         v = max(p.v_min, min(p.v_max, remaining))
         return Decision(v, max(-p.w_max, min(p.w_max, 1.5 * turn)), (x, y), False, "driving")
+
+    def _confirm(self, pose: Pose) -> Decision | None:
+        """Docked only if the readings received while the robot stands say so: their mean RSSI
+        within alpha of the arrival RSSI (or on the last try). A moving average taken while driving can dip under
+        alpha on one lucky stretch of a heavy-tailed channel. None: confirmed (or no window)."""
+        p = self.params
+        if p.confirm_s <= 0:
+            self.confirmed = True
+            return None
+        if self._standing_since is None:
+            self._standing_since, self._standing = self._t, []
+            self._step = None
+        assert self._standing_since is not None and self._t is not None
+        if self._t - self._standing_since < p.confirm_s or len(self._standing) < 3:
+            return Decision(0.0, 0.0, (pose.x, pose.y), False, "confirming: standing")
+        diff = p.rssi_arrival_dbm - float(np.mean(self._standing))  # the mean, as the calibration's and S1's averages
+        self._standing_since, self._standing = None, []
+        self._tries += 1
+        if diff <= p.alpha_db or self._tries >= p.confirm_tries:
+            self.confirmed = True
+            return None
+        self._hold_until = self.readings + p.n  # a step from the standing figure, then fresh readings
+        self._next_step(pose, diff, p.confirm_step_m)
+        return Decision(0.0, 0.0, self._step[:2] if self._step else None, False, "not confirmed: stepping on")
 
     def _mission(self, pose: Pose) -> Decision:
         """Before the docking stage: toward the station on the map (S1's mission stage), or wait."""
