@@ -8,6 +8,7 @@ S4's EKF (mean 0.234 m, 95 % below 0.65 m), for the forward EKF and for the EKF 
 the smoother, with each run's arrival and final distance to the beacon it held over.
 
     python bench/s4_air_bench.py --seeds 1-5 --json
+    python bench/s4_air_bench.py --seeds 1-5 --radio measured   # radios as bad as real ones
 """
 
 from __future__ import annotations
@@ -55,6 +56,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=seeds, default=seeds("1-5"), help="N or N-M (default 1-5)")
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    parser.add_argument("--radio", default="ideal", metavar="ideal|measured|PROFILE",
+                        help="the emulated radios, as demo --radio (default ideal: S4's own radio)")
     args = parser.parse_args()
     load_before = os.getloadavg()
     runs, pooled = [], {"beacons": [], "smoothed": []}
@@ -62,7 +65,7 @@ def main() -> int:
         for seed in args.seeds:
             out = Path(tmp) / str(seed)
             done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--scenario", "s4-air", "--in-process",
-                                   "--seed", str(seed), "--json", "--out", str(out)],
+                                   "--seed", str(seed), "--radio", args.radio, "--json", "--out", str(out)],
                                   capture_output=True, text=True, timeout=1800)
             if done.returncode not in (0, 1):
                 print(f"s4_air_bench: seed {seed}: {done.stderr.strip().splitlines()[-1:]}", file=sys.stderr)
@@ -74,7 +77,7 @@ def main() -> int:
                          "final_position_error_m": summary["final_position_error_m"],
                          "localisation": summary["localisation"]})
     report = {"runs": runs, "ekf": stats(pooled["beacons"]), "ekf_smoothed": stats(pooled["smoothed"]),
-              "s4_paper": PAPER, "load_before": [round(v, 2) for v in load_before],
+              "s4_paper": PAPER, "radio": args.radio, "load_before": [round(v, 2) for v in load_before],
               "load_after": [round(v, 2) for v in os.getloadavg()]}
     if args.json:
         print(json.dumps(report))
