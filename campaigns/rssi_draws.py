@@ -1,7 +1,9 @@
 """Measured RSSI for the campaigns that simulate their paper's radio themselves (s3-arena,
 s4-montecarlo): under ``--radio measured|PROFILE`` their RSSI draws come from a radio profile's
-``[rssi.NAME]`` table (protocol/rssi_profile.py), through the emulator's measured channel
-(emulator/measured_rssi.py), instead of the paper's idealised noise.
+``[rssi.NAME]`` table (protocol/rssi_profile.py) instead of the paper's idealised noise. Each
+link's draws are the emulator's measured channel's (emulator/measured_rssi.py); S3 reads through
+that channel reading by reading, S4's flights (a million readings a job) step the same
+processes over all links at once (:func:`turned_db`, :func:`shadowing_db`, :class:`TimeProcesses`).
 
 The campaign keeps its paper's mean power (its path-loss law, its table of means); the profile
 gives what real receivers add to it: each link's exponent about the pivot and its offset, the

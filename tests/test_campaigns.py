@@ -274,3 +274,38 @@ def test_a_profile_without_the_papers_radio_takes_the_nearest_marked_assumed(tmp
     assert "rssi" not in tomllib.loads((tmp_path / "none.toml").read_text())
     with pytest.raises(CampaignError, match=r"no \[rssi.ble\] table"):
         rssi_draws.rssi_radio(str(tmp_path / "none.toml"), "ble")
+
+
+def test_s4s_vectorised_link_draws_are_the_measured_channels() -> None:
+    from rfhoming.campaigns import rssi_draws
+
+    radio = rssi_draws.rssi_radio("measured", "ble")
+    assert radio is not None
+    ch = rssi_draws.channel(radio, 2.0, np.random.default_rng(5))
+    link = ("beacon3", "receiver1")
+    ends = np.array([[1.0, 2.0, 0.5, 0.25], [1.0, 2.0, 3.0, 4.0], [0.0, 0.0, 2.0, 6.0]])
+    expected = [ch.shadowing_db(link, ((e[0], e[1]), (e[2], e[3]))) for e in ends]
+    assert np.allclose(rssi_draws.shadowing_db(ch, link, ends), expected) and np.ptp(expected) > 0
+    state = ch.link(link)
+    e = radio.rssi.exponent
+    d = np.array([0.5, e.pivot_m, 3.0])
+    turn = rssi_draws.turned_db(ch, link, d)
+    assert turn[1] == pytest.approx(state.offset_db)  # at the pivot only the offset
+    assert turn[0] == pytest.approx(state.offset_db - 10 * (state.exponent - 2.0) * math.log10(e.near_m / e.pivot_m))
+
+
+def test_s4s_time_processes_hold_the_tables_variance_correlation_and_losses() -> None:
+    from rfhoming.campaigns import rssi_draws
+
+    radio = rssi_draws.rssi_radio("measured", "ble")
+    assert radio is not None
+    r = radio.rssi.residual
+    ch = rssi_draws.channel(radio, 2.0, np.random.default_rng(1))
+    time = rssi_draws.TimeProcesses(ch, np.full(300, 0.15), 0.1, np.random.default_rng(2))
+    noise = np.array([time.noise() for _ in range(1500)])
+    missed = np.array([time.missed() for _ in range(1500)])
+    assert noise.std() == pytest.approx(math.hypot(r.sd_db, r.white_sd_db), rel=0.03)
+    lag1 = np.mean(noise[1:] * noise[:-1]) / noise.var()
+    assert lag1 == pytest.approx(r.sd_db**2 * math.exp(-0.1 / r.time_s) / (r.sd_db**2 + r.white_sd_db**2), abs=0.03)
+    assert missed.mean() == pytest.approx(0.15, abs=0.01)
+    assert np.mean(missed[1:] & missed[:-1]) > 0.15**2 * 2  # in bursts: a loss follows a loss more than by chance
