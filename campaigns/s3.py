@@ -13,21 +13,31 @@ S3 reports one measurement per test point; here every fix is one measurement (5 
 Kalman-filtered RSSI per beacon), repeated ``runs`` times per point to give its spread. The
 arena's size is not given: the beacons sit at the corners of a 6 m and of a 7 m square (the
 test points must lie inside), and both are shown.
+
+Under ``--radio measured|PROFILE`` (campaigns/rssi_draws.py) the readings keep Table I's mean
+but the noise about it is the profile's BLE receivers' (S3's ESP32 scanners hear BLE beacons:
+``[rssi.ble]``), in place of Table I's std and the per-fix bias: each beacon link's exponent
+(about Table I's mean, turned with S3's n = 2.7) and offset, the shadowing at where beacon and
+receiver stand, the correlated residual and white noise at 10 Hz, and the readings lost (a
+filter sees only the readings it got). Every fix draws its own links from its job's seed.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rfhoming.campaigns import rssi_draws
 from rfhoming.campaigns.report import figure, save, table
 from rfhoming.campaigns.runner import Campaign, Job, Report
 from rfhoming.host.estimation.bearings import Degenerate
 from rfhoming.host.estimation.filters import ema_batch, kalman_batch, running_median_batch
 from rfhoming.host.estimation.lateration import multilaterate, strongest_three, trilaterate
 from rfhoming.host.estimation.ranging import Exponential, LogDistance
+from rfhoming.protocol.radio_profile import IDEAL
 
 TABLE1_D = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0])
 TABLE1_MEAN = np.array([-17.04, -44.80, -64.30, -69.48, -75.62, -76.92, -79.44, -79.60, -83.84, -79.45, -87.23])
@@ -45,25 +55,65 @@ BEYOND_TABLE = LogDistance(-64.3, 2.7, 1.0)  # the simulated radio beyond Table 
 LINK_SIGMA_DB = 3.0
 SAMPLES = 500  # per distance, as in Table I
 FIX_SAMPLES = 50  # RSSI samples per beacon behind one position fix (5 s at 10 Hz)
+READ_S = 0.1  # between readings (10 Hz): the measured residual and losses run in time
+PAPER_RADIO = "ble"  # S3's receivers: ESP32 BLE scanners hearing BLE beacons ([rssi.ble] of a profile)
+IDEAL_NOISE = ("ideal: Table I's std per distance (integer dBm) and a per-beacon bias σ 3 dB drawn once per fix "
+               "(the paper's noise)")
+
+
+def mean_at(distance: np.ndarray) -> np.ndarray:
+    """Table I's mean at each distance (beyond 5 m continued by the fit)."""
+    d = np.asarray(distance, float)
+    return np.asarray(np.where(d <= 5.0, np.interp(d, TABLE1_D, TABLE1_MEAN), BEYOND_TABLE.rssi(np.maximum(d, 1e-3))),
+                      float)
 
 
 def rssi_at(distance: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     """(n, len(distance)) integer RSSI with Table I's mean and std at each distance (beyond 5 m
     the last std, the mean continued by the fit)."""
     d = np.asarray(distance, float)
-    mean = np.where(d <= 5.0, np.interp(d, TABLE1_D, TABLE1_MEAN), BEYOND_TABLE.rssi(np.maximum(d, 1e-3)))
     std = np.interp(np.minimum(d, 5.0), TABLE1_D, TABLE1_STD)
-    return np.asarray(np.round(mean + std * rng.standard_normal((n, len(d)))), float)
+    return np.asarray(np.round(mean_at(d) + std * rng.standard_normal((n, len(d)))), float)
 
 
-def filters_run(seed: int) -> dict[str, Any]:
-    """Each filter's output std per Table I distance, after a 20-sample settling."""
-    rng = np.random.default_rng(seed)
-    raw = rssi_at(TABLE1_D, SAMPLES, rng)
+def measured_rssi(ends: np.ndarray, n: int, radio: rssi_draws.Radio, rng: np.random.Generator
+                  ) -> list[np.ndarray]:
+    """Each link's integer RSSI over ``n`` readings ``READ_S`` apart under a measured radio,
+    the lost readings left out. ``ends``: (links, 4), beacon x, y and receiver x, y; the mean
+    is Table I's at their distance."""
+    ch = rssi_draws.channel(radio, BEYOND_TABLE.n, rng)
+    out = []
+    for i, (bx, by, rx, ry) in enumerate(np.asarray(ends, float)):
+        link, d = (f"beacon{i}", "receiver"), math.hypot(bx - rx, by - ry)
+        mean = float(mean_at(np.array([d]))[0])
+        got = [round(ch.sample(link, mean, t=k * READ_S, ends=((bx, by), (rx, ry)), distance_m=d))
+               for k in range(n) if not ch.lost(link, k * READ_S)]
+        out.append(np.array(got, float))
+    return out
+
+
+def _kalman_last(raw: np.ndarray) -> float:
+    return float(kalman_batch((raw.reshape(-1, 1) * 256).astype(np.int64), 0.05, 16.0)[-1, 0] / 256)
+
+
+def _filtered(raw: np.ndarray) -> dict[str, np.ndarray]:
     q8 = (raw * 256).astype(np.int64)
-    out = {"raw": raw, "median": running_median_batch(q8, 5) / 256, "ema": ema_batch(q8, 3) / 256,
-           "kalman": kalman_batch(q8, 0.05, 16.0) / 256}
-    return {"kind": "filters", **{k: np.round(v[20:].std(axis=0), 4).tolist() for k, v in out.items()}}
+    return {"raw": raw, "median": running_median_batch(q8, 5) / 256, "ema": ema_batch(q8, 3) / 256,
+            "kalman": kalman_batch(q8, 0.05, 16.0) / 256}
+
+
+def filters_run(seed: int, radio: str = IDEAL) -> dict[str, Any]:
+    """Each filter's output std per Table I distance, after a 20-sample settling (under a
+    measured radio: one beacon at each distance, the readings it got of 500 at 10 Hz)."""
+    rng = np.random.default_rng(seed)
+    measured = rssi_draws.rssi_radio(radio, PAPER_RADIO)
+    if measured is None:
+        out = _filtered(rssi_at(TABLE1_D, SAMPLES, rng))
+        return {"kind": "filters", **{k: np.round(v[20:].std(axis=0), 4).tolist() for k, v in out.items()}}
+    ends = np.column_stack([TABLE1_D, np.zeros((len(TABLE1_D), 3))])
+    columns = [_filtered(raw.reshape(-1, 1)) for raw in measured_rssi(ends, SAMPLES, measured, rng)]
+    return {"kind": "filters", **{k: [round(float(c[k][20:].std()), 4) for c in columns] for k in FILTERS},
+            "radios": measured.describe(PAPER_RADIO)}
 
 
 def anchors(arena: str) -> np.ndarray:
@@ -71,23 +121,34 @@ def anchors(arena: str) -> np.ndarray:
     return np.array([[-h, -h], [h, -h], [h, h], [-h, h]])
 
 
-def point_run(point: int, seed: int, arena: str = "6 m") -> dict[str, Any]:
-    """One fix at test point ``point``: Kalman-filtered RSSI per beacon -> ranges -> both methods."""
+def point_run(point: int, seed: int, arena: str = "6 m", radio: str = IDEAL) -> dict[str, Any]:
+    """One fix at test point ``point``: Kalman-filtered RSSI per beacon -> ranges -> both methods
+    (on the beacons heard: under a measured radio a beacon may miss every reading)."""
     rng = np.random.default_rng(seed)
     truth = np.array(POINTS[point])
     ANCHORS = anchors(arena)
     d = np.linalg.norm(ANCHORS - truth, axis=1)
-    raw = rssi_at(d, FIX_SAMPLES, rng) + np.round(rng.normal(0, LINK_SIGMA_DB, len(d)))
-    rssi = kalman_batch((raw * 256).astype(np.int64), 0.05, 16.0)[-1] / 256
-    ranges = np.asarray(RANGING.distance(rssi), float)
+    measured = rssi_draws.rssi_radio(radio, PAPER_RADIO)
     row: dict[str, Any] = {"kind": "fix", "point": point, "arena": arena}
+    if measured is None:
+        raw = rssi_at(d, FIX_SAMPLES, rng) + np.round(rng.normal(0, LINK_SIGMA_DB, len(d)))
+        rssi = kalman_batch((raw * 256).astype(np.int64), 0.05, 16.0)[-1] / 256
+    else:
+        ends = np.column_stack([ANCHORS, np.broadcast_to(truth, ANCHORS.shape)])
+        rssi = np.array([_kalman_last(r) if len(r) else np.nan for r in measured_rssi(ends, FIX_SAMPLES, measured, rng)])
+        row["radios"] = measured.describe(PAPER_RADIO)
+    heard = np.flatnonzero(~np.isnan(rssi))  # what the receiver measured: nothing else
+    beacons, rssi = ANCHORS[heard], rssi[heard]
+    ranges = np.asarray(RANGING.distance(rssi), float)
     try:
+        if len(heard) < 3:
+            raise Degenerate("fewer than three beacons heard")
         top = strongest_three(rssi)
-        row["trilateration_m"] = round(float(np.linalg.norm(trilaterate(ANCHORS[top], ranges[top]) - truth)), 4)
+        row["trilateration_m"] = round(float(np.linalg.norm(trilaterate(beacons[top], ranges[top]) - truth)), 4)
     except Degenerate:
         row["trilateration_m"] = None
     try:
-        row["multilateration_m"] = round(float(np.linalg.norm(multilaterate(ANCHORS, ranges) - truth)), 4)
+        row["multilateration_m"] = round(float(np.linalg.norm(multilaterate(beacons, ranges) - truth)), 4)
     except Degenerate:
         row["multilateration_m"] = None
     return row
@@ -109,9 +170,11 @@ METHODS = ("trilateration", "multilateration")
 
 def report(rows: list[dict[str, Any]]) -> Report:
     filt = next(r for r in rows if r["kind"] == "filters")
-    md = _filters_section(filt)
+    radios = radios_line(filt.get("radios"))
+    md = radios + "\n\n" + _filters_section(filt)
     fixes = [r for r in rows if r["kind"] == "fix"]
-    summary: dict[str, Any] = {"filters_std_db": {n: filt[n] for n in FILTERS}, "arenas": {}}
+    summary: dict[str, Any] = {"radios": filt.get("radios", {"radio": IDEAL, "noise": IDEAL_NOISE}),
+                               "filters_std_db": {n: filt[n] for n in FILTERS}, "arenas": {}}
     for arena in ARENAS:
         entries = [_point_entry(fixes, p, xy, arena) for p, xy in enumerate(POINTS)]
         summary["arenas"][arena] = _arena_summary(entries)
@@ -122,10 +185,22 @@ def report(rows: list[dict[str, Any]]) -> Report:
     return Report(summary, md, lambda path: _plot(path, filt, summary))
 
 
+def radios_line(radios: dict[str, str] | None) -> str:
+    """Which radios the readings came from (the paper's noise, or a profile's table)."""
+    if radios is None:
+        return f"Radios: {IDEAL_NOISE}."
+    line = (f"Radios: {radios['radio']}: S3's BLE receivers take the profile's [rssi.{radios['rssi_table']}] "
+            "about Table I's mean (link exponent and offset, shadowing, correlated residual, white noise, losses) "
+            "in place of Table I's std and the per-fix bias")
+    return line + (f"; *assumed*: {radios['assumed']}." if radios["assumed"] else ".")
+
+
 def _filters_section(filt: dict[str, Any]) -> str:
     """Table I's RSSI spread at each distance after each filter, beside the paper's."""
     lines = [[f"{d:g}", TABLE1_STD[i], *(filt[n][i] for n in FILTERS)] for i, d in enumerate(TABLE1_D)]
-    md = "RSSI std (dB) at each Table I distance, 500 samples, after each filter:\n\n"
+    md = ("RSSI std (dB) at each Table I distance, 500 samples, after each filter:\n\n" if "radios" not in filt else
+          "RSSI std (dB) at each Table I distance (one beacon link each, standing), 500 readings at 10 Hz less the lost "
+          "ones, after each filter:\n\n")
     md += table(["distance m", "paper raw std", "ours raw", "median(5)", "EMA 1/8", "Kalman"], lines)
     md += (f"\n\nPaper: Kalman-filtered std {PAPER_KALMAN_STD[0]}–{PAPER_KALMAN_STD[1]} dB; ours "
            f"{min(filt['kalman']):.3f}–{max(filt['kalman']):.3f} dB.\n\n")
@@ -204,4 +279,4 @@ def _plot(path: Path, filt: dict[str, Any], summary: dict[str, Any]) -> None:
 
 
 CAMPAIGN = Campaign("s3-arena", "S3: RSSI filters on Table I's noise; trilateration vs multilateration",
-                    "fixes per test point (in each arena size)", 100, jobs, report)
+                    "fixes per test point (in each arena size)", 100, jobs, report, radios=True)

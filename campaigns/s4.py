@@ -10,6 +10,13 @@ plus χ ~ N(μχ, 5) dB with μχ = ±2 dB drawn 50/50 once per beacon-receiver 
 filter R = 9 dB² is that mixture's variance, 4 + 5); nothing is heard beyond 4 m. The filters are told Q = 0.05 I,
 R = 0.05 I and 9 dB², and start from S4's circle-intersection initialiser (n_init = 30,
 c_f = 3, c_w = 500).
+
+Under ``--radio measured|PROFILE`` (campaigns/rssi_draws.py) the RSSI keeps the thesis's law
+(P0, n = 2: what the filters are told) and the 4 m range, but the noise about it is the
+profile's BLE receivers' (S4's receivers hear BLE beacons: ``[rssi.ble]``) in place of χ: each
+beacon-receiver link's exponent and offset, the shadowing over where beacon and receiver are
+(the same place, the same shadowing), the correlated residual and white noise at 10 Hz, and the
+readings lost (NaN, as unheard). The flights and beacons are the ideal run's of the same seed.
 """
 
 from __future__ import annotations
@@ -21,10 +28,12 @@ from typing import Any
 
 import numpy as np
 
+from rfhoming.campaigns import rssi_draws
 from rfhoming.campaigns.report import figure, save, table
 from rfhoming.campaigns.runner import Campaign, Job, Report
 from rfhoming.host.estimation.beacon import (BeaconEkf, BeaconUkf, CircleInitializer, S4Model, initial_state, jacobian,
                                              measure, refine_batch)
+from rfhoming.protocol.radio_profile import IDEAL
 
 PAPER = {"ekf": {"mean_m": 0.234, "p95_m": 0.65, "max_m": 2.0, "total_s": 868},
          "ukf": {"mean_m": 0.243, "p95_m": 0.65, "max_m": 2.0, "total_s": 1658}}
@@ -35,6 +44,8 @@ STEPS, DT, SPEED = 3200, 0.1, 0.2
 FORMATION = np.array([[0.0, 0.0], [0.6, 0.0], [0.0, 0.6]]) - 0.2  # centred on the path
 TRUE_Q, TRUE_R_POS, RSSI_VAR, BIAS_DB, R_MAX = 0.01, 0.01, 5.0, 2.0, 4.0
 MODEL = S4Model()  # what the filters are told: Q 0.05, R 0.05 and 9 dB²
+PAPER_RADIO = "ble"  # S4's receivers hear BLE beacons ([rssi.ble] of a profile)
+IDEAL_NOISE = ("ideal: the thesis's χ ~ N(±2 dB per link, 5 dB²) about P0 −40.23 dBm, n 2 (the paper's noise)")
 
 
 def lawnmower(steps: int = STEPS) -> np.ndarray:
@@ -51,10 +62,13 @@ def lawnmower(steps: int = STEPS) -> np.ndarray:
     return np.stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])], axis=1)
 
 
-def flights(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def flights(n: int, seed: int, radio: str = IDEAL) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Simulate ``n`` flights: measured receiver positions (S+1, n, 3, 2), commands (S, n, 3, 2),
-    RSSI (S, n·10, 3) with NaN where unheard, true beacons (n·10, 2)."""
+    RSSI (S, n·10, 3) with NaN where unheard, true beacons (n·10, 2). Under a measured
+    ``radio`` the same flights and beacons, the RSSI from its profile's table."""
     rng = np.random.default_rng(seed)
+    measured = rssi_draws.rssi_radio(radio, PAPER_RADIO)
+    receivers = np.empty((STEPS, n * BEACONS_PER_FLIGHT, 3, 2)) if measured is not None else None
     ref = lawnmower()[:, None, None, :] + FORMATION[None, None]  # (S+1, 1, 3, 2)
     beacons = rng.uniform([0.0, 0.0], [4.0, 8.0], (n * BEACONS_PER_FLIGHT, 2))
     true = np.broadcast_to(ref[0], (n, 3, 2)).copy()
@@ -72,7 +86,34 @@ def flights(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
         noise = bias + rng.normal(0, math.sqrt(RSSI_VAR), d.shape)
         r = MODEL.p0_dbm - 10 * MODEL.n * np.log10(np.maximum(d, 1e-3)) + noise
         rssi[s] = np.where(d > R_MAX, np.nan, r)
+        if receivers is not None:
+            receivers[s] = rec
+    if measured is not None and receivers is not None:
+        rssi = measured_rssi(receivers, beacons, measured, np.random.default_rng([seed, 1]))
     return z, u, rssi, beacons
+
+
+def measured_rssi(receivers: np.ndarray, beacons: np.ndarray, radio: rssi_draws.Radio, rng: np.random.Generator
+                  ) -> np.ndarray:
+    """RSSI (S, K, 3) of beacons (K, 2) heard by the true receivers (S, K, 3, 2) a step apart,
+    under a measured radio: the thesis's law plus each link's draws and the time processes;
+    NaN beyond R_MAX and where a reading is lost."""
+    ch = rssi_draws.channel(radio, MODEL.n, rng)
+    d = np.linalg.norm(receivers - beacons[None, :, None], axis=3)  # (S, K, 3)
+    power = MODEL.p0_dbm - 10 * MODEL.n * np.log10(np.maximum(d, 1e-3))
+    k, m = d.shape[1], d.shape[2]
+    loss = np.empty((k, m))
+    for b in range(k):
+        for j in range(m):
+            link = (f"beacon{b}", f"receiver{j}")
+            ends = np.column_stack([np.broadcast_to(beacons[b], (len(d), 2)), receivers[:, b, j]])
+            power[:, b, j] += rssi_draws.turned_db(ch, link, d[:, b, j]) + rssi_draws.shadowing_db(ch, link, ends)
+            loss[b, j] = ch.link(link).loss
+    time = rssi_draws.TimeProcesses(ch, loss, DT, rng)
+    for s in range(len(d)):
+        power[s] += time.noise()
+        power[s][time.missed()] = np.nan
+    return np.asarray(np.where(d > R_MAX, np.nan, power), float)
 
 
 AREA_CENTRE, AREA_PRIOR_VAR = (2.0, 4.0), 16.0
@@ -154,11 +195,14 @@ def filterpy_ekf(z: np.ndarray, u: np.ndarray, rssi: np.ndarray, beacons: int) -
     return np.array(out), seconds, steps
 
 
-def batch(index: int, seed: int, flights_: int, reference: int) -> dict[str, Any]:
+def batch(index: int, seed: int, flights_: int, reference: int, radio: str = IDEAL) -> dict[str, Any]:
     """One job: ``flights_`` flights, EKF and UKF on all their beacons, and (for ``reference``
-    > 0) the filterpy EKF on the first ``reference`` beacons."""
-    z, u, rssi, beacons = flights(flights_, seed)
+    > 0) the filterpy EKF on the first ``reference`` beacons; ``radio``: the RSSI's."""
+    z, u, rssi, beacons = flights(flights_, seed, radio)
     row: dict[str, Any] = {"beacons": len(beacons)}
+    measured = rssi_draws.rssi_radio(radio, PAPER_RADIO)
+    if measured is not None:
+        row["radios"] = measured.describe(PAPER_RADIO)
     estimates: dict[str, np.ndarray] = {}
     for name, (kind, init) in VARIANTS.items():
         if name in SMOOTHED:
@@ -197,10 +241,21 @@ def stats(errors: np.ndarray) -> dict[str, float]:
             "p95_m": round(float(np.percentile(errors, 95)), 4), "max_m": round(float(errors.max()), 4)}
 
 
+def radios_line(radios: dict[str, str] | None) -> str:
+    """Which radios the RSSI came from (the paper's noise, or a profile's table)."""
+    if radios is None:
+        return f"Radios: {IDEAL_NOISE}."
+    line = (f"Radios: {radios['radio']}: S4's BLE receivers take the profile's [rssi.{radios['rssi_table']}] about "
+            "the thesis's law (link exponent and offset, shadowing, correlated residual, white noise, losses) in place "
+            "of χ; the filters are still told 9 dB²")
+    return line + (f"; *assumed*: {radios['assumed']}." if radios["assumed"] else ".")
+
+
 def report(rows: list[dict[str, Any]]) -> Report:
     errors = {k: np.concatenate([r[f"{k}_error_m"] for r in rows]) for k in VARIANTS}
     beacons = sum(r["beacons"] for r in rows)
-    summary: dict[str, Any] = {"beacons": beacons}
+    radios = rows[0].get("radios")
+    summary: dict[str, Any] = {"radios": radios or {"radio": IDEAL, "noise": IDEAL_NOISE}, "beacons": beacons}
     lines = []
     for name, (kind, init) in VARIANTS.items():
         us = float(np.average([r[f"{name}_us_per_beacon_step"] for r in rows], weights=[r["beacons"] for r in rows]))
@@ -213,7 +268,8 @@ def report(rows: list[dict[str, Any]]) -> Report:
         lines.append([f"{kind.upper()}, {LABELS[init]} ({beacons:,} beacons)", s["mean_m"], s["median_m"],
                       s["p95_m"], s["max_m"], s["us_per_beacon_step"]])
     ref = next((r for r in rows if "filterpy_error_m" in r), None)
-    md = table(["filter", "mean error m", "median m", "95th percentile m", "max m", "µs per beacon-step"], lines)
+    md = radios_line(radios) + "\n\n"
+    md += table(["filter", "mean error m", "median m", "95th percentile m", "max m", "µs per beacon-step"], lines)
     if ref is not None:
         fp = np.array(ref["filterpy_error_m"])
         speedup = ref["filterpy_us_per_beacon_step"] / summary["ekf"]["us_per_beacon_step"]
@@ -242,4 +298,4 @@ def report(rows: list[dict[str, Any]]) -> Report:
 
 
 CAMPAIGN = Campaign("s4-montecarlo", "S4 Monte Carlo: EKF and UKF beacon localisation from three moving receivers",
-                    "beacons (10 per flight, 500 per job)", 10_000, jobs, report, requires=("filterpy",))
+                    "beacons (10 per flight, 500 per job)", 10_000, jobs, report, requires=("filterpy",), radios=True)

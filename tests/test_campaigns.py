@@ -196,3 +196,116 @@ def test_s4_smoother_removes_the_per_link_offsets_the_ekf_keeps() -> None:
     before, after = (np.linalg.norm(e - beacons, axis=1) for e in (ekf, smoothed))
     assert after.mean() < 0.15 and after.mean() < before.mean() / 2
     assert np.median(np.abs(offsets)) > 0.5  # it did find offsets (S4's are ±2 dB per link)
+
+
+# -- s3-arena and s4-montecarlo under a radio profile's measured RSSI ------------------------
+
+def test_s3_and_s4_jobs_take_the_radio() -> None:
+    for name in ("s3-arena", "s4-montecarlo"):
+        campaign = load(name)
+        measured = campaign.make_jobs(1, 0, "measured")
+        assert measured and all(job.kwargs["radio"] == "measured" for job in measured)
+        assert all("radio" not in job.kwargs for job in campaign.make_jobs(1, 0))
+
+
+def test_s3_measured_draws_repeat_by_seed_and_are_not_the_papers() -> None:
+    fix = s3.point_run(4, 11, "6 m", "measured")
+    assert fix == s3.point_run(4, 11, "6 m", "measured")
+    assert fix["radios"] == {"radio": "measured", "rssi_table": "ble", "paper_radio": "ble", "assumed": ""}
+    assert fix != s3.point_run(4, 12, "6 m", "measured")
+    ideal = s3.point_run(4, 11, "6 m")
+    assert "radios" not in ideal and ideal["trilateration_m"] != fix["trilateration_m"]
+    filt = s3.filters_run(3, "measured")
+    assert filt == s3.filters_run(3, "measured")
+    # Table I's 0.21 dB at 0 m is not what a measured link does: its residual and white noise stay
+    assert s3.filters_run(3)["raw"][0] < 0.5 < 2.0 < filt["raw"][0]
+    assert all(k <= r for k, r in zip(filt["kalman"], filt["raw"]))
+
+
+def test_s4_measured_rssi_repeats_by_seed_on_the_same_flights() -> None:
+    z, u, ideal, beacons = s4.flights(1, seed=4)
+    z2, u2, measured, beacons2 = s4.flights(1, seed=4, radio="measured")
+    assert np.array_equal(z, z2) and np.array_equal(beacons, beacons2)  # the same flights: a paired comparison
+    assert np.array_equal(measured, s4.flights(1, seed=4, radio="measured")[2], equal_nan=True)
+    assert not np.array_equal(measured, ideal, equal_nan=True)
+    assert np.isnan(measured).mean() > np.isnan(ideal).mean()  # out of range as before, and some readings lost
+    assert np.isnan(measured)[np.isnan(ideal)].all()  # nothing heard beyond the thesis's 4 m
+
+
+def _s4_rows(radios: dict[str, str] | None) -> list[dict[str, object]]:
+    row: dict[str, object] = {"beacons": 2, **({"radios": radios} if radios else {})}
+    for name in s4.VARIANTS:
+        row[f"{name}_error_m"] = [0.1, 0.3]
+        row[f"{name}_us_per_beacon_step"] = 1.0
+    return [row]
+
+
+def test_the_s3_and_s4_reports_name_the_radios() -> None:
+    rows = run_jobs(load("s3-arena").make_jobs(1, 0, "measured"), workers=1)
+    md = s3.report(rows).markdown
+    assert md.startswith("Radios: measured: S3's BLE receivers take the profile's [rssi.ble]") and "assumed" not in md
+    assert s3.report(run_jobs(load("s3-arena").make_jobs(1, 0), workers=1)).markdown.startswith("Radios: ideal")
+    radios = {"radio": "room.toml", "rssi_table": "xplr", "paper_radio": "ble", "assumed": "no [rssi.ble]"}
+    report = s4.report(_s4_rows(radios))
+    assert report.summary["radios"] == radios
+    assert report.markdown.startswith("Radios: room.toml: S4's BLE receivers take the profile's [rssi.xplr]")
+    assert "*assumed*: no [rssi.ble]" in report.markdown
+    assert s4.report(_s4_rows(None)).markdown.startswith("Radios: ideal: the thesis's χ")
+
+
+def test_a_profile_without_the_papers_radio_takes_the_nearest_marked_assumed(tmp_path) -> None:
+    import tomllib
+
+    import tomlkit
+
+    from rfhoming.campaigns import rssi_draws
+    from rfhoming.campaigns.runner import CampaignError
+    from rfhoming.protocol.radio_profile import load as load_profile, to_toml
+
+    raw = to_toml(load_profile("measured"))
+    raw["rssi"] = {"xplr": raw["rssi"]["xplr"]}
+    (tmp_path / "xplr.toml").write_text(tomlkit.dumps(raw))
+    radio = rssi_draws.rssi_radio(str(tmp_path / "xplr.toml"), "ble")
+    assert radio is not None and radio.table == "xplr" and "no [rssi.ble]" in radio.assumed
+    fix = s3.point_run(0, 1, "6 m", str(tmp_path / "xplr.toml"))
+    assert fix["radios"]["rssi_table"] == "xplr" and "nearest measured" in fix["radios"]["assumed"]
+    del raw["rssi"]
+    (tmp_path / "none.toml").write_text(tomlkit.dumps(raw))
+    assert "rssi" not in tomllib.loads((tmp_path / "none.toml").read_text())
+    with pytest.raises(CampaignError, match=r"no \[rssi.ble\] table"):
+        rssi_draws.rssi_radio(str(tmp_path / "none.toml"), "ble")
+
+
+def test_s4s_vectorised_link_draws_are_the_measured_channels() -> None:
+    from rfhoming.campaigns import rssi_draws
+
+    radio = rssi_draws.rssi_radio("measured", "ble")
+    assert radio is not None
+    ch = rssi_draws.channel(radio, 2.0, np.random.default_rng(5))
+    link = ("beacon3", "receiver1")
+    ends = np.array([[1.0, 2.0, 0.5, 0.25], [1.0, 2.0, 3.0, 4.0], [0.0, 0.0, 2.0, 6.0]])
+    expected = [ch.shadowing_db(link, ((e[0], e[1]), (e[2], e[3]))) for e in ends]
+    assert np.allclose(rssi_draws.shadowing_db(ch, link, ends), expected) and np.ptp(expected) > 0
+    state = ch.link(link)
+    e = radio.rssi.exponent
+    d = np.array([0.5, e.pivot_m, 3.0])
+    turn = rssi_draws.turned_db(ch, link, d)
+    assert turn[1] == pytest.approx(state.offset_db)  # at the pivot only the offset
+    assert turn[0] == pytest.approx(state.offset_db - 10 * (state.exponent - 2.0) * math.log10(e.near_m / e.pivot_m))
+
+
+def test_s4s_time_processes_hold_the_tables_variance_correlation_and_losses() -> None:
+    from rfhoming.campaigns import rssi_draws
+
+    radio = rssi_draws.rssi_radio("measured", "ble")
+    assert radio is not None
+    r = radio.rssi.residual
+    ch = rssi_draws.channel(radio, 2.0, np.random.default_rng(1))
+    time = rssi_draws.TimeProcesses(ch, np.full(300, 0.15), 0.1, np.random.default_rng(2))
+    noise = np.array([time.noise() for _ in range(1500)])
+    missed = np.array([time.missed() for _ in range(1500)])
+    assert noise.std() == pytest.approx(math.hypot(r.sd_db, r.white_sd_db), rel=0.03)
+    lag1 = np.mean(noise[1:] * noise[:-1]) / noise.var()
+    assert lag1 == pytest.approx(r.sd_db**2 * math.exp(-0.1 / r.time_s) / (r.sd_db**2 + r.white_sd_db**2), abs=0.03)
+    assert missed.mean() == pytest.approx(0.15, abs=0.01)
+    assert np.mean(missed[1:] & missed[:-1]) > 0.15**2 * 2  # in bursts: a loss follows a loss more than by chance

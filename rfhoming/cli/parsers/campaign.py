@@ -30,7 +30,8 @@ campaigns (default --runs in brackets):
 Each writes OUT/NAME.json (every run and the summary), OUT/NAME.md (the table beside the
 paper's, with the command and the radios) and OUT/NAME.png. --radio takes campaigns that run
 through the emulator (s0-table3's emulated rows, s0-house, s1-dock, s2-scenarios) to measured
-radios; s3-arena and s4-montecarlo simulate their papers' noise themselves. Seeds are fixed per job, so a campaign gives the
+radios; s3-arena and s4-montecarlo, which simulate their papers' RSSI, draw it from the profile's
+[rssi.ble] (their receivers are BLE scanners). Seeds are fixed per job, so a campaign gives the
 same numbers on 1 worker, on K processes or on a Dask cluster. Finished jobs are kept in
 OUT/NAME.partial.jsonl until the campaign completes: run the same command again after a crash
 or Ctrl-C and only the unfinished jobs run (delete that file after changing the code).
@@ -40,6 +41,7 @@ examples:
   rfhoming campaign s0-table3 --out docs/results # refresh the committed tables (from the repository)
   rfhoming campaign s1-dock --runs 10 --json     # a quick look, JSON on stdout
   rfhoming campaign s0-house --radio measured    # the house with radios as bad as real ones
+  rfhoming campaign s3-arena --radio measured    # S3's lateration on measured BLE RSSI
   rfhoming campaign s4-montecarlo --dask tcp://10.0.0.5:8786
 """
 
