@@ -98,7 +98,8 @@ def test_a_slow_planner_changes_nothing_in_lockstep_its_plans_land_at_their_robo
     fast, fast_log = asyncio.run(home(config))
     slow = SlowPlanner(1.0)
     outcome, log = asyncio.run(home(config, slow))
-    assert slow.calls == outcome.plans >= 2
+    # every plan asked was computed, but the last, asked just before arrival, may never have started
+    assert outcome.plans >= 2 and slow.calls in (outcome.plans - 1, outcome.plans), (slow.calls, outcome.plans)
     assert log == fast_log  # line for line: a second per plan moved nothing the robot did
     assert outcome.summary()["commands"] == fast.summary()["commands"]
     asked = {r["t"]: r for r in log if r.get("what") == "plan asked"}
