@@ -19,7 +19,8 @@ SQUARE = np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 5.0], [0.0, 5.0]])
 
 
 def rssi_at(where: np.ndarray, anchors: np.ndarray = SQUARE) -> np.ndarray:
-    return P0 - 10 * N * np.log10(np.linalg.norm(anchors - where, axis=1))
+    z: np.ndarray = P0 - 10 * N * np.log10(np.linalg.norm(anchors - where, axis=1))
+    return z
 
 
 def test_the_db_fit_holds_one_faded_link_where_squared_ranges_do_not() -> None:
