@@ -332,6 +332,17 @@ v_max = 0.4
 w_max = 1.0
 k_w = 1.5
 k_stop = 0.8
+robust_fit = true        # each fix in dB with a Huber loss (false: S3's linear least squares of ranges)
+huber_db = 3.0
+localise_s = 2.0         # stand this long first; the offset starts from the mean readings (0: from the first fix)
+confirm_s = 2.0          # at arrival stand this long and re-solve from the standing readings (0: the paper's stop)
+confirm_settle_s = 0.2
+confirm_radius = 0.5     # the standing fix must be this near the goal, else go on
+self_calibrate = true    # fit the offset with P0, n and each beacon's own offset over the path's readings
+history_s = 30.0         # the readings that fit is made of
+place_m = 0.5            # readings within one such cell of the path are one observation
+calibrate_every_s = 0.5
+confirm_tries = 3        # the last confirmation arrives whatever it says
 
 [trilat.anchors]         # beacon address (as rfhoming listen prints it) = [x, y]; at least three
 

@@ -9,11 +9,33 @@ so they correct odometry instead of replacing it: the world position is odometry
 that each fix pulls by ``offset_gain``. (Odometry's heading is trusted; a rotation offset is not
 estimated.) The robot drives to ``goal`` with S0's velocity law and stops within
 ``arrival_radius`` of it, by that fused estimate.
+
+Beyond the paper, for real radios (docs/estimation.md, "S3 under measured radios"):
+- the fix: ``robust_fit`` solves the position in dB (the log-distance RSSI of a position
+  against the readings, Huber loss ``huber_db``) rather than by the linear least squares of
+  squared ranges, so a far link counts for what its range is worth and one faded link is
+  held to a linear cost;
+- the start: the robot stands ``localise_s`` and the offset starts from one fix of each
+  beacon's mean raw RSSI over that time (not from the first fix of three barely filtered
+  readings, which the small ``offset_gain`` then takes many fixes to forget);
+- arrival: when the fused estimate is within ``arrival_radius``, the robot stands
+  ``confirm_s`` and re-solves from the mean raw RSSI of the standing readings; arrived if
+  that fix is within ``confirm_radius`` of the goal, else the offset is set from it and the
+  robot goes on; the ``confirm_tries``-th confirmation arrives whatever it says (S1's
+  standing confirmation, host/homing/s1_dock.py);
+- the offset: ``self_calibrate`` fits it, every ``calibrate_every_s``, with the radios' P0
+  and n and each beacon's own offset in dB (priors: the settings' P0 and n, 3 dB per beacon)
+  to the last ``history_s`` of raw readings, one mean per beacon and ``place_m`` cell of the
+  path (a beacon's shadowing holds at a place: a robot standing long is one observation),
+  instead of pulling it by ``offset_gain`` towards each fix.
+``localise_s = 0``, ``confirm_s = 0``, ``robust_fit = false`` and ``self_calibrate = false``:
+the paper's loop.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,9 +45,9 @@ from rfhoming.host.drivers.rss import BleRssi
 from rfhoming.host.estimation.bearings import Degenerate
 from rfhoming.host.estimation.filters import ScalarKalman
 from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
-from rfhoming.host.estimation.lateration import multilaterate
+from rfhoming.host.estimation.lateration import multilaterate, offset_and_links, rssi_position
 from rfhoming.host.estimation.ranging import LogDistance
-from rfhoming.host.homing.schema import DBM, M_S, RAD_S, M, S, setting
+from rfhoming.host.homing.schema import DB, DBM, M_S, RAD_S, M, S, setting
 from rfhoming.host.homing.types import ControllerDefaults, Decision, ParamsError, Pose, velocity_law
 
 
@@ -46,6 +68,17 @@ class TrilatParams:
     w_max: float = setting(1.0, low=0, above=True, high=10, unit=RAD_S)
     k_w: float = setting(1.5, low=0, above=True, high=20, unit="1/s")
     k_stop: float = setting(0.8, low=0, above=True, high=10, unit="1/s")
+    robust_fit: bool = setting(True)  # solve each fix in dB with a Huber loss (False: S3's linear least squares of ranges)
+    huber_db: float = setting(3.0, low=0, above=True, high=100, unit=DB)
+    localise_s: float = setting(2.0, low=0, high=60, unit=S)  # stand this long first; the offset starts from the mean readings (0: from the first fix)
+    confirm_s: float = setting(2.0, low=0, high=60, unit=S)  # at arrival stand this long and re-solve from the standing readings (0: the paper's instant stop)
+    confirm_settle_s: float = setting(0.2, low=0, high=10, unit=S)  # readings this soon after stopping are left out
+    confirm_radius: float = setting(0.5, low=0, above=True, high=10, unit=M)  # the standing fix must be this near the goal
+    self_calibrate: bool = setting(True)  # fit the offset with P0, n and each beacon's own offset over the path's readings
+    history_s: float = setting(30.0, low=0, above=True, high=3600, unit=S)  # the readings that fit is made of
+    place_m: float = setting(0.5, low=0, above=True, high=100, unit=M)  # readings within one such cell of the path are one observation
+    calibrate_every_s: float = setting(0.5, low=0, above=True, high=60, unit=S)
+    confirm_tries: int = setting(3, low=1, high=100, unit="confirmations")  # the last one arrives whatever it says
 
 
 class TrilatController(ControllerDefaults):
@@ -62,10 +95,21 @@ class TrilatController(ControllerDefaults):
         self.offset: np.ndarray | None = None
         self.fixes = 0
         self.last_fix: np.ndarray | None = None
+        self._t: float | None = None  # the newest reading's time
+        self._window_since: float | None = None  # localising or confirming: when the robot began to stand
+        self._window: dict[str, list[float]] = {}  # the raw RSSI of each beacon received while it stands
+        self._located = params.localise_s <= 0  # the offset has its start
+        self._standing = False  # confirming
+        self.confirmations = 0
+        self.arrived = False
+        self._names = list(self.anchors)
+        self._history: deque[tuple[float, float, float, int, float]] = deque()  # t, odometry x, y, anchor, raw RSSI
+        self.theta: np.ndarray | None = None  # self-calibration: offset x, y, P0, n, each anchor's offset
+        self._calibrated_t = -math.inf
 
     @property
     def phase(self) -> str:
-        return "homing" if self.fixes >= self.params.min_fixes else "localising"
+        return "homing" if self._located and self.fixes >= self.params.min_fixes else "localising"
 
     @property
     def reported(self) -> Any:
@@ -78,39 +122,125 @@ class TrilatController(ControllerDefaults):
         if not isinstance(item, BleRssi) or item.address not in self.anchors:
             return None
         p = self.params
+        self._t = t
+        if self._window_since is None and not self._located:
+            self._window_since, self._window = t, {}
+        if self._window_since is not None and t - self._window_since >= (p.confirm_settle_s if self._standing else 0.0):
+            self._window.setdefault(item.address, []).append(float(item.rssi_dbm))
+        if p.self_calibrate:
+            self._history.append((t, pose.x, pose.y, self._names.index(item.address), float(item.rssi_dbm)))
+            while self._history and t - self._history[0][0] > p.history_s:
+                self._history.popleft()
         k = self._filters.setdefault(item.address, ScalarKalman(p.kalman_q, p.kalman_r))
         self._latest[item.address] = (t, from_q8(k.update(to_q8(item.rssi_dbm))))
         fresh = [(a, v) for a, (ta, v) in self._latest.items() if t - ta <= p.fresh_s]
         fields: dict[str, Any] = {"address": item.address, "rssi": item.rssi_dbm}
         if len(fresh) < 3:
             return fields
-        positions = np.array([self.anchors[a] for a, _ in fresh])
-        ranges = np.minimum(self.model.distance(np.array([v for _, v in fresh])), p.max_range_m)
-        try:
-            fix = multilaterate(positions, ranges)
-        except Degenerate:
+        fix = self.solve(dict(fresh))
+        if fix is None:
             return fields
         odo = np.array([pose.x, pose.y])
-        self.offset = fix - odo if self.offset is None else self.offset + p.offset_gain * (fix - odo - self.offset)
+        if not self._located:
+            located = self._mean_fix(p.localise_s)
+            if located is None:
+                self.last_fix = fix
+                return fields
+            self.offset, self._located, self._window_since = located - odo, True, None
+        elif p.self_calibrate and self.offset is not None:
+            if self.theta is None:
+                self.theta = np.concatenate([self.offset, [p.p0_dbm, p.n], np.zeros(len(self._names))])
+            if t - self._calibrated_t >= p.calibrate_every_s:
+                self._calibrated_t = t
+                which, odo_xy, rssi = self._places()
+                self.theta = offset_and_links(np.array([self.anchors[a] for a in self._names]), which, odo_xy, rssi,
+                                              self.theta, p.p0_dbm, p.n, reading_sd_db=5.0, independent=1.0)
+                self.offset = self.theta[:2].copy()
+        elif not self._standing:  # standing, the confirmation's fix decides
+            self.offset = fix - odo if self.offset is None else self.offset + p.offset_gain * (fix - odo - self.offset)
         self.fixes += 1
         self.last_fix = fix
         fields["fix"] = [round(float(v), 3) for v in fix]
         return fields
 
+    def _places(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The history as one mean reading per beacon and place (``place_m`` cells of the
+        odometry): a link's shadowing holds at a place, so readings there are one observation,
+        however long the robot stood (anchor indices, odometry positions, RSSI)."""
+        h = np.array(self._history)
+        cells = np.round(h[:, 1:3] / self.params.place_m)
+        keys = np.column_stack([h[:, 3], cells])
+        _, group = np.unique(keys, axis=0, return_inverse=True)
+        group = group.ravel()
+        count = np.bincount(group).astype(float)
+        mean = np.stack([np.bincount(group, weights=h[:, c]) / count for c in (1, 2, 3, 4)], axis=1)
+        return mean[:, 2].round().astype(int), mean[:, :2], mean[:, 3]
+
+    def solve(self, rssi: dict[str, float]) -> np.ndarray | None:
+        """One fix from one RSSI per beacon (three or more); None on degenerate geometry."""
+        p = self.params
+        positions = np.array([self.anchors[a] for a in rssi])
+        readings = np.array(list(rssi.values()))
+        try:
+            if p.robust_fit:
+                return rssi_position(positions, readings, p.p0_dbm, p.n, p.huber_db, p.max_range_m)
+            return multilaterate(positions, np.minimum(self.model.distance(readings), p.max_range_m))
+        except Degenerate:
+            return None
+
+    def _mean_fix(self, length_s: float) -> np.ndarray | None:
+        """The fix of each beacon's mean raw RSSI while the robot stands, once it has stood
+        ``length_s`` and three beacons were heard three times each; else None."""
+        if self._window_since is None or self._t is None or self._t - self._window_since < length_s:
+            return None
+        heard = {a: float(np.mean(v)) for a, v in self._window.items() if len(v) >= 3}
+        if len(heard) < 3:
+            return None
+        if self.theta is not None:  # the self-calibration's constants
+            th = self.theta
+            try:
+                return rssi_position(np.array([self.anchors[a] for a in heard]),
+                                     np.array([v - th[4 + self._names.index(a)] for a, v in heard.items()]),
+                                     float(th[2]), float(th[3]), self.params.huber_db, self.params.max_range_m)
+            except Degenerate:
+                return None
+        return self.solve(heard)
+
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         p = self.params
         goal = self.reported
+        if self.arrived:
+            return Decision(0.0, 0.0, tuple(goal), True, "arrived")
         if self.phase != "homing":
             return Decision(0.0, 0.0, tuple(goal), False, "localising")
+        odo = np.array([pose.x, pose.y])
+        if self._standing:
+            fix = self._mean_fix(p.confirm_s)
+            if fix is None:
+                return Decision(0.0, 0.0, tuple(goal), False, "confirming: standing")
+            self._standing, self._window_since = False, None
+            self.confirmations += 1
+            self.last_fix = fix
+            if float(np.linalg.norm(goal - fix)) <= p.confirm_radius or self.confirmations >= p.confirm_tries:
+                self.arrived = True
+                return Decision(0.0, 0.0, tuple(goal), True, "arrived")
+            if self.theta is None:
+                self.offset = fix - odo  # the standing fix is the best the radios give: go on from it
         here = self.world(pose)
         aim = goal if steer_to is None else np.array(steer_to) + self.offset  # waypoints are in odometry
         d_g = float(np.linalg.norm(goal - here))
         if d_g < p.arrival_radius:
-            return Decision(0.0, 0.0, tuple(goal), True, "arrived")
+            if p.confirm_s <= 0:
+                self.arrived = True
+                return Decision(0.0, 0.0, tuple(goal), True, "arrived")
+            self._standing, self._window_since, self._window = True, self._t, {}
+            return Decision(0.0, 0.0, tuple(goal), False, "confirming: standing")
         theta_g = wrap_rad(math.atan2(aim[1] - here[1], aim[0] - here[0]) - pose.theta)
         v, w = velocity_law(theta_g, d_g, p.v_max, p.w_max, p.k_w, p.k_stop)
         return Decision(v, w, tuple(goal), False, "homing")
 
     def estimate(self) -> dict[str, Any]:
         return {"offset": None if self.offset is None else [round(float(v), 3) for v in self.offset],
+                "confirmations": self.confirmations,
+                "radio": None if self.theta is None else [round(float(v), 2) for v in self.theta[2:]],
                 "fix": None if self.last_fix is None else [round(float(v), 3) for v in self.last_fix]}
