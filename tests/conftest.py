@@ -51,6 +51,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 LONGEST_FIRST = (
     "test_docs.py", "test_campaigns.py", "test_replay_run.py", "test_c_reference.py", "test_locate_robust.py",
+    "test_host_io.py", "test_radio_profile.py", "test_sitebus_hostile.py",  # the quick loop's longest
     "test_typing.py", "test_plan_timing.py", "test_s4_air.py", "test_lossless_replay.py", "test_mcap_frames.py", "test_locate.py",
     "test_run_cli.py", "test_vendor_clients.py", "test_fastdds.py", "test_ros2_live.py", "test_planning.py",
     "test_sitebus.py", "test_ros2_emulated.py", "test_rclpy.py", "test_homing.py", "test_foxglove_spec.py",

@@ -26,7 +26,7 @@ def mean_error(w, positions, after: float = 3.0) -> float:
     return float(np.mean([np.linalg.norm(p.point[:2] - w.truth(p.t)) for p in positions if p.t > after]))
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("seed", [1, *(pytest.param(s, marks=pytest.mark.slow) for s in (2, 3))])  # one seed quick
 def test_the_angles_tracker_beats_the_older_trackers_on_slow_heavy_tailed_errors(seed):
     """Errors like the harder real walks': slow per-anchor errors of 9 degrees (held tens of
     seconds while the walker stands), white noise of 8, 8 % wild reports, a walk with dwells.

@@ -103,6 +103,7 @@ def test_idealised_s0_homes_and_reports_table3_metrics() -> None:
     assert 0.9 < row["path_efficiency"] <= 1.0
 
 
+@pytest.mark.slow  # 4 s of closed loop
 def test_a_single_noisy_reading_does_not_end_a_run() -> None:
     """Configuration 5's ±1 m can put the first vector goal under the robot: no arrival on it."""
     for seed in range(20):

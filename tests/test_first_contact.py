@@ -234,6 +234,7 @@ async def test_a_realtek_dongle_is_told_how_to_get_its_firmware(monkeypatch: pyt
 
 
 # -- 7. an FTDI port is an XPLR-AOA only if it answers as one -------------------------------
+@pytest.mark.slow  # 3 s of asking; the full suite keeps it
 async def test_discovery_asks_an_ftdi_port_what_it_is(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from serial.tools import list_ports_common
 

@@ -191,6 +191,7 @@ def test_one_tag_carried_from_point_to_point_calibrates_from_found_dwells():
 NOMINAL_YAW = {"west": 0.0, "east": 180.0, "south": 90.0, "north": -90.0}
 
 
+@pytest.mark.slow  # 8 s: the self-calibration's own quick tests stay in the inner loop
 def test_self_calibration_recovers_the_emulated_boards_hidden_errors():
     """The emulator draws each board's azimuth scale, bias and mounting yaw, and elevation
     errors, from the seed and tells the host nothing; the walk of three tags (of known heights)

@@ -385,6 +385,7 @@ def test_radio_fit_writes_a_profile_every_scenario_can_take(tmp_path: Path, site
     assert not profile.rssi
 
 
+@pytest.mark.slow  # a second radio-fit process; the one above stays quick
 def test_radio_fit_copies_the_rssi_tables_it_is_told(tmp_path: Path, site_file: Path) -> None:
     a, ta = recorded(tmp_path, "walk1", 0.0, 1)
     done = radio_fit(site_file, "--from", f"capture:{a}", "--truth", ta, "--rssi-from", "measured", "-o", "room.toml",
