@@ -79,6 +79,11 @@ def fit(site: Site, recordings: Sequence[Recording], name: str, *, tag: str | No
         info = plain.tag(tag or plain.tags[0].id) if (tag or plain.tags) else None
         z = height if height is not None else info.height if info is not None and info.height is not None else 1.0
         rng = np.random.default_rng(0)  # the schedules: fixed, so a fit is repeatable
+        for w in walks:  # the board is driven at each walk's event rate: it needs a span of reports
+            spans = [float(r.t[-1] - r.t[0]) for r in w.residuals.values() if len(r.t) >= 2]
+            if not spans or max(spans) <= 0:
+                raise RadioFitError(f"{w.id}: no anchor reported twice at different times, so its event "
+                                    "rate is unknown: give a longer recording")
         to_match = [walk_to_calibrate(plain, w.id, w.path, w.residuals, z, rng) for w in walks]
         aoa, report["calibration"] = calibrate(aoa, to_match, board, progress=progress)
     header = Header(name=name, description=description or f"fitted to {len(recordings)} recording(s) of {site.name}",

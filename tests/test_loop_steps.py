@@ -216,3 +216,21 @@ async def test_a_replay_stops_where_the_live_runs_odometry_watchdog_fired(tmp_pa
     unnoted, unnoted_out, unnoted_stops = loop(Config().for_lockstep())
     await feed(unnoted)
     assert "odometry stale: stop" not in events(unnoted_out) and unnoted_stops == []
+
+
+@pytest.mark.parametrize("note", [{"odometry_stale": "soon", "after_items": 2}, {"odometry_stale": 1.0},
+                                  {"plan_asked": 1.0, "plan_taken": "late"}, {"plan_asked": [1], "plan_taken": None}])
+def test_a_malformed_note_in_a_capture_is_a_capture_error_not_a_traceback(tmp_path: Path, monkeypatch, note) -> None:
+    """A capture is input: a host note with a wrong type or a missing field says which capture."""
+    from rfhoming.host.capture import CaptureWriter
+    from rfhoming.host.homing import assembly
+    from rfhoming.protocol.pcapng import CaptureFormatError
+
+    writer = CaptureWriter(tmp_path / "run.pcapng")
+    writer.describe("/dev/ttyUSB0", kind="xplr-aoa")
+    writer.tap("/dev/ttyUSB0", "in", 1.0, b"+STARTUP\r\n")
+    writer.close()
+    monkeypatch.setattr(assembly, "_record", lambda path, comments: {"devices": [], "site": None})
+    monkeypatch.setattr(assembly, "notes", lambda path: [note])
+    with pytest.raises(CaptureFormatError, match="run.pcapng: a host note in the capture is malformed"):
+        assembly.replay_plan(tmp_path / "run.pcapng")

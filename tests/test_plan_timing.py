@@ -98,14 +98,17 @@ def test_a_slow_planner_changes_nothing_in_lockstep_its_plans_land_at_their_robo
     fast, fast_log = asyncio.run(home(config))
     slow = SlowPlanner(1.0)
     outcome, log = asyncio.run(home(config, slow))
-    # every plan asked was computed, but the last, asked just before arrival, may never have started
-    assert outcome.plans >= 2 and slow.calls in (outcome.plans - 1, outcome.plans), (slow.calls, outcome.plans)
+    assert outcome.plans >= 2
     assert log == fast_log  # line for line: a second per plan moved nothing the robot did
     assert outcome.summary()["commands"] == fast.summary()["commands"]
     asked = {r["t"]: r for r in log if r.get("what") == "plan asked"}
     plans = [r for r in log if r["kind"] == "plan"]
     period = config.loop.control_period_s
     assert plans and len(plans) >= len(asked) - 1  # the last may still be pending at arrival
+    unplanned = sorted(set(asked) - {plan["asked"] for plan in plans})
+    assert unplanned in ([], [max(asked)]), unplanned  # only the last
+    # every plan asked reached the planner, but the last may not have started when the run arrived
+    assert slow.calls == outcome.plans or (unplanned and slow.calls == outcome.plans - 1), (slow.calls, outcome.plans)
     for plan in plans:
         assert plan["asked"] in asked and "late" not in plan
         # taken at the first control period at or after asked + latency, in robot time

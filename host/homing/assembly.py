@@ -323,9 +323,12 @@ def replay_plan(path: Path | str, *, controller: str | None = None, config: Conf
     except tomllib.TOMLDecodeError as exc:
         raise CaptureFormatError(0, f"{path}: its run record's site file is not TOML ({exc})") from None
     noted = notes(path)
-    taken = {n["plan_asked"]: math.inf if n["plan_taken"] is None else n["plan_taken"]  # the last note of each
-             for n in noted if "plan_asked" in n}
-    stale = frozenset((float(n["odometry_stale"]), int(n["after_items"])) for n in noted if "odometry_stale" in n)
+    try:
+        taken = {float(n["plan_asked"]): math.inf if n["plan_taken"] is None else float(n["plan_taken"])
+                 for n in noted if "plan_asked" in n}  # the last note of each
+        stale = frozenset((float(n["odometry_stale"]), int(n["after_items"])) for n in noted if "odometry_stale" in n)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CaptureFormatError(0, f"{path}: a host note in the capture is malformed ({exc!r})") from None
     return Homing(controller or record["controller"], roles,
                   (config if config is not None else from_tables(record["config"], f"{path}: the recorded config"))
                   .for_lockstep(),

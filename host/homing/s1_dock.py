@@ -133,6 +133,7 @@ class DockController(ControllerDefaults):
             self.stage = "docking"
         elif self.stage == "docking" and self.rssi < p.leave_dbm:
             self.stage, self._step, self._standing_since = "mission", None, None
+            self._tries, self.confirmed = 0, False  # a later docking confirms afresh
         return {"rssi": e.rssi1, "azimuth": e.azimuth, "rssi_ma": round(self.rssi, 2), "aoa_ma": round(self.aoa, 2)}
 
     def _next_step(self, pose: Pose, diff: float | None = None, cap_m: float | None = None) -> None:

@@ -20,9 +20,11 @@ Beyond the paper, for real radios (docs/estimation.md, "S3 under measured radios
   readings, which the small ``offset_gain`` then takes many fixes to forget);
 - arrival: when the fused estimate is within ``arrival_radius``, the robot stands
   ``confirm_s`` and re-solves from the mean raw RSSI of the standing readings; arrived if
-  that fix is within ``confirm_radius`` of the goal, else the offset is set from it and the
-  robot goes on; the ``confirm_tries``-th confirmation arrives whatever it says (S1's
-  standing confirmation, host/homing/s1_dock.py);
+  that fix is within ``confirm_radius`` of the goal; else, without ``self_calibrate``, the
+  offset is set from it and the robot goes on, and with it (the default) the fix is not
+  used and the robot stands again at once: there the confirmation is up to
+  ``confirm_tries`` standing windows; the ``confirm_tries``-th arrives whatever it says
+  (S1's standing confirmation, host/homing/s1_dock.py);
 - the offset: ``self_calibrate`` fits it, every ``calibrate_every_s``, with the radios' P0
   and n and each beacon's own offset in dB (priors: the settings' P0 and n, 3 dB per beacon)
   to the last ``history_s`` of raw readings, one mean per beacon and ``place_m`` cell of the
