@@ -241,7 +241,7 @@ class FoxgloveView(Sink):
                     color=m.Color(r=1.0, g=0.6, b=0.0, a=0.6))]))
         if record.get("fix") is not None and goal is None:
             fx, fy = record["fix"]
-            frame = frames.MAP if record.get("offset") is not None else frames.ODOM  # S3: the robot in the map
+            frame = frames.MAP if "offset" in record else frames.ODOM  # S3 (also localising): the robot in the map
             entities.append(m.SceneEntity(timestamp=now, frame_id=frame, id="fix", lifetime=life, spheres=[m.SpherePrimitive(
                 pose=self._pose(fx, fy, 0.0), size=m.Vector3(x=0.2, y=0.2, z=0.05), color=m.Color(r=0.2, g=0.4, b=1.0, a=0.8))]))
         if self.rays:

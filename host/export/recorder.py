@@ -229,8 +229,10 @@ class McapRecorder(Sink):
                 self._write(t, *rosmsgs.transforms("/tf", t, [frames.dock_station(record["station"])]))
             if record.get("goal") is not None:
                 self._write(t, *rosmsgs.point("/rfhoming/target", t, record["goal"]))
-            if record.get("fix") is not None:  # S3: the robot in the map; S2: one target fix in odom
-                self._write(t, *rosmsgs.point("/rfhoming/fix", t, record["fix"], frames.MAP if located else frames.ODOM))
+            if record.get("fix") is not None:  # S3 (it has an offset, found or not): the robot in the map, from
+                # the anchors, also while it still localises; S2: one target fix in odom
+                self._write(t, *rosmsgs.point("/rfhoming/fix", t, record["fix"],
+                                              frames.MAP if "offset" in record else frames.ODOM))
         elif kind == "measurement" and not record.get("incomplete"):
             self._write(t, *rosmsgs.bearing(t, record))
         elif kind == "event":
