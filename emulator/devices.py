@@ -509,11 +509,14 @@ class BaseRunner(DeviceRunner):
     def reboot(self, t: float) -> None:
         """The motor controller restarts: it stops and its clock restarts at 0 (t_us from 0, as
         an MCU reset does); its odometry (kept in RAM here) survives."""
-        self.firmware.reset(int(t * 1e6))
+        self.firmware.reset(round(t * 1e6))
 
     def step(self, world: World, t0: float, t1: float) -> None:
         fw: RobotBaseFirmware = self.firmware
-        v, w = fw.step(int(t1 * 1e6))
+        # rounded, not truncated: a sum of 10 ms steps is often a hair under the step's time, and a
+        # truncated microsecond put odometry one step late, after a lockstep period's end, where the
+        # emulator waited for a command the host had no odometry to send (CI, 2026-12-05)
+        v, w = fw.step(round(t1 * 1e6))
         r = world.robot
         before = (r.x, r.y, r.theta)
         r.advance(v, w, t1 - t0)
