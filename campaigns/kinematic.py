@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from rfhoming.campaigns.closed_loop import ARRIVED_M  # open field: always in the target's line of sight
 from rfhoming.emulator import arrival
 from rfhoming.emulator.world import Pose as WorldPose
 from rfhoming.firmware.robot_base import BaseLimits
@@ -20,7 +21,6 @@ from rfhoming.host.estimation.fixed import wrap_rad
 from rfhoming.host.homing.s0_aoa import S0Homing, S0Params
 from rfhoming.host.homing.types import Pose
 
-ARRIVED_M = 1.0  # success: this near the target (open field: always in its line of sight)
 LIMITS = BaseLimits()  # the emulated base's speed and acceleration limits
 READING_S, CONTROL_S = 0.02, 0.1  # the tag's 50 Hz, the loop's 10 Hz
 

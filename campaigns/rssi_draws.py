@@ -52,6 +52,16 @@ class Radio:
                 "assumed": "; ".join(notes)}
 
 
+def radios_line(radios: dict[str, str] | None, ideal_noise: str, receivers: str, about: str, instead: str) -> str:
+    """A report's line on which radios its readings came from: the paper's noise, or a profile's
+    table (``receivers`` take it ``about`` the paper's law ``instead`` of the paper's noise)."""
+    if radios is None:
+        return f"Radios: {ideal_noise}."
+    line = (f"Radios: {radios['radio']}: {receivers} take the profile's [rssi.{radios['rssi_table']}] about {about} "
+            f"(link exponent and offset, shadowing, correlated residual, white noise, losses) in place of {instead}")
+    return line + (f"; *assumed*: {radios['assumed']}." if radios["assumed"] else ".")
+
+
 def rssi_radio(radio: str, paper_radio: str) -> Radio | None:
     """The ``[rssi.NAME]`` the paper's receivers (``paper_radio``) take under ``radio``: their
     own, else the nearest measured one (marked assumed); None for ``ideal``."""

@@ -62,16 +62,13 @@ class Campaign:
     jobs: Callable[[int, int], list[Job]]  # (runs, seed) -> jobs
     report: Callable[[list[dict[str, Any]]], Report]
     requires: tuple[str, ...] = ()  # optional packages its jobs import
-    radios: bool = False  # its jobs take radio= (--radio): they run through the emulator's radios, or draw
-    # their simulated RSSI from a profile's [rssi.NAME] (s3-arena, s4-montecarlo: campaigns/rssi_draws.py)
 
     def make_jobs(self, runs: int, seed: int, radio: str = IDEAL) -> list[Job]:
-        """The jobs, each told the radios (``--radio``) when they are not the idealised ones."""
+        """The jobs, each told the radios (``--radio``) when they are not the idealised ones: every
+        campaign's jobs take ``radio=`` (they run through the emulator's radios, or draw their
+        simulated RSSI from a profile's [rssi.NAME]: s3-arena, s4-montecarlo, campaigns/rssi_draws.py)."""
         if radio == IDEAL:
             return self.jobs(runs, seed)
-        if not self.radios:
-            raise CampaignError(f"{self.name} simulates its paper's own noise without the emulator's radios: "
-                                "--radio applies to campaigns that take radio profiles; leave it out")
         return [replace(job, kwargs={**job.kwargs, "radio": radio}) for job in self.jobs(runs, seed)]
 
     def outputs(self, folder: Path) -> tuple[Path, Path, Path]:

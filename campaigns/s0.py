@@ -229,8 +229,7 @@ def house_report(rows: list[dict[str, Any]]) -> Report:
 
 TABLE3_CAMPAIGN = Campaign(
     "s0-table3", "S0 Table 3: 5 noise configurations x targets, idealised and realistic",
-    "targets per configuration (split evenly over the quadrants)", 40, table3_jobs, table3_report, radios=True)
+    "targets per configuration (split evenly over the quadrants)", 40, table3_jobs, table3_report)
 HOUSE_CAMPAIGN = Campaign(
     "s0-house", "S0 Experiment 2: four-room house, configuration 5, S0's rules and ours (A*)",
-    "runs (random start and tag over the 16 room pairs; each run with both methods)", 80, house_jobs, house_report,
-    radios=True)
+    "runs (random start and tag over the 16 room pairs; each run with both methods)", 80, house_jobs, house_report)

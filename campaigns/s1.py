@@ -152,4 +152,4 @@ def report(rows: list[dict[str, Any]]) -> Report:
 
 
 CAMPAIGN = Campaign("s1-dock", "S1 docking from random starts, S1's rule and with final alignment",
-                    "trials (each run in both modes at both noise levels)", 50, jobs, report, radios=True)
+                    "trials (each run in both modes at both noise levels)", 50, jobs, report)

@@ -157,4 +157,4 @@ def report(rows: list[dict[str, Any]]) -> Report:
 
 
 CAMPAIGN = Campaign("s2-scenarios", "S2: scenarios A-E, preliminary and full system; particle filter vs instantaneous fixes",
-                    "runs per scenario and system", 3, jobs, report, radios=True)
+                    "runs per scenario and system", 3, jobs, report)

@@ -170,7 +170,8 @@ METHODS = ("trilateration", "multilateration")
 
 def report(rows: list[dict[str, Any]]) -> Report:
     filt = next(r for r in rows if r["kind"] == "filters")
-    radios = radios_line(filt.get("radios"))
+    radios = rssi_draws.radios_line(filt.get("radios"), IDEAL_NOISE, "S3's BLE receivers", "Table I's mean",
+                                    "Table I's std and the per-fix bias")
     md = radios + "\n\n" + _filters_section(filt)
     fixes = [r for r in rows if r["kind"] == "fix"]
     summary: dict[str, Any] = {"radios": filt.get("radios", {"radio": IDEAL, "noise": IDEAL_NOISE}),
@@ -183,16 +184,6 @@ def report(rows: list[dict[str, Any]]) -> Report:
     md += _comparison_table(summary, paper_wins)
     summary["paper_trilateration_better_at"] = paper_wins
     return Report(summary, md, lambda path: _plot(path, filt, summary))
-
-
-def radios_line(radios: dict[str, str] | None) -> str:
-    """Which radios the readings came from (the paper's noise, or a profile's table)."""
-    if radios is None:
-        return f"Radios: {IDEAL_NOISE}."
-    line = (f"Radios: {radios['radio']}: S3's BLE receivers take the profile's [rssi.{radios['rssi_table']}] "
-            "about Table I's mean (link exponent and offset, shadowing, correlated residual, white noise, losses) "
-            "in place of Table I's std and the per-fix bias")
-    return line + (f"; *assumed*: {radios['assumed']}." if radios["assumed"] else ".")
 
 
 def _filters_section(filt: dict[str, Any]) -> str:
@@ -279,4 +270,4 @@ def _plot(path: Path, filt: dict[str, Any], summary: dict[str, Any]) -> None:
 
 
 CAMPAIGN = Campaign("s3-arena", "S3: RSSI filters on Table I's noise; trilateration vs multilateration",
-                    "fixes per test point (in each arena size)", 100, jobs, report, radios=True)
+                    "fixes per test point (in each arena size)", 100, jobs, report)

@@ -241,16 +241,6 @@ def stats(errors: np.ndarray) -> dict[str, float]:
             "p95_m": round(float(np.percentile(errors, 95)), 4), "max_m": round(float(errors.max()), 4)}
 
 
-def radios_line(radios: dict[str, str] | None) -> str:
-    """Which radios the RSSI came from (the paper's noise, or a profile's table)."""
-    if radios is None:
-        return f"Radios: {IDEAL_NOISE}."
-    line = (f"Radios: {radios['radio']}: S4's BLE receivers take the profile's [rssi.{radios['rssi_table']}] about "
-            "the thesis's law (link exponent and offset, shadowing, correlated residual, white noise, losses) in place "
-            "of χ; the filters are still told 9 dB²")
-    return line + (f"; *assumed*: {radios['assumed']}." if radios["assumed"] else ".")
-
-
 def report(rows: list[dict[str, Any]]) -> Report:
     errors = {k: np.concatenate([r[f"{k}_error_m"] for r in rows]) for k in VARIANTS}
     beacons = sum(r["beacons"] for r in rows)
@@ -268,7 +258,7 @@ def report(rows: list[dict[str, Any]]) -> Report:
         lines.append([f"{kind.upper()}, {LABELS[init]} ({beacons:,} beacons)", s["mean_m"], s["median_m"],
                       s["p95_m"], s["max_m"], s["us_per_beacon_step"]])
     ref = next((r for r in rows if "filterpy_error_m" in r), None)
-    md = radios_line(radios) + "\n\n"
+    md = rssi_draws.radios_line(radios, IDEAL_NOISE, "S4's BLE receivers", "the thesis's law", "χ; the filters are still told 9 dB²") + "\n\n"
     md += table(["filter", "mean error m", "median m", "95th percentile m", "max m", "µs per beacon-step"], lines)
     if ref is not None:
         fp = np.array(ref["filterpy_error_m"])
@@ -298,4 +288,4 @@ def report(rows: list[dict[str, Any]]) -> Report:
 
 
 CAMPAIGN = Campaign("s4-montecarlo", "S4 Monte Carlo: EKF and UKF beacon localisation from three moving receivers",
-                    "beacons (10 per flight, 500 per job)", 10_000, jobs, report, requires=("filterpy",), radios=True)
+                    "beacons (10 per flight, 500 per job)", 10_000, jobs, report, requires=("filterpy",))

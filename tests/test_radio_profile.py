@@ -18,7 +18,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aoa_walks import LOOP, SITE, TAG, reports, walk
-from rfhoming.campaigns.runner import CampaignError
 from rfhoming.emulator import scenario as scenarios
 from rfhoming.emulator.aoa_error import MeasuredAoa
 from rfhoming.host.angle_residuals import residuals
@@ -419,14 +418,12 @@ def test_a_scenario_carries_its_radio() -> None:
         scenarios.load("s0-open", radio="absent.toml")
 
 
-def test_campaigns_that_take_profiles_take_the_radio_and_the_others_refuse_it() -> None:
-    from rfhoming.campaigns import s1, s4
+def test_campaigns_take_the_radio_and_leave_it_out_when_ideal() -> None:
+    from rfhoming.campaigns import s1
 
     jobs = s1.CAMPAIGN.make_jobs(2, 0, "measured")
     assert jobs and all(job.kwargs["radio"] == "measured" for job in jobs)
     assert all("radio" not in job.kwargs for job in s1.CAMPAIGN.make_jobs(2, 0))
-    with pytest.raises(CampaignError, match="--radio applies"):
-        dataclasses.replace(s4.CAMPAIGN, radios=False).make_jobs(2, 0, "measured")
 
 
 def test_emulate_refuses_a_radio_that_is_not_there(tmp_path: Path) -> None:
