@@ -391,17 +391,13 @@ class XplrAoaFirmware:
                 return
             tag = self.tags[adv.instance_id] = _Tag(self._now_ms)
         tag.last_heard_ms = self._now_ms
-        raw_az = _clamp(round(adv.azimuth_deg), -90, 90)
-        raw_el = _clamp(round(adv.elevation_deg), -90, 90) if cfg[5] else 0
-        tag.raw_azimuths.append(raw_az)
-        tag.raw_elevations.append(raw_el)
+        smooth = bool(cfg[8])
+        azimuth = _printed(tag.raw_azimuths, adv.azimuth_deg, smooth)
+        elevation = _printed(tag.raw_elevations, adv.elevation_deg if cfg[5] else 0.0, smooth)
         min_interval = int(cfg[1])
         if tag.last_event_ms is not None and self._now_ms - tag.last_event_ms < min_interval:
             return
         tag.last_event_ms = self._now_ms
-        smooth = bool(cfg[8])
-        azimuth = _median(tag.raw_azimuths) if smooth else raw_az
-        elevation = _median(tag.raw_elevations) if smooth else raw_el
         tag.seq = (tag.seq + 1) & 0xFFFF
         if adv.event_counter is not None and self.dialect in (Dialect.V2, Dialect.EMBED):
             tag.seq = adv.event_counter & 0xFFFF  # the tag's own counter: gaps where packets were missed
@@ -424,7 +420,7 @@ class XplrAoaFirmware:
         event = AngleEvent(
             adv.instance_id, rssi1, azimuth, elevation, reserved, channel,
             str(cfg[4]), str(cfg[2]), timestamp, tag.seq,
-            raw_az if raw else None, raw_el if raw else None,
+            tag.raw_azimuths[-1] if raw else None, tag.raw_elevations[-1] if raw else None,
         )
         dialect = self.dialect
         if dialect is Dialect.EMBED and not raw:
@@ -438,12 +434,15 @@ def output_angles(raw_deg: Sequence[float], smooth: bool = True) -> list[int]:
     clamped to +-90 and, with median buffering (``smooth``, tag 8's default), the median of the
     last :data:`MEDIAN_EVENTS`, as :meth:`XplrAoaFirmware.on_advertisement` does one by one."""
     buffer: deque[int] = deque(maxlen=MEDIAN_EVENTS)
-    out = []
-    for value in raw_deg:
-        raw = _clamp(round(value), -90, 90)
-        buffer.append(raw)
-        out.append(_median(buffer) if smooth else raw)
-    return out
+    return [_printed(buffer, value, smooth) for value in raw_deg]
+
+
+def _printed(buffer: deque[int], value_deg: float, smooth: bool) -> int:
+    """One measured angle into a tag's buffer: what the board prints for it (rounded, clamped,
+    and with ``smooth`` the median of the buffer)."""
+    raw = _clamp(round(value_deg), -90, 90)
+    buffer.append(raw)
+    return _median(buffer) if smooth else raw
 
 
 def _clamp(value: int, low: int, high: int) -> int:
