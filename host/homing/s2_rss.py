@@ -13,7 +13,10 @@ bumper, and the robot pushed against the wall until time ran out.
 
 The default is ours: ``likelihood = "bounded"`` (see host.estimation.particle), stopping at
 0.25 m and only when the dishes agree as well (the median range of the last five fixes below
-it: such a range reads long and almost never short). It reached the emitter in all of S2's
+it: such a range reads long and almost never short). A fix in which a chip saturated (its ED at
+84, a few tens of centimetres from the emitter) counts as below it: the radio cannot read any
+nearer, and the floor it reads instead is often above 0.25 m once the dish's offset is removed,
+so the robot stood at the emitter without ever confirming it. It reached the emitter in all of S2's
 scenarios where S2's own weights failed behind walls (docs/RESULTS.md). S2's system as
 published is ``likelihood = "s2"`` with ``arrival_range_m = 0.5`` (S2: "stop when front+back
 RSS says < 50 cm").
@@ -117,9 +120,15 @@ class RssController(ControllerDefaults):
         self._last_t = t
         self.pf.update((pose.x, pose.y, pose.theta), rng, theta)
         self.fixes += 1
-        self._ranges.append(rng)
+        saturated = any(item.saturated)
+        # a saturated chip reads at most what it can: the radio cannot tell any nearer than this fix,
+        # so for the arrival check it counts as near as can be (0 m), never as the floor it reads
+        self._ranges.append(0.0 if saturated else rng)
         self._last_fix = (pose.x + rng * math.cos(pose.theta + theta), pose.y + rng * math.sin(pose.theta + theta))
-        return {"theta": round(theta, 4), "range": round(rng, 3), "diff_db": round(diff_db, 2)}
+        out = {"theta": round(theta, 4), "range": round(rng, 3), "diff_db": round(diff_db, 2)}
+        if saturated:
+            out["saturated"] = True
+        return out
 
     def on_scan(self, scan: Any) -> None:
         """Preliminary motion: the nearest obstacle to the robot's body within ±30° ahead (S2's

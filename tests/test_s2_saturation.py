@@ -1,0 +1,53 @@
+"""S2's node near its emitter: an ED at its maximum is flagged, and the controller counts such a
+fix as "as near as the radio can tell" when it confirms arrival."""
+
+from __future__ import annotations
+
+from rfhoming.host.drivers.rss import AntennaPowers, Associator, RssDriver
+from rfhoming.host.homing.s2_rss import RssController, S2Params
+from rfhoming.host.homing.types import Pose
+from rfhoming.host.ports import HostPort
+from rfhoming.protocol.frames import AntennaReading, AntennaSet
+from rfhoming.protocol.frames.codec import encode_frame
+
+
+def _driver() -> RssDriver:
+    return RssDriver(HostPort("loop://"), reconnect=False)
+
+
+def test_an_antenna_set_flags_the_saturated_chips() -> None:
+    d = _driver()
+    eds = (84, 60, 84, 10)
+    d.on_chunk(encode_frame(AntennaSet(3, 1, 1000, 7, 1, 0, -99, 0b1111,
+                                       tuple(AntennaReading(ed, 255, 0) for ed in eds))), 1.0)
+    items = []
+    while (item := d.out.get_nowait()) is not None:
+        items.append(item)
+    (powers,) = [r for r in items if isinstance(r, AntennaPowers)]
+    assert powers.dbm == (-15.0, -39.0, -15.0, -89.0)
+    assert powers.saturated == (True, False, True, False)
+
+
+def test_the_associator_carries_the_flags() -> None:
+    a = Associator()
+    for i, sat in enumerate((False, True, False, False)):
+        done = a.add(1, 5, i, -20.0 - i, 10.0 + 0.001 * i, sat)
+    (powers,) = done
+    assert powers.saturated == (False, True, False, False)
+    assert AntennaPowers(0.0, 1, 1, (-1.0, -1.0, -1.0, -1.0)).saturated == (False,) * 4
+
+
+def _after(saturated: bool) -> str:
+    """Ours beside an emitter 0.1 m ahead whose strongest dish reads -15 dBm (the ED's top), a
+    floor that with the host's constants is 0.32 m: arrived only if it knows the chip saturated."""
+    c = RssController(S2Params(p0_dbm=-25.0, n=2.0, peak_gain_db=0.0))
+    sat = (saturated, False, False, False)
+    for k in range(20):
+        c.on_input(0.05 * k, Pose(0.0, 0.0, 0.0), AntennaPowers(0.05 * k, 1, k, (-15.0, -35.0, -30.0, -30.0), sat))
+    c.pf.x[0], c.pf.x[1] = 0.1, 0.0  # the filter (not under test) has it 0.1 m ahead
+    return c.decide(Pose(0.0, 0.0, 0.0)).note
+
+
+def test_saturated_fixes_confirm_arrival() -> None:
+    assert _after(True) == "arrived"
+    assert _after(False) != "arrived"
