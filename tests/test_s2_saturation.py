@@ -40,7 +40,7 @@ def test_the_associator_carries_the_flags() -> None:
 def _after(saturated: bool) -> str:
     """Ours beside an emitter 0.1 m ahead whose strongest dish reads -15 dBm (the ED's top), a
     floor that with the host's constants is 0.32 m: arrived only if it knows the chip saturated."""
-    c = RssController(S2Params(p0_dbm=-25.0, n=2.0, peak_gain_db=0.0))
+    c = RssController(S2Params(p0_dbm=-25.0, n=2.0, peak_gain_db=0.0, spin_calibration=False))
     sat = (saturated, False, False, False)
     for k in range(20):
         c.on_input(0.05 * k, Pose(0.0, 0.0, 0.0), AntennaPowers(0.05 * k, 1, k, (-15.0, -35.0, -30.0, -30.0), sat))
