@@ -1,8 +1,14 @@
-"""S2's node near its emitter: an ED at its maximum is flagged, and the controller counts such a
-fix as "as near as the radio can tell" when it confirms arrival."""
+"""S2's node, ours: near the emitter an ED at its maximum is flagged, and the controller counts
+such a fix as "as near as the radio can tell" when it confirms arrival; a turn in place gives
+the dishes' offsets."""
 
 from __future__ import annotations
 
+import math
+
+import pytest
+
+from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
 from rfhoming.host.drivers.rss import AntennaPowers, Associator, RssDriver
 from rfhoming.host.homing.s2_rss import RssController, S2Params
 from rfhoming.host.homing.types import Pose
@@ -51,3 +57,27 @@ def _after(saturated: bool) -> str:
 def test_saturated_fixes_confirm_arrival() -> None:
     assert _after(True) == "arrived"
     assert _after(False) != "arrived"
+
+
+def test_a_turn_in_place_measures_the_dishes_offsets() -> None:
+    """Ours turns in place first; each dish's mean power over the turn, less the four's mean, is
+    its offset, wherever the emitter is; the filter then restarts on the corrected readings."""
+    node = At86rf212NodeFirmware(1)
+    offsets = (3.0, -4.0, 0.5, 0.5)
+    emitter = (2.0, 1.0)
+    c = RssController(S2Params(p0_dbm=-30.0, n=2.0, peak_gain_db=6.6, dish_offsets_db=(0.0, 9.0, 0.0, -9.0)))
+    assert c.phase == "calibrating"
+    t, heading, k = 0.0, 0.0, 0
+    while c.phase == "calibrating" and t < 60:
+        pose = Pose(0.0, 0.0, heading)
+        bearing = math.atan2(emitter[1], emitter[0]) - heading
+        incident = -30.0 - 20 * math.log10(math.hypot(*emitter))
+        dbm = tuple(incident + g + o for g, o in zip(node.antenna_gains_db(bearing), offsets))
+        c.on_input(t, pose, AntennaPowers(t, 1, k, dbm))  # type: ignore[arg-type]
+        d = c.decide(pose)
+        heading += d.w * 0.05
+        t, k = t + 0.05, k + 1
+    assert c.spins == 1 and c.phase == "homing"
+    assert all(abs(a - (b - sum(offsets) / 4)) < 0.3 for a, b in zip(c.offsets, offsets))
+    x, y = c.pf.estimate()
+    assert math.atan2(y, x) == pytest.approx(math.atan2(emitter[1], emitter[0]), abs=0.2)
