@@ -46,7 +46,7 @@ def test_the_associator_carries_the_flags() -> None:
 def _after(saturated: bool) -> str:
     """Ours beside an emitter 0.1 m ahead whose strongest dish reads -15 dBm (the ED's top), a
     floor that with the host's constants is 0.32 m: arrived only if it knows the chip saturated."""
-    c = RssController(S2Params(p0_dbm=-25.0, n=2.0, peak_gain_db=0.0, spin_calibration=False))
+    c = RssController(S2Params(p0_dbm=-25.0, n=2.0, peak_gain_db=0.0, spin_calibration=False, confirm_s=0.0))
     sat = (saturated, False, False, False)
     for k in range(20):
         c.on_input(0.05 * k, Pose(0.0, 0.0, 0.0), AntennaPowers(0.05 * k, 1, k, (-15.0, -35.0, -30.0, -30.0), sat))
@@ -81,3 +81,37 @@ def test_a_turn_in_place_measures_the_dishes_offsets() -> None:
     assert all(abs(a - (b - sum(offsets) / 4)) < 0.3 for a, b in zip(c.offsets, offsets))
     x, y = c.pf.estimate()
     assert math.atan2(y, x) == pytest.approx(math.atan2(emitter[1], emitter[0]), abs=0.2)
+
+
+def _beside(confirm_s: float, seconds: float) -> list[str]:
+    """Ours with the filter and the dishes agreeing that the emitter is 0.1 m ahead, for
+    ``seconds`` of fixes (20 a second): the notes of its decisions."""
+    c = RssController(S2Params(p0_dbm=-25.0, n=2.0, peak_gain_db=0.0, spin_calibration=False, confirm_s=confirm_s))
+    notes = []
+    for k in range(int(seconds * 20)):
+        c.on_input(0.05 * k, Pose(0.0, 0.0, 0.0), AntennaPowers(0.05 * k, 1, k, (-5.0, -25.0, -20.0, -20.0)))
+        c.pf.x[0], c.pf.x[1] = 0.1, 0.0
+        notes.append(c.decide(Pose(0.0, 0.0, 0.0)).note)
+    return notes
+
+
+def test_arrival_holds_for_confirm_s_while_creeping_on() -> None:
+    notes = _beside(2.0, 3.0)
+    first = notes.index("arrived")
+    assert 2.0 <= 0.05 * (first - notes.index("homing")) <= 2.1  # close from the first homing step
+    assert set(notes[notes.index("homing"):first]) == {"homing"}
+    assert _beside(0.0, 1.0)[9:10] == ["arrived"]  # min_fixes 10: the tenth fix homes and is close
+
+
+def test_a_robot_kept_in_one_place_turns_again() -> None:
+    """Homing toward an emitter it never nears (the dishes say 3 m), the robot held in place:
+    after stuck_s it turns in place again, and then homes with the turn's offsets."""
+    c = RssController(S2Params(p0_dbm=-30.0, n=2.0, peak_gain_db=0.0, stuck_s=10.0))
+    c._spinning = False  # as after the first turn
+    notes = []
+    for k in range(20 * 20):
+        c.on_input(0.05 * k, Pose(0.0, 0.0, 0.0), AntennaPowers(0.05 * k, 1, k, (-40.0, -60.0, -50.0, -50.0)))
+        notes.append(c.decide(Pose(0.0, 0.0, 0.0)).note)
+    turned = notes.index("stuck: turning in place again")
+    assert 10.0 <= 0.05 * turned <= 11.0
+    assert c.phase == "calibrating"
