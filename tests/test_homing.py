@@ -419,7 +419,7 @@ def _preliminary_after_fixes(ranges: list[float | None]) -> str:
     from rfhoming.host.drivers.rss import AntennaPowers
     from rfhoming.host.homing.s2_rss import RssController, S2Params
 
-    c = RssController(S2Params(motion="preliminary", peak_gain_db=0.0))
+    c = RssController(S2Params(motion="preliminary", peak_gain_db=0.0, spin_calibration=False))  # no first turn: the rules at once
     for k in range(12):  # x1 strongest, x2 weakest, sides equal: ahead, about 3 m
         c.on_input(0.05 * k, Pose(0.0, 0.0, 0.0), AntennaPowers(0.05 * k, 1, k, (-50.0, -70.0, -60.0, -60.0)))
     c.on_scan(Scan(0.0, -math.pi / 2, math.pi / (len(ranges) - 1), ranges))

@@ -4,7 +4,9 @@
   maps it to host time with the minimum observed (host arrival − node time) over a window:
   the arrival with the least transport delay is the best offset estimate.
 - Loss: a per-node gap in the record counter ``seq`` is counted as lost records.
-- Power: ED -> dBm with the base the node reports and the calibrated ED step.
+- Power: ED -> dBm with the base the node reports and the calibrated ED step. An ED at its
+  maximum (84) is a power at or above what it says: the chip saturates there, a few tens of
+  centimetres from an emitter; :class:`AntennaPowers` flags such readings.
 - Antennas: the four 0x02 records of one emitter frame are associated by ``emitter_seq``
   within a window; a 0x03 record carries the set already and is used as it is.
 """
@@ -16,7 +18,7 @@ from typing import Any, NamedTuple
 
 from rfhoming.host.drivers.common import BoundedStream, Driver, Wiring
 from rfhoming.host.ports import HostPort
-from rfhoming.protocol.at86rf212 import DEFAULT_SCALE_DB, ed_to_dbm
+from rfhoming.protocol.at86rf212 import DEFAULT_SCALE_DB, ED_MAX, ed_to_dbm
 from rfhoming.protocol.drop import Drop
 from rfhoming.protocol.frames import (
     RECORD_TYPES,
@@ -43,13 +45,23 @@ def _four(powers: list[float | None]) -> tuple[float | None, float | None, float
     return powers[0], powers[1], powers[2], powers[3]
 
 
+Four = tuple[bool, bool, bool, bool]
+NONE_SATURATED: Four = (False, False, False, False)
+
+
+def _flags(sat: list[bool]) -> tuple[bool, bool, bool, bool]:
+    return sat[0], sat[1], sat[2], sat[3]
+
+
 class AntennaPowers(NamedTuple):
-    """One emitter frame on the four antennas (x1, x2, y1, y2); None = not received."""
+    """One emitter frame on the four antennas (x1, x2, y1, y2); None = not received.
+    ``saturated[i]``: antenna i's ED was at its maximum, so its true power is at least ``dbm[i]``."""
 
     t_host: float
     node_id: int
     emitter_seq: int
     dbm: tuple[float | None, float | None, float | None, float | None]
+    saturated: Four = NONE_SATURATED
 
 
 class NodeClock:
@@ -96,21 +108,27 @@ class Associator:
 
     def __init__(self, window_s: float = 0.05) -> None:
         self.window_s = window_s
-        self._open: dict[tuple[int, int], tuple[float, list[float | None]]] = {}
+        self._open: dict[tuple[int, int], tuple[float, list[float | None], list[bool]]] = {}
 
-    def add(self, node_id: int, emitter_seq: int, antenna: int, dbm: float | None, t: float) -> list[AntennaPowers]:
+    def add(self, node_id: int, emitter_seq: int, antenna: int, dbm: float | None, t: float,
+            saturated: bool = False) -> list[AntennaPowers]:
         key = (node_id, emitter_seq)
-        t0, powers = self._open.setdefault(key, (t, [None] * 4))
+        t0, powers, sat = self._open.setdefault(key, (t, [None] * 4, [False] * 4))
         powers[antenna] = dbm
+        sat[antenna] = saturated
         done = self.expire(t)
         if key in self._open and all(p is not None for p in powers):
             del self._open[key]
-            done.append(AntennaPowers(t0, node_id, emitter_seq, _four(powers)))
+            done.append(AntennaPowers(t0, node_id, emitter_seq, _four(powers), _flags(sat)))
         return done
 
     def expire(self, now: float) -> list[AntennaPowers]:
-        old = [k for k, (t0, _) in self._open.items() if now - t0 > self.window_s]
-        return [AntennaPowers(self._open[k][0], k[0], k[1], _four(self._open.pop(k)[1])) for k in old]
+        old = [k for k, (t0, _, _) in self._open.items() if now - t0 > self.window_s]
+        out = []
+        for k in old:
+            t0, powers, sat = self._open.pop(k)
+            out.append(AntennaPowers(t0, k[0], k[1], _four(powers), _flags(sat)))
+        return out
 
 
 class RssDriver(Driver):
@@ -157,12 +175,15 @@ class RssDriver(Driver):
                 if record.rssi_dbm != 127:
                     self.out.put(BleRssi(t, record.node_id, record.addr[::-1].hex().upper(), record.rssi_dbm))
             elif isinstance(record, AntennaSet) and self.use_antenna_sets:
-                dbm = _four([self._dbm(a.ed, record.rssi_base_dbm) if record.valid_mask >> i & 1 else None
-                             for i, a in enumerate(record.antennas)])
-                self.out.put(AntennaPowers(t, record.node_id, record.emitter_seq, dbm))
+                valid = [record.valid_mask >> i & 1 == 1 for i in range(4)]
+                dbm = _four([self._dbm(a.ed, record.rssi_base_dbm) if ok else None
+                             for ok, a in zip(valid, record.antennas)])
+                sat = _flags([ok and a.ed == ED_MAX for ok, a in zip(valid, record.antennas)])
+                self.out.put(AntennaPowers(t, record.node_id, record.emitter_seq, dbm, sat))
             elif isinstance(record, RfFrame) and not self.use_antenna_sets:
                 for done in self.associator.add(record.node_id, record.emitter_seq, record.antenna,
-                                                self._dbm(record.ed, record.rssi_base_dbm), t):
+                                                self._dbm(record.ed, record.rssi_base_dbm), t,
+                                                record.ed == ED_MAX):
                     self.out.put(done)
             elif isinstance(record, Status):
                 self.status[record.node_id] = record

@@ -13,7 +13,10 @@ bumper, and the robot pushed against the wall until time ran out.
 
 The default is ours: ``likelihood = "bounded"`` (see host.estimation.particle), stopping at
 0.25 m and only when the dishes agree as well (the median range of the last five fixes below
-it: such a range reads long and almost never short). It reached the emitter in all of S2's
+it: such a range reads long and almost never short). A fix in which a chip saturated (its ED at
+84, a few tens of centimetres from the emitter) counts as below it: the radio cannot read any
+nearer, and the floor it reads instead is often above 0.25 m once the dish's offset is removed,
+so the robot stood at the emitter without ever confirming it. It reached the emitter in all of S2's
 scenarios where S2's own weights failed behind walls (docs/RESULTS.md). S2's system as
 published is ``likelihood = "s2"`` with ``arrival_range_m = 0.5`` (S2: "stop when front+back
 RSS says < 50 cm").
@@ -67,6 +70,13 @@ class S2Params:
     touch_m: float = setting(0.05, low=0, high=5, unit=M)  # preliminary: an obstacle this near the body anywhere in the scan counts as ahead
     likelihood: str = setting("bounded", choices=("s2", "bounded"))  # the particle filter's weights: "bounded" (ours) or "s2" (host.estimation.particle)
     dish_offsets_db: tuple[float, float, float, float] = setting((0.0, 0.0, 0.0, 0.0), low=-40, high=40, unit=DB)  # x1, x2, y1, y2
+    confirm_s: float = setting(2.0, low=0, high=60, unit="s")  # bounded: arrival holds this long, the robot creeping on, before it stops
+    saturated_arrival_m: float = setting(0.15, low=0, above=True, high=100, unit=M)  # bounded: the filter's stop radius when the chips saturate
+    spin_calibration: bool = setting(True)  # bounded (ours): a turn in place measures the dishes' offsets where the robot stands
+    spin_w: float = setting(0.8, low=0, above=True, high=10, unit=RAD_S)  # its turn rate
+    stuck_s: float = setting(40.0, low=0, above=True, high=3600, unit="s")  # homing this long within stuck_m of one place: turn again
+    stuck_m: float = setting(0.5, low=0, above=True, high=100, unit=M)
+    contradict_s: float = setting(15.0, low=0, above=True, high=3600, unit="s")  # the filter against the dishes this long: turn again
 
     def __post_init__(self) -> None:  # a TOML list becomes the tuple the default is
         object.__setattr__(self, "dish_offsets_db", tuple(float(v) for v in self.dish_offsets_db))
@@ -93,9 +103,24 @@ class RssController(ControllerDefaults):
         self._last_t: float | None = None
         self._last_fix: tuple[float, float] | None = None
         self._ranges: deque[float] = deque(maxlen=5)
+        self._saturated: deque[bool] = deque(maxlen=5)
+        self.offsets: tuple[float, float, float, float] = params.dish_offsets_db
+        self.spins = 0
+        self._spinning = params.spin_calibration and params.likelihood == "bounded"
+        self._spin: list[tuple[float, Pose, tuple[float, float, float, float], bool]] = []
+        self._spin_turned = 0.0
+        self._spin_heading: float | None = None
+        self._anchor: tuple[float, float, float] | None = None  # (t, x, y): where the robot last was stuck_m away from
+        self._t = 0.0
+        self._spun_at = 0.0
+        self._close_since: float | None = None
+        self._recent: deque[tuple[float, float]] = deque()  # (t, range) of the last contradict_s of fixes
+        self._track: deque[tuple[float, float, float, float, float]] = deque()  # (t, robot x, y, emitter x, y) as long
 
     @property
     def phase(self) -> str:
+        if self._spinning:
+            return "calibrating"
         return "homing" if self.fixes >= self.params.min_fixes else "searching"
 
     @property
@@ -108,18 +133,100 @@ class RssController(ControllerDefaults):
         if any(p is None for p in item.dbm):
             self.incomplete += 1
             return {"incomplete": True}
+        self._t = t
+        raw = (float(item.dbm[0]), float(item.dbm[1]), float(item.dbm[2]), float(item.dbm[3]))  # type: ignore[arg-type]
+        saturated = any(item.saturated)
+        if self._spinning:
+            self._spin.append((t, pose, raw, saturated))
+        theta, diff_db, rng = self._fix(t, pose, raw)
+        self.fixes += 1
+        self._ranges.append(rng)
+        self._saturated.append(saturated)
+        self._recent.append((t, rng))
+        while self._recent[0][0] < t - self.params.contradict_s:
+            self._recent.popleft()
+        self._last_fix = (pose.x + rng * math.cos(pose.theta + theta), pose.y + rng * math.sin(pose.theta + theta))
+        out = {"theta": round(theta, 4), "range": round(rng, 3), "diff_db": round(diff_db, 2)}
+        if saturated:
+            out["saturated"] = True
+        return out
+
+    def _fix(self, t: float, pose: Pose, raw: tuple[float, float, float, float]) -> tuple[float, float, float]:
+        """One fix into the filter, the dishes' offsets removed: (bearing rad, dB apart, range m)."""
         p = self.params
-        dbm = [v - o for v, o in zip(item.dbm, p.dish_offsets_db)]  # type: ignore[operator]
+        dbm = [v - o for v, o in zip(raw, self.offsets)]
         theta, diff_db = direction(*dbm)
         rng = differential_to_range(np.array(dbm), p.p0_dbm, p.n, p.peak_gain_db)
         if self._last_t is not None:
             self.pf.predict(max(t - self._last_t, 0.0))
         self._last_t = t
         self.pf.update((pose.x, pose.y, pose.theta), rng, theta)
-        self.fixes += 1
-        self._ranges.append(rng)
-        self._last_fix = (pose.x + rng * math.cos(pose.theta + theta), pose.y + rng * math.sin(pose.theta + theta))
-        return {"theta": round(theta, 4), "range": round(rng, 3), "diff_db": round(diff_db, 2)}
+        return theta, diff_db, rng
+
+    def _end_spin(self) -> None:
+        """A full turn in place: every dish has faced every way, so what differs between their
+        mean powers over the turn is their own offsets where the robot stands (chip, dish, and
+        the place's fading on each), whatever the emitter's bearing. Take these as the offsets
+        (mean zero, as the calibration's), restart the filter and give it the turn's readings."""
+        self._spinning = False
+        self.spins += 1
+        bins: dict[int, list[tuple[float, float, float, float]]] = {}
+        for _, pose, raw, _ in self._spin:  # by heading, so that a stall in one direction weighs no more
+            bins.setdefault(int((pose.theta % (2 * math.pi)) // (math.pi / 6)), []).append(raw)
+        if len(bins) >= 10:  # nearly every heading heard: else keep the offsets there are
+            means = np.mean([np.mean(v, axis=0) for v in bins.values()], axis=0)
+            means -= means.mean()
+            self.offsets = (float(means[0]), float(means[1]), float(means[2]), float(means[3]))
+            self.pf = ParticleFilter(self.pf.params, self.pf.rng)
+            self._last_t = None
+            self._ranges.clear()
+            self._saturated.clear()
+            for t, pose, raw, saturated in self._spin:
+                _, _, rng = self._fix(t, pose, raw)
+                self._ranges.append(rng)
+                self._saturated.append(saturated)
+        self._spin = []
+        self._spin_heading = None
+        self._anchor = None
+        self._spun_at = self._t
+
+    def _spin_step(self, pose: Pose) -> Decision | None:
+        """While turning in place: the command, or None when the turn is done."""
+        if self._spin_heading is not None:
+            self._spin_turned += abs(wrap_rad(pose.theta - self._spin_heading))
+        else:
+            self._spin_turned = 0.0
+        self._spin_heading = pose.theta
+        if self._spin_turned < 2 * math.pi + 0.2:
+            return Decision(0.0, self.params.spin_w, None, False, "turning in place: the dishes' offsets")
+        self._end_spin()
+        return None
+
+    def _stuck(self, pose: Pose, d_g: float) -> bool:
+        """Homing, and no farther than ``stuck_m`` from one place for ``stuck_s``; or, at least
+        ``contradict_s`` after a turn, a filter that follows the robot: over the last
+        ``contradict_s`` the robot moved more than 1 m, its emitter moved along by more than half
+        that, and it is much nearer than the dishes' median range says (by 3 times and 1.5 m). A
+        cloud that sits by the robot and moves with it is one its bounded weights cannot rule out
+        by themselves (a static emitter does not follow the robot)."""
+        p = self.params
+        if not (p.spin_calibration and p.likelihood == "bounded"):
+            return False
+        goal = self.pf.estimate()
+        self._track.append((self._t, pose.x, pose.y, float(goal[0]), float(goal[1])))
+        while self._track[0][0] < self._t - p.contradict_s:
+            self._track.popleft()
+        if self._t - self._spun_at > p.contradict_s and self._recent:
+            t0, x0, y0, gx0, gy0 = self._track[0]
+            moved = math.hypot(pose.x - x0, pose.y - y0)
+            dragged = math.hypot(goal[0] - gx0, goal[1] - gy0)
+            heard = statistics.median(r for _, r in self._recent)
+            if moved > 1.0 and dragged > moved / 2 and heard > max(3 * d_g, d_g + 1.5):
+                return True
+        if self._anchor is None or math.dist((pose.x, pose.y), self._anchor[1:]) > p.stuck_m:
+            self._anchor = (self._t, pose.x, pose.y)
+            return False
+        return self._t - self._anchor[0] > p.stuck_s
 
     def on_scan(self, scan: Any) -> None:
         """Preliminary motion: the nearest obstacle to the robot's body within ±30° ahead (S2's
@@ -150,6 +257,10 @@ class RssController(ControllerDefaults):
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         p = self.params
+        if self._spinning:
+            turning = self._spin_step(pose)
+            if turning is not None:
+                return turning
         goal = self.reported
         if goal is None:
             return Decision(0.0, p.search_w if self.fixes == 0 else 0.0, None, False, "waiting for fixes")
@@ -157,9 +268,24 @@ class RssController(ControllerDefaults):
         d_g = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
         close = estimated_range < p.arrival_range_m or d_g < p.arrival_range_m
         if close and p.likelihood == "bounded":  # the dishes must say so too (their range seldom reads short)
-            close = statistics.median(self._ranges) < p.arrival_range_m
+            if 2 * sum(self._saturated) > len(self._saturated):
+                # most chips saturated: the radio cannot tell any nearer, its floor may read above
+                # arrival_range_m, and a place's fading can saturate it farther out: the filter alone
+                # decides, with a tighter radius
+                r = p.saturated_arrival_m
+                close = estimated_range < r or d_g < r
+            else:
+                close = statistics.median(self._ranges) < p.arrival_range_m
+        if close and p.likelihood == "bounded":  # close for confirm_s on end, still creeping to the estimate
+            self._close_since = self._t if self._close_since is None else self._close_since
+            close = self._t - self._close_since >= p.confirm_s
+        else:
+            self._close_since = None
         if close:
             return Decision(0.0, 0.0, (float(goal[0]), float(goal[1])), True, "arrived")
+        if self._close_since is None and self._stuck(pose, d_g):
+            self._spinning = True
+            return Decision(0.0, p.spin_w, None, False, "stuck: turning in place again")
         if p.motion == "preliminary":
             return self._preliminary(pose, goal)
         aim = steer_to if steer_to is not None else goal
