@@ -27,11 +27,13 @@ def controller(**settings: float | bool) -> TrilatController:
     return TrilatController(TrilatParams(anchors=anchors, goal=[2.5, 2.5], **settings))  # type: ignore[arg-type]
 
 
-def run(ctrl: TrilatController, heard_at_start: tuple[float, float], seconds: float = 240.0) -> tuple[list[str], Pose]:
+def run(ctrl: TrilatController, heard_at_start: tuple[float, float], seconds: float = 240.0,
+        trail: list[tuple[str, float]] | None = None) -> tuple[list[str], Pose]:
     """The robot starts at odometry (1.5, 1.5) (the world's (2.5, 2.5), the goal) and follows the
     controller's commands in 0.1 s steps; every step it hears the four beacons, exactly, where
     it is, except for the first 2 s (its standing start), heard as at ``heard_at_start``.
-    The notes in order (repeats dropped) and the last pose."""
+    The notes in order (repeats dropped) and the last pose; ``trail`` gets each step's note
+    and the odometry's distance from the goal's."""
     pose, t = Pose(1.5, 1.5, 0.0), 0.0
     notes: list[str] = []
     while t < seconds:
@@ -39,6 +41,8 @@ def run(ctrl: TrilatController, heard_at_start: tuple[float, float], seconds: fl
         for k, address in enumerate(ctrl.anchors):
             ctrl.on_input(t, pose, BleRssi(t, 1, address, round(float(rssi_at(where)[k]))))
         d = ctrl.decide(pose)
+        if trail is not None:
+            trail.append((d.note, math.dist((pose.x, pose.y), (1.5, 1.5))))
         if not notes or notes[-1] != d.note:
             notes.append(d.note)
         if d.arrived:
@@ -50,7 +54,7 @@ def run(ctrl: TrilatController, heard_at_start: tuple[float, float], seconds: fl
 
 
 def test_the_robot_surveys_about_the_goal_before_it_stands() -> None:
-    ctrl = controller(survey_m=1.0)
+    ctrl = controller(survey_m=1.0, survey_min=1)
     notes, pose = run(ctrl, heard_at_start=(2.5, 2.5))
     assert ctrl.arrived and ctrl.surveys == 1
     assert notes.index("surveying") < notes.index("confirming: standing")
@@ -58,11 +62,11 @@ def test_the_robot_surveys_about_the_goal_before_it_stands() -> None:
 
 
 def test_a_survey_that_moves_the_offset_is_followed_by_another() -> None:
-    ctrl = controller(survey_m=1.0)  # the standing start is heard 2.1 m off: the offset the first survey starts from is still 0.6 m off
+    ctrl = controller(survey_m=1.0, survey_min=1, survey_grow_m=0.0)  # the standing start is heard 2.1 m off: the offset the first survey starts from is still 0.6 m off
     run(ctrl, heard_at_start=(4.0, 4.0))
     assert ctrl.arrived and ctrl.surveys == 2
     assert ctrl.offset is not None and np.linalg.norm(ctrl.offset - TRUE_OFFSET) < 0.3
-    capped = controller(survey_m=1.0, survey_max=1)
+    capped = controller(survey_m=1.0, survey_min=1, survey_max=1)
     run(capped, heard_at_start=(4.0, 4.0))
     assert capped.arrived and capped.surveys == 1
 
@@ -72,3 +76,18 @@ def test_without_a_survey_the_robot_stands_at_once() -> None:
         ctrl = controller(**settings)
         notes, _ = run(ctrl, heard_at_start=(2.5, 2.5))
         assert ctrl.arrived and ctrl.surveys == 0 and "surveying" not in notes
+
+
+def test_the_second_survey_is_wider_and_made_even_when_the_first_moved_nothing() -> None:
+    trail: list[tuple[str, float]] = []
+    ctrl = controller(survey_m=1.0, survey_grow_m=1.0, survey_min=2)
+    run(ctrl, heard_at_start=(2.5, 2.5), trail=trail)
+    assert ctrl.arrived and ctrl.surveys == 2
+    segments: list[float] = []  # the farthest from the goal in each survey
+    for i, (note, far) in enumerate(trail):
+        if note == "surveying":
+            if i == 0 or trail[i - 1][0] != "surveying":
+                segments.append(0.0)
+            segments[-1] = max(segments[-1], far)
+    assert len(segments) == 2
+    assert 0.6 < segments[0] < 0.85 and 1.3 < segments[1] < 1.55  # corners 0.5 and 1.0 m out on each axis

@@ -346,6 +346,8 @@ confirm_tries = 3        # the last confirmation arrives whatever it says
 survey_m = 1.5           # at the goal, drive a square this wide about it before standing (0: none)
 survey_tol_m = 0.3       # a survey that moved the offset less than this ends the surveys
 survey_max = 3
+survey_min = 2           # surveys before one that moved the offset little may end them
+survey_grow_m = 1.0      # each further survey is this much wider (new places)
 
 [trilat.anchors]         # beacon address (as rfhoming listen prints it) = [x, y]; at least three
 

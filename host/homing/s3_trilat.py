@@ -33,11 +33,14 @@ Beyond the paper, for real radios (docs/estimation.md, "S3 under measured radios
 - the survey: with ``self_calibrate``, the first time the fused estimate is within
   ``arrival_radius`` the robot does not stand yet: it drives a square ``survey_m`` wide about
   the goal (corners fixed in odometry when it begins), so the fit has places on every side of
-  the goal, and comes back; while a survey moves the fitted offset by ``survey_tol_m`` or
-  more it surveys again, up to ``survey_max`` surveys; then it stands to confirm as above.
+  the goal, and comes back; each further survey ``survey_grow_m`` wider (new places); it
+  surveys at least ``survey_min`` times, and again while a survey moves the fitted offset by
+  ``survey_tol_m`` or more, up to ``survey_max`` surveys; then it stands to confirm as above.
   ``history_s`` (150 s) keeps the surveys' readings in the fit.
 ``localise_s = 0``, ``confirm_s = 0``, ``robust_fit = false`` and ``self_calibrate = false``:
 the paper's loop; ``survey_m = 0`` and ``history_s = 30``: the loop before the survey.
+The third survey's square (3.5 m) reaches past beacons 1.25 m from the goal: in a walled
+arena, ``survey_max = 2`` or a smaller ``survey_grow_m``.
 """
 
 from __future__ import annotations
@@ -90,6 +93,8 @@ class TrilatParams:
     survey_m: float = setting(1.5, low=0, high=20, unit=M)  # at the goal, drive a square this wide about it before standing (0: none)
     survey_tol_m: float = setting(0.3, low=0, above=True, high=10, unit=M)  # a survey that moved the offset less than this ends the surveys
     survey_max: int = setting(3, low=0, high=100, unit="surveys")
+    survey_min: int = setting(2, low=0, high=100, unit="surveys")  # surveys before one that moved the offset little may end them
+    survey_grow_m: float = setting(1.0, low=0, high=20, unit=M)  # each further survey is this much wider (new places)
 
 
 class TrilatController(ControllerDefaults):
@@ -248,12 +253,12 @@ class TrilatController(ControllerDefaults):
                 return self._drive(pose, self._survey[0] + self.offset, "surveying")
             assert self._survey_from is not None and self.offset is not None
             moved = float(np.linalg.norm(self.offset - self._survey_from))
-            self._surveyed = moved < p.survey_tol_m or self.surveys >= p.survey_max
+            self._surveyed = (moved < p.survey_tol_m and self.surveys >= p.survey_min) or self.surveys >= p.survey_max
         here = self.world(pose)
         aim = goal if steer_to is None else np.array(steer_to) + self.offset  # waypoints are in odometry
         d_g = float(np.linalg.norm(goal - here))
         if d_g < p.arrival_radius and not self._surveyed and self.offset is not None:
-            h = p.survey_m / 2
+            h = (p.survey_m + p.survey_grow_m * self.surveys) / 2
             self._survey = [goal + np.array(c) * h - self.offset for c in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
             self._survey_from, self.surveys = self.offset.copy(), self.surveys + 1
             return self._drive(pose, self._survey[0] + self.offset, "surveying")
