@@ -339,10 +339,15 @@ confirm_s = 2.0          # at arrival stand this long and re-solve from the stan
 confirm_settle_s = 0.2
 confirm_radius = 0.5     # the standing fix must be this near the goal, else go on
 self_calibrate = true    # fit the offset with P0, n and each beacon's own offset over the path's readings
-history_s = 30.0         # the readings that fit is made of
+history_s = 150.0        # the readings that fit is made of
 place_m = 0.5            # readings within one such cell of the path are one observation
 calibrate_every_s = 0.5
 confirm_tries = 3        # the last confirmation arrives whatever it says
+survey_m = 1.5           # at the goal, drive a square this wide about it before standing (0: none)
+survey_tol_m = 0.3       # a survey that moved the offset less than this ends the surveys
+survey_max = 3
+survey_min = 2           # surveys before one that moved the offset little may end them
+survey_grow_m = 1.0      # each further survey is this much wider (new places)
 
 [trilat.anchors]         # beacon address (as rfhoming listen prints it) = [x, y]; at least three
 

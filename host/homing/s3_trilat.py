@@ -29,9 +29,18 @@ Beyond the paper, for real radios (docs/estimation.md, "S3 under measured radios
   and n and each beacon's own offset in dB (priors: the settings' P0 and n, 3 dB per beacon)
   to the last ``history_s`` of raw readings, one mean per beacon and ``place_m`` cell of the
   path (a beacon's shadowing holds at a place: a robot standing long is one observation),
-  instead of pulling it by ``offset_gain`` towards each fix.
+  instead of pulling it by ``offset_gain`` towards each fix;
+- the survey: with ``self_calibrate``, the first time the fused estimate is within
+  ``arrival_radius`` the robot does not stand yet: it drives a square ``survey_m`` wide about
+  the goal (corners fixed in odometry when it begins), so the fit has places on every side of
+  the goal, and comes back; each further survey ``survey_grow_m`` wider (new places); it
+  surveys at least ``survey_min`` times, and again while a survey moves the fitted offset by
+  ``survey_tol_m`` or more, up to ``survey_max`` surveys; then it stands to confirm as above.
+  ``history_s`` (150 s) keeps the surveys' readings in the fit.
 ``localise_s = 0``, ``confirm_s = 0``, ``robust_fit = false`` and ``self_calibrate = false``:
-the paper's loop.
+the paper's loop; ``survey_m = 0`` and ``history_s = 30``: the loop before the survey.
+The third survey's square (3.5 m) reaches past beacons 1.25 m from the goal: in a walled
+arena, ``survey_max = 2`` or a smaller ``survey_grow_m``.
 """
 
 from __future__ import annotations
@@ -77,10 +86,15 @@ class TrilatParams:
     confirm_settle_s: float = setting(0.2, low=0, high=10, unit=S)  # readings this soon after stopping are left out
     confirm_radius: float = setting(0.5, low=0, above=True, high=10, unit=M)  # the standing fix must be this near the goal
     self_calibrate: bool = setting(True)  # fit the offset with P0, n and each beacon's own offset over the path's readings
-    history_s: float = setting(30.0, low=0, above=True, high=3600, unit=S)  # the readings that fit is made of
+    history_s: float = setting(150.0, low=0, above=True, high=3600, unit=S)  # the readings that fit is made of
     place_m: float = setting(0.5, low=0, above=True, high=100, unit=M)  # readings within one such cell of the path are one observation
     calibrate_every_s: float = setting(0.5, low=0, above=True, high=60, unit=S)
     confirm_tries: int = setting(3, low=1, high=100, unit="confirmations")  # the last one arrives whatever it says
+    survey_m: float = setting(1.5, low=0, high=20, unit=M)  # at the goal, drive a square this wide about it before standing (0: none)
+    survey_tol_m: float = setting(0.3, low=0, above=True, high=10, unit=M)  # a survey that moved the offset less than this ends the surveys
+    survey_max: int = setting(3, low=0, high=100, unit="surveys")
+    survey_min: int = setting(2, low=0, high=100, unit="surveys")  # surveys before one that moved the offset little may end them
+    survey_grow_m: float = setting(1.0, low=0, high=20, unit=M)  # each further survey is this much wider (new places)
 
 
 class TrilatController(ControllerDefaults):
@@ -108,6 +122,10 @@ class TrilatController(ControllerDefaults):
         self._history: deque[tuple[float, float, float, int, float]] = deque()  # t, odometry x, y, anchor, raw RSSI
         self.theta: np.ndarray | None = None  # self-calibration: offset x, y, P0, n, each anchor's offset
         self._calibrated_t = -math.inf
+        self._survey: list[np.ndarray] = []  # odometry waypoints still to drive
+        self._survey_from: np.ndarray | None = None  # the offset when the survey began
+        self.surveys = 0
+        self._surveyed = params.survey_m <= 0 or not params.self_calibrate
 
     @property
     def phase(self) -> str:
@@ -228,9 +246,22 @@ class TrilatController(ControllerDefaults):
                 return Decision(0.0, 0.0, tuple(goal), True, "arrived")
             if self.theta is None:
                 self.offset = fix - odo  # the standing fix is the best the radios give: go on from it
+        if self._survey:
+            if float(np.linalg.norm(self._survey[0] - odo)) < 0.2:
+                self._survey.pop(0)
+            if self._survey:
+                return self._drive(pose, self._survey[0] + self.offset, "surveying")
+            assert self._survey_from is not None and self.offset is not None
+            moved = float(np.linalg.norm(self.offset - self._survey_from))
+            self._surveyed = (moved < p.survey_tol_m and self.surveys >= p.survey_min) or self.surveys >= p.survey_max
         here = self.world(pose)
         aim = goal if steer_to is None else np.array(steer_to) + self.offset  # waypoints are in odometry
         d_g = float(np.linalg.norm(goal - here))
+        if d_g < p.arrival_radius and not self._surveyed and self.offset is not None:
+            h = (p.survey_m + p.survey_grow_m * self.surveys) / 2
+            self._survey = [goal + np.array(c) * h - self.offset for c in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+            self._survey_from, self.surveys = self.offset.copy(), self.surveys + 1
+            return self._drive(pose, self._survey[0] + self.offset, "surveying")
         if d_g < p.arrival_radius:
             if p.confirm_s <= 0:
                 self.arrived = True
@@ -241,8 +272,15 @@ class TrilatController(ControllerDefaults):
         v, w = velocity_law(theta_g, d_g, p.v_max, p.w_max, p.k_w, p.k_stop)
         return Decision(v, w, tuple(goal), False, "homing")
 
+    def _drive(self, pose: Pose, aim: np.ndarray, note: str) -> Decision:
+        p = self.params
+        here = self.world(pose)
+        theta_g = wrap_rad(math.atan2(aim[1] - here[1], aim[0] - here[0]) - pose.theta)
+        v, w = velocity_law(theta_g, max(float(np.linalg.norm(aim - here)), 0.3), p.v_max, p.w_max, p.k_w, p.k_stop)
+        return Decision(v, w, tuple(self.reported), False, note)
+
     def estimate(self) -> dict[str, Any]:
         return {"offset": None if self.offset is None else [round(float(v), 3) for v in self.offset],
-                "confirmations": self.confirmations,
+                "confirmations": self.confirmations, "surveys": self.surveys,
                 "radio": None if self.theta is None else [round(float(v), 2) for v in self.theta[2:]],
                 "fix": None if self.last_fix is None else [round(float(v), 3) for v in self.last_fix]}
