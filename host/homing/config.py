@@ -348,6 +348,7 @@ survey_tol_m = 0.3       # a survey that moved the offset less than this ends th
 survey_max = 3
 survey_min = 2           # surveys before one that moved the offset little may end them
 survey_grow_m = 1.0      # each further survey is this much wider (new places)
+survey_margin_m = 0.25   # the survey's corners stay this far inside the beacons' box (negative: outside)
 
 [trilat.anchors]         # beacon address (as rfhoming listen prints it) = [x, y]; at least three
 

@@ -39,8 +39,8 @@ Beyond the paper, for real radios (docs/estimation.md, "S3 under measured radios
   ``history_s`` (150 s) keeps the surveys' readings in the fit.
 ``localise_s = 0``, ``confirm_s = 0``, ``robust_fit = false`` and ``self_calibrate = false``:
 the paper's loop; ``survey_m = 0`` and ``history_s = 30``: the loop before the survey.
-The third survey's square (3.5 m) reaches past beacons 1.25 m from the goal: in a walled
-arena, ``survey_max = 2`` or a smaller ``survey_grow_m``.
+The survey's corners stay ``survey_margin_m`` inside the box the beacons span (where the site
+is known to be: a beacon is often on a wall); a negative margin lets them out.
 """
 
 from __future__ import annotations
@@ -95,6 +95,7 @@ class TrilatParams:
     survey_max: int = setting(3, low=0, high=100, unit="surveys")
     survey_min: int = setting(2, low=0, high=100, unit="surveys")  # surveys before one that moved the offset little may end them
     survey_grow_m: float = setting(1.0, low=0, high=20, unit=M)  # each further survey is this much wider (new places)
+    survey_margin_m: float = setting(0.25, low=-100, high=100, unit=M)  # the survey's corners stay this far inside the beacons' box
 
 
 class TrilatController(ControllerDefaults):
@@ -126,6 +127,9 @@ class TrilatController(ControllerDefaults):
         self._survey_from: np.ndarray | None = None  # the offset when the survey began
         self.surveys = 0
         self._surveyed = params.survey_m <= 0 or not params.self_calibrate
+        box = np.array(list(self.anchors.values()))  # where the survey may drive: the beacons' box, survey_margin_m in
+        low, high = box.min(axis=0) + params.survey_margin_m, box.max(axis=0) - params.survey_margin_m
+        self._inside = (np.minimum(low, (low + high) / 2), np.maximum(high, (low + high) / 2))
 
     @property
     def phase(self) -> str:
@@ -259,7 +263,8 @@ class TrilatController(ControllerDefaults):
         d_g = float(np.linalg.norm(goal - here))
         if d_g < p.arrival_radius and not self._surveyed and self.offset is not None:
             h = (p.survey_m + p.survey_grow_m * self.surveys) / 2
-            self._survey = [goal + np.array(c) * h - self.offset for c in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+            corners = [goal + np.array(c) * h for c in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+            self._survey = [np.clip(c, *self._inside) - self.offset for c in corners]
             self._survey_from, self.surveys = self.offset.copy(), self.surveys + 1
             return self._drive(pose, self._survey[0] + self.offset, "surveying")
         if d_g < p.arrival_radius:
