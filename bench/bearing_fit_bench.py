@@ -10,8 +10,10 @@ it (``add``), every ray kept, and every fit (``fit``) with its ray count and its
 (``time.thread_time``: the fit runs on the event loop's thread, and this thread's CPU time
 counts other processes on a shared machine much less than the wall clock does; the wall time
 is given too). ``standing``: readings offered while the robot had moved less than 1 mm and
-turned less than 0.1° since the previous reading. Fits per simulated second count the fits
-over the run's span of readings.
+turned less than 0.1° since the previous reading; ``in_place``: moved less than 1 mm, whatever
+the heading (standing or turning on the spot; before ``add`` took the heading, at 1e2604d, its
+``standing`` counted these). Fits per simulated second count the fits over the run's span of
+readings.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ class Probe:
     """Wraps BearingFit's ``add`` and ``fit`` for one run."""
 
     def __init__(self) -> None:
-        self.offered = self.kept = self.standing = self.kept_standing = 0
+        self.offered = self.kept = self.standing = self.kept_standing = self.in_place = self.kept_in_place = 0
         self.fits: list[tuple[int, float, float]] = []  # rays, CPU s, wall s
         self.t: list[float] = []
         self.max_rays = 0
@@ -51,13 +53,15 @@ class Probe:
             heading = kwargs.get("heading")
             pose = (x, y, 0.0 if heading is None else float(heading))
             prev, probe._prev = probe._prev, pose
-            still = prev is not None and abs(x - prev[0]) < 1e-3 and abs(y - prev[1]) < 1e-3 \
-                and abs(pose[2] - prev[2]) < 1.7e-3
+            here = prev is not None and abs(x - prev[0]) < 1e-3 and abs(y - prev[1]) < 1e-3
+            still = here and prev is not None and abs(pose[2] - prev[2]) < 1.7e-3
             kept = old_add(self, t, x, y, *args, **kwargs)
             probe.offered += 1
             probe.standing += still
             probe.kept += bool(kept)
             probe.kept_standing += bool(kept) and still
+            probe.in_place += here
+            probe.kept_in_place += bool(kept) and here
             probe.t.append(t)
             probe.max_rays = max(probe.max_rays, self.rays)
             return bool(kept)
@@ -81,7 +85,8 @@ class Probe:
             return round(v[min(len(v) - 1, int(q * len(v)))], 3) if v else 0.0
 
         return {"readings_offered": self.offered, "readings_standing": self.standing, "rays_kept": self.kept,
-                "rays_kept_standing": self.kept_standing, "max_rays_held": self.max_rays,
+                "rays_kept_standing": self.kept_standing, "readings_in_place": self.in_place,
+                "rays_kept_in_place": self.kept_in_place, "max_rays_held": self.max_rays,
                 "fits": len(self.fits), "fits_per_sim_s": round(len(self.fits) / span, 2) if span else 0.0,
                 "rays_per_fit_median": statistics.median(rays) if rays else 0,
                 "fit_cpu_ms_median": pct(cpu, 0.5), "fit_cpu_ms_p90": pct(cpu, 0.9), "fit_cpu_ms_max": pct(cpu, 1.0),
