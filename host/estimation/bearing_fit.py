@@ -7,17 +7,9 @@ reads wide angles too near its boresight. S0's estimates rest on the last readin
 k per reading, a 20-reading vector goal), so a slow error or a burst drags its goal along for
 as long as it lasts. Here every kept ray of the run votes:
 
-- rays are kept sparsely along the path, spaced by the robot's own pose (odometry): one per
-  ``spacing_m`` travelled or ``spacing_deg`` of heading turned since the last kept ray. Readings
-  taken in one place share its slow error, and many of them must not outvote the rest of the
-  path; a robot standing still keeps none however its bearings jitter (spacing them by the
-  measured bearing's change, as before, let a noisy board's readings fill the rays while it
-  stood), so the rays hold the path's geometry rather than repeats;
-- a fit costs a few milliseconds on the caller's thread (S0's, the event loop): it is made
-  every ``refit_every`` kept rays and at most once per ``refit_s`` of the readings' time, from
-  each distinct start only once, with the residuals' Jacobian given (no finite differences).
-  Between fits the newest ``recent`` rays are checked against the last fit (microseconds): a
-  disagreement refits at once (below);
+- rays are kept sparsely along the path (one per ``spacing_m`` travelled, ``spacing_deg``
+  turned or ``spacing_s`` elapsed): readings taken in one place share its slow error, and
+  many of them must not outvote the rest of the path;
 - the position minimises Σ ρ(angle residual / ``scale_deg``) over the rays, ρ the Cauchy loss
   (``scipy.optimize.least_squares``): a burst's rays or a wrong-branch fold have bounded pull;
   within ``near_m`` of a ray's origin its residual shrinks to the ray's miss distance over
@@ -33,8 +25,7 @@ as long as it lasts. Here every kept ray of the run votes:
   ``trust_rel`` × its distance from the robot. On a straight approach only the ranges tell how far the tag is, and RSSI
   ranges can read short: S0's own estimates are reported then.
 
-Frames (REP 103): world x/y in metres, bearings and the robot's heading in radians
-counter-clockwise from +x.
+Frames: world x/y in metres, bearings in radians counter-clockwise from +x.
 """
 
 from __future__ import annotations
@@ -62,8 +53,9 @@ class Fit:
 class BearingFit:
     """Rays (x, y, bearing, range) kept along the path; :meth:`estimate` the robust fit."""
 
-    spacing_m: float = 0.05  # keep a ray once the robot moved this far since the last kept one ...
-    spacing_deg: float = 15.0  # ... or turned its heading this much (a turn on the spot: one place, a few rays)
+    spacing_m: float = 0.05
+    spacing_deg: float = 4.0
+    spacing_s: float = 0.25
     max_rays: int = 600
     min_rays: int = 25
     scale_deg: float = 6.0
@@ -71,7 +63,6 @@ class BearingFit:
     min_spread_deg: float = 20.0
     min_inliers: float = 0.5
     refit_every: int = 5  # kept rays between fits (a fit costs a few ms)
-    refit_s: float = 0.5  # and at least this long (the readings' time, s) between fits
     recent: int = 20  # the newest rays, checked against the fit
     min_recent_inliers: float = 0.3  # fewer of them agree with the fit: the older rays are dropped
     near_m: float = 1.0  # nearer a ray's origin than this, its residual is the miss distance / near_m
@@ -79,10 +70,9 @@ class BearingFit:
     trust_abs_m: float = 0.1  # trusted when the bearings alone place it within this
     trust_rel: float = 0.15  # ... plus this fraction of its distance from the robot
     _rays: deque[tuple[float, float, float, float]] | None = None
-    _last: tuple[float, float, float, float] | None = None  # t, x, y, heading of the last kept ray
+    _last: tuple[float, float, float, float] | None = None  # t, x, y, bearing of the last kept ray
     _fit: Fit | None = None
     _since_fit: int = 0
-    _fit_t: float = -math.inf  # the readings' time of the last fit
 
     def __post_init__(self) -> None:
         self._rays = deque(maxlen=self.max_rays)
@@ -95,32 +85,24 @@ class BearingFit:
     def clear(self) -> None:
         assert self._rays is not None
         self._rays.clear()
-        self._last, self._fit, self._since_fit, self._fit_t = None, None, 0, -math.inf
+        self._last, self._fit, self._since_fit = None, None, 0
 
     def add(self, t: float, x: float, y: float, bearing: float, distance: float,
-            guess: tuple[float, float] | None = None, *, heading: float) -> bool:
-        """A reading taken at robot pose (``x``, ``y``, ``heading``; odometry, REP 103): keep
-        its ray if the robot moved ``spacing_m`` or turned ``spacing_deg`` since the last kept
-        one (the bearing's own change does not count: that is noise while standing); refit now
-        and then (from ``guess``, the caller's current goal, or the last fit). True: kept."""
+            guess: tuple[float, float] | None = None) -> bool:
+        """Keep the ray if the robot moved, turned or waited enough since the last kept one; refit
+        now and then (from ``guess``, the caller's current goal, or the last fit). True: kept."""
         assert self._rays is not None
         last = self._last
         if last is not None:
             moved = math.hypot(x - last[1], y - last[2])
-            turned = abs(math.degrees(math.remainder(heading - last[3], 2 * math.pi)))
-            if moved < self.spacing_m and turned < self.spacing_deg:
+            turned = abs(math.degrees(math.remainder(bearing - last[3], 2 * math.pi)))
+            if moved < self.spacing_m and turned < self.spacing_deg and t - last[0] < self.spacing_s:
                 return False
-        self._last = (t, x, y, heading)
+        self._last = (t, x, y, bearing)
         self._rays.append((x, y, bearing, distance))
         self._since_fit += 1
-        due = len(self._rays) >= self.min_rays and (
-            self._fit is None or (self._since_fit >= self.refit_every and t - self._fit_t >= self.refit_s))
-        if not due and self._fit is not None and len(self._rays) >= self.recent:
-            # between fits, the newest rays are checked against the last fit (microseconds): once
-            # they disagree it is refitted at once, and the older rays dropped if they still do
-            due = self._recent_inliers(self._fit.position) < self.min_recent_inliers
-        if due:
-            self._since_fit, self._fit_t = 0, t
+        if len(self._rays) >= self.min_rays and (self._fit is None or self._since_fit >= self.refit_every):
+            self._since_fit = 0
             self._fit = self.fit(guess)
             if self._fit is not None and self._fit.recent_inliers < self.min_recent_inliers:
                 # the robot now sees the tag elsewhere than the older rays said (they were taken
@@ -129,16 +111,6 @@ class BearingFit:
                     self._rays.popleft()
                 self._fit = self.fit(None)
         return True
-
-    def _recent_inliers(self, p: tuple[float, float]) -> float:
-        """The fraction of the newest ``recent`` rays within two scales of point ``p``."""
-        assert self._rays is not None
-        n, inside = 0, 0
-        for k in range(max(0, len(self._rays) - self.recent), len(self._rays)):
-            x, y, a, _ = self._rays[k]
-            miss = abs(math.degrees(math.remainder(math.atan2(p[1] - y, p[0] - x) - a, 2 * math.pi)))
-            n, inside = n + 1, inside + (miss < 2 * self.scale_deg)
-        return inside / n if n else 1.0
 
     def estimate(self) -> tuple[float, float] | None:
         """The fitted position once it is trusted (enough rays, parallax and agreement), else None."""
@@ -171,32 +143,16 @@ class BearingFit:
             near = np.minimum(r / self.near_m, 1.0)  # within near_m of a ray's origin: its miss distance
             return np.concatenate([angle * near / scale, (r - d) / range_sigma])
 
-        def jacobian(p: np.ndarray) -> np.ndarray:
-            # analytic: the solver's finite differences cost two more evaluations per step
-            dx, dy = p[0] - x, p[1] - y
-            angle = np.remainder(np.arctan2(dy, dx) - a + math.pi, 2 * math.pi) - math.pi
-            r = np.maximum(np.hypot(dx, dy), 1e-9)
-            near = np.minimum(r / self.near_m, 1.0)
-            grow = (r < self.near_m) / self.near_m  # d near / d r
-            ux, uy = dx / r, dy / r  # d r / d p
-            j = np.empty((2 * len(x), 2))
-            j[:len(x), 0] = (near * -uy / r + angle * grow * ux) / scale
-            j[:len(x), 1] = (near * ux / r + angle * grow * uy) / scale
-            j[len(x):, 0] = ux / range_sigma
-            j[len(x):, 1] = uy / range_sigma
-            return j
-
-        starts: list[np.ndarray] = []
-        candidates = [guess, None if self._fit is None else self._fit.position,
-                      (float(np.mean(x + d * np.cos(a))), float(np.mean(y + d * np.sin(a))))]  # the vector goals' mean
-        for c in candidates:
-            # the caller's goal is often the last fit itself: the same start, the same solve
-            if c is not None and not any(math.dist(c, (float(s[0]), float(s[1]))) < 1e-9 for s in starts):
-                starts.append(np.array(c, dtype=float))
+        starts = []
+        if guess is not None:
+            starts.append(np.array(guess, dtype=float))
+        if self._fit is not None:
+            starts.append(np.array(self._fit.position, dtype=float))
+        starts.append(np.array([np.mean(x + d * np.cos(a)), np.mean(y + d * np.sin(a))]))  # the vector goals' mean
         best = None
         for start in starts:
             try:
-                sol = least_squares(residuals, start, jac=jacobian, loss="cauchy", f_scale=1.0, max_nfev=60, x_scale=1.0)
+                sol = least_squares(residuals, start, loss="cauchy", f_scale=1.0, max_nfev=60, x_scale=1.0)
             except ValueError:
                 continue
             if np.all(np.isfinite(sol.x)) and (best is None or sol.cost < best.cost):

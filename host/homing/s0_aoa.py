@@ -175,8 +175,7 @@ class S0Homing:
         previous = self.reported
         self._hybrid(pose)
         if self._fit is not None:
-            self._fit.add(t, pose.x, pose.y, alpha, distance, guess=self.fitted or self.reported,
-                          heading=pose.theta)
+            self._fit.add(t, pose.x, pose.y, alpha, distance, guess=self.fitted or self.reported)
             self.fitted = self._fit.estimate()
             if self.fitted is not None:
                 self.reported = self.fitted
