@@ -9,11 +9,12 @@ Each seed is one in-process demo run (``rfhoming demo --scenario S --radio R --s
 it (``add``), every ray kept, and every fit (``fit``) with its ray count and its CPU time
 (``time.thread_time``: the fit runs on the event loop's thread, and this thread's CPU time
 counts other processes on a shared machine much less than the wall clock does; the wall time
-is given too). ``standing``: readings offered while the robot had moved less than 1 mm and
-turned less than 0.1° since the previous reading; ``in_place``: moved less than 1 mm, whatever
-the heading (standing or turning on the spot; before ``add`` took the heading, at 1e2604d, its
-``standing`` counted these). Fits per simulated second count the fits over the run's span of
-readings.
+is given too). ``in_place``: readings offered while the robot had moved less than 1 mm since
+the previous reading (standing or turning on the spot). ``standing`` also asks that it turned
+less than 0.1°, from a ``heading=`` keyword to ``add``; BearingFit's ``add`` takes no heading
+(the odometry spacing that gave it one was measured and not kept: docs/RESULTS.md), so
+``standing`` equals ``in_place``. Fits per simulated second count the fits over the run's span
+of readings.
 """
 
 from __future__ import annotations
