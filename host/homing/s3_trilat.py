@@ -45,6 +45,7 @@ is known to be: a beacon is often on a wall); a negative margin lets them out.
 
 from __future__ import annotations
 
+import enum
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -98,6 +99,16 @@ class TrilatParams:
     survey_margin_m: float = setting(0.25, low=-100, high=100, unit=M)  # the survey's corners stay this far inside the beacons' box
 
 
+class Step(enum.Enum):
+    """Where the S3 controller is; every change of step is in on_input, decide and its helpers."""
+
+    LOCALISING = "localising"  # standing for the first offset
+    HOMING = "homing"  # driving to the goal on the fused estimate
+    SURVEYING = "surveying"  # driving the square about the goal, for the fit's places
+    CONFIRMING = "confirming"  # standing for the confirmation's fix
+    ARRIVED = "arrived"
+
+
 class TrilatController(ControllerDefaults):
     source = "ble"
 
@@ -115,25 +126,37 @@ class TrilatController(ControllerDefaults):
         self._t: float | None = None  # the newest reading's time
         self._window_since: float | None = None  # localising or confirming: when the robot began to stand
         self._window: dict[str, list[float]] = {}  # the raw RSSI of each beacon received while it stands
-        self._located = params.localise_s <= 0  # the offset has its start
-        self._standing = False  # confirming
+        self.step = Step.HOMING if params.localise_s <= 0 else Step.LOCALISING
         self.confirmations = 0
-        self.arrived = False
         self._names = list(self.anchors)
         self._history: deque[tuple[float, float, float, int, float]] = deque()  # t, odometry x, y, anchor, raw RSSI
         self.theta: np.ndarray | None = None  # self-calibration: offset x, y, P0, n, each anchor's offset
         self._calibrated_t = -math.inf
-        self._survey: list[np.ndarray] = []  # odometry waypoints still to drive
+        self._survey: list[np.ndarray] = []  # odometry waypoints still to drive while SURVEYING
         self._survey_from: np.ndarray | None = None  # the offset when the survey began
+        self._survey_moved: float | None = None  # how far the last finished survey moved the offset
         self.surveys = 0
-        self._surveyed = params.survey_m <= 0 or not params.self_calibrate
         box = np.array(list(self.anchors.values()))  # where the survey may drive: the beacons' box, survey_margin_m in
         low, high = box.min(axis=0) + params.survey_margin_m, box.max(axis=0) - params.survey_margin_m
         self._inside = (np.minimum(low, (low + high) / 2), np.maximum(high, (low + high) / 2))
 
     @property
     def phase(self) -> str:
-        return "homing" if self._located and self.fixes >= self.params.min_fixes else "localising"
+        """The loop's view: it plans only while "homing" (surveying and confirming included)."""
+        return "localising" if self.step is Step.LOCALISING or self.fixes < self.params.min_fixes else "homing"
+
+    @property
+    def arrived(self) -> bool:
+        return self.step is Step.ARRIVED
+
+    def _surveyed(self) -> bool:
+        """No survey is due: surveys are off, or the last one settled the offset (or the most were made)."""
+        p = self.params
+        if p.survey_m <= 0 or not p.self_calibrate:
+            return True
+        if self._survey_moved is None:
+            return False
+        return (self._survey_moved < p.survey_tol_m and self.surveys >= p.survey_min) or self.surveys >= p.survey_max
 
     @property
     def reported(self) -> Any:
@@ -147,9 +170,10 @@ class TrilatController(ControllerDefaults):
             return None
         p = self.params
         self._t = t
-        if self._window_since is None and not self._located:
+        if self._window_since is None and self.step is Step.LOCALISING:
             self._window_since, self._window = t, {}
-        if self._window_since is not None and t - self._window_since >= (p.confirm_settle_s if self._standing else 0.0):
+        settle = p.confirm_settle_s if self.step is Step.CONFIRMING else 0.0
+        if self._window_since is not None and t - self._window_since >= settle:
             self._window.setdefault(item.address, []).append(float(item.rssi_dbm))
         if p.self_calibrate:
             self._history.append((t, pose.x, pose.y, self._names.index(item.address), float(item.rssi_dbm)))
@@ -165,12 +189,12 @@ class TrilatController(ControllerDefaults):
         if fix is None:
             return fields
         odo = np.array([pose.x, pose.y])
-        if not self._located:
+        if self.step is Step.LOCALISING:
             located = self._mean_fix(p.localise_s)
             if located is None:
                 self.last_fix = fix
                 return fields
-            self.offset, self._located, self._window_since = located - odo, True, None
+            self.offset, self.step, self._window_since = located - odo, Step.HOMING, None
         elif p.self_calibrate and self.offset is not None:
             if self.theta is None:
                 self.theta = np.concatenate([self.offset, [p.p0_dbm, p.n], np.zeros(len(self._names))])
@@ -180,7 +204,7 @@ class TrilatController(ControllerDefaults):
                 self.theta = offset_and_links(np.array([self.anchors[a] for a in self._names]), which, odo_xy, rssi,
                                               self.theta, p.p0_dbm, p.n, reading_sd_db=5.0, independent=1.0)
                 self.offset = self.theta[:2].copy()
-        elif not self._standing:  # standing, the confirmation's fix decides
+        elif self.step is not Step.CONFIRMING:  # standing, the confirmation's fix decides
             self.offset = fix - odo if self.offset is None else self.offset + p.offset_gain * (fix - odo - self.offset)
         self.fixes += 1
         self.last_fix = fix
@@ -231,47 +255,60 @@ class TrilatController(ControllerDefaults):
         return self.solve(heard)
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
-        p = self.params
         goal = self.reported
-        if self.arrived:
+        if self.step is Step.ARRIVED:
             return Decision(0.0, 0.0, tuple(goal), True, "arrived")
         if self.phase != "homing":
             return Decision(0.0, 0.0, tuple(goal), False, "localising")
         odo = np.array([pose.x, pose.y])
-        if self._standing:
-            fix = self._mean_fix(p.confirm_s)
-            if fix is None:
-                return Decision(0.0, 0.0, tuple(goal), False, "confirming: standing")
-            self._standing, self._window_since = False, None
-            self.confirmations += 1
-            self.last_fix = fix
-            if float(np.linalg.norm(goal - fix)) <= p.confirm_radius or self.confirmations >= p.confirm_tries:
-                self.arrived = True
-                return Decision(0.0, 0.0, tuple(goal), True, "arrived")
-            if self.theta is None:
-                self.offset = fix - odo  # the standing fix is the best the radios give: go on from it
-        if self._survey:
+        if self.step is Step.CONFIRMING:
+            standing = self._confirm(odo)
+            if standing is not None:
+                return standing
+        if self.step is Step.SURVEYING:
             if float(np.linalg.norm(self._survey[0] - odo)) < 0.2:
                 self._survey.pop(0)
             if self._survey:
                 return self._drive(pose, self._survey[0] + self.offset, "surveying")
             assert self._survey_from is not None and self.offset is not None
-            moved = float(np.linalg.norm(self.offset - self._survey_from))
-            self._surveyed = (moved < p.survey_tol_m and self.surveys >= p.survey_min) or self.surveys >= p.survey_max
+            self._survey_moved = float(np.linalg.norm(self.offset - self._survey_from))
+            self.step = Step.HOMING
+        return self._home(pose, goal, steer_to)
+
+    def _confirm(self, odo: np.ndarray) -> Decision | None:
+        """CONFIRMING: stand until the standing fix; then arrive, or home on (None)."""
+        p = self.params
+        goal = self.reported
+        fix = self._mean_fix(p.confirm_s)
+        if fix is None:
+            return Decision(0.0, 0.0, tuple(goal), False, "confirming: standing")
+        self.step, self._window_since = Step.HOMING, None
+        self.confirmations += 1
+        self.last_fix = fix
+        if float(np.linalg.norm(goal - fix)) <= p.confirm_radius or self.confirmations >= p.confirm_tries:
+            self.step = Step.ARRIVED
+            return Decision(0.0, 0.0, tuple(goal), True, "arrived")
+        if self.theta is None:
+            self.offset = fix - odo  # the standing fix is the best the radios give: go on from it
+        return None
+
+    def _home(self, pose: Pose, goal: np.ndarray, steer_to: tuple[float, float] | None) -> Decision:
+        """HOMING: drive to the goal; within ``arrival_radius`` survey first if one is due, else stand."""
+        p = self.params
         here = self.world(pose)
         aim = goal if steer_to is None else np.array(steer_to) + self.offset  # waypoints are in odometry
         d_g = float(np.linalg.norm(goal - here))
-        if d_g < p.arrival_radius and not self._surveyed and self.offset is not None:
+        if d_g < p.arrival_radius and not self._surveyed() and self.offset is not None:
             h = (p.survey_m + p.survey_grow_m * self.surveys) / 2
             corners = [goal + np.array(c) * h for c in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
             self._survey = [np.clip(c, *self._inside) - self.offset for c in corners]
-            self._survey_from, self.surveys = self.offset.copy(), self.surveys + 1
+            self._survey_from, self.surveys, self.step = self.offset.copy(), self.surveys + 1, Step.SURVEYING
             return self._drive(pose, self._survey[0] + self.offset, "surveying")
         if d_g < p.arrival_radius:
             if p.confirm_s <= 0:
-                self.arrived = True
+                self.step = Step.ARRIVED
                 return Decision(0.0, 0.0, tuple(goal), True, "arrived")
-            self._standing, self._window_since, self._window = True, self._t, {}
+            self.step, self._window_since, self._window = Step.CONFIRMING, self._t, {}
             return Decision(0.0, 0.0, tuple(goal), False, "confirming: standing")
         theta_g = wrap_rad(math.atan2(aim[1] - here[1], aim[0] - here[0]) - pose.theta)
         v, w = velocity_law(theta_g, d_g, p.v_max, p.w_max, p.k_w, p.k_stop)
