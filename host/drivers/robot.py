@@ -64,7 +64,6 @@ class RobotBase(Protocol):
     counters: dict[str, int]
     listeners: list[Callable[[str, float, Any], None]]
     latest: Pose2D | None  # the newest odometry
-    latest_scan: Scan | None
 
     @property
     def connected(self) -> asyncio.Event:
@@ -111,7 +110,6 @@ class CommandedBase(Driver):
                  queue_size: int = 500) -> None:
         super().__init__(port, reconnect=reconnect, out=out, queue_size=queue_size)
         self.latest: Pose2D | None = None
-        self.latest_scan: Scan | None = None
         self.acting: Pose2D | None = None  # the odometry the loop acts on (:meth:`acting_on`)
         self.counters.update(commands=0, stops=0, unsent=0, brakes=0, brakes_off=0)
 

@@ -71,9 +71,7 @@ class BaseDriver(CommandedBase):
                 self.latest = pose
                 self.out.put(pose)
             elif isinstance(record, (RangeScan, RangeScanV2)):
-                scan = scan_of(record, t_host)
-                self.latest_scan = scan
-                self.out.put(scan)
+                self.out.put(scan_of(record, t_host))
 
     def sent(self, data: bytes) -> list[Any]:
         return self._sent.feed(data)

@@ -120,7 +120,6 @@ class Ros2BaseDriver(CommandedBase):
                 self.latest = item
             elif record.type == ros2.LASER_SCAN:
                 item = scan_of(ros2.decode_scan(record.data), t_host)
-                self.latest_scan = item
             else:
                 self.counters["other_types"] += 1
                 return

@@ -74,7 +74,6 @@ class ObstacleAvoidance:
         self.latest: Sectors | None = None
         self._side = 0.0  # +1 left, −1 right, 0 not avoiding
         self._clear_since: float | None = None
-        self.engagements = 0
 
     def on_scan(self, scan: Scan) -> None:
         self.latest = sectors(scan)
@@ -98,7 +97,6 @@ class ObstacleAvoidance:
             self._clear_since = None
             if not self._side:
                 self._side = 1.0 if s.left >= s.right else -1.0
-                self.engagements += 1
             if ahead < p.obs_threshold2:
                 v, w, note = 0.0, self._side * p.w_turn, "blocked ahead: turning to the freer side"
             else:

@@ -183,7 +183,6 @@ class HomingLoop:
         self.intervals: deque[float] = deque(maxlen=20)  # robot-time gaps between readings
         self._braking: bool | None = None  # base brake mode as last sent; None: unknown, send it
         self._brake_logged = False  # brake mode as the run log last said
-        self.clock_resets = 0
         self._tasks: list[asyncio.Task[None]] = []
         self._step_began = _step_clock()  # when this pass of the loop took the event loop
         self.brakes = devices.kind(base.kind, notice=False).brakes
@@ -378,7 +377,6 @@ class HomingLoop:
         0 again): one odometry period on, so staleness, cadence and limits keep running."""
         if self.t0 is not None and odo.t_robot + self.clock_offset < self.t:
             before = self.t - self.clock_offset
-            self.clock_resets += 1
             log.warning("base clock went back from %.3f s to %.3f s (a base reset?): re-anchored", before, odo.t_robot)
             self.log.write("event", self.t, what="base clock reset: re-anchored",
                            base_clock_before=round(before, 6), base_clock_now=round(odo.t_robot, 6))

@@ -99,7 +99,6 @@ class RssController(ControllerDefaults):
             raise ParamsError("[s2] likelihood must be 's2' or 'bounded'")
         self.pf = ParticleFilter(PfParams(likelihood=params.likelihood), np.random.default_rng(params.seed))
         self.fixes = 0
-        self.incomplete = 0
         self._last_t: float | None = None
         self._last_fix: tuple[float, float] | None = None
         self._ranges: deque[float] = deque(maxlen=5)
@@ -131,7 +130,6 @@ class RssController(ControllerDefaults):
         if not isinstance(item, AntennaPowers):
             return None
         if any(p is None for p in item.dbm):
-            self.incomplete += 1
             return {"incomplete": True}
         self._t = t
         raw = (float(item.dbm[0]), float(item.dbm[1]), float(item.dbm[2]), float(item.dbm[3]))  # type: ignore[arg-type]

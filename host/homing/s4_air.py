@@ -136,7 +136,6 @@ class SurveyController(ControllerDefaults):
         self.path: deque[np.ndarray] = deque(maxlen=MAX_STEPS)  # the receivers' positions at each step
         self.next_wp = 0
         self.beacons: dict[str, _Beacon] = {}
-        self.ignored = 0  # readings of addresses beyond MAX_BEACONS
         self.stage = "search"
         self.target: str | None = None
         self.t = 0.0  # robot time of the newest reading
@@ -168,8 +167,7 @@ class SurveyController(ControllerDefaults):
         m = self.model.receivers
         b = self.beacons.get(item.address)
         if b is None and len(self.beacons) >= MAX_BEACONS:
-            self.ignored += 1
-            return None
+            return {"address": item.address, "ignored": f"more than {MAX_BEACONS} beacons"}
         if b is None:
             p = self.params
             circles = CircleInitializer(self.model, 1, p.n_init, p.c_f, p.c_w) if p.init == "circles" else None
