@@ -3,7 +3,8 @@ s4-montecarlo): under ``--radio measured|PROFILE`` their RSSI draws come from a 
 ``[rssi.NAME]`` table (protocol/rssi_profile.py) instead of the paper's idealised noise. Each
 link's draws are the emulator's measured channel's (emulator/measured_rssi.py); S3 reads through
 that channel reading by reading, S4's flights (a million readings a job) step the same
-processes over all links at once (:func:`turned_db`, :func:`shadowing_db`, :class:`TimeProcesses`).
+processes over all links at once (the channel's own vectorised :meth:`~MeasuredChannel.turned_db` and
+:meth:`~MeasuredChannel.shadowing_at`, and :class:`TimeProcesses` on the channel's formulas).
 
 The campaign keeps its paper's mean power (its path-loss law, its table of means); the profile
 gives what real receivers add to it: each link's exponent about the pivot and its offset, the
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rfhoming.campaigns.runner import CampaignError
-from rfhoming.emulator.measured_rssi import MeasuredChannel
+from rfhoming.emulator.measured_rssi import MeasuredChannel, ou_keep, p_lost
 from rfhoming.emulator.radio import PathLossModel
 from rfhoming.protocol.radio_profile import IDEAL, RadioProfile, resolve
 from rfhoming.protocol.rssi_profile import RssiProfile
@@ -89,24 +90,6 @@ def channel(radio: Radio, n: float, rng: np.random.Generator) -> MeasuredChannel
     return MeasuredChannel(PathLossModel(n=n), radio.rssi, rng)
 
 
-def turned_db(ch: MeasuredChannel, link: tuple[str, str], distance_m: np.ndarray) -> np.ndarray:
-    """The link's offset and its exponent's turn about the pivot at ``distance_m`` (held within
-    the exponent's span), as :meth:`MeasuredChannel.sample` adds them."""
-    state = ch.link(link)
-    e = ch.profile.exponent
-    held = np.clip(np.asarray(distance_m, float), e.near_m, e.far_m)
-    return np.asarray(state.offset_db - 10 * (state.exponent - ch.model.n) * np.log10(held / e.pivot_m), float)
-
-
-def shadowing_db(ch: MeasuredChannel, link: tuple[str, str], ends: np.ndarray) -> np.ndarray:
-    """The link's shadowing at each row of ``ends`` (…, 4: transmitter x, y, receiver x, y):
-    the same field as :meth:`MeasuredChannel.shadowing_db`, vectorised."""
-    field = ch.link(link).field
-    if field is None:
-        return np.zeros(np.shape(ends)[:-1])
-    return np.asarray(field.amp * np.cos(np.asarray(ends, float) @ field.freq.T + field.phase).sum(axis=-1), float)
-
-
 class TimeProcesses:
     """The residual (Ornstein-Uhlenbeck), the white noise and the loss chain of many links at
     once, stepped at a fixed interval ``dt``: :meth:`MeasuredChannel.sample` and ``lost`` for
@@ -115,7 +98,6 @@ class TimeProcesses:
     def __init__(self, ch: MeasuredChannel, loss: np.ndarray, dt: float, rng: np.random.Generator) -> None:
         p = ch.profile
         self.rng, self.residual, self.loss = rng, p.residual, np.asarray(loss, float)
-        self.keep = math.exp(-dt / p.residual.time_s)
         self.burst = p.loss.burst_s if p.loss is not None else None
         self.dt = dt
         self.state: np.ndarray | None = None
@@ -127,7 +109,8 @@ class TimeProcesses:
         shape = self.loss.shape
         if r.sd_db > 0:
             fresh = self.rng.normal(0.0, r.sd_db, shape)
-            self.state = fresh if self.state is None else self.state * self.keep + math.sqrt(1 - self.keep**2) * fresh
+            keep = float(ou_keep(self.dt, r.time_s))
+            self.state = fresh if self.state is None else self.state * keep + math.sqrt(1 - keep**2) * fresh
             return np.asarray(self.state + self.rng.normal(0.0, r.white_sd_db, shape), float)
         return np.asarray(self.rng.normal(0.0, r.white_sd_db, shape), float)
 
@@ -135,10 +118,5 @@ class TimeProcesses:
         """Which links miss the next reading (a two-state chain holding each link's fraction)."""
         if self.burst is None:
             return np.zeros(self.loss.shape, bool)
-        if self.lost is None:
-            p_lost = self.loss
-        else:
-            keep = np.exp(-self.dt / (self.burst * np.maximum(1 - self.loss, 1e-9)))
-            p_lost = self.loss + (self.lost - self.loss) * keep
-        self.lost = self.rng.random(self.loss.shape) < p_lost
+        self.lost = self.rng.random(self.loss.shape) < p_lost(self.loss, self.lost, self.dt, self.burst)
         return self.lost

@@ -107,7 +107,7 @@ def measured_rssi(receivers: np.ndarray, beacons: np.ndarray, radio: rssi_draws.
         for j in range(m):
             link = (f"beacon{b}", f"receiver{j}")
             ends = np.column_stack([np.broadcast_to(beacons[b], (len(d), 2)), receivers[:, b, j]])
-            power[:, b, j] += rssi_draws.turned_db(ch, link, d[:, b, j]) + rssi_draws.shadowing_db(ch, link, ends)
+            power[:, b, j] += ch.turned_db(link, d[:, b, j]) + ch.shadowing_at(link, ends)
             loss[b, j] = ch.link(link).loss
     time = rssi_draws.TimeProcesses(ch, loss, DT, rng)
     for s in range(len(d)):

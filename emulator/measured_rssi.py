@@ -48,13 +48,33 @@ class ShadowField:
         self.amp = sd_db * math.sqrt(2.0 / FIELD_FEATURES)
         self._last: tuple[Ends, float] | None = None  # ends that stay put (a parked robot, a fixed pair) cost nothing
 
+    def values(self, ends: np.ndarray) -> np.ndarray:
+        """The field at each row of ``ends`` (..., 4): the one formula, for one reading or a flight's million."""
+        return np.asarray(self.amp * np.cos(np.asarray(ends, float) @ self.freq.T + self.phase).sum(axis=-1), float)
+
     def at(self, ends: Ends) -> float:
         if self._last is not None and self._last[0] == ends:
             return self._last[1]
         (sx, sy), (rx, ry) = ends
-        value = float(self.amp * np.cos(self.freq @ np.array([sx, sy, rx, ry]) + self.phase).sum())
+        value = float(self.values(np.array([sx, sy, rx, ry])))
         self._last = (ends, value)
         return value
+
+
+def ou_keep(dt_s: float | np.ndarray, time_s: float) -> float | np.ndarray:
+    """How much of an Ornstein-Uhlenbeck residual is kept after ``dt_s`` (its time constant ``time_s``)."""
+    return np.exp(-np.maximum(0.0, dt_s) / time_s) if isinstance(dt_s, np.ndarray) else math.exp(-max(0.0, dt_s) / time_s)
+
+
+def p_lost(fraction: float | np.ndarray, was_lost: bool | np.ndarray | None, dt_s: float, burst_s: float
+           ) -> float | np.ndarray:
+    """P(a reading ``dt_s`` after the last is lost | the last's state ``was_lost``): the two-state chain
+    relaxes to the link's loss ``fraction`` with bursts ``burst_s`` long on average (None: no last)."""
+    if was_lost is None:
+        return fraction
+    keep = np.exp(-max(0.0, dt_s) / (burst_s * np.maximum(1 - np.asarray(fraction, float), 1e-9)))
+    out = fraction + (np.asarray(was_lost, float) - fraction) * keep
+    return float(out) if np.ndim(out) == 0 else np.asarray(out, float)
 
 
 @dataclass
@@ -101,19 +121,27 @@ class MeasuredChannel(RadioChannel):
         field = self.link(link).field
         return field.at(ends) if field is not None else 0.0
 
+    def shadowing_at(self, link: tuple[str, str], ends: np.ndarray) -> np.ndarray:
+        """The same shadowing at each row of ``ends`` (..., 4: transmitter x, y, receiver x, y)."""
+        field = self.link(link).field
+        return field.values(ends) if field is not None else np.zeros(np.shape(ends)[:-1])
+
+    def turned_db(self, link: tuple[str, str], distance_m: float | np.ndarray) -> np.ndarray:
+        """The link's offset and its exponent's turn about the pivot at ``distance_m`` (held within
+        the exponent's span, beyond which the scenario's own slope holds)."""
+        state = self.link(link)
+        e = self.profile.exponent
+        held = np.clip(np.asarray(distance_m, float), e.near_m, e.far_m)
+        return np.asarray(state.offset_db - 10 * (state.exponent - self.model.n) * np.log10(held / e.pivot_m), float)
+
     def sample(self, link: tuple[str, str], mean_dbm: float, *, t: float = 0.0, ends: Ends | None = None,
                distance_m: float | None = None) -> float:
         """One reading at ``t`` of a link whose scenario mean is ``mean_dbm``: turned to the
-        link's exponent at ``distance_m`` (none: at the pivot; beyond the exponent's span, the
-        scenario's slope from its ends), with ``ends`` for the shadowing
-        (none: a link that never moves, no shadowing but its offset)."""
+        link's exponent at ``distance_m`` (none: at the pivot, only the link's offset), with
+        ``ends`` for the shadowing (none: a link that never moves, no shadowing but its offset)."""
         state = self.link(link)
         p = self.profile
-        power = mean_dbm + state.offset_db
-        if distance_m is not None:
-            e = p.exponent
-            held = min(max(distance_m, e.near_m), e.far_m)
-            power -= 10 * (state.exponent - self.model.n) * math.log10(held / e.pivot_m)
+        power = mean_dbm + (state.offset_db if distance_m is None else float(self.turned_db(link, distance_m)))
         if ends is not None and state.field is not None:
             power += state.field.at(ends)
         r = p.residual
@@ -121,7 +149,7 @@ class MeasuredChannel(RadioChannel):
             if state.residual_db is None:
                 state.residual_db = float(self.rng.normal(0.0, r.sd_db))
             else:
-                keep = math.exp(-max(0.0, t - state.residual_t) / r.time_s)
+                keep = float(ou_keep(t - state.residual_t, r.time_s))
                 state.residual_db = state.residual_db * keep + math.sqrt(1 - keep * keep) * float(self.rng.normal(0.0, r.sd_db))
             state.residual_t = t
             power += state.residual_db
@@ -134,12 +162,8 @@ class MeasuredChannel(RadioChannel):
         loss = self.profile.loss
         if loss is None or state.loss <= 0:
             return False
-        if state.lost is None:
-            p_lost = state.loss
-        else:  # P(lost at t | state at the last transmission): the chain relaxes to the fraction
-            keep = math.exp(-max(0.0, t - state.lost_t) / (loss.burst_s * (1 - state.loss)))
-            p_lost = state.loss + ((1.0 if state.lost else 0.0) - state.loss) * keep
-        state.lost = bool(self.rng.random() < p_lost)
+        chance = float(p_lost(state.loss, state.lost, t - state.lost_t, loss.burst_s))
+        state.lost = bool(self.rng.random() < chance)
         state.lost_t = t
         return state.lost
 

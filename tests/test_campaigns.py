@@ -277,7 +277,7 @@ def test_a_profile_without_the_papers_radio_takes_the_nearest_marked_assumed(tmp
         rssi_draws.rssi_radio(str(tmp_path / "none.toml"), "ble")
 
 
-def test_s4s_vectorised_link_draws_are_the_measured_channels() -> None:
+def test_the_measured_channels_vectorised_draws_are_its_scalar_ones() -> None:
     from rfhoming.campaigns import rssi_draws
 
     radio = rssi_draws.rssi_radio("measured", "ble")
@@ -286,11 +286,11 @@ def test_s4s_vectorised_link_draws_are_the_measured_channels() -> None:
     link = ("beacon3", "receiver1")
     ends = np.array([[1.0, 2.0, 0.5, 0.25], [1.0, 2.0, 3.0, 4.0], [0.0, 0.0, 2.0, 6.0]])
     expected = [ch.shadowing_db(link, ((e[0], e[1]), (e[2], e[3]))) for e in ends]
-    assert np.allclose(rssi_draws.shadowing_db(ch, link, ends), expected) and np.ptp(expected) > 0
+    assert np.allclose(ch.shadowing_at(link, ends), expected) and np.ptp(expected) > 0
     state = ch.link(link)
     e = radio.rssi.exponent
     d = np.array([0.5, e.pivot_m, 3.0])
-    turn = rssi_draws.turned_db(ch, link, d)
+    turn = ch.turned_db(link, d)
     assert turn[1] == pytest.approx(state.offset_db)  # at the pivot only the offset
     assert turn[0] == pytest.approx(state.offset_db - 10 * (state.exponent - 2.0) * math.log10(e.near_m / e.pivot_m))
 
