@@ -33,7 +33,7 @@ def test_a_lucky_moment_is_not_docked_while_standing_disagrees() -> None:
     the standing readings, 6 dB weaker, do not confirm it: no arrival, the robot steps on."""
     dock = DockController(PARAMS)
     t, decision = _feed(dock, 0.0, [-51] * 10)
-    assert dock.stage == "docking" and dock.rssi_diff <= PARAMS.alpha_db
+    assert dock.stage == "confirming" and dock.phase == "docking" and dock.rssi_diff <= PARAMS.alpha_db
     assert not decision.arrived and decision.v == 0.0 and decision.note.startswith("confirming")
     t, decision = _feed(dock, t, [-57] * 60)  # 1.2 s standing
     assert not dock.confirmed and not decision.arrived

@@ -10,7 +10,7 @@ import pytest
 
 from rfhoming.firmware.at86rf212_node import At86rf212NodeFirmware
 from rfhoming.host.drivers.rss import AntennaPowers, Associator, RssDriver
-from rfhoming.host.homing.s2_rss import RssController, S2Params
+from rfhoming.host.homing.s2_rss import Motion, RssController, S2Params
 from rfhoming.host.homing.types import Pose
 from rfhoming.host.ports import HostPort
 from rfhoming.protocol.frames import AntennaReading, AntennaSet
@@ -107,7 +107,7 @@ def test_a_robot_kept_in_one_place_turns_again() -> None:
     """Homing toward an emitter it never nears (the dishes say 3 m), the robot held in place:
     after stuck_s it turns in place again, and then homes with the turn's offsets."""
     c = RssController(S2Params(p0_dbm=-30.0, n=2.0, peak_gain_db=0.0, stuck_s=10.0))
-    c._spinning = False  # as after the first turn
+    c.motion = Motion.HOMING  # as after the first turn
     notes = []
     for k in range(20 * 20):
         c.on_input(0.05 * k, Pose(0.0, 0.0, 0.0), AntennaPowers(0.05 * k, 1, k, (-40.0, -60.0, -50.0, -50.0)))

@@ -12,6 +12,7 @@ Locator's windows and rate mean the same in lockstep as on a real robot.
 
 from __future__ import annotations
 
+import enum
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -47,6 +48,14 @@ def align(odometry: np.ndarray, world: np.ndarray) -> tuple[float, np.ndarray]:
     return phi, mw - rot @ mo
 
 
+class Phase(enum.StrEnum):
+    """Homing on fixed anchors: turning to the estimate, waiting for one, driving to it."""
+
+    ALIGNING = "aligning"
+    WAITING = "waiting"
+    HOMING = "homing"
+
+
 class AnchorsController(ControllerDefaults):
     source = "anchors"
 
@@ -64,7 +73,7 @@ class AnchorsController(ControllerDefaults):
         self.target_world: np.ndarray | None = None
         self.target_t = -math.inf
         self.transform: tuple[float, np.ndarray] | None = None
-        self.phase = "aligning"
+        self.phase = Phase.ALIGNING
         self.reported: tuple[float, float] | None = None
 
     def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
@@ -104,12 +113,12 @@ class AnchorsController(ControllerDefaults):
         goal = self._goal_in_odometry()
         self.reported = goal
         if self.transform is None:
-            self.phase = "aligning"
+            self.phase = Phase.ALIGNING
             return Decision(p.align_speed, 0.0, None, False, "aligning frames: straight ahead")
         if goal is None or now - self.target_t > p.target_stale_s:
-            self.phase = "waiting"
+            self.phase = Phase.WAITING
             return Decision(0.0, 0.0, None, False, "no fresh target fix")
-        self.phase = "homing"
+        self.phase = Phase.HOMING
         aim = steer_to or goal
         d_g = math.dist((pose.x, pose.y), goal)
         if d_g < p.arrive_m:

@@ -52,6 +52,7 @@ What the paper left open, and how it is handled here:
 
 from __future__ import annotations
 
+import enum
 import math
 from collections import deque
 from collections.abc import Callable
@@ -102,13 +103,20 @@ class _Ray:
     alpha: float
 
 
+class Phase(enum.StrEnum):
+    """S0's phases: the bearing's front/back ambiguity first, then homing on it."""
+
+    DISAMBIGUATING = "disambiguating"
+    HOMING = "homing"
+
+
 @dataclass
 class S0Homing:
     params: S0Params = field(default_factory=S0Params)
     g_p: tuple[float, float] | None = None
     g_v: tuple[float, float] | None = None
     reported: tuple[float, float] | None = None
-    phase: str = "disambiguating"
+    phase: Phase = Phase.DISAMBIGUATING
     _raw: deque[tuple[float, float]] = field(init=False)  # the last ``buffer`` raw vector goals
     _weights: list[float] = field(init=False)  # g_v's weights, newest first
     _fusion: RayRangeFusion | None = field(init=False)  # ours: every reading near the goal
@@ -125,7 +133,7 @@ class S0Homing:
 
     def __post_init__(self) -> None:
         if not self.params.folded:  # nothing to tell apart: home from the first reading
-            self.phase = "homing"
+            self.phase = Phase.HOMING
         self._raw = deque(maxlen=self.params.buffer)
         self._weights = [math.exp(-k / self.params.tau) for k in range(self.params.buffer)]
         self._fusion = RayRangeFusion() if self.params.ray_fusion else None
@@ -137,7 +145,7 @@ class S0Homing:
         if not self.params.folded:
             return front
         back = wrap_rad(pose.theta + math.pi - theta_s)
-        if self.phase == "disambiguating":
+        if self.phase is Phase.DISAMBIGUATING:
             return back if self._mirror else front
         reference = self._goal_bearing(pose)
         if reference is None:
@@ -155,7 +163,7 @@ class S0Homing:
         p = self.params
         if self._t0 is None:
             self._t0 = t
-        if self.phase == "disambiguating":
+        if self.phase is Phase.DISAMBIGUATING:
             self._disamb.append((wrap_rad(pose.theta + theta_s), wrap_rad(pose.theta + math.pi - theta_s), t))
             if t - self._t0 >= p.disambiguation_s and len(self._disamb) >= 5:
                 self._decide_front_back()
@@ -197,7 +205,7 @@ class S0Homing:
         self._mirror = back < front
         chosen = [b if self._mirror else a for a, b, _ in self._disamb]
         self._last_theta_world = math.atan2(sum(math.sin(a) for a in chosen), sum(math.cos(a) for a in chosen))
-        self.phase = "homing"
+        self.phase = Phase.HOMING
 
     def _update_vector(self, pose: Pose, alpha: float, distance: float) -> None:
         raw = (pose.x + distance * math.cos(alpha), pose.y + distance * math.sin(alpha))
@@ -273,7 +281,7 @@ class S0Homing:
         ``steer_to``: a waypoint from a planner; the robot steers to it while arrival is still
         judged at the goal."""
         p = self.params
-        if self.phase == "disambiguating":
+        if self.phase is Phase.DISAMBIGUATING:
             return Decision(0.0, p.disambiguation_w, None, False, "turning to tell front from back")
         goal = self.reported
         if goal is None:

@@ -36,6 +36,7 @@ frame. Once RSSI_diff ≤ α the robot turns in place onto that axis, then repor
 
 from __future__ import annotations
 
+import enum
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -80,6 +81,15 @@ class S1Params:
     confirm_step_m: float = setting(0.1, low=0, high=10, unit=M)  # the step after a failed confirmation, at most (the robot may stand at the docked pose already: a full step carries it past the station)
 
 
+class Stage(enum.StrEnum):
+    """Where the docking controller is; S1's docking stage is DOCKING, CONFIRMING and DOCKED."""
+
+    MISSION = "mission"  # toward the station on the map, or waiting for its RSSI
+    DOCKING = "docking"  # stepping on RSSI and AoA
+    CONFIRMING = "confirming"  # standing: the readings decide
+    DOCKED = "docked"  # confirmed: aligning with the approach axis, then arrived
+
+
 class DockController(ControllerDefaults):
     source = "dock_aoa"
 
@@ -90,7 +100,7 @@ class DockController(ControllerDefaults):
         self.rssi: float | None = None
         self.aoa: float | None = None
         self._aoa_prev_step: float | None = None
-        self.stage = "mission"
+        self.stage = Stage.MISSION
         self.readings = 0
         self._step: tuple[float, float, float] | None = None  # target x, y, heading
         self.steps = 0
@@ -99,13 +109,18 @@ class DockController(ControllerDefaults):
         self._t: float | None = None  # the newest reading's time
         self._standing_since: float | None = None  # confirming: when the robot stopped
         self._standing: list[float] = []  # confirming: the raw RSSI received while it stands
-        self.confirmed = False  # RSSI_diff <= alpha held on the standing readings
         self._hold_until = 0  # after a failed confirmation, the moving average is not trusted before this reading
         self._tries = 0  # confirmations taken
 
     @property
     def phase(self) -> str:
-        return self.stage
+        """S1's two stages, as the run log names them: confirming and docked are in the docking stage."""
+        return "mission" if self.stage is Stage.MISSION else "docking"
+
+    @property
+    def confirmed(self) -> bool:
+        """RSSI_diff <= alpha held on the standing readings (or the last try was taken)."""
+        return self.stage is Stage.DOCKED
 
     @property
     def reported(self) -> Any:
@@ -129,11 +144,11 @@ class DockController(ControllerDefaults):
         r = p.standoff_m * 10 ** ((p.rssi_arrival_dbm - e.rssi1) / (10 * p.path_n))
         phi = -math.radians(e.azimuth)  # board sign: negative = the robot on the station's left
         self._pairs.append((pose.x, pose.y, r * math.cos(phi), r * math.sin(phi)))
-        if self.stage == "mission" and self.rssi > p.enter_dbm and self.readings >= p.n:
-            self.stage = "docking"
-        elif self.stage == "docking" and self.rssi < p.leave_dbm:
-            self.stage, self._step, self._standing_since = "mission", None, None
-            self._tries, self.confirmed = 0, False  # a later docking confirms afresh
+        if self.stage is Stage.MISSION and self.rssi > p.enter_dbm and self.readings >= p.n:
+            self.stage = Stage.DOCKING
+        elif self.stage is not Stage.MISSION and self.rssi < p.leave_dbm:
+            self.stage, self._step, self._standing_since = Stage.MISSION, None, None
+            self._tries = 0  # a later docking confirms afresh
         return {"rssi": e.rssi1, "azimuth": e.azimuth, "rssi_ma": round(self.rssi, 2), "aoa_ma": round(self.aoa, 2)}
 
     def _next_step(self, pose: Pose, diff: float | None = None, cap_m: float | None = None) -> None:
@@ -154,10 +169,11 @@ class DockController(ControllerDefaults):
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         p = self.params
-        if self.stage != "docking" or self.rssi is None:
+        if self.stage is Stage.MISSION or self.rssi is None:
             return self._mission(pose)
-        standing = self._standing_since is not None  # a confirmation, once begun, runs its window
-        if not self.confirmed and (standing or (self.rssi_diff <= p.alpha_db and self.readings >= self._hold_until)):
+        # a confirmation, once begun, runs its window
+        if self.stage is Stage.CONFIRMING or (self.stage is Stage.DOCKING and self.rssi_diff <= p.alpha_db
+                                              and self.readings >= self._hold_until):
             confirming = self._confirm(pose)
             if confirming is not None:
                 return confirming
@@ -189,10 +205,10 @@ class DockController(ControllerDefaults):
         alpha on one lucky stretch of a heavy-tailed channel. None: confirmed (or no window)."""
         p = self.params
         if p.confirm_s <= 0:
-            self.confirmed = True
+            self.stage = Stage.DOCKED
             return None
-        if self._standing_since is None:
-            self._standing_since, self._standing = self._t, []
+        if self.stage is not Stage.CONFIRMING:
+            self.stage, self._standing_since, self._standing = Stage.CONFIRMING, self._t, []
             self._step = None
         assert self._standing_since is not None and self._t is not None
         if self._t - self._standing_since < p.confirm_s or len(self._standing) < 3:
@@ -201,8 +217,9 @@ class DockController(ControllerDefaults):
         self._standing_since, self._standing = None, []
         self._tries += 1
         if diff <= p.alpha_db or self._tries >= p.confirm_tries:
-            self.confirmed = True
+            self.stage = Stage.DOCKED
             return None
+        self.stage = Stage.DOCKING
         self._hold_until = self.readings + p.n  # a step from the standing figure, then fresh readings
         self._next_step(pose, diff, p.confirm_step_m)
         return Decision(0.0, 0.0, self._step[:2] if self._step else None, False, "not confirmed: stepping on")
@@ -244,6 +261,6 @@ class DockController(ControllerDefaults):
 
     def estimate(self) -> dict[str, Any]:
         station = self.station_pose()
-        return {"stage": self.stage, "rssi_diff": round(self.rssi_diff, 2), "step": None if self._step is None
+        return {"stage": self.phase, "rssi_diff": round(self.rssi_diff, 2), "step": None if self._step is None
                 else [round(v, 3) for v in self._step],
                 "station": None if station is None else [round(v, 3) for v in station]}

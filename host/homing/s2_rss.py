@@ -31,6 +31,7 @@ subtracted from its power before the direction and range are computed.
 
 from __future__ import annotations
 
+import enum
 import math
 import statistics
 from collections import deque
@@ -84,6 +85,13 @@ class S2Params:
             raise ParamsError("[s2] dish_offsets_db needs four values: x1, x2, y1, y2")
 
 
+
+class Motion(enum.Enum):
+    """What S2's robot is doing: turning in place to measure the dishes' offsets, or homing."""
+
+    TURNING = "turning"
+    HOMING = "homing"
+
 class RssController(ControllerDefaults):
     source = "rss"
 
@@ -105,7 +113,7 @@ class RssController(ControllerDefaults):
         self._saturated: deque[bool] = deque(maxlen=5)
         self.offsets: tuple[float, float, float, float] = params.dish_offsets_db
         self.spins = 0
-        self._spinning = params.spin_calibration and params.likelihood == "bounded"
+        self.motion = Motion.TURNING if params.spin_calibration and params.likelihood == "bounded" else Motion.HOMING
         self._spin: list[tuple[float, Pose, tuple[float, float, float, float], bool]] = []
         self._spin_turned = 0.0
         self._spin_heading: float | None = None
@@ -118,7 +126,7 @@ class RssController(ControllerDefaults):
 
     @property
     def phase(self) -> str:
-        if self._spinning:
+        if self.motion is Motion.TURNING:
             return "calibrating"
         return "homing" if self.fixes >= self.params.min_fixes else "searching"
 
@@ -134,7 +142,7 @@ class RssController(ControllerDefaults):
         self._t = t
         raw = (float(item.dbm[0]), float(item.dbm[1]), float(item.dbm[2]), float(item.dbm[3]))  # type: ignore[arg-type]
         saturated = any(item.saturated)
-        if self._spinning:
+        if self.motion is Motion.TURNING:
             self._spin.append((t, pose, raw, saturated))
         theta, diff_db, rng = self._fix(t, pose, raw)
         self.fixes += 1
@@ -166,7 +174,7 @@ class RssController(ControllerDefaults):
         mean powers over the turn is their own offsets where the robot stands (chip, dish, and
         the place's fading on each), whatever the emitter's bearing. Take these as the offsets
         (mean zero, as the calibration's), restart the filter and give it the turn's readings."""
-        self._spinning = False
+        self.motion = Motion.HOMING
         self.spins += 1
         bins: dict[int, list[tuple[float, float, float, float]]] = {}
         for _, pose, raw, _ in self._spin:  # by heading, so that a stall in one direction weighs no more
@@ -255,7 +263,7 @@ class RssController(ControllerDefaults):
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         p = self.params
-        if self._spinning:
+        if self.motion is Motion.TURNING:
             turning = self._spin_step(pose)
             if turning is not None:
                 return turning
@@ -282,7 +290,7 @@ class RssController(ControllerDefaults):
         if close:
             return Decision(0.0, 0.0, (float(goal[0]), float(goal[1])), True, "arrived")
         if self._close_since is None and self._stuck(pose, d_g):
-            self._spinning = True
+            self.motion = Motion.TURNING
             return Decision(0.0, p.spin_w, None, False, "stuck: turning in place again")
         if p.motion == "preliminary":
             return self._preliminary(pose, goal)

@@ -27,6 +27,7 @@ holding there (a copter in BRAKE or LOITER).
 
 from __future__ import annotations
 
+import enum
 import math
 import re
 from collections import deque
@@ -109,6 +110,15 @@ class _Beacon:
     history: deque[tuple[int, np.ndarray]] = field(default_factory=lambda: deque(maxlen=MAX_STEPS))  # (step, RSSI)
 
 
+class Stage(enum.StrEnum):
+    """S4's stages: the lawn-mower search, the smoother's pass, homing on the chosen beacon, holding over it."""
+
+    SEARCH = "search"
+    SMOOTHING = "smoothing"
+    HOMING = "homing"
+    HOLDING = "holding"
+
+
 class SurveyController(ControllerDefaults):
     source = "ble"
     needs_fresh_readings = False  # the pattern goes on through stretches where no beacon is heard
@@ -136,7 +146,7 @@ class SurveyController(ControllerDefaults):
         self.path: deque[np.ndarray] = deque(maxlen=MAX_STEPS)  # the receivers' positions at each step
         self.next_wp = 0
         self.beacons: dict[str, _Beacon] = {}
-        self.stage = "search"
+        self.stage = Stage.SEARCH
         self.target: str | None = None
         self.t = 0.0  # robot time of the newest reading
         self._held_since: float | None = None
@@ -277,26 +287,26 @@ class SurveyController(ControllerDefaults):
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         self.step(pose)
         p = self.params
-        if self.stage == "search":
+        if self.stage is Stage.SEARCH:
             return self._search(pose)
-        if self.stage == "smoothing":  # one beacon a control period: no long pause of the loop
+        if self.stage is Stage.SMOOTHING:  # one beacon a control period: no long pause of the loop
             if self._to_smooth:
                 address = self._to_smooth.pop(0)
                 self.smooth(address)
                 return Decision(0.0, 0.0, None, False, f"hovering: smoothing {address}")
-            self.stage = "homing"
+            self.stage = Stage.HOMING
         self.target = self._choose()
         goal = self.reported
         if goal is None:
             return Decision(0.0, 0.0, None, False, f"hovering: beacon {p.home_on or 'to home on'} not localised")
         d = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
-        if d < p.arrival_radius or (self.stage == "holding" and d < 2 * p.arrival_radius):
+        if d < p.arrival_radius or (self.stage is Stage.HOLDING and d < 2 * p.arrival_radius):
             if self._held_since is None:
-                self.stage, self._held_since = "holding", self.t
+                self.stage, self._held_since = Stage.HOLDING, self.t
             if self.t - self._held_since >= p.hold_s:
                 return Decision(0.0, 0.0, goal, True, "arrived: holding over the beacon")
             return Decision(0.0, 0.0, goal, False, "holding over the beacon")
-        self.stage, self._held_since = "homing", None
+        self.stage, self._held_since = Stage.HOMING, None
         aim = goal if steer_to is None else steer_to
         theta_g = wrap_rad(math.atan2(aim[1] - pose.y, aim[0] - pose.x) - pose.theta)
         v, w = velocity_law(theta_g, d, p.v_max, p.w_max, p.k_w, p.k_stop)
@@ -307,7 +317,7 @@ class SurveyController(ControllerDefaults):
         while self.next_wp < len(self.waypoints) and math.dist(self.waypoints[self.next_wp], pose[:2]) < p.waypoint_radius_m:
             self.next_wp += 1
         if self.next_wp == len(self.waypoints):
-            self.stage = "smoothing" if p.smooth else "homing"
+            self.stage = Stage.SMOOTHING if p.smooth else Stage.HOMING
             self._to_smooth = sorted(a for a, b in self.beacons.items() if b.estimate is not None)
             return Decision(0.0, 0.0, None, False, "search done")
         wx, wy = self.waypoints[self.next_wp]
