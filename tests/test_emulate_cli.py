@@ -59,7 +59,7 @@ def wake(port: serial.Serial) -> None:
 @pytest.mark.slow
 def test_plain_pyserial_at_session_and_angles_match_truth(tmp_path: Path) -> None:
     truth_file = tmp_path / "truth.jsonl"
-    proc, endpoints = emulate("s0-open", "--pty", "--seed", "5", "--target", "3,2",
+    proc, endpoints = emulate("s0-open", "--pty", "--seed", "5", "--target", "3,2", "--radio", "ideal",
                               "--truth", str(truth_file), "--link-dir", str(tmp_path), devices=2)
     try:
         aoa = endpoints["aoa"]

@@ -208,7 +208,7 @@ async def test_s3_homes_on_esp_at_readings_and_the_capture_replays_them_exactly(
 @pytest.mark.slow
 def test_demo_runs_s3_on_an_esp_at_board(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--scenario", "s3-arena", "--receiver", "esp-at",
-                           "--json", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+                           "--radio", "ideal", "--json", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["success"] and "esp-at" in summary["links"]

@@ -172,7 +172,7 @@ def distance_to_segment(p, a, b) -> float:
 
 @pytest.mark.slow
 def test_the_anchors_of_s3_are_drawn(tmp_path: Path) -> None:
-    got, _ = watched_demo(tmp_path, "--scenario", "s3-arena", "--speed", "0")
+    got, _ = watched_demo(tmp_path, "--scenario", "s3-arena", "--speed", "0", "--radio", "ideal")  # arrives
     header = json.loads((tmp_path / "truth.jsonl").read_text().splitlines()[0])
     entities = {e.id: e for update in got["/rfhoming/scene"] for e in update.entities}
     anchors = {k: (e.cubes[0].pose.position.x, e.cubes[0].pose.position.y) for k, e in entities.items()

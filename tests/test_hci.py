@@ -308,7 +308,7 @@ async def test_s3_homes_on_hci_reports_and_the_capture_replays_them_exactly(tmp_
 @pytest.mark.slow
 def test_demo_runs_s3_on_an_hci_controller(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "rfhoming", "demo", "--scenario", "s3-arena", "--receiver", "hci",
-                           "--json", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+                           "--radio", "ideal", "--json", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
     assert summary["success"] and "hci" in summary["links"]

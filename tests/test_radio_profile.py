@@ -418,6 +418,33 @@ def test_a_scenario_carries_its_radio() -> None:
         scenarios.load("s0-open", radio="absent.toml")
 
 
+@pytest.mark.parametrize("argv, radio", [
+    (["emulate", "s0-open"], "measured"),  # demo and emulate show real radios unless told otherwise
+    (["emulate", "s0-open", "--aoa-preset", "2"], "ideal"),  # a preset is S0's idealised noise
+    (["emulate", "s0-open", "--radio", "ideal"], "ideal"),
+])
+def test_emulate_takes_measured_radios_by_default(monkeypatch: pytest.MonkeyPatch, argv: list[str], radio: str) -> None:
+    from rfhoming.cli.commands import emulate
+    from rfhoming.cli.main import main
+
+    got = []
+
+    def load(*_: object, **kwargs: object) -> None:
+        got.append(kwargs["radio"])
+        raise scenarios.ScenarioError("stop here")
+
+    monkeypatch.setattr(emulate, "load", load)
+    assert main(argv) == 2 and got == [radio]
+
+
+def test_demo_takes_measured_radios_by_default_and_campaigns_their_papers() -> None:
+    from rfhoming.cli.main import build_parser
+
+    parser = build_parser()
+    assert parser.parse_args(["demo"]).radio == "measured"
+    assert parser.parse_args(["campaign", "s1-dock"]).radio == "ideal"
+
+
 def test_campaigns_take_the_radio_and_leave_it_out_when_ideal() -> None:
     from rfhoming.campaigns import s1
 

@@ -10,6 +10,7 @@ import math
 import signal
 import sys
 
+from rfhoming.cli.parsers.common import IDEAL, MEASURED
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import ScenarioError, load
@@ -19,9 +20,10 @@ from rfhoming.protocol.errors import Error
 
 def run(args: argparse.Namespace) -> int:
     target = tuple(float(v) for v in args.target.split(",")) if args.target else None
+    radio = args.radio or (IDEAL if args.aoa_preset is not None else MEASURED)  # a preset is idealised noise
     try:
         scenario = load(args.scenario, seed=args.seed, target=target, aoa_preset=args.aoa_preset,
-                        receiver=args.receiver, radio=args.radio)
+                        receiver=args.receiver, radio=radio)
         faults = [Fault.parse(spec) for spec in args.fault]
     except (ScenarioError, FaultError) as exc:
         print(f"rfhoming emulate: {exc}", file=sys.stderr)

@@ -7,7 +7,7 @@ import os
 
 from rfhoming.cli.args import dask_address, output_folder, runs, seed, workers
 from rfhoming.cli.parsers import command
-from rfhoming.cli.parsers.common import add_radio_option
+from rfhoming.cli.parsers.common import IDEAL, add_radio_option
 
 REGISTRY = {  # name -> "module:attribute", imported only when run
     "s0-table3": "rfhoming.campaigns.s0:TABLE3_CAMPAIGN",
@@ -57,7 +57,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--dask", type=dask_address, metavar="ADDRESS", help="run the jobs on the Dask scheduler at ADDRESS instead")
     p.add_argument("--out", type=output_folder, help="output directory (default: ./rfhoming-NAME-runsN-seedS, named for the run; "
                    "docs/results to refresh the repository's committed tables)")
-    add_radio_option(p)
+    add_radio_option(p, IDEAL, "ideal, each paper's own set-up")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=command("campaign"))

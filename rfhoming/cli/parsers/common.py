@@ -26,11 +26,12 @@ FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {FOXGL
                  "rfhoming/host/foxglove_layout.json; needs the foxglove extra")
 WAIT_S = 60.0
 
-RADIOS = ("ideal", "measured")
+IDEAL, MEASURED = "ideal", "measured"
+RADIOS = (IDEAL, MEASURED)
 """protocol/radio_profile.py's RADIOS (a test holds them equal), named here so the parsers load no profile."""
-RADIO_HELP = ("the emulated radios' errors: ideal (the default, for now: each scenario's own idealised noise, its "
-              "paper's set-up), measured (the project's profile, fitted to real recordings: docs/emulator.md, "
-              "\"Radio profiles\") or a profile file that `rfhoming radio-fit` wrote from your own room's recordings")
+RADIO_HELP = ("the emulated radios' errors: measured (the project's profile, fitted to real recordings: "
+              "docs/emulator.md, \"Radio profiles\"), ideal (each scenario's own idealised noise, its paper's "
+              "set-up) or a profile file that `rfhoming radio-fit` wrote from your own room's recordings; default: {}")
 
 
 def add_port_defaults(p: argparse.ArgumentParser) -> None:
@@ -82,5 +83,7 @@ def radio(text: str) -> str:
     return str(Path(text).expanduser())
 
 
-def add_radio_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--radio", type=radio, default="ideal", metavar="ideal|measured|PROFILE", help=RADIO_HELP)
+def add_radio_option(p: argparse.ArgumentParser, default: str | None, said: str) -> None:
+    """``--radio``: ``default`` (None: the command picks; ``said`` tells the user which)."""
+    p.add_argument("--radio", type=radio, default=default, metavar="measured|ideal|PROFILE",
+                   help=RADIO_HELP.format(said))

@@ -11,7 +11,7 @@ from typing import Any
 
 from rfhoming.cli.args import duration, fault, nonempty, output_file, path, seed, speed, xy
 from rfhoming.cli.parsers import command
-from rfhoming.cli.parsers.common import GROWING, add_radio_option
+from rfhoming.cli.parsers.common import GROWING, IDEAL, MEASURED, add_radio_option
 
 BLE_RECEIVERS = ("esp32", "at86rf212", "esp-at", "hci")
 """emulator/scenario.py's BLE_RECEIVERS, the device table's boards with the "ble" role (a test
@@ -34,7 +34,7 @@ then the world runs until Ctrl-C.
 
 examples:
   rfhoming emulate s0-open --seed 3 --truth truth.jsonl
-  rfhoming emulate s0-open --radio measured       (the XPLR-AOA as bad as real ones)
+  rfhoming emulate s0-open --radio ideal          (the paper's idealised noise, not real boards' errors)
   rfhoming emulate s2-c --tcp --speed 10
   rfhoming emulate s3-arena --receiver esp-at     (the robot's scanner is an ESP32 with ESP-AT)
   rfhoming emulate s3-arena --receiver hci        (... a Bluetooth controller: hci:serial:PATH)
@@ -65,8 +65,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                    help="serve every BLE RSSI receiver as this device: esp32 (rfhoming frames), esp-at "
                    "(Espressif's AT firmware) or hci (a Bluetooth controller over H4, needs rfhoming[hci])")
     p.add_argument("--aoa-preset", type=int, choices=range(1, 6), help="S0 Table 2 noise configuration 1-5 "
-                   "(idealised noise: with --radio ideal only)")
-    add_radio_option(p)
+                   "(idealised noise: --radio ideal, the default with it)")
+    add_radio_option(p, None, f"{MEASURED}; {IDEAL} with --aoa-preset")
     p.add_argument("--fault", type=fault, action="append", default=[], metavar="SPEC", help="inject a fault (see above)")
     p.add_argument("--truth", type=output_file, help="write the true robot pose and target positions as JSON lines" + GROWING)
     p.add_argument("--duration", type=duration, help="stop after this many simulated seconds")

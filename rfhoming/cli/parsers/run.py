@@ -9,6 +9,7 @@ from rfhoming.cli.args import nonempty, output_file, output_folder, path, seed, 
 from rfhoming.cli.parsers import command
 from rfhoming.cli.parsers.common import (
     GROWING,
+    MEASURED,
     add_foxglove_option,
     add_port_defaults,
     add_radio_option,
@@ -40,7 +41,8 @@ examples:
   rfhoming demo --seed 7 --json
   rfhoming demo --in-process               # the same summary for the same seed, every time
   rfhoming demo --scenario s0-open --target=-6,4 --out /tmp/demo
-  rfhoming demo --scenario s0-house --radio measured   (radios as bad as real ones: docs/emulator.md)
+  rfhoming demo --scenario s0-house                    (radios as bad as real ones: docs/emulator.md)
+  rfhoming demo --radio ideal              # the paper's idealised noise instead
   rfhoming demo --scenario s3-arena --receiver hci     (S3 on HCI advertising reports)
   rfhoming demo --scenario s4-air --in-process  (S4: a copter surveys ten beacons; limit >= 600 s)
   rfhoming demo --mcap run.mcap            # and a ROS 2 log of the run
@@ -87,7 +89,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
                    help="the emulator in this process on its byte pipe: the same summary for the same seed")
     p.add_argument("--speed", type=speed, metavar="N", help="simulated seconds per wall second (0: lockstep, as "
                    "fast as the host answers); default 1 with --foxglove, else 0")
-    add_radio_option(p)
+    add_radio_option(p, MEASURED, MEASURED)
     add_foxglove_option(p)
     add_watch_options(p)
     p.set_defaults(func=command("demo"))
