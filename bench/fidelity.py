@@ -46,6 +46,7 @@ from rfhoming.emulator.scenario import load as load_scenario
 from rfhoming.host import site as sites
 from rfhoming.host.angle_residuals import AngleStats, Residuals, angle_stats, ks_distance, residuals
 from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.host.groundtruth import WalkedPath, load_waypoints, score
 
 LEAD_S = 1.0
@@ -140,13 +141,13 @@ async def _emulate(scenario_file: Path, radio: str, seed: int, room: int, durati
 def emulated_capture(site: sites.Site, real: Path, truth: WalkedPath, radio: str, seed: int, room: int,
                      out: Path) -> Path:
     """An emulated capture of the real one's walk (same span, same event rate)."""
-    events = [(got.t, got.item) for got in rfhoming.read(f"capture:{real}", kinds={"angle"})]
-    first, last = events[0][0], events[-1][0]
+    events = [bearing_of(got.t, got.item) for got in rfhoming.read(f"capture:{real}", kinds={"angle"})]
+    first, last = events[0].t, events[-1].t
     counts: dict[str, int] = {}
-    for _, e in events:
-        counts[e.anchor_id] = counts.get(e.anchor_id, 0) + 1
+    for e in events:
+        counts[e.anchor] = counts.get(e.anchor, 0) + 1
     rate = max(counts.values()) / (last - first)
-    tag = site.tags[0].id if site.tags else events[0][1].instance_id
+    tag = site.tags[0].id if site.tags else events[0].tag
     t0 = first - LEAD_S
     scenario = out.with_suffix(".toml")
     scenario.write_text(scenario_toml(site, truth, t0, 1000 / rate / 1.05, tag))  # the schedule adds 5 % jitter
@@ -155,7 +156,7 @@ def emulated_capture(site: sites.Site, real: Path, truth: WalkedPath, radio: str
 
 
 def angle_groups(site: sites.Site, captures: Sequence[tuple[Path, WalkedPath]]) -> list[dict[str, Residuals]]:
-    return [residuals(site, [(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})], path)
+    return [residuals(site, [bearing_of(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})], path)
             for c, path in captures]
 
 

@@ -49,6 +49,7 @@ from rfhoming.emulator.measured_rssi import MeasuredChannel
 from rfhoming.emulator.radio import PathLossModel
 from rfhoming.host import site as sites
 from rfhoming.host.angle_residuals import ks_distance, residuals
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.host.groundtruth import load_waypoints
 from rfhoming.host.rssi_fit import Readings, RssiStats, calibrate, estimate, pool, rssi_stats
 from rfhoming.protocol.rssi_profile import RssiProfile
@@ -140,8 +141,9 @@ def girolami(root: Path) -> Readings:
     rows, seconds = [], []
     for k, capture in enumerate(sorted((base / "captures").glob("*.pcapng"))):
         path = load_waypoints(base / "ground_truth" / f"{capture.stem}.csv")
-        events = [(got.t, got.item) for got in rfhoming.read(f"capture:{capture}", kinds={"angle"})]
-        second = {(t, e.anchor_id): e.reserved for t, e in events}
+        items = [(got.t, got.item) for got in rfhoming.read(f"capture:{capture}", kinds={"angle"})]
+        second = {(t, e.anchor_id): e.reserved for t, e in items}  # the board's field 5 (a 1.0 board's RSSI)
+        events = [bearing_of(t, e) for t, e in items]
         ids = {a.name: a.id for a in site.anchors}
         for name, r in residuals(site, events, path).items():
             a = names.index(name)

@@ -56,9 +56,9 @@ def baseline(site: sites.Site, rec: Recording, t_from: float, rate_hz: float = 1
              ) -> list[float]:
     """The naive pipeline's 2-D errors at every tick from ``t_from``."""
     anchors = site.anchor_by_id()
-    recent: dict[tuple[str, str], list[tuple[float, int]]] = {}
+    recent: dict[tuple[str, str], list[tuple[float, float]]] = {}
     errors = []
-    next_tick = math.ceil(rec.events[0][0] * rate_hz) / rate_hz
+    next_tick = math.ceil(rec.events[0].t * rate_hz) / rate_hz
 
     def tick(t: float) -> None:
         for tag in rec.tags:
@@ -75,12 +75,13 @@ def baseline(site: sites.Site, rec: Recording, t_from: float, rate_hz: float = 1
                     continue
                 errors.append(float(np.linalg.norm(point - rec.truth(tag, t)[:2])))
 
-    for t, event in rec.events:
+    for event in rec.events:
+        t = event.t
         while next_tick <= t:
             tick(next_tick)
             next_tick += 1 / rate_hz
-        window = recent.setdefault((event.instance_id, event.anchor_id), [])
-        window.append((t, event.azimuth))
+        window = recent.setdefault((event.tag, event.anchor), [])
+        window.append((t, event.clockwise_deg))
         if len(window) > 200:
             del window[:100]
     return errors
@@ -91,8 +92,8 @@ def run(site: sites.Site, events: list, *, smoothed: bool = False, **options) ->
     loc = Locator(site, reorder_s=0.0, track=not smoothed and options.pop("track", True), **options)
     out = []
     t0 = time.process_time()  # CPU time: the figure is cost, not the shared machine's queueing
-    for t, event in events:
-        out += loc.feed(t, event)
+    for event in events:
+        out += loc.feed(event)
     out += loc.flush()
     if smoothed:
         out = smooth(out)
@@ -144,7 +145,7 @@ def main() -> int:
               file=sys.stderr)
         rec = record(seed, 2 * args.duration, boards=boards, room=room)
         t_from = args.duration  # the second half is scored; the first is "an earlier recording"
-        earlier = [(t, e) for t, e in rec.events if t < t_from]
+        earlier = [e for e in rec.events if e.t < t_from]
         surveyed = calibrate(base, record(seed, args.calibration_s, calibration=True, boards=boards,
                                           room=room).events, CALIBRATION_POINTS)
         t0 = time.process_time()

@@ -33,8 +33,8 @@ def main() -> None:
     loc = Locator(site, reorder_s=0.0)
     out = []
     snapshot = None
-    for t, e in rec.events:
-        for p in loc.feed(t, e):
+    for e in rec.events:
+        for p in loc.feed(e):
             out.append(p)
             if snapshot is None and p.tag == TAG and p.t >= 6.0:
                 snapshot = (p, loc.rays_at(TAG, p.t)[0])

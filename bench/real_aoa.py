@@ -43,6 +43,7 @@ import numpy as np
 import rfhoming
 from rfhoming.host import site as sites
 from rfhoming.host.angle_residuals import angle_stats, residuals
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.host.groundtruth import load_waypoints, score
 
 RFHOMING = [sys.executable, "-m", "rfhoming"]
@@ -109,7 +110,7 @@ def angle_figures(site_path: Path, runs: Sequence[tuple[Path, Path]], model: str
     site = replace(site, anchors=tuple(replace(a, angle_model=model) for a in site.anchors))
     groups = []
     for capture, truth in runs:
-        events = [(got.t, got.item) for got in rfhoming.read(f"capture:{capture}", kinds={"angle"})]
+        events = [bearing_of(got.t, got.item) for got in rfhoming.read(f"capture:{capture}", kinds={"angle"})]
         groups.append(residuals(site, events, load_waypoints(truth)))
     out: dict[str, object] = {"all": angle_stats(groups).as_dict()}
     for anchor in site.anchors:
@@ -136,7 +137,7 @@ def cross_validate(site_path: Path, cases: dict[str, list[tuple[Path, Path]]]) -
     from rfhoming.host.locate import ACCEL_PSD, Locator
 
     site = sites.load(site_path)
-    events = {c: [(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})]
+    events = {c: [bearing_of(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})]
               for runs in cases.values() for c, _ in runs}
     noise_keys = {f.name for f in fields(AngleNoise)}
     defaults = {k: float(getattr(AngleNoise(), k)) for k in CV_STEPS if k in noise_keys}
@@ -151,7 +152,7 @@ def cross_validate(site_path: Path, cases: dict[str, list[tuple[Path, Path]]]) -
             errors = []
             for capture, truth in cases[uc]:
                 loc = Locator(s, noise=noise, accel_psd=setting["accel_psd"])
-                out = [p for t, e in events[capture] for p in loc.feed(t, e)] + loc.flush()
+                out = [p for e in events[capture] for p in loc.feed(e)] + loc.flush()
                 errors.append(score(load_waypoints(truth), [(p.t, float(p.point[0]), float(p.point[1])) for p in out]))
             cache[key] = float(np.mean(np.concatenate(errors)))
             print(f"[cv] {uc} {json.dumps(setting)}: {cache[key]:.3f} m", file=sys.stderr, flush=True)

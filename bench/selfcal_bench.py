@@ -35,7 +35,7 @@ def main() -> int:
                                        for a in base.anchors), tags=tuple(replace(t, height=None) for t in base.tags))
     print(f"recording {args.walks} walks of {args.walk_s:g} s", file=sys.stderr)
     events = record(args.seed, args.walks * args.walk_s, boards=HARD_BOARDS, room=WALL_ROOM).events
-    walks = [[(t, e) for t, e in events if k * args.walk_s <= t < (k + 1) * args.walk_s] for k in range(args.walks)]
+    walks = [[e for e in events if k * args.walk_s <= e.t < (k + 1) * args.walk_s] for k in range(args.walks)]
     cpu, wall = time.process_time(), time.perf_counter()
     result = self_calibrate(site, walks, height=WALL_ROOM["tag_height_m"],
                             progress=lambda text: print(text, end="", file=sys.stderr, flush=True))

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host import site as sites
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.host.locate import Locator
 from rfhoming.host.self_calibration import SelfCalibration, self_calibrate
 
@@ -59,13 +60,13 @@ def emulated(seeds: Sequence[int], duration: float, variants: Sequence[str]) -> 
 
     def scored(site: sites.Site, rec: Any) -> list[float]:
         loc = Locator(site, reorder_s=0.0, loss="cauchy")
-        out = [p for t, e in rec.events for p in loc.feed(t, e)] + loc.flush()
+        out = [p for e in rec.events for p in loc.feed(e)] + loc.flush()
         return [float(np.linalg.norm(p.point[:2] - rec.truth(p.tag, p.t)[:2])) for p in out if p.t >= duration]
 
     for seed in seeds:
         print(f"seed {seed}", file=sys.stderr, flush=True)
         rec = record(seed, 2 * duration, boards=HARD_BOARDS)
-        earlier = [(t, e) for t, e in rec.events if t < duration]
+        earlier = [e for e in rec.events if e.t < duration]
         reference = scored(base, rec)
         errors.setdefault("uncalibrated", {}).setdefault("written", []).extend(reference)
         row: dict[str, Any] = {"seed": seed, "uncalibrated_m": round(float(np.mean(reference)), 4)}
@@ -88,7 +89,7 @@ def real(data: Path, variants: Sequence[str]) -> dict[str, Any]:
 
     site = sites.load(data / "site.toml")
     captures = sorted((data / "captures").glob("*.pcapng"))
-    events = {c.stem: [(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})] for c in captures}
+    events = {c.stem: [bearing_of(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})] for c in captures}
     cases: dict[str, list[str]] = {}
     for c in captures:
         cases.setdefault(c.stem.rsplit("_run", 1)[0], []).append(c.stem)
@@ -97,7 +98,7 @@ def real(data: Path, variants: Sequence[str]) -> dict[str, Any]:
         per_run = []
         for run in cases[uc]:
             loc = Locator(s)
-            out = [p for t, e in events[run] for p in loc.feed(t, e)] + loc.flush()
+            out = [p for e in events[run] for p in loc.feed(e)] + loc.flush()
             per_run.append(score(load_waypoints(data / "ground_truth" / f"{run}.csv"),
                                  [(p.t, float(p.point[0]), float(p.point[1])) for p in out]))
         return round(float(np.mean(np.concatenate(per_run))), 3)

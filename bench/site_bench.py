@@ -34,6 +34,7 @@ from rfhoming.cli.commands.worker import emulated_site  # noqa: E402
 from rfhoming.emulator.site import SiteScenario  # noqa: E402
 from rfhoming.host.estimation.batch import BatchLocator  # noqa: E402
 from rfhoming.host.locate import Locator  # noqa: E402
+from rfhoming.host.drivers.aoa import bearing_of  # noqa: E402
 from rfhoming.protocol.uconnect.items import AngleEvent  # noqa: E402
 
 ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
@@ -72,7 +73,7 @@ def engine(name: str, seconds: float, reference_tags: int) -> dict[str, float]:
         c0 = time.process_time()
         out = []
         for t, a, tag, az, el in sub:
-            out += loc.feed(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0))
+            out += loc.feed(bearing_of(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0)))
         c1 = time.process_time()
         if k >= 10:
             m += len(sub)

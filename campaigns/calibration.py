@@ -31,7 +31,7 @@ from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import Scenario
 from rfhoming.emulator.world import Pose as WorldPose
 from rfhoming.emulator.world import World
-from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.drivers.rss import AntennaPowers
 from rfhoming.host.estimation.ranging import LogDistance, fit_log_distance_binned
 from rfhoming.host.homing import assembly
@@ -119,7 +119,7 @@ class Recorder(ControllerDefaults):
 
 
 def _aoa_rssi(item: Any) -> float | None:
-    return float(item.event.rssi1) if isinstance(item, TimedAngle) else None
+    return item.rssi if isinstance(item, Bearing) else None
 
 
 def _dish_powers(item: Any) -> tuple[float, ...] | None:

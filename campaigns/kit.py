@@ -15,7 +15,9 @@ from rfhoming.emulator import scenario as scenarios
 from rfhoming.emulator.anchors import FixedAnchorRunner
 from rfhoming.emulator.links import pipe_end
 from rfhoming.emulator.runtime import Emulator
-from rfhoming.protocol.uconnect import AngleEvent, UConnectDecoder
+from rfhoming.host.bearing import Bearing
+from rfhoming.host.drivers.aoa import bearing_of
+from rfhoming.protocol.uconnect import UConnectDecoder
 
 CALIBRATION_POINTS: dict[str, tuple[float, float, float]] = {
     "CCF9578E0C01": (2.0, 1.5, 0.8), "CCF9578E0C02": (6.0, 3.0, 0.3), "CCF9578E0C03": (10.0, 4.5, 1.2),
@@ -26,7 +28,7 @@ CALIBRATION_POINTS: dict[str, tuple[float, float, float]] = {
 
 @dataclass
 class Recording:
-    events: list[tuple[float, AngleEvent]]
+    events: list[Bearing]
     truth: Callable[[str, float], np.ndarray]  # (tag, t) -> (x, y, z)
     tags: list[str]
     anchors_truth: list[dict[str, Any]]
@@ -36,7 +38,7 @@ async def _record(sc: scenarios.Scenario, seed: int, duration: float) -> Recordi
     em = Emulator(sc, transport="pipe", seed=seed, speed=float("inf"))
     await em.start()
     decoders = {d.name: UConnectDecoder() for d in em.devices}
-    events: list[tuple[float, AngleEvent]] = []
+    events: list[Bearing] = []
     while em.t < duration:
         await em.step()
         for d in em.devices:
@@ -44,7 +46,7 @@ async def _record(sc: scenarios.Scenario, seed: int, duration: float) -> Recordi
             while end.pending():
                 for item in decoders[d.name].feed(await end.read()):
                     if item.kind == "angle":
-                        events.append((round(em.t, 6), item))
+                        events.append(bearing_of(round(em.t, 6), item))
     await em.close()
     targets = {t.id: t for t in sc.world.targets}
 

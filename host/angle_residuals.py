@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.estimation.anchors3d import board_angles_many
 from rfhoming.host.groundtruth import WalkedPath
 from rfhoming.host.site import Anchor, Site
-from rfhoming.protocol.uconnect import AngleEvent
 
 TAIL_DEG = 20.0
 """A report off by more than this is in the tail (a reflection or a lost lock, not noise)."""
@@ -69,7 +69,7 @@ def true_angles(anchor: Anchor, points: np.ndarray) -> np.ndarray:
     return board_angles_many(local, anchor.angle_model)
 
 
-def residuals(site: Site, events: Iterable[tuple[float, AngleEvent]], path: WalkedPath,
+def residuals(site: Site, events: Iterable[Bearing], path: WalkedPath,
               tag: str | None = None, height: float | None = None) -> dict[str, Residuals]:
     """Per anchor (by name), the residuals of ``tag``'s events (the site's first tag by default)
     against ``path`` at the tag's height (the site's, or ``height``), over the walk (first to
@@ -79,11 +79,12 @@ def residuals(site: Site, events: Iterable[tuple[float, AngleEvent]], path: Walk
     z = height if height is not None else (info.height if info and info.height is not None else None)
     if z is None:
         raise ValueError("the tag's height is needed: give it in the site file's [tags.ID] or as height=")
-    by_anchor: dict[str, list[tuple[float, int, int, int]]] = {}
+    by_anchor: dict[str, list[tuple[float, float, float, float]]] = {}
     names = {a.id: a for a in site.anchors}
-    for t, e in events:
-        if e.anchor_id in names and (tag is None or e.instance_id == tag) and path.start_s <= t <= path.end_s:
-            by_anchor.setdefault(e.anchor_id, []).append((t, e.azimuth, e.elevation, e.rssi1))
+    for r in events:
+        if r.anchor in names and (tag is None or r.tag == tag) and path.start_s <= r.t <= path.end_s:
+            by_anchor.setdefault(r.anchor, []).append((r.t, r.clockwise_deg, r.elevation_deg or 0.0,
+                                                   math.nan if r.rssi is None else r.rssi))
     out = {}
     for anchor_id, rows in by_anchor.items():
         anchor = names[anchor_id]

@@ -34,10 +34,10 @@ from typing import cast
 import numpy as np
 from scipy.optimize import least_squares
 
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.estimation.anchors3d import ANGLE_MODELS, board_angles_many, rotation
 from rfhoming.host.site import CALIBRATION_LIMITS, Anchor, Calibration, Site
 from rfhoming.protocol.errors import Error
-from rfhoming.protocol.uconnect import AngleEvent
 
 MIN_EVENTS = 10
 """Angle events an (anchor, point) pair needs to count."""
@@ -185,18 +185,18 @@ def fit_anchor(anchor: Anchor, points: np.ndarray, measured: np.ndarray, *, mode
     return AnchorFit(anchor.name, cal, len(points), rms_before, rms_after, model, sig, held)
 
 
-def find_dwells(events: Sequence[tuple[float, AngleEvent]], tag: str, *, min_s: float = 5.0,
+def find_dwells(events: Sequence[Bearing], tag: str, *, min_s: float = 5.0,
                 still_deg: float = 2.0, t0: float | None = None) -> list[tuple[float, float]]:
     """The spans (seconds from ``t0``, default the first event) in which ``tag`` stood still:
     runs of 1 s bins in which no anchor's median azimuth moved more than ``still_deg`` from the
     bin before, ``min_s`` or longer, one bin trimmed at each end (the tag being set down)."""
     if not events:
         return []
-    t0 = events[0][0] if t0 is None else t0
-    bins: dict[int, dict[str, list[int]]] = {}
-    for t, e in events:
-        if e.instance_id == tag:
-            bins.setdefault(int((t - t0) // 1.0), {}).setdefault(e.anchor_id, []).append(e.azimuth)
+    t0 = events[0].t if t0 is None else t0
+    bins: dict[int, dict[str, list[float]]] = {}
+    for r in events:
+        if r.tag == tag:
+            bins.setdefault(int((r.t - t0) // 1.0), {}).setdefault(r.anchor, []).append(r.clockwise_deg)
     medians = {k: {a: statistics.median(v) for a, v in b.items() if len(v) >= 3} for k, b in bins.items()}
     still = []
     for k in sorted(medians):
@@ -213,11 +213,11 @@ def find_dwells(events: Sequence[tuple[float, AngleEvent]], tag: str, *, min_s: 
     return [(float(a + 1), float(b)) for a, b in runs if b - a - 1 >= min_s]
 
 
-def assign_dwells(events: Sequence[tuple[float, AngleEvent]], points: list[Point]) -> tuple[list[Point], list[str]]:
+def assign_dwells(events: Sequence[Bearing], points: list[Point]) -> tuple[list[Point], list[str]]:
     """Points without a window get the dwells found in the recording, in order, per tag;
     (points with windows, one report line per tag); CalibrationError when the counts differ."""
     out, report = [], []
-    t0 = events[0][0] if events else 0.0
+    t0 = events[0].t if events else 0.0
     by_tag: dict[str, list[Point]] = {}
     for p in points:
         by_tag.setdefault(p.tag, []).append(p)
@@ -239,23 +239,23 @@ def assign_dwells(events: Sequence[tuple[float, AngleEvent]], points: list[Point
     return out, report
 
 
-def _samples(events: list[tuple[float, AngleEvent]], points: list[Point]) -> dict[tuple[str, int], list[tuple[int, int]]]:
+def _samples(events: list[Bearing], points: list[Point]) -> dict[tuple[str, int], list[tuple[float, float]]]:
     """(anchor id, point index) -> the (azimuth, elevation) of every event of the point's tag
     within its time window (seconds from the first event)."""
-    t0 = events[0][0] if events else 0.0
-    samples: dict[tuple[str, int], list[tuple[int, int]]] = {}
+    t0 = events[0].t if events else 0.0
+    samples: dict[tuple[str, int], list[tuple[float, float]]] = {}
     by_tag: dict[str, list[int]] = {}
     for i, p in enumerate(points):
         by_tag.setdefault(p.tag, []).append(i)
-    for t, event in events:
-        for i in by_tag.get(event.instance_id, ()):
+    for r in events:
+        for i in by_tag.get(r.tag, ()):
             p = points[i]
-            if p.start_s is None or p.end_s is None or p.start_s <= t - t0 <= p.end_s:
-                samples.setdefault((event.anchor_id, i), []).append((event.azimuth, event.elevation))
+            if p.start_s is None or p.end_s is None or p.start_s <= r.t - t0 <= p.end_s:
+                samples.setdefault((r.anchor, i), []).append((r.clockwise_deg, r.elevation_deg or 0.0))
     return samples
 
 
-def _fit_one(anchor: Anchor, samples: dict[tuple[str, int], list[tuple[int, int]]], points: list[Point], model: str,
+def _fit_one(anchor: Anchor, samples: dict[tuple[str, int], list[tuple[float, float]]], points: list[Point], model: str,
              azimuth_only: bool, compression: float) -> AnchorFit:
     """One anchor's fit in one angle model, from the median angles of each point it saw."""
     seen = [(i, v) for (a, i), v in sorted(samples.items()) if a == anchor.id and len(v) >= MIN_EVENTS]
@@ -270,7 +270,7 @@ def _fit_one(anchor: Anchor, samples: dict[tuple[str, int], list[tuple[int, int]
                       azimuth_only=azimuth_only, compression=compression)
 
 
-def calibrate(site: Site, events: Iterable[tuple[float, AngleEvent]],
+def calibrate(site: Site, events: Iterable[Bearing],
               points: dict[str, tuple[float, float, float]] | list[Point], *, azimuth_only: bool = False,
               angle_model: str = "auto") -> list[AnchorFit]:
     """Fit every anchor of ``site`` from angle events of tags at known ``points`` (tag -> x, y,

@@ -1,6 +1,6 @@
 """Tag positions from N fixed anchors' angle streams: merge, window, fix, track.
 
-:class:`Locator` is fed ``(t_host, AngleEvent)`` pairs from every anchor in any interleaving;
+:class:`Locator` is fed bearing readings (host/bearing.py) from every anchor in any interleaving;
 it sorts them by host arrival time (holding each for ``reorder_s``: serial reads of several
 ports are stamped in arrival order but may reach us slightly out of it), keeps each
 (tag, anchor) pair's angles of the last ``window_s`` seconds, and at its own rate (ticks at
@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, Fix, Ray, angle_sigma_deg, locate, make_ray
 from rfhoming.host.estimation.angle_tracker import AngleNoise, AngleTracker, TrackerBank
 from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
 from rfhoming.host.site import Anchor, Calibration, Site, uncompress
-from rfhoming.protocol.uconnect import AngleEvent
 
 TRACKERS = ("angles", "cv", "ekf")
 """angles (default): every angle pair updates position, velocity and each anchor's slow error
@@ -119,7 +119,7 @@ class Locator:
         self._index = {a.id: k for k, a in enumerate(site.anchors)}
         self.reorder_s = reorder_s
         self.period = 1.0 / site.rate_hz
-        self._pending: list[tuple[float, str, str, int, int]] = []
+        self._pending: list[tuple[float, str, str, float, float]] = []
         self._latest = -math.inf
         self._next_tick: float | None = None
         self._windows: dict[tuple[str, str], deque[tuple[float, float, float]]] = {}
@@ -137,16 +137,17 @@ class Locator:
                          "disconnects": 0, "downweighted": 0}
 
     # -- input -------------------------------------------------------------------------
-    def feed(self, t: float, event: AngleEvent) -> list[Position]:
-        """One angle event stamped with its host arrival time; the positions now due."""
-        if event.anchor_id not in self.anchors:
+    def feed(self, reading: Bearing) -> list[Position]:
+        """One reading (stamped with its host arrival time); the positions now due."""
+        t = reading.t
+        if reading.anchor not in self.anchors:
             self.counters["unknown_anchor"] += 1
             return []
-        if self.wanted and event.instance_id not in self.wanted:
+        if self.wanted and reading.tag not in self.wanted:
             self.counters["other_tag"] += 1
             return []
         self.counters["events"] += 1
-        heapq.heappush(self._pending, (t, event.anchor_id, event.instance_id, event.azimuth, event.elevation))
+        heapq.heappush(self._pending, (t, reading.anchor, reading.tag, reading.clockwise_deg, reading.elevation_deg or 0.0))
         self._latest = max(self._latest, t)
         out: list[Position] = []
         while self._pending and (self._pending[0][0] <= self._latest - self.reorder_s or len(self._pending) > MAX_PENDING):
@@ -170,7 +171,7 @@ class Locator:
             out += self._take(heapq.heappop(self._pending))
         return out
 
-    def _take(self, item: tuple[float, str, str, int, int]) -> list[Position]:
+    def _take(self, item: tuple[float, str, str, float, float]) -> list[Position]:
         t, anchor_id, tag, az, el = item
         out: list[Position] = []
         if self._next_tick is None:

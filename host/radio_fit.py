@@ -24,6 +24,7 @@ import numpy as np
 
 from rfhoming.host import outputs
 from rfhoming.host.angle_residuals import residuals
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.aoa_calibrate import calibrate, walk_to_calibrate
 from rfhoming.host.aoa_fit import Walk, fit_aoa
 from rfhoming.host.groundtruth import WalkedPath, Waypoint
@@ -32,7 +33,6 @@ from rfhoming.host.site import Calibration, Site
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.radio_profile import Board, Header, RadioProfile, parse, to_toml
 from rfhoming.protocol.radio_profile import Recording as RecordingEntry
-from rfhoming.protocol.uconnect import AngleEvent
 
 PROXY = "self-calibrated track (rfhoming locate after calibrate --self, RTS-smoothed): no ground truth"
 """What a profile's [recordings.ID] truth says when the stand-in was used."""
@@ -48,7 +48,7 @@ class Recording:
 
     id: str
     source: str
-    events: Sequence[tuple[float, AngleEvent]]
+    events: Sequence[Bearing]
     truth: WalkedPath
     truth_name: str  # the waypoint file, or PROXY
 
@@ -92,7 +92,7 @@ def fit(site: Site, recordings: Sequence[Recording], name: str, *, tag: str | No
     return RadioProfile(header, entries, aoa), report
 
 
-def track_truth(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *, tag: str | None = None,
+def track_truth(site: Site, recordings: Sequence[Sequence[Bearing]], *, tag: str | None = None,
                 height: float | None = None, progress: Callable[[str], None] = lambda _: None) -> list[WalkedPath]:
     """A stand-in truth for each recording: the anchors self-calibrated on all of them (kept
     uncalibrated where that is refused), each recording located and smoothed, the walked
@@ -114,7 +114,7 @@ def track_truth(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEven
     paths = []
     for events in recordings:
         locator = Locator(calibrated, track=False)
-        fixes = [p for t, e in events for p in locator.feed(t, e)] + locator.flush()
+        fixes = [p for r in events for p in locator.feed(r)] + locator.flush()
         track = sorted({round(p.t, 6): p for p in smooth(fixes) if walked is None or p.tag == walked}.items())
         if len(track) < 2:
             raise RadioFitError("a recording without --truth gave fewer than two positions: it cannot stand in "

@@ -38,10 +38,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.calibration import AnchorFit, CalibrationError
 from rfhoming.host.estimation.anchors3d import Degenerate, locate, make_ray
 from rfhoming.host.site import CALIBRATION_LIMITS, Anchor, Calibration, Site
-from rfhoming.protocol.uconnect import AngleEvent
 
 SELF_EPOCH_S = 0.5
 """One epoch per tag every this many seconds (each anchor's median angle of the window before)."""
@@ -160,14 +160,14 @@ class _Epochs:
                        self.start[keep], self.fold[keep])
 
 
-def _epoch_angles(site: Site, recording: Sequence[tuple[float, AngleEvent]], window_s: float
+def _epoch_angles(site: Site, recording: Sequence[Bearing], window_s: float
                   ) -> list[tuple[float, str, dict[str, tuple[float, float]]]]:
     """(t, tag, {anchor id: (median az, median el)}) every SELF_EPOCH_S per tag, 3+ anchors fresh."""
-    series: dict[tuple[str, str], list[tuple[float, int, int]]] = {}
+    series: dict[tuple[str, str], list[tuple[float, float, float]]] = {}
     wanted = {a.id for a in site.anchors}
-    for t, e in recording:
-        if e.anchor_id in wanted:
-            series.setdefault((e.instance_id, e.anchor_id), []).append((t, e.azimuth, e.elevation))
+    for r in recording:
+        if r.anchor in wanted:
+            series.setdefault((r.tag, r.anchor), []).append((r.t, r.clockwise_deg, r.elevation_deg or 0.0))
     out = []
     for tag in sorted({tag for tag, _ in series}):
         per = {a: np.array(v) for (tg, a), v in series.items() if tg == tag}
@@ -184,7 +184,7 @@ def _epoch_angles(site: Site, recording: Sequence[tuple[float, AngleEvent]], win
     return out
 
 
-def _gather(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], height: float | None
+def _gather(site: Site, recordings: Sequence[Sequence[Bearing]], height: float | None
             ) -> _Epochs:
     anchors = list(site.anchors)
     index = {a.id: k for k, a in enumerate(anchors)}
@@ -193,7 +193,7 @@ def _gather(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]]
     heights: list[float] = []
     row_e, row_a, az, el, start, fold = [], [], [], [], [], []
     for rec in recordings:
-        t0 = rec[0][0] if rec else 0.0
+        t0 = rec[0].t if rec else 0.0
         for t, tag, angles in _epoch_angles(site, rec, site.window_s):
             info = site.tag(tag)
             h = info.height if info and info.height is not None else height
@@ -513,7 +513,7 @@ def _hold_undetermined(cv: _CrossValidated, free: np.ndarray, held: list[dict[st
     return newly
 
 
-def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *,
+def self_calibrate(site: Site, recordings: Sequence[Sequence[Bearing]], *,
                    height: float | None = None, models: str = "auto", elevation: bool = False,
                    hold: Collection[str] = (), progress: Callable[[str], None] = lambda _: None) -> SelfCalibration:
     """Each anchor's angle corrections from tags moving over the room (module docstring).
@@ -580,7 +580,7 @@ def _held_everywhere(held: list[dict[str, str]]) -> dict[str, str]:
 
 
 def _foresight(site: Site, calibrations: Sequence[Calibration], models: Sequence[str],
-               recordings: Sequence[Sequence[tuple[float, AngleEvent]]]) -> float:
+               recordings: Sequence[Sequence[Bearing]]) -> float:
     """The mean predictive log density of the recordings' reports under locate's tracker with
     these calibrations. The tracker carries each anchor's slow error as a state, so a
     calibration raises it only by explaining what persists (a board's scale, a mounting), not
@@ -592,8 +592,8 @@ def _foresight(site: Site, calibrations: Sequence[Calibration], models: Sequence
     total, count = 0.0, 0
     for recording in recordings:
         locator = Locator(calibrated)
-        for t, event in recording:
-            locator.feed(t, event)
+        for reading in recording:
+            locator.feed(reading)
         locator.flush()
         total += locator.log_density
         count += locator.reports_scored

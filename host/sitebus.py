@@ -32,12 +32,12 @@ import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.reasoncodes import ReasonCode
 
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.estimation.batch import INCONSISTENT_CHI2_PER_DOF, BatchLocator
 from rfhoming.host.site import Site
 from rfhoming.protocol import sitebus
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.credentials import PASSWORD_ENV, redact
-from rfhoming.protocol.uconnect.items import AngleEvent
 
 log = logging.getLogger(__name__)
 
@@ -503,11 +503,10 @@ class Gateway:
             self._rows.setdefault(part_of(row[2]), []).append(row)
         self.events += len(t)
 
-    def on_item(self, device: str, t: float, item: object) -> None:
-        """A driver listener (host/drivers/common.py): its decoded angle events go on the bus, the
-        rest (drops, other lines) stays with the driver's own counters."""
-        if isinstance(item, AngleEvent):
-            self.add(t, item.anchor_id, item.instance_id, item.azimuth, item.elevation)
+    def on_bearing(self, reading: Bearing) -> None:
+        """One anchor's reading (host/bearing.py) onto the bus, its azimuth in the batches'
+        clockwise degrees (the board models' sign)."""
+        self.add(reading.t, reading.anchor, reading.tag, reading.clockwise_deg, reading.elevation_deg or 0.0)
 
     def flush(self, now: float) -> None:
         """Publish each partition's events since the last flush (``now`` on this gateway's clock)."""

@@ -15,7 +15,6 @@ import asyncio
 import time
 from collections.abc import Callable
 
-from rfhoming.host.drivers.aoa import AoaDriver
 from rfhoming.host.drivers.common import Driver
 from rfhoming.host.ports import HostPort, PortError
 from rfhoming.protocol import devices
@@ -73,8 +72,9 @@ async def supervise(deadlines: dict[Driver, float], *, clock: Callable[[], float
                 if isinstance(driver.error, Error):
                     raise DeviceNotReady(f"{driver.port.name}: {driver.error}")
                 raise driver.error  # a bug in the driver, not the user's to fix
-            if isinstance(driver, AoaDriver) and driver.ambiguous_tags:
-                raise DeviceNotReady(f"{driver.port.name}: {driver.problem}")
+            stuck = driver.cannot_go_on()
+            if stuck is not None:
+                raise DeviceNotReady(f"{driver.port.name}: {stuck}")
         for driver, limit in list(waiting.items()):
             since = start if driver.contact_at is None else driver.contact_at
             if ready(driver):

@@ -12,6 +12,8 @@ from rfhoming.host.angle_residuals import true_angles
 from rfhoming.host.groundtruth import WalkedPath, Waypoint
 from rfhoming.host.site import Site, parse
 from rfhoming.protocol.radio_profile import AoaProfile
+from rfhoming.host.bearing import Bearing
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.protocol.uconnect import AngleEvent
 
 TAG = "CCF9578E0D8A"
@@ -41,7 +43,7 @@ def walk(start_s: float, speed_m_s: float = 0.5, loop: tuple[tuple[float, float]
 
 
 def reports(profile: AoaProfile, path: WalkedPath, seed: int, room_seed: int = 1, rate_hz: float = 20.0,
-            site: Site = SITE) -> list[tuple[float, AngleEvent]]:
+            site: Site = SITE) -> list[Bearing]:
     """Every anchor's reports of the tag along ``path``, through the measured process."""
     rng = np.random.default_rng(seed)
     boards = {a.name: MeasuredAoa(profile, a.name, rng, room_seed) for a in site.anchors}
@@ -55,6 +57,12 @@ def reports(profile: AoaProfile, path: WalkedPath, seed: int, room_seed: int = 1
             got = boards[a.name].report(TAG, float(t), float(az), float(el), (*a.position, np.radians(a.yaw_deg)),
                                         (float(x), float(y), height, float(h)))
             if got is not None:
-                out.append((float(t), AngleEvent(TAG, -60, round(got[0]), round(got[1]), -62, 37, a.id, "",
-                                                 int(t * 1000) & 0x7FFFFFFF)))
-    return sorted(out, key=lambda e: e[0])
+                out.append(bearing_of(float(t), AngleEvent(TAG, -60, round(got[0]), round(got[1]), -62, 37, a.id, "",
+                                                           int(t * 1000) & 0x7FFFFFFF)))
+    return sorted(out, key=lambda e: e.t)
+
+
+def wire(r: Bearing) -> AngleEvent:
+    """The +UUDF event :func:`reports` made ``r`` of (for a capture of it)."""
+    return AngleEvent(r.tag, int(r.rssi or 0), int(r.clockwise_deg), int(r.elevation_deg or 0), -62, 37, r.anchor, "",
+                      int(r.t * 1000) & 0x7FFFFFFF)

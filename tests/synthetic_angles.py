@@ -19,6 +19,8 @@ import numpy as np
 
 from rfhoming.host.estimation.anchors3d import board_angles_many
 from rfhoming.host.site import Anchor, Site, TagInfo
+from rfhoming.host.bearing import Bearing
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.protocol.uconnect import AngleEvent
 
 TAG = "CCF9578E0D8A"
@@ -31,7 +33,7 @@ ROOM = Site("synthetic-room", (
 
 @dataclass(frozen=True)
 class Walk:
-    events: list[tuple[float, AngleEvent]]
+    events: list[Bearing]
     knots_t: np.ndarray
     knots_xy: np.ndarray
 
@@ -59,7 +61,7 @@ def walk(seed: int, *, waypoints: list[tuple[float, float]] | None = None, speed
         knots_xy.append(b)
     path = Walk([], np.array(knots_t), np.array(knots_xy, float))
     end = knots_t[-1] + (dwell_s or 1.0)
-    events: list[tuple[float, AngleEvent]] = []
+    events: list[Bearing] = []
     height = site.tags[0].height or 1.1
     for anchor in site.anchors:
         times = np.arange(rng.uniform(0, 1 / rate_hz), end, 1 / rate_hz)
@@ -79,7 +81,8 @@ def walk(seed: int, *, waypoints: list[tuple[float, float]] | None = None, speed
         wild = rng.random(len(times)) < outliers
         az[wild] = rng.uniform(-60, 60, int(wild.sum()))
         for t_k, a_k, e_k in zip(times, az, el):
-            events.append((float(t_k), AngleEvent(TAG, -50, int(round(max(-90.0, min(90.0, a_k)))),
-                                                  int(round(max(-90.0, min(90.0, e_k)))), -50, 37, anchor.id, "", 0)))
-    events.sort(key=lambda item: item[0])
+            events.append(bearing_of(float(t_k), AngleEvent(TAG, -50, int(round(max(-90.0, min(90.0, a_k)))),
+                                                            int(round(max(-90.0, min(90.0, e_k)))), -50, 37, anchor.id,
+                                                            "", 0)))
+    events.sort(key=lambda item: item.t)
     return Walk(events, path.knots_t, path.knots_xy)

@@ -3,6 +3,7 @@ error processes (tests/synthetic_angles.py): slow errors, heavy tails, missing r
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -17,8 +18,8 @@ from synthetic_angles import ROOM, TAG, walk
 def located(site: sites.Site, events, **options) -> list:
     loc = Locator(site, reorder_s=0.0, **options)
     out = []
-    for t, event in events:
-        out += loc.feed(t, event)
+    for reading in events:
+        out += loc.feed(reading)
     return out + loc.flush()
 
 
@@ -46,8 +47,8 @@ def test_a_repeated_error_is_not_taken_as_many_independent_reports():
     w = walk(3, waypoints=[(4.0, 3.0), (4.0, 3.0)], dwell_s=12.0, white_deg=2.0, slow_deg=0.0, outliers=0.0,
              compression=0.0)
     south = next(a.id for a in ROOM.anchors if a.name == "south")
-    biased = [(t, e._replace(azimuth=e.azimuth + 12) if e.anchor_id == south and 6.0 < t < 10.0 else e)
-              for t, e in w.events]
+    biased = [e._replace(azimuth=e.azimuth - math.radians(12)) if e.anchor == south and 6.0 < e.t < 10.0 else e
+              for e in w.events]  # 12 degrees clockwise, as the board's +12
     site = replace(ROOM, az_compression=0.0)
 
     def pull(**options) -> float:
@@ -63,8 +64,8 @@ def test_wild_reports_are_downweighted_not_followed():
     w = walk(4, outliers=0.10)
     loc = Locator(ROOM, reorder_s=0.0)
     out = []
-    for t, event in w.events:
-        out += loc.feed(t, event)
+    for reading in w.events:
+        out += loc.feed(reading)
     assert loc.counters["downweighted"] > 0.05 * loc.counters["events"]
     assert mean_error(w, out) < 0.6 and loc.counters["restarts"] == 0
 
@@ -74,7 +75,7 @@ def test_missing_reports_and_a_silent_anchor_leave_a_usable_track():
     gaps and the track stays (the silent anchor leaves the positions' anchors)."""
     w = walk(5, missing=0.33)
     west = next(a.id for a in ROOM.anchors if a.name == "west")
-    events = [(t, e) for t, e in w.events if not (e.anchor_id == west and 10.0 < t < 15.0)]
+    events = [e for e in w.events if not (e.anchor == west and 10.0 < e.t < 15.0)]
     out = located(ROOM, events)
     assert mean_error(w, out) < 0.7
     assert all("west" not in p.anchors for p in out if 11.5 < p.t < 15.0)

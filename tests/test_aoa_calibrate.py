@@ -28,6 +28,7 @@ from rfhoming.host.aoa_calibrate import (
 )
 from rfhoming.host.radio_fit import Recording, fit
 from rfhoming.protocol.radio_profile import AngleError, AoaProfile, BoardWalk, Missing, Reported, Source
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.protocol.uconnect import AngleEvent
 
 CURVE = (0.0, 30.0, 60.0)
@@ -164,10 +165,10 @@ def _recordings(profile: AoaProfile, count: int) -> list[Recording]:
         path = walk(100.0 * k)
         plain = residuals(SITE, reports(AoaProfile(), path, seed=k), path)
         w = walk_to_calibrate(SITE, f"w{k}", path, plain, 1.1, rng)
-        events = [(float(b.t[i]), AngleEvent(TAG, -60, int(a), int(e), -62, 37, ids[b.board], "", 0))
+        events = [bearing_of(float(b.t[i]), AngleEvent(TAG, -60, int(a), int(e), -62, 37, ids[b.board], "", 0))
                   for b, (kept, az, el) in zip(w.boards, simulated_errors(profile, w.boards, 40 + k, 40))
                   for i, a, e in zip(kept.tolist(), az.tolist(), el.tolist())]
-        out.append(Recording(f"w{k}", f"capture:w{k}.pcapng", sorted(events, key=lambda x: x[0]), path, f"w{k}.csv"))
+        out.append(Recording(f"w{k}", f"capture:w{k}.pcapng", sorted(events, key=lambda x: x.t), path, f"w{k}.csv"))
     return out
 
 

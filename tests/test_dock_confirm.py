@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 
-from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.bearing import Bearing
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.host.homing.s1_dock import DockController, S1Params
 from rfhoming.host.homing.types import Decision, Pose
 from rfhoming.protocol.uconnect.items import AngleEvent
@@ -13,8 +14,8 @@ POSE = Pose(0.0, 0.0, 1.57)
 PARAMS = S1Params(rssi_arrival_dbm=-51.0, align=False)
 
 
-def _reading(t: float, rssi: int) -> TimedAngle:
-    return TimedAngle(t, AngleEvent("D0C0FFEE0001", rssi, 0, 0, 0, 37, "dock", "", int(t * 1000)))
+def _reading(t: float, rssi: int) -> Bearing:
+    return bearing_of(t, AngleEvent("D0C0FFEE0001", rssi, 0, 0, 0, 37, "dock", "", int(t * 1000)))
 
 
 def _feed(dock: DockController, t0: float, rssi: list[int]) -> tuple[float, Decision]:

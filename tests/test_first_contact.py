@@ -81,7 +81,7 @@ async def test_tags_none_clears_the_stored_filter(tmp_path: Path) -> None:
     await until(lambda: driver.state == "streaming")
     assert driver.board_filter == () and driver.health()["board_filter"] == ""
     assert em.device("aoa").firmware.saved.filters[2] == [] and driver.counters["restarts"] == 1
-    assert (await asyncio.wait_for(driver.out.get(), 15)).event.instance_id == TAG
+    assert (await asyncio.wait_for(driver.out.get(), 15)).tag == TAG
     await stop(em, task)
 
 

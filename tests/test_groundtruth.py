@@ -11,6 +11,7 @@ import pytest
 from rfhoming.host.angle_residuals import angle_stats, correlation_time, ks_distance, residuals, true_angles
 from rfhoming.host.groundtruth import NO_ESTIMATE_M, GroundTruthError, load_waypoints, score
 from rfhoming.host.site import Anchor, Site, TagInfo
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.protocol.uconnect import AngleEvent
 
 
@@ -63,7 +64,7 @@ def test_residuals_are_the_reported_angles_less_the_true_ones(tmp_path: Path) ->
             az, el = true_angles(anchor, np.array([[x, y, 1.0]]))[0]
             e = 3.0 + rng.normal(0, 2.0) if anchor.name == "west" else 0.0
             errors.append(e)
-            events.append((t, AngleEvent("T", -50, round(az + e), round(el), 0, 37, anchor.id, "", 0)))
+            events.append(bearing_of(t, AngleEvent("T", -50, round(az + e), round(el), 0, 37, anchor.id, "", 0)))
     res = residuals(site, events, path)
     assert set(res) == {"west", "south"}
     assert np.all(np.abs(res["south"].az_err) <= 0.5)  # integer degrees

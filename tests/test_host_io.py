@@ -94,11 +94,13 @@ async def test_nothing_listening_on_tcp_names_the_emulator() -> None:
 async def test_setup_identifies_every_dialect(tmp_path: Path, dialect: str) -> None:
     em = await start(tmp_path, dialect=dialect)
     driver = AoaDriver(HostPort(where(em, "aoa")))
+    angles = []  # the board's own events, as the driver's listeners see them (out holds readings)
+    driver.listeners.append(lambda _device, _t, item: angles.append(item) if item.kind == "angle" else None)
     task = asyncio.create_task(driver.run())
     await until(lambda: driver.state == "streaming")
     assert driver.dialect is Dialect(dialect)
-    event = await asyncio.wait_for(driver.out.get(), 10)
-    assert (event.event.seq is not None) == (dialect in ("2.x", "embed"))
+    await asyncio.wait_for(driver.out.get(), 10)
+    assert (angles[-1].seq is not None) == (dialect in ("2.x", "embed"))
     await stop(em, task)
 
 
@@ -116,8 +118,10 @@ async def test_config_is_applied_stored_and_survives_reboot(tmp_path: Path) -> N
     await until(lambda: driver.counters["reboots"] == 1 and driver.state == "streaming", 15)
     while len(driver.out):  # events from before the set-up finished
         await driver.out.get()
-    event = (await asyncio.wait_for(driver.out.get(), 5)).event
-    assert event.user_str == "dock-7"
+    angles = []  # the board's own events (out holds readings)
+    driver.listeners.append(lambda _device, _t, item: angles.append(item) if item.kind == "angle" else None)
+    await asyncio.wait_for(driver.out.get(), 5)
+    assert angles[-1].user_str == "dock-7"
     assert driver.counters["setups"] == 2
     assert em.device("aoa").firmware.saved.udfcfg[1] == 40
     await stop(em, task)
@@ -168,7 +172,10 @@ async def test_settings_read_back_restart_only_where_needed(tmp_path: Path, dial
     assert driver.counters["restarts"] == restarts
     while len(driver.out):
         await driver.out.get()
-    assert (await asyncio.wait_for(driver.out.get(), 5)).event.user_str == "dock-7"
+    angles = []  # the board's own events (out holds readings)
+    driver.listeners.append(lambda _device, _t, item: angles.append(item) if item.kind == "angle" else None)
+    await asyncio.wait_for(driver.out.get(), 5)
+    assert angles[-1].user_str == "dock-7"
     assert em.device("aoa").firmware.saved.udfcfg[2] == "dock-7"  # stored either way
     await stop(em, task)
 
@@ -203,7 +210,7 @@ async def test_binary_output_is_told_from_a_baud_mismatch(tmp_path: Path) -> Non
     # decoded, azimuth at payload byte 6 as the one public parser reads it ([BIN] in docs/protocol.md)
     await until(lambda: driver.counters["binary_events"] > 5 and len(driver.out) > 0, 15)
     first = driver.out.get_nowait()
-    assert first.event.instance_id in driver.tags_heard and -90 <= first.event.azimuth <= 90
+    assert first.tag in driver.tags_heard and -90 <= first.clockwise_deg <= 90
     await stop(em, task)
 
 
@@ -303,7 +310,7 @@ async def test_aoa_over_tcp(tmp_path: Path) -> None:
     driver = AoaDriver(HostPort(where(em, "aoa")))
     task = asyncio.create_task(driver.run())
     event = await asyncio.wait_for(driver.out.get(), 10)
-    assert abs(event.event.azimuth + math.degrees(math.atan2(2, 3))) < 15
+    assert abs(event.clockwise_deg + math.degrees(math.atan2(2, 3))) < 15
     await stop(em, task)
 
 

@@ -24,6 +24,7 @@ from rfhoming.host import site as sites
 from rfhoming.host.calibration import calibrate
 from rfhoming.host.estimation.tracking import ConstantVelocity
 from rfhoming.host.locate import Locator
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.protocol.uconnect import AngleEvent
 
 RFHOMING = [sys.executable, "-m", "rfhoming"]
@@ -45,8 +46,8 @@ def kit_calibration():
 def errors(site: sites.Site, rec, **kw) -> np.ndarray:
     loc = Locator(site, reorder_s=0.0, **kw)
     out = []
-    for t, event in rec.events:
-        out += loc.feed(t, event)
+    for reading in rec.events:
+        out += loc.feed(reading)
     out += loc.flush()
     return np.array([np.linalg.norm(p.point[:2] - rec.truth(p.tag, p.t)[:2]) for p in out if p.t > 2])
 
@@ -80,12 +81,12 @@ def test_output_does_not_depend_on_how_streams_interleave(seed):
     same positions as the time-ordered stream."""
     rec = _short_kit()
     rng = np.random.default_rng(seed)
-    jittered = sorted(rec.events, key=lambda te: te[0] + rng.uniform(0, 0.1))
+    jittered = sorted(rec.events, key=lambda r: r.t + rng.uniform(0, 0.1))
     site = sites.load(SITE)
     runs = []
     for events in (rec.events, jittered):
         loc = Locator(site, reorder_s=0.2)
-        out = [p.as_dict() for t, e in events for p in loc.feed(t, e)] + [p.as_dict() for p in loc.flush()]
+        out = [p.as_dict() for r in events for p in loc.feed(r)] + [p.as_dict() for p in loc.flush()]
         runs.append(out)
     assert runs[0] == runs[1] and len(runs[0]) > 20
 
@@ -102,8 +103,8 @@ def _short_kit():
 def test_unknown_anchors_and_other_tags_are_counted_not_used():
     site = sites.load(SITE)
     loc = Locator(site)
-    loc.feed(1.0, AngleEvent("CCF9578E0D8A", -50, 10, 5, 0, 37, "NOTOURS", "", 0))
-    loc.feed(1.0, AngleEvent("0000000000FF", -50, 10, 5, 0, 37, "CCF9578E0A01", "", 0))
+    loc.feed(bearing_of(1.0, AngleEvent("CCF9578E0D8A", -50, 10, 5, 0, 37, "NOTOURS", "", 0)))
+    loc.feed(bearing_of(1.0, AngleEvent("0000000000FF", -50, 10, 5, 0, 37, "CCF9578E0A01", "", 0)))
     assert loc.counters["unknown_anchor"] == 1 and loc.counters["other_tag"] == 1 and loc.counters["events"] == 0
 
 
@@ -113,10 +114,10 @@ def test_stale_anchor_is_left_out():
     loc = Locator(site, reorder_s=0.0)
     west = "CCF9578E0A01"
     out = []
-    for t, e in rec.events:
-        if e.anchor_id == west and t > 2.0:  # the west anchor falls silent at 2 s
+    for e in rec.events:
+        if e.anchor == west and e.t > 2.0:  # the west anchor falls silent at 2 s
             continue
-        out += loc.feed(t, e)
+        out += loc.feed(e)
     late = [p for p in out if p.t > 2.0 + site.stale_s + 0.05]
     early = [p for p in out if p.t < 1.9]
     assert late and all("west" not in p.anchors for p in late)
@@ -132,13 +133,14 @@ def test_a_disconnected_anchor_is_left_out_at_once_and_back_with_new_angles():
     loc = Locator(site, reorder_s=0.0)
     west = "CCF9578E0A01"
     out, told = [], False
-    for t, e in rec.events:
+    for e in rec.events:
+        t = e.t
         if t > 2.0 and not told:
             loc.disconnected(2.0, {west})
             told = True
-        if e.anchor_id == west and 2.0 < t < 3.0:
+        if e.anchor == west and 2.0 < t < 3.0:
             continue
-        out += loc.feed(t, e)
+        out += loc.feed(e)
     gone = [p for p in out if 2.0 <= p.t < 3.0]
     back = [p for p in out if p.t > 3.0 + site.window_s]
     assert gone and all("west" not in p.anchors for p in gone)

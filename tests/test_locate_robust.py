@@ -13,6 +13,7 @@ import pytest
 from rfhoming.host import site as sites
 from rfhoming.host.estimation.anchors3d import board_angles
 from rfhoming.host.locate import Locator
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.protocol.uconnect import AngleEvent
 from test_locate import SITE
 
@@ -37,15 +38,16 @@ def synthetic(site: sites.Site, path, duration: float, *, rate_hz: float = 25.0,
             az, el = board_angles(d) if m == "spherical" else board_angles(d, m)
             az = scale * az + bias + rng.normal(0, noise_deg)
             el = el + rng.normal(0, 2 * noise_deg)
-            events.append((round(t, 6), AngleEvent(tag, -50, round(max(-90, min(90, az))),
-                                                   round(max(-90, min(90, el))), -50, 37, a.id, "", int(t * 1000))))
+            events.append(bearing_of(round(t, 6), AngleEvent(tag, -50, round(max(-90, min(90, az))),
+                                                             round(max(-90, min(90, el))), -50, 37, a.id, "",
+                                                             int(t * 1000))))
     return events
 
 
 def run(locator: Locator, events):
     out = []
-    for t, e in events:
-        out += locator.feed(t, e)
+    for e in events:
+        out += locator.feed(e)
     return out + locator.flush()
 
 
@@ -107,7 +109,7 @@ def _static_events(site, points, elevation=lambda el, rng: el + rng.normal(0, 3)
             for a in site.anchors:
                 az, el = board_angles(a.rotation().T @ (np.array(p) - np.array(a.position)))
                 az = round(max(-90, min(90, az_scale * az + rng.normal(0, 2))))
-                events.append((k * 0.02, AngleEvent(tag, -50, az, round(elevation(el, rng)), -50, 37, a.id, "", 0)))
+                events.append(bearing_of(k * 0.02, AngleEvent(tag, -50, az, round(elevation(el, rng)), -50, 37, a.id, "", 0)))
     return events
 
 
@@ -231,8 +233,8 @@ def test_self_calibration_refuses_tags_that_did_not_cover_the_room():
     from rfhoming.host.self_calibration import self_calibrate
 
     site = sites.load(SITE)
-    still = [(t, e) for t, e in record(seed=4, duration=30.0, calibration=True).events
-             if e.instance_id == "CCF9578E0C02"]  # one tag standing in the middle
+    still = [e for e in record(seed=4, duration=30.0, calibration=True).events
+             if e.tag == "CCF9578E0C02"]  # one tag standing in the middle
     with pytest.raises(CalibrationError, match="did not cover the room"):
         self_calibrate(site, [still])
 
@@ -382,8 +384,8 @@ def test_calibration_chooses_the_boards_angle_model_by_residual():
             for k in range(40):
                 for a in site.anchors:
                     az, el = board_angles(a.rotation().T @ (np.array(p) - np.array(a.position)), truth)
-                    events.append((k * 0.02, AngleEvent(tag, -50, round(az + rng.normal(0, 1)),
-                                                        round(el + rng.normal(0, 1)), -50, 37, a.id, "", 0)))
+                    events.append(bearing_of(k * 0.02, AngleEvent(tag, -50, round(az + rng.normal(0, 1)),
+                                                                  round(el + rng.normal(0, 1)), -50, 37, a.id, "", 0)))
         fits = calibrate(site, events, points)
         assert {f.angle_model for f in fits} == {truth}
         assert fits[0].rms_by_model[truth] < fits[0].rms_by_model[{"cone": "spherical", "spherical": "cone"}[truth]]
@@ -468,9 +470,9 @@ def _capture_of(events, path, site):
     writer = CaptureWriter(path)
     for name in names.values():
         writer.describe(name, kind="xplr-aoa")
-    for t, e in events:
-        line = f'+UUDF:{e.instance_id},-42,{e.azimuth},{e.elevation},-43,37,"{e.anchor_id}","",{int(t * 1000)}\r\n'
-        writer.tap(names[e.anchor_id], "in", 1000.0 + t, line.encode())
+    for e in events:
+        line = f'+UUDF:{e.tag},-42,{int(e.clockwise_deg)},{int(e.elevation_deg)},-43,37,"{e.anchor}","",{int(e.t * 1000)}\r\n'
+        writer.tap(names[e.anchor], "in", 1000.0 + e.t, line.encode())
     writer.close()
 
 
@@ -545,7 +547,7 @@ def test_calibrate_self_cli_reports_each_parameter_and_refuses_a_dwell(tmp_path)
     located = subprocess.run([*RFHOMING, "locate", str(own_site), "--from", f"capture:{tmp_path / 'plain.pcapng'}"],
                              capture_output=True, text=True, timeout=300)
     assert located.returncode == 0 and "no calibration in" in located.stderr
-    still = [(t, e) for t, e in synthetic(site, lambda t: np.array([6.0, 3.0, 1.0]), 30.0)]
+    still = list(synthetic(site, lambda t: np.array([6.0, 3.0, 1.0]), 30.0))
     _capture_of(still, tmp_path / "still.pcapng", site)
     refused = subprocess.run([*RFHOMING, "calibrate", str(SITE), "--self", "--dry-run",
                               "--from", f"capture:{tmp_path / 'still.pcapng'}"], capture_output=True, text=True,

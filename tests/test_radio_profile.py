@@ -17,7 +17,7 @@ import tomlkit
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from aoa_walks import LOOP, SITE, TAG, reports, walk
+from aoa_walks import LOOP, SITE, TAG, reports, walk, wire
 from rfhoming.emulator import scenario as scenarios
 from rfhoming.emulator.aoa_error import MeasuredAoa
 from rfhoming.host.angle_residuals import residuals
@@ -328,7 +328,7 @@ def test_one_walk_cannot_tell_the_field_from_the_wander_and_says_so() -> None:
 
 def test_recordings_of_another_site_are_refused() -> None:
     path = walk(0.0)
-    stranger = [(t, e._replace(anchor_id="000000000BAD")) for t, e in reports(AoaProfile(), path, seed=1)]
+    stranger = [e._replace(anchor="000000000BAD") for e in reports(AoaProfile(), path, seed=1)]
     with pytest.raises(RadioFitError, match="none of its angle events"):
         fit(SITE, [Recording("w", "capture:w.pcapng", stranger, path, "w.csv")], "p")
 
@@ -344,8 +344,8 @@ def recorded(tmp_path: Path, name: str, start_s: float, seed: int) -> tuple[Path
     for anchor in SITE.anchors:
         capture.describe(anchor.name, kind="xplr-aoa")
     profile = AoaProfile(azimuth=KNOWN, elevation=AngleError(bias_deg=-4.0, white_sigma_deg=3.0))
-    for t, event in reports(profile, path, seed=seed):
-        capture.tap(names[event.anchor_id], "in", t, encode_angle_event(event, Dialect.V1_0))
+    for reading in reports(profile, path, seed=seed):
+        capture.tap(names[reading.anchor], "in", reading.t, encode_angle_event(wire(reading), Dialect.V1_0))
     capture.close()
     truth = tmp_path / f"{name}.csv"
     with truth.open("w", newline="") as f:

@@ -29,6 +29,7 @@ from rfhoming.host.estimation.batch import BatchLocator, fix_batch
 from rfhoming.host.locate import Locator
 from rfhoming.host.site import Anchor, Calibration, Site
 from rfhoming.protocol import sitebus
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.protocol.uconnect.items import AngleEvent
 
 from brokers import MOSQUITTO, SUB
@@ -217,7 +218,7 @@ def test_batch_locator_equals_the_per_tag_locator() -> None:
     loc = Locator(site, track=False, reorder_s=0.0)
     ref = []
     for t, a, tag, az, el in rows:
-        ref += loc.feed(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0))
+        ref += loc.feed(bearing_of(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0)))
     ref += loc.flush()
     batch = BatchLocator(site)
     batch.feed(rows)
@@ -246,7 +247,7 @@ def test_batch_locator_corrects_compression_as_the_per_tag_locator() -> None:
     loc = Locator(site, track=False, reorder_s=0.0)
     ref = []
     for t, a, tag, az, el in rows:
-        ref += loc.feed(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0))
+        ref += loc.feed(bearing_of(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0)))
     ref += loc.flush()
     batch = BatchLocator(site)
     batch.feed(rows)
@@ -312,8 +313,7 @@ def test_a_driver_listener_feeds_the_gateway() -> None:
 
     sink = Sink()
     gw = Gateway(sink, "s1", "gw00", 8)  # type: ignore[arg-type]
-    gw.on_item("aoa0", 12.5, AngleEvent("T1", -50, 20, -5, 0, 37, "A9", "", 0))
-    gw.on_item("aoa0", 12.6, object())  # not an angle event: not the bus's
+    gw.on_bearing(bearing_of(12.5, AngleEvent("T1", -50, 20, -5, 0, 37, "A9", "", 0)))
     gw.flush(13.0)
     (topic, payload), = sink.sent
     assert topic == f"rfhoming/s1/angles/{sitebus.partition('T1', 8)}"
@@ -510,7 +510,7 @@ def test_batch_tracker_equals_the_per_tag_tracker() -> None:
     loc = Locator(site, track=True, tracker="cv", reorder_s=0.0)
     ref = []
     for t, a, tag, az, el in rows:
-        ref += loc.feed(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0))
+        ref += loc.feed(bearing_of(t, AngleEvent(tag, -50, az, el, 0, 37, a, "", 0)))
     batch = BatchLocator(site, track=True)
     ticks = sorted({p.t for p in ref})
     i = 0

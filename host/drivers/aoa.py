@@ -28,11 +28,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import Any, NamedTuple
+from typing import Any
 
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.drivers.common import (
     BoundedStream,
     CommandFailed,
@@ -107,11 +109,12 @@ class AoaSetup:
         return replace(self, instance_filter=wanted, host_filter=frozenset(wanted), clear_filter=not wanted)
 
 
-class TimedAngle(NamedTuple):
-    """An angle event with the host time its bytes arrived."""
-
-    t_host: float
-    event: AngleEvent
+def bearing_of(t_host: float, event: AngleEvent) -> Bearing:
+    """A ``+UUDF`` event as the neutral reading, stamped with the host time its bytes arrived:
+    the board's azimuth is negative to its left (docs/protocol.md "The angle event"), REP 103's
+    counter-clockwise, so its sign turns; elevation (up positive) and RSSI stay."""
+    return Bearing(t_host, event.anchor_id, event.instance_id, math.radians(-event.azimuth),
+                   math.radians(event.elevation), float(event.rssi1))
 
 
 def filter_ids(info: list[str]) -> tuple[str, ...]:
@@ -285,7 +288,7 @@ class AoaDriver(Driver):
             self.counters["filtered"] += 1
             self._check_board_filter(event)
         else:
-            self.out.put(TimedAngle(t_host, event))
+            self.out.put(bearing_of(t_host, event))
 
     def _check_board_filter(self, event: AngleEvent) -> None:
         """An on-board filter is set, yet another tag streams: say so once; the host filters."""
@@ -556,6 +559,12 @@ class AoaDriver(Driver):
                 return True
         self.port.set_baud(tried)
         return False
+
+    def bearing(self, t: float, item: Any) -> Bearing | None:
+        return bearing_of(t, item) if item.kind == "angle" else None
+
+    def cannot_go_on(self) -> str | None:
+        return self.problem if self.ambiguous_tags else None
 
     def health(self) -> dict[str, Any]:
         return {**super().health(), "dialect": self.dialect.value if self.dialect else None,

@@ -11,6 +11,7 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.ports import (
     Disconnected,
     EndOfInput,
@@ -256,6 +257,16 @@ class Driver:
     def silent_hint(self) -> str:
         """What to check when the port says nothing at all."""
         return "is this the right port, and the device's baud rate?"
+
+    def bearing(self, t: float, item: Any) -> Bearing | None:
+        """The neutral reading in one of its items (a direction-finding board's angle report), or
+        None: what ``locate``, calibration and the site bus read of a listener's items."""
+        return None
+
+    def cannot_go_on(self) -> str | None:
+        """Why it cannot serve although its port is fine (an AoA board hearing several tags and
+        told to choose one), or None."""
+        return None
 
     async def watch_quiet(self, timeout: float, what: str, hint: Callable[[], str]) -> None:
         """Set up (``streaming``), yet no ``what`` for ``timeout`` s: say in ``problem`` (and the

@@ -7,7 +7,8 @@ import json
 import logging
 from typing import Any
 
-from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.bearing import Bearing
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.ports import HostPort
 from rfhoming.host.serve import MAX_LINE
@@ -102,7 +103,10 @@ class ServeDriver(Driver):
         for listener in self.listeners:
             listener(device, t, item)
         if kind == "angle":
-            self.out.put(TimedAngle(t, item))
+            self.out.put(bearing_of(t, item))
+
+    def bearing(self, t: float, item: Any) -> Bearing | None:
+        return bearing_of(t, item) if item.kind == "angle" else None
 
     async def session(self) -> None:
         self._partial = b""

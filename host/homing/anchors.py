@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.homing.types import ControllerDefaults, Decision, Pose, velocity_law
 from rfhoming.host.locate import Locator
 from rfhoming.host.site import Site
@@ -77,11 +77,11 @@ class AnchorsController(ControllerDefaults):
         self.reported: tuple[float, float] | None = None
 
     def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
-        if not isinstance(item, TimedAngle):
+        if not isinstance(item, Bearing):
             return None
         if not self._poses or self._poses[-1][0] != t:
             self._poses.append((t, pose))
-        for p in self.locator.feed(t, item.event):
+        for p in self.locator.feed(item):
             xy = (float(p.point[0]), float(p.point[1]))
             if p.tag == self.target_tag:
                 self.target_world, self.target_t = np.array(xy), p.t
@@ -90,8 +90,7 @@ class AnchorsController(ControllerDefaults):
                 at = min(self._poses, key=lambda tp: abs(tp[0] - p.t))[1]
                 self._pairs.append(((at.x, at.y), xy))
                 self._realign()
-        e = item.event
-        return {"anchor": e.anchor_id, "tag": e.instance_id, "azimuth": e.azimuth, "elevation": e.elevation}
+        return {"anchor": item.anchor, "tag": item.tag, "azimuth": item.clockwise_deg, "elevation": item.elevation_deg}
 
     def _realign(self) -> None:
         odo = np.array([p[0] for p in self._pairs])

@@ -59,7 +59,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.estimation.bearing_fit import BearingFit
 from rfhoming.host.estimation.bearings import Degenerate, intersect, kohonen_update
 from rfhoming.host.estimation.fixed import wrap_rad
@@ -343,13 +343,12 @@ class AoaController(ControllerDefaults):
         return self.s0.reported
 
     def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
-        if not isinstance(item, TimedAngle):
+        if not isinstance(item, Bearing) or item.rssi is None:  # no RSSI: no range for S0
             return None
-        event = item.event
-        theta_s = self.to_robot(event.azimuth)
-        distance = float(self.ranging.distance(event.rssi1))
+        theta_s = self.to_robot(item.clockwise_deg)
+        distance = float(self.ranging.distance(item.rssi))
         self.s0.on_reading(t, pose, theta_s, distance)
-        return {"azimuth": event.azimuth, "rssi": event.rssi1, "theta_s": round(theta_s, 4), "distance": round(distance, 3)}
+        return {"azimuth": item.clockwise_deg, "rssi": item.rssi, "theta_s": round(theta_s, 4), "distance": round(distance, 3)}
 
     def decide(self, pose: Pose, steer_to: tuple[float, float] | None = None) -> Decision:
         return self.s0.decide(pose, steer_to)

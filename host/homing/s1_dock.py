@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from rfhoming.host.drivers.aoa import TimedAngle
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.estimation.filters import MovingAverage
 from rfhoming.host.estimation.fixed import from_q8, to_q8, wrap_rad
 from rfhoming.host.homing.schema import DB, DBM, DEG, M_S, RAD_S, M, S, setting
@@ -131,25 +131,25 @@ class DockController(ControllerDefaults):
         return self.params.rssi_arrival_dbm - (self.rssi if self.rssi is not None else -127.0)
 
     def on_input(self, t: float, pose: Pose, item: Any) -> dict[str, Any] | None:
-        if not isinstance(item, TimedAngle):
+        if not isinstance(item, Bearing) or item.rssi is None:  # docking ranges by RSSI
             return None
-        e = item.event
+        rssi, azimuth = item.rssi, item.clockwise_deg
         self._t = t
         if self._standing_since is not None and t - self._standing_since >= self.params.confirm_settle_s:
-            self._standing.append(float(e.rssi1))
-        self.rssi = from_q8(self._rssi.update(to_q8(e.rssi1)))
-        self.aoa = from_q8(self._aoa.update(to_q8(e.azimuth)))
+            self._standing.append(rssi)
+        self.rssi = from_q8(self._rssi.update(to_q8(rssi)))
+        self.aoa = from_q8(self._aoa.update(to_q8(azimuth)))
         self.readings += 1
         p = self.params
-        r = p.standoff_m * 10 ** ((p.rssi_arrival_dbm - e.rssi1) / (10 * p.path_n))
-        phi = -math.radians(e.azimuth)  # board sign: negative = the robot on the station's left
+        r = p.standoff_m * 10 ** ((p.rssi_arrival_dbm - rssi) / (10 * p.path_n))
+        phi = item.azimuth  # REP 103: positive = the robot on the station's left
         self._pairs.append((pose.x, pose.y, r * math.cos(phi), r * math.sin(phi)))
         if self.stage is Stage.MISSION and self.rssi > p.enter_dbm and self.readings >= p.n:
             self.stage = Stage.DOCKING
         elif self.stage is not Stage.MISSION and self.rssi < p.leave_dbm:
             self.stage, self._step, self._standing_since = Stage.MISSION, None, None
             self._tries = 0  # a later docking confirms afresh
-        return {"rssi": e.rssi1, "azimuth": e.azimuth, "rssi_ma": round(self.rssi, 2), "aoa_ma": round(self.aoa, 2)}
+        return {"rssi": rssi, "azimuth": azimuth, "rssi_ma": round(self.rssi, 2), "aoa_ma": round(self.aoa, 2)}
 
     def _next_step(self, pose: Pose, diff: float | None = None, cap_m: float | None = None) -> None:
         p = self.params

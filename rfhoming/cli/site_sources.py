@@ -1,5 +1,6 @@
-"""A site's anchors as one stream of angle events: what ``locate``, ``calibrate`` and ``gateway``
-open and read (the site file's ports, or --from / --device specs, or captures)."""
+"""A site's anchors as one stream of bearing readings (host/bearing.py): what ``locate``,
+``calibrate``, ``radio-fit`` and ``gateway`` open and read (the site file's ports, or --from /
+--device specs, or captures)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ from typing import Any
 
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
-from rfhoming.host.drivers.aoa import AoaDriver, replayed_without_set_up
+from rfhoming.host.bearing import Bearing
+from rfhoming.host.drivers.aoa import replayed_without_set_up
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host.ports import PortError
 from rfhoming.host.run_until import run_until
@@ -41,12 +43,13 @@ def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
     return [a.port for a in site.anchors if a.port is not None]
 
 
-async def gather(command: str, site: sites.Site, sources: list[str] | None, on_angle: Callable[[float, Any], None],
+async def gather(command: str, site: sites.Site, sources: list[str] | None, on_angle: Callable[[Bearing], None],
                  on_lost: Callable[[float, set[str]], None] = lambda t, ids: None, *, baud: int | None = None,
                  flow: str | None = None, duration: float | None = None, capture_to: Path | None = None,
-                 counters: bool = True) -> int:
-    """Open the site's anchors (or ``sources``, locate's --from), feed every angle event to
-    ``on_angle`` in arrival order until ``duration`` or the end of a capture, and tell
+                 counters: bool = True, on_item: Callable[[float, Any], None] | None = None) -> int:
+    """Open the site's anchors (or ``sources``, locate's --from), feed every reading to
+    ``on_angle`` in arrival order until ``duration`` or the end of a capture (``on_item``: the
+    board's own item it came from, for exports that show the board's fields), and tell
     ``on_lost`` the anchor ids of a device that went away; ``capture_to``: also record every
     byte there; ``counters``: print each device's counters on stderr at the end (losses are
     warned of either way). 2 on a port/capture error, said in one line naming ``command``."""
@@ -65,26 +68,31 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
         print(f"rfhoming {command}: {said}", file=sys.stderr)
         return 2
 
-    as_recorded = [d.port.name for d in drivers if isinstance(d, AoaDriver) and replayed_without_set_up(d.port)]
+    as_recorded = [d.port.name for d in drivers if d.sets_up and replayed_without_set_up(d.port)]
     if as_recorded:
         log.info("replayed angle streams with no set-up exchange (%s): angles taken as recorded",
                  ", ".join(as_recorded))
     heard: dict[str, set[str]] = {}  # device -> the anchor ids in its events
 
-    def listener(device: str, t: float, item: Any) -> None:
-        if item.kind == "angle":
-            heard.setdefault(device, set()).add(item.anchor_id)
-            on_angle(t, item)
+    def listening(d: Driver) -> Callable[[str, float, Any], None]:
+        def listener(device: str, t: float, item: Any) -> None:
+            reading = d.bearing(t, item)
+            if reading is not None:
+                heard.setdefault(device, set()).add(reading.anchor)
+                if on_item is not None:
+                    on_item(t, item)
+                on_angle(reading)
+        return listener
 
     def tap(device: str, direction: str, t: float, _data: bytes) -> None:
         if direction == "lost":
             on_lost(t, heard.get(device, set()))
 
     for d in drivers:
-        d.listeners.append(listener)
+        d.listeners.append(listening(d))
         d.port.taps.append(tap)
     # the listener took every event already: empty the drivers' queues so they count no drops
-    drains = [asyncio.create_task(_discard(d.out)) for d in drivers if isinstance(d, AoaDriver)]
+    drains = [asyncio.create_task(_discard(d.out)) for d in drivers]
     try:
         await run_until(drivers, duration, drains)
     except PortError as exc:

@@ -13,6 +13,7 @@ from typing import Any
 from rfhoming.cli.site_sources import gather, load_site
 from rfhoming.host import outputs
 from rfhoming.host import site as sites
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.calibration import CalibrationError, assign_dwells, calibrate
 from rfhoming.host.points_file import load_points
 
@@ -34,10 +35,10 @@ def run(args: argparse.Namespace) -> int:
     except CalibrationError as exc:
         print(f"rfhoming calibrate: {exc}", file=sys.stderr)
         return 2
-    events: list[tuple[float, Any]] = []
+    events: list[Bearing] = []
     print(f"recording angles of {len(points)} known point(s)"
           + (f" for {args.duration:g} s" if args.duration else "") + "...", file=sys.stderr)
-    code = asyncio.run(gather("calibrate", site, args.sources, lambda t, event: events.append((t, event)),
+    code = asyncio.run(gather("calibrate", site, args.sources, events.append,
                              baud=args.baud, flow=args.flow, duration=args.duration))
     if code:
         return code
@@ -72,12 +73,8 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
     print(f"rfhoming calibrate: reading {len(sources)} recording(s)", end="", file=sys.stderr, flush=True)
     recordings = []
     for source in sources:
-        events: list[tuple[float, Any]] = []
-
-        def keep(t: float, event: Any, into: list[tuple[float, Any]] = events) -> None:
-            into.append((t, event))
-
-        code = asyncio.run(gather("calibrate", site, [source] if source else None, keep, baud=args.baud,
+        events: list[Bearing] = []
+        code = asyncio.run(gather("calibrate", site, [source] if source else None, events.append, baud=args.baud,
                                   flow=args.flow, duration=args.duration, counters=args.verbose))
         if code:
             return code

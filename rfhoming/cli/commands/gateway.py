@@ -17,6 +17,7 @@ from rfhoming.host.site import Site
 from rfhoming.protocol import sitebus
 
 if TYPE_CHECKING:
+    from rfhoming.host.bearing import Bearing
     from rfhoming.host.sitebus import Publisher  # paho-mqtt: the "site" extra, imported when used
 
 STOP_CHECK_S = 0.2
@@ -52,9 +53,9 @@ def _device_gateway(args: argparse.Namespace) -> int:
     gw = Gateway(pub, name, gw_name, broker.partitions or sitebus.DEFAULT_PARTITIONS)
     flushing = False
 
-    def on_angle(t: float, event: object) -> None:
+    def on_angle(reading: Bearing) -> None:
         nonlocal flushing
-        gw.on_item("", t, event)
+        gw.on_bearing(reading)
         if not flushing:  # the first event: from now on a batch every --flush seconds
             flushing = True
             loop = asyncio.get_running_loop()

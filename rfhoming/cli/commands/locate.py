@@ -7,7 +7,6 @@ import asyncio
 import json
 import sys
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
@@ -15,6 +14,7 @@ from rfhoming.cli.live import ros2_publisher
 from rfhoming.cli.site_sources import gather, load_site
 from rfhoming.host import losses
 from rfhoming.host import site as sites
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.locate import Locator, Position, smooth
 from rfhoming.host.loopstall import StallMonitor, watching
 from rfhoming.host.outputs import Output
@@ -53,16 +53,16 @@ def run(args: argparse.Namespace) -> int:
         if positions:
             out.flush()
 
-    def feed(t: float, event: Any) -> None:
-        if ros2 is not None:
-            ros2.on_item("", t, event)
-        show(locator.feed(t, event))
+    def feed(reading: Bearing) -> None:
+        show(locator.feed(reading))
 
     try:
         smoothed = args.smooth
         stalls = StallMonitor()
         code = asyncio.run(watching(gather("locate", site, args.sources, feed, locator.disconnected, baud=args.baud,
-                                           flow=args.flow, duration=args.duration, capture_to=args.capture), stalls))
+                                           flow=args.flow, duration=args.duration, capture_to=args.capture,
+                                           on_item=(lambda t, item: ros2.on_item("", t, item)) if ros2 else None),
+                                    stalls))
         if code:
             return code
         show(locator.flush())

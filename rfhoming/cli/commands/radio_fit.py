@@ -11,10 +11,10 @@ import json
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 from rfhoming.cli.site_sources import gather, load_site
 from rfhoming.emulator.aoa_error import simulated_errors
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.groundtruth import load_waypoints
 from rfhoming.host.radio_fit import PROXY, Recording, RadioFitError, fit, track_truth, write
 from rfhoming.protocol.radio_profile import ProfileError, load
@@ -38,14 +38,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     truths = [None if t == NONE else Path(t) for t in args.truth] + [None] * (len(args.sources) - len(args.truth))
     walks = [load_waypoints(t) if t is not None else None for t in truths]  # a bad file fails before any reading
-    recordings: list[list[tuple[float, Any]]] = []
+    recordings: list[list[Bearing]] = []
     for source in args.sources:
-        events: list[tuple[float, Any]] = []
-
-        def keep(t: float, event: Any, into: list[tuple[float, Any]] = events) -> None:
-            into.append((t, event))
-
-        code = asyncio.run(gather("radio-fit", site, [source], keep))
+        events: list[Bearing] = []
+        code = asyncio.run(gather("radio-fit", site, [source], events.append))
         if code:
             return code
         recordings.append(events)
