@@ -31,10 +31,15 @@ def read_text(path: Path | str, what: str, error: type[Error], limit: int = MAX_
     if len(data) > limit:
         raise error(f"{what} {path} is larger than {limit:,} bytes, the most rfhoming reads: is it the right file?")
     try:
-        return data.decode("utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise error(f"{what} {path} is not UTF-8 text (byte {exc.start} is 0x{exc.object[exc.start]:02x}): "
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise error(f"{what} {path} is not UTF-8 text (line {line}, byte {exc.start} is 0x{data[exc.start]:02x}): "
                     "save it as UTF-8") from None
+    if "\0" in text:  # UTF-16 without its byte-order mark decodes, one NUL beside each ASCII letter
+        line = text.count("\n", 0, text.index("\0")) + 1
+        raise error(f"{what} {path} is not UTF-8 text (line {line} holds a NUL byte: UTF-16?): save it as UTF-8")
+    return text
 
 
 def parse_toml(text: str, where: str, error: type[Error]) -> dict[str, Any]:

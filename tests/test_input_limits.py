@@ -59,3 +59,46 @@ def test_a_400_digit_number_in_a_config_is_refused_naming_its_key(cli: Callable[
     path = tmp_path / "robot.toml"
     path.write_text("[calibration]\np0_dbm = -" + "9" * 400 + "\n")
     refused(cli("config", "--check", str(path), timeout_s=120), "p0_dbm", "expected a number")
+
+
+WALK = ("1670598717410,NaN,240,480", "1670598719949,NaN,240,360", "1670598722480,1670598723480,240,240",
+        "1670598724965,NaN,360,120")  # the layout of girolami_xplr_aoa/ground_truth/*.csv: ms, ms, cm, cm
+
+
+def rows(*replace: tuple[int, str]) -> str:
+    """WALK with row ``index`` replaced (or, past its end, appended)."""
+    lines = list(WALK)
+    for index, row in replace:
+        lines[index:index + 1] = [row]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("content,expected", [
+    (rows((3, "1670598724965,NaN,1000000000000,120")).encode(), "row 4: the waypoint (1e+10, 1.2) m is more than 100 km"),
+    (rows((3, "1670598724965,NaN,4800,120")).encode(), "row 4: the waypoint (48, 1.2) m lies outside the site"),
+    (rows((4, f"{1670598724965 + 10**15},NaN,240,120")).encode(), "row 5: arrives 1e+12 s after the previous time"),
+    (rows((3, WALK[0])).encode(), "row 4: arrives before the previous"),
+    (("arrival_ms,leave_ms,x_cm,y_cm\n" + rows()).encode("utf-16"), "is not UTF-8 text (line 1, byte 0 is 0xff)"),
+    (rows().encode("utf-16-le"), "line 1 holds a NUL byte: UTF-16?"),
+    (("arrivée_ms,leave_ms,x_cm,y_cm\n" + rows()).encode("latin-1"), "is not UTF-8 text (line 1, byte 5 is 0xe9)"),
+    ("".join(f"{1670598717410 + 100 * i},NaN,240,120\n" for i in range(10**6)).encode(), "larger than 1,048,576 bytes"),
+    ("".join(f"{1670598717410 + 100 * i},NaN,240,120\n" for i in range(10_001)).encode(), "row 10001: more than 10,000"),
+], ids=["1e10-m", "outside-site", "1e15-ms-later", "backwards", "utf-16", "utf-16-no-bom", "latin-1", "1e6-rows",
+        "10001-rows"])
+def test_a_bad_ground_truth_file_is_refused_naming_its_row(
+        cli: Callable[..., Any], tmp_path: Path, content: bytes, expected: str) -> None:
+    """radio-fit reads every --truth before any recording (issue 50: a mistyped waypoint fitted a -47 deg curve)."""
+    truth = tmp_path / "walk.csv"
+    truth.write_bytes(content)
+    done = cli("radio-fit", str(ROOT / "docs" / "sites" / "kit-room.toml"), "--from", "capture:none.pcapng",
+               "--truth", str(truth), "-o", str(tmp_path / "out.toml"), timeout_s=120)
+    refused(done, str(truth), expected)
+    assert not (tmp_path / "out.toml").exists()
+
+
+def test_a_byte_order_mark_is_no_row(tmp_path: Path) -> None:
+    from rfhoming.host.groundtruth import load_waypoints
+
+    truth = tmp_path / "walk.csv"
+    truth.write_bytes(("\ufeff" + rows()).encode())
+    assert len(load_waypoints(truth).waypoints) == 4
