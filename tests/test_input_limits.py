@@ -102,3 +102,30 @@ def test_a_byte_order_mark_is_no_row(tmp_path: Path) -> None:
     truth = tmp_path / "walk.csv"
     truth.write_bytes(("\ufeff" + rows()).encode())
     assert len(load_waypoints(truth).waypoints) == 4
+
+
+@pytest.mark.parametrize("rate,burst,fix", [(0.99, 1.0, "at least 99"), (0.6, 1.0, "at least 1.5")])
+def test_a_loss_rate_its_bursts_cannot_give_is_refused(
+        cli: Callable[..., Any], tmp_path: Path, rate: float, burst: float, fix: str) -> None:
+    """A two-state chain with runs of mean B loses at most B / (B + 1): the emulator capped 0.99 at 0.53."""
+    text = PROFILE.read_text()
+    head, tail = text.split("\n[aoa.missing]\n", 1)
+    path = tmp_path / "lossy.toml"
+    path.write_text(f"{head}\n[aoa.missing]\nrate_low = 0.0\nrate_high = {rate}\nburst_events = {burst}\n"
+                    + tail[tail.index("\n["):])
+    refused(cli("emulate", "s0-house", "--radio", str(path), timeout_s=120), str(path), "[aoa.missing]",
+            "lose at most 0.5 of the events", f"set burst_events to {fix}")
+
+
+def test_a_loss_rate_within_its_bursts_is_honoured() -> None:
+    """Asked 0.9 in runs of 9 (the most such runs give), the board loses 0.9."""
+    import numpy as np
+
+    from rfhoming.emulator.aoa_error import MeasuredAoa
+    from rfhoming.protocol.radio_profile import AoaProfile, Missing
+
+    profile = AoaProfile(missing=Missing(rate_low=0.9, rate_high=0.9, burst_events=9.0))
+    board = MeasuredAoa(profile, "A1", np.random.default_rng(3), room_seed=1)
+    pose = (0.0, 0.0, 0.0, 0.0)
+    lost = sum(board.report("T", k * 0.1, 10.0, 5.0, pose, pose) is None for k in range(40_000))
+    assert lost / 40_000 == pytest.approx(0.9, abs=0.01)
