@@ -129,3 +129,20 @@ def test_a_loss_rate_within_its_bursts_is_honoured() -> None:
     pose = (0.0, 0.0, 0.0, 0.0)
     lost = sum(board.report("T", k * 0.1, 10.0, 5.0, pose, pose) is None for k in range(40_000))
     assert lost / 40_000 == pytest.approx(0.9, abs=0.01)
+
+
+@pytest.mark.parametrize("mode,warned", [(0o644, True), (0o640, True), (0o600, False), (0o400, False)])
+def test_a_password_file_others_can_read_is_warned_of_once(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture, mode: int, warned: bool) -> None:
+    """As ssh does for a private key: one line naming the file, its mode and the fix; the login goes on."""
+    from rfhoming.host.sitebus import Broker
+
+    path = tmp_path / "w1.pass"
+    path.write_text("secret\n")
+    path.chmod(mode)
+    with caplog.at_level("WARNING", logger="rfhoming.host.sitebus"):
+        broker = Broker.parse("mqtt://w1@127.0.0.1/8").login(str(path))
+    assert broker.password == "secret"
+    said = [r.getMessage() for r in caplog.records]
+    assert said == ([f"--password-file {path} can be read by other users (mode {mode:03o}): chmod 600 {path}"]
+                    if warned else []), said
