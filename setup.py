@@ -21,7 +21,7 @@ from pathlib import Path
 from setuptools import Extension, find_namespace_packages, setup
 
 try:  # a checkout without symlinks would build an empty wheel: say what to set instead
-    runpy.run_path(str(Path(__file__).parent / "rfhoming" / "_links.py"))["check"]()
+    runpy.run_path(str(Path(__file__).parent / "src" / "rfhoming" / "_links.py"))["check"]()
 except ImportError as exc:
     raise SystemExit(f"error: {exc}") from None
 
@@ -29,6 +29,6 @@ setup(
     package_dir={"": "src"},
     packages=find_namespace_packages("src", include=["rfhoming*"], exclude=["*.__pycache__"]),
     ext_modules=[
-        Extension("rfhoming.protocol._accel", ["protocol/_accel.c"], optional=True, extra_compile_args=["-O2"]),
+        Extension("rfhoming.protocol._accel", ["src/rfhoming/protocol/_accel.c"], optional=True, extra_compile_args=["-O2"]),
     ],
 )

@@ -44,7 +44,7 @@ import rfhoming
 from rfhoming.host import site as sites
 from rfhoming.host.angle_residuals import angle_stats, residuals
 from rfhoming.host.drivers.aoa import bearing_of
-from rfhoming.host.groundtruth import load_waypoints, score
+from rfhoming.host.groundtruth import area_of, load_waypoints, score
 
 RFHOMING = [sys.executable, "-m", "rfhoming"]
 
@@ -60,6 +60,14 @@ def recordings(data: Path) -> dict[str, list[tuple[Path, Path]]]:
     if not found or not (data / "site.toml").exists():
         raise SystemExit(f"real_aoa: {data} needs site.toml, captures/*.pcapng and ground_truth/*.csv "
                          "(the layout of the XPLR-AOA recordings: bench/real_aoa.py --help)")
+    try:  # every file checked before any run: a bad row is one line and exit 2, not a score of 10^8 m
+        area = area_of(a.position for a in sites.load(data / "site.toml").anchors)
+        for runs in found.values():
+            for _, truth in runs:
+                load_waypoints(truth, area)
+    except rfhoming.Error as exc:
+        print(f"{Path(sys.argv[0]).stem}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     return found
 
 

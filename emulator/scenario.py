@@ -8,7 +8,6 @@ a (scenario, seed) pair always builds the same world.
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
@@ -24,6 +23,7 @@ from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
 from rfhoming.protocol.rssi_profile import RssiProfile
 from rfhoming.protocol.radio_profile import IDEAL, ProfileError, RadioProfile, resolve
+from rfhoming.protocol.textfile import parse_toml, read_toml
 
 
 
@@ -75,21 +75,12 @@ def presets() -> list[str]:
 
 def _read(name_or_path: str) -> dict[str, Any]:
     path = Path(name_or_path)
-    try:
-        if path.suffix == ".toml" or path.is_file():  # a directory named like a preset is not a scenario
-            text = path.read_text()
-        else:
-            resource = resources.files("rfhoming.emulator.scenarios") / f"{name_or_path}.toml"
-            if not resource.is_file():
-                raise ScenarioError(f"no scenario {name_or_path!r}; presets: {', '.join(presets())}, or a .toml path")
-            text = resource.read_text()
-        return tomllib.loads(text)
-    except OSError as exc:
-        raise ScenarioError(f"cannot read scenario {name_or_path}: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"scenario {name_or_path} is not valid TOML: {exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(f"scenario {name_or_path} is not UTF-8 text (byte {exc.start}): save it as UTF-8") from None
+    if path.suffix == ".toml" or path.is_file():  # a directory named like a preset is not a scenario
+        return read_toml(path, "scenario", ScenarioError)
+    resource = resources.files("rfhoming.emulator.scenarios") / f"{name_or_path}.toml"
+    if not resource.is_file():
+        raise ScenarioError(f"no scenario {name_or_path!r}; presets: {', '.join(presets())}, or a .toml path")
+    return parse_toml(resource.read_text(), f"scenario {name_or_path}", ScenarioError)
 
 
 def _model(cls: type, table: dict[str, Any], where: str) -> Any:

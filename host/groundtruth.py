@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rfhoming.protocol.errors import Error
+from rfhoming.protocol.textfile import read_text
 
 TICK_S = 0.5
 """The scoring rule's tick: every 500 ms ..."""
@@ -95,12 +96,32 @@ class WalkedPath:
         return np.array(times), np.array(xy)
 
 
-def load_waypoints(path: Path) -> WalkedPath:
-    """A waypoint CSV as a :class:`WalkedPath`; GroundTruthError naming the row when it is not one."""
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise GroundTruthError(f"cannot read the ground truth {path}: {exc.strerror}") from None
+MAX_BYTES = 1 << 20
+"""The largest waypoint file read: 1 MiB, some 30,000 rows (the recordings' are 10-16 rows, 416 bytes)."""
+MAX_WAYPOINTS = 10_000
+"""The most waypoints in a walk: a 10^6-row file kept bench/fidelity.py busy past 400 s."""
+MAX_STEP_S = 6 * 3600.0
+"""The longest time from one row to the next, or of one stop: a stray row 10^15 ms later is a typo."""
+FAR_M = 100_000.0
+"""No waypoint lies farther from the origin than this (100 km), with or without a site."""
+AREA_MARGIN_M = 10.0
+"""How far outside the rectangle of a site's anchors a waypoint may lie."""
+
+Area = tuple[float, float, float, float]
+"""Where waypoints may lie: (x_min, y_min, x_max, y_max), metres."""
+
+
+def area_of(anchors_xy: Iterable[Sequence[float]], margin_m: float = AREA_MARGIN_M) -> Area:
+    """The rectangle of a site's anchors grown by ``margin_m``: where its walks' waypoints may lie."""
+    xy = np.array([p[:2] for p in anchors_xy], float).reshape(-1, 2)
+    (x0, y0), (x1, y1) = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
+    return float(x0), float(y0), float(x1), float(y1)
+
+
+def load_waypoints(path: Path, area: Area | None = None) -> WalkedPath:
+    """A waypoint CSV as a :class:`WalkedPath`; GroundTruthError naming the row when it is not one: too large,
+    not UTF-8 text, rows out of time order or hours apart, or a waypoint outside ``area`` (:func:`area_of`)."""
+    text = read_text(path, "ground truth", GroundTruthError, MAX_BYTES).removeprefix("\ufeff")
     points: list[Waypoint] = []
     for row_no, row in enumerate(csv.reader(text.splitlines()), 1):
         if not row or not "".join(row).strip():
@@ -112,17 +133,36 @@ def load_waypoints(path: Path) -> WalkedPath:
         try:
             arrive, leave, x, y = (float(v) for v in row)
         except ValueError:
-            raise GroundTruthError(f"{path} row {row_no}: {','.join(row)!r} is not four numbers") from None
+            raise GroundTruthError(f"{path} row {row_no}: {','.join(row)[:80]!r} is not four numbers") from None
         if not all(math.isfinite(v) for v in (arrive, x, y)) or not (math.isnan(leave) or leave >= arrive):
             raise GroundTruthError(f"{path} row {row_no}: arrival and position must be finite numbers and "
                                    "leave_ms NaN or not before arrival_ms")
-        if points and arrive < points[-1].leave_s * 1000:
-            raise GroundTruthError(f"{path} row {row_no}: arrives before the previous waypoint was left; "
-                                   "rows must be in time order")
-        points.append(Waypoint(arrive / 1000, (arrive if math.isnan(leave) else leave) / 1000, x / 100, y / 100))
+        point = Waypoint(arrive / 1000, (arrive if math.isnan(leave) else leave) / 1000, x / 100, y / 100)
+        _check(point, points[-1] if points else None, area, f"{path} row {row_no}")
+        if len(points) == MAX_WAYPOINTS:
+            raise GroundTruthError(f"{path} row {row_no}: more than {MAX_WAYPOINTS:,} waypoints; is it the right file?")
+        points.append(point)
     if len(points) < 2:
         raise GroundTruthError(f"{path}: a walk needs at least two waypoints, found {len(points)}")
     return WalkedPath(tuple(points))
+
+
+def _check(point: Waypoint, previous: Waypoint | None, area: Area | None, where: str) -> None:
+    """GroundTruthError at ``where`` for a waypoint out of time order, hours after the last, or off the site."""
+    if previous is not None and point.arrive_s < previous.leave_s:
+        raise GroundTruthError(f"{where}: arrives before the previous waypoint was left; rows must be in time order")
+    step = point.arrive_s - previous.leave_s if previous is not None else 0.0
+    for what, seconds in (("arrives", step), ("stands", point.leave_s - point.arrive_s)):
+        if seconds > MAX_STEP_S:
+            raise GroundTruthError(f"{where}: {what} {seconds:.3g} s after the previous time; rows more than "
+                                   f"{MAX_STEP_S / 3600:g} h apart are a typo (times are in milliseconds)")
+    if math.hypot(point.x, point.y) > FAR_M:
+        raise GroundTruthError(f"{where}: the waypoint ({point.x:.3g}, {point.y:.3g}) m is more than "
+                               f"{FAR_M / 1000:g} km from the origin (positions are in centimetres)")
+    if area is not None and not (area[0] <= point.x <= area[2] and area[1] <= point.y <= area[3]):
+        raise GroundTruthError(f"{where}: the waypoint ({point.x:.3g}, {point.y:.3g}) m lies outside the site "
+                               f"(its anchors' rectangle plus {AREA_MARGIN_M:g} m: x {area[0]:g} to {area[2]:g}, "
+                               f"y {area[1]:g} to {area[3]:g}); positions are in centimetres in the site's frame")
 
 
 def _is_number(text: str) -> bool:

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
+import json
 import os
 import shlex
 import stat
@@ -239,6 +241,44 @@ def replace_text(path: Path | str, text: str) -> None:
     """NAME replaced by ``text`` in one step: its old contents or the new, never a torn file."""
     with Output(path) as out:
         out.write(text)
+
+
+class Manifest:
+    """Outputs replaced as one set: :meth:`start` removes ``NAME.manifest.json``, each output is then
+    replaced whole (:class:`Output`), and :meth:`finish` writes the manifest last, naming every file of
+    the set with its size and SHA-256. A reader that finds the manifest, and each file matching it, holds
+    one run's set; after a kill between the first rename and the manifest there is no manifest, and the
+    files may be two runs' (:func:`whole` says which)."""
+
+    def __init__(self, path: Path | str, outputs: Iterable[Path | str]) -> None:
+        self.path = Path(path)
+        self.outputs = [Path(p) for p in outputs]
+
+    def start(self) -> None:
+        self.path.unlink(missing_ok=True)
+        _sync_folder(self.path.parent)
+
+    def finish(self, **about: Any) -> None:
+        files = {p.name: {"bytes": p.stat().st_size, "sha256": _sha256(p)} for p in self.outputs}
+        replace_text(self.path, json.dumps({**about, "files": files}, indent=1) + "\n")
+
+
+def whole(manifest: Path | str) -> bool:
+    """Whether ``manifest`` is there and every file it names, beside it, is the one it names."""
+    path = Path(manifest)
+    try:
+        files = json.loads(path.read_text())["files"]
+        return all(_sha256(path.with_name(name)) == f["sha256"] for name, f in files.items())
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def save_figure(figure: Any, path: Path | str, **savefig: Any) -> None:

@@ -158,6 +158,7 @@ class Broker:
                                   "(the file: a URL on the command line is visible to every user in ps)")
             try:
                 with open(password_file, encoding="utf-8") as f:
+                    mode = os.fstat(f.fileno()).st_mode
                     lines = f.read(MAX_PASSWORD + 2).splitlines()
             except (OSError, UnicodeDecodeError) as exc:
                 raise BrokerError(f"--password-file {password_file}: cannot read it "
@@ -167,6 +168,9 @@ class Broker:
                 raise BrokerError(f"--password-file {password_file}: its first line is not a password (empty, or "
                                   f"longer than {MAX_PASSWORD} characters): write the password on it")
             password = lines[0]
+            if mode & 0o077:  # as ssh does for a private key: said, not refused (a shared machine's group may be one user)
+                log.warning("--password-file %s can be read by other users (mode %03o): chmod 600 %s",
+                            password_file, mode & 0o777, password_file)
         elif self.password is None and environ.get(PASSWORD_ENV) and self.username is not None:
             password = environ[PASSWORD_ENV]
         else:

@@ -245,6 +245,18 @@ def parse(raw: dict[str, Any], where: str) -> RadioProfile:
     return RadioProfile(header, recordings, aoa, radios, where)
 
 
+def _check_missing(m: Missing, where: str) -> None:
+    """Refuse a loss rate runs of ``burst_events`` cannot give: losses in runs of mean B with kept events
+    between them lose at most B / (B + 1) of all (0.5 for single losses), and the emulator would quietly
+    lose less than asked (issue 52: 0.99 asked, 0.53 lost)."""
+    most = m.burst_events / (m.burst_events + 1.0)
+    if m.rate_high > most:
+        need = m.rate_high / (1.0 - m.rate_high)
+        raise ProfileError(f"{where}: [aoa.missing] rate_high = {m.rate_high:g} with burst_events = {m.burst_events:g}: "
+                           f"runs that long lose at most {most:.3g} of the events; set burst_events to at least "
+                           f"{math.ceil(need * 1000) / 1000:g} or rate_high to at most {most:.3g}")
+
+
 def _check_aoa(aoa: AoaProfile, raw: dict[str, Any], recordings: dict[str, Recording], where: str) -> None:
     """What the schema cannot say: the compression curve's shape, a source for every figure
     given, and sources that name recordings of this file."""
@@ -261,6 +273,7 @@ def _check_aoa(aoa: AoaProfile, raw: dict[str, Any], recordings: dict[str, Recor
     if aoa.missing.rate_high < aoa.missing.rate_low:
         raise ProfileError(f"{where}: [aoa.missing] rate_high = {aoa.missing.rate_high} is below rate_low = "
                            f"{aoa.missing.rate_low}")
+    _check_missing(aoa.missing, where)
     for table in FIGURE_TABLES:
         for key in raw.get(table, {}):
             figure = f"{table}.{key}"

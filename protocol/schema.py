@@ -126,12 +126,23 @@ def _scalar(tp: Any, value: Any, f: Field[Any], where: str, source: Any, key: st
             _refuse(value, f, where, source, key, "a whole number " + _range(meta))
         return value
     if tp is float:
-        ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and not math.isnan(value)
-              and (math.isfinite(value) or meta.get("inf")) and _in_range(value, meta))
+        number = _as_float(value)
+        ok = (number is not None and not math.isnan(number)
+              and (math.isfinite(number) or meta.get("inf")) and _in_range(number, meta))
         if not ok:
             _refuse(value, f, where, source, key, "a number " + _range(meta))
-        return float(value)
+        return number
     raise TypeError(f"the config schema has no check for {tp!r} ({where}.{f.name})")  # a bug, not the user's
+
+
+def _as_float(value: Any) -> float | None:
+    """A TOML number as a float; None for anything else, and for an integer past a float's range (400 digits)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        return float(value)
+    except OverflowError:
+        return None
 
 
 def _in_range(value: float, meta: Any) -> bool:

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from rfhoming.campaigns import kinematic, s0, s1, s3, s4
 from rfhoming.cli.commands.campaign import REGISTRY, load
+from rfhoming.host.outputs import Manifest, whole
 from rfhoming.campaigns.runner import Job, run_jobs
 from rfhoming.cli.main import main
 from rfhoming.emulator.scenario import load as scenario
@@ -153,6 +154,13 @@ def test_cli_writes_json_markdown_and_plot(tmp_path, capsys) -> None:
     assert "| paper (one measurement per point) |" in (tmp_path / "s3-arena.md").read_text()
     assert saved["wall_s"] > 0
     assert (tmp_path / "s3-arena.png").stat().st_size > 1000
+    manifest = tmp_path / "s3-arena.manifest.json"  # written last: the three files are one run's set
+    assert set(json.loads(manifest.read_text())["files"]) == {"s3-arena.json", "s3-arena.md", "s3-arena.png"}
+    assert whole(manifest)
+    (tmp_path / "s3-arena.md").write_text("another run's table\n")  # what a kill between two renames would leave
+    assert not whole(manifest)
+    Manifest(manifest, []).start()  # the next run's first step: no manifest until its set is whole
+    assert not manifest.exists() and not whole(manifest)
 
 
 def test_missing_optional_package_fails_before_any_job() -> None:

@@ -132,7 +132,7 @@ def test_bad_values_are_refused_naming_key_range_and_unit(text: str, message: st
 
 
 def test_a_file_that_is_not_utf8_is_refused(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"robot.toml is not UTF-8 text \(byte 12 is 0xff\): save it as UTF-8"):
+    with pytest.raises(ConfigError, match=r"robot.toml is not UTF-8 text \(line 2, byte 12 is 0xff\): save it as UTF-8"):
         load_text(b'[loop]\nx = "\xff\xfe"\n', tmp_path / "robot.toml")
 
 

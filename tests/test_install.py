@@ -9,8 +9,10 @@ import re
 import shutil
 import subprocess
 import sys
+import tarfile
 import tomllib
 import warnings
+import zipfile
 from pathlib import Path
 from types import ModuleType
 
@@ -129,15 +131,21 @@ def test_the_audit_fails_on_a_fixable_vulnerability_and_says_when_it_could_not_r
         assert lines[1] == "tqdm 4.66.2: PYSEC-2024-x (CVE-2024-34062), fixed in 4.66.3"
 
 
-@pytest.fixture(scope="module")
-def built(tmp_path_factory: pytest.TempPathFactory) -> subprocess.CompletedProcess[str]:
-    """setup.py's build_py on a copy of the tree (the checkout stays as it is): what a wheel would hold."""
+def copy_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The package's part of the checkout, links kept, as a clean clone holds it (the checkout stays as it is)."""
     tree = tmp_path_factory.mktemp("tree")
     for folder in ("rfhoming", "src", "protocol", "firmware_py", "emulator", "host", "campaigns"):
         shutil.copytree(ROOT / folder, tree / folder, symlinks=True,
                         ignore=shutil.ignore_patterns("__pycache__", "*.so", "*.egg-info"))
     for name in ("setup.py", "pyproject.toml", "README.md"):
         shutil.copy(ROOT / name, tree)
+    return tree
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> subprocess.CompletedProcess[str]:
+    """setup.py's build_py on a copy of the tree: what a wheel would hold."""
+    tree = copy_tree(tmp_path_factory)
     return subprocess.run([sys.executable, "setup.py", "build_py", "--build-lib", str(tree / "out")], cwd=tree,
                           text=True, capture_output=True, timeout=300)
 
@@ -164,3 +172,39 @@ def test_a_deprecation_in_our_code_fails_and_a_librarys_own_stays_a_warning() ->
         warnings.warn_explicit("old API", DeprecationWarning, "host/x.py", 1, module="rfhoming.host.x")
     with pytest.warns(DeprecationWarning):
         warnings.warn_explicit("old API", DeprecationWarning, "lib/core.py", 1, module="somelib.core")
+
+
+def data_files() -> set[str]:
+    """The package data a release must carry, as paths under ``rfhoming/``."""
+    layers = {"emulator/scenarios": "*.toml", "protocol/profiles": "*.toml", "host/export/rfhoming_msgs/msg": "*.msg"}
+    found = {f"{folder}/{p.name}" for folder, pattern in layers.items() for p in (ROOT / folder).glob(pattern)}
+    return found | {"py.typed", "host/foxglove_layout.json", "host/export/rfhoming_msgs/package.xml",
+                    "protocol/_accel.pyi"}
+
+
+@pytest.mark.slow  # about 25 s: an sdist, then a wheel compiled from it
+def test_the_sdist_holds_one_copy_of_the_package_and_builds_a_wheel(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """``python -m build`` as a packager runs it: the sdist first, then a wheel from the unpacked sdist, where no
+    link is left (the route pip takes on a platform without a wheel). Each module once, under src/rfhoming/ (a
+    link followed twice would ship it three times), the C source beside it, the data in both."""
+    tree = copy_tree(tmp_path_factory)
+    out = tree / "dist"
+    done = subprocess.run([sys.executable, "-m", "build", "--no-isolation", "--outdir", str(out), str(tree)],
+                          text=True, capture_output=True, timeout=600)
+    assert done.returncode == 0, (done.stdout + done.stderr)[-3000:]
+    [sdist], [wheel] = out.glob("*.tar.gz"), out.glob("*.whl")
+    with tarfile.open(sdist) as archive:
+        names = [n.split("/", 1)[1] for n in archive.getnames() if "/" in n]
+    package = {n.removeprefix("src/rfhoming/") for n in names if n.startswith("src/rfhoming/")}
+    outside = {n for n in names if not n.startswith(("src/", "tests/")) and "/" in n}
+    assert outside == set(), f"the sdist holds files outside src/ and tests/: {sorted(outside)[:5]}"
+    assert "protocol/_accel.c" in package and "_links.py" in package
+    assert data_files() <= package, sorted(data_files() - package)
+    modules = sorted(p.relative_to(ROOT / "host").as_posix() for p in (ROOT / "host").rglob("*.py")
+                     if "__pycache__" not in p.parts)
+    assert modules and all(f"host/{m}" in package for m in modules)
+    with zipfile.ZipFile(wheel) as archive:
+        shipped = {n.removeprefix("rfhoming/") for n in archive.namelist() if n.startswith("rfhoming/")}
+    assert data_files() <= shipped, sorted(data_files() - shipped)
+    assert not {n for n in shipped if n.endswith(".c")}, "the wheel ships the C source"
+    assert {n for n in shipped if n.endswith(".py")} == {n for n in package if n.endswith(".py")}

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from rfhoming.campaigns.runner import Campaign, CampaignError, run_jobs
 from rfhoming.cli.parsers.campaign import REGISTRY
-from rfhoming.host.outputs import check_all, replace_text
+from rfhoming.host.outputs import Manifest, check_all, replace_text
 from rfhoming.protocol.radio_profile import IDEAL, ProfileError, describe
 
 __all__ = ["REGISTRY", "default_folder", "load", "run"]
@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     args.out = args.out or default_folder(args.name, runs, args.seed, args.radio)
     args.out.mkdir(parents=True, exist_ok=True)
     results, table, figure = campaign.outputs(args.out)
-    check_all((results, table, figure))  # a stale NAME.part is named now, not after hours of jobs
+    manifest = Manifest(args.out / f"{args.name}.manifest.json", (results, table, figure))
+    check_all((results, table, figure, manifest.path))  # a stale NAME.part is named now, not after hours of jobs
     checkpoint = args.out / f"{args.name}.partial.jsonl"  # finished jobs survive a crash or Ctrl-C
     where = f"Dask at {args.dask}" if args.dask else f"{args.workers} worker(s)"
     t0 = time.perf_counter()
@@ -71,10 +72,12 @@ def run(args: argparse.Namespace) -> int:
             "radios": radios, "jobs": len(jobs),
             "wall_s": round(wall, 2), "executor": where, "python": platform.python_version(),
             "machine": platform.machine()}
+    manifest.start()  # from here until finish() the folder says its set is not whole
     replace_text(results, json.dumps({**meta, "summary": report.summary, "rows": rows}, indent=1) + "\n")
     replace_text(table, f"# {campaign.description}\n\n`{command}` ({len(jobs)} jobs, {wall:.0f} s on {where}); {radios}\n\n"
                  f"{report.markdown}\n")
     report.plot(figure)
+    manifest.finish(campaign=args.name, command=command)
     checkpoint.unlink()
     if args.json:
         print(json.dumps({**meta, "summary": report.summary}, indent=1))

@@ -15,7 +15,7 @@ from pathlib import Path
 from rfhoming.cli.site_sources import gather, load_site
 from rfhoming.emulator.aoa_error import simulated_errors
 from rfhoming.host.bearing import Bearing
-from rfhoming.host.groundtruth import load_waypoints
+from rfhoming.host.groundtruth import area_of, load_waypoints
 from rfhoming.host.radio_fit import PROXY, Recording, RadioFitError, fit, track_truth, write
 from rfhoming.protocol.radio_profile import ProfileError, load
 
@@ -37,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
               "i-th --from's walk; give at most one --truth per --from", file=sys.stderr)
         return 2
     truths = [None if t == NONE else Path(t) for t in args.truth] + [None] * (len(args.sources) - len(args.truth))
-    walks = [load_waypoints(t) if t is not None else None for t in truths]  # a bad file fails before any reading
+    area = area_of(a.position for a in site.anchors)
+    walks = [load_waypoints(t, area) if t is not None else None for t in truths]  # a bad file fails before any reading
     recordings: list[list[Bearing]] = []
     for source in args.sources:
         events: list[Bearing] = []
