@@ -44,7 +44,7 @@ from rfhoming.emulator.aoa_error import MeasuredAoa
 from rfhoming.emulator.devices import AoaRunner, Heard
 from rfhoming.emulator.faults import ByteFaults
 from rfhoming.emulator.links import Link
-from rfhoming.emulator.radio import AoaModel, PathLossModel, fold_front
+from rfhoming.emulator.radio import AoaModel, PathLossModel, true_angles
 from rfhoming.emulator.world import World
 from rfhoming.firmware.xplr_aoa import C209_NAMESPACE, Advertisement, XplrAoaFirmware
 from rfhoming.protocol.rssi_profile import RssiProfile
@@ -157,15 +157,7 @@ class FixedAnchorRunner(AoaRunner):
                 if self.measured is not None:
                     self._measured(fw, tag_id, t, tag, heading, sample)
                     continue
-                d = self.rot.T @ (self._image(world, tag) - self.position)
-                if d[0] < 0:  # behind the board's plane: the array sees the front image
-                    d = d * np.array([-1.0, 1.0, 1.0])
-                if self.angle_model == "cone":
-                    r = float(np.linalg.norm(d))
-                    az_ccw, el = math.degrees(math.asin(d[1] / r)), math.degrees(math.asin(d[2] / r))
-                else:
-                    az_ccw = fold_front(math.degrees(math.atan2(d[1], d[0])))
-                    el = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
+                az_ccw, el = true_angles(self.rot.T @ (self._image(world, tag) - self.position), self.angle_model == "cone")
                 if self.az_compression:
                     az_ccw *= 1 - self.az_compression * (az_ccw / 90) ** 2
                 slow_az, slow_el = self._slow_offsets(tag_id, t)
@@ -181,15 +173,7 @@ class FixedAnchorRunner(AoaRunner):
                   rssi: float) -> None:
         """One event under the radio profile: the true angles from the nominal pose (the
         profile's residuals were taken against nominal poses), then its error process."""
-        d = self.nominal.T @ (tag - self.position)
-        if d[0] < 0:  # behind the board's plane: the array sees the front image
-            d = d * np.array([-1.0, 1.0, 1.0])
-        if self.angle_model == "cone":
-            r = float(np.linalg.norm(d))
-            az_ccw, el = math.degrees(math.asin(d[1] / r)), math.degrees(math.asin(d[2] / r))
-        else:
-            az_ccw = fold_front(math.degrees(math.atan2(d[1], d[0])))
-            el = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
+        az_ccw, el = true_angles(self.nominal.T @ (tag - self.position), self.angle_model == "cone")
         assert self.measured is not None
         board = (float(self.position[0]), float(self.position[1]), float(self.position[2]), math.radians(self.nominal_yaw))
         got = self.measured.report(tag_id, t, -az_ccw, el, board, (float(tag[0]), float(tag[1]), float(tag[2]), heading))

@@ -21,10 +21,10 @@ from rfhoming.emulator.radio import (
     AoaModel,
     PathLossModel,
     RadioChannel,
-    fold_front,
     idealised_rssi,
     measure_azimuth,
     power_sum_dbm,
+    seen_azimuth,
 )
 from rfhoming.emulator.scenario import Scenario, ScenarioError
 from rfhoming.emulator.world import Target, World
@@ -301,7 +301,7 @@ class AoaRunner(DeviceRunner):
                 relative = math.degrees(direction - bth)
                 elevation = math.degrees(math.atan2(height - BOARD_HEIGHT_M, max(distance, 0.05)))
                 if self.measured is not None:
-                    true_az = -fold_front(relative) if self.aoa.fold else -math.remainder(relative, 360.0)
+                    true_az = -seen_azimuth(relative, self.aoa.fold)
                     got = self.measured.report(tag_id, t, true_az, elevation, (bx, by, BOARD_HEIGHT_M, bth),
                                                (pos[0], pos[1], height, heading))
                     if got is None:

@@ -148,9 +148,28 @@ def fold_front(relative_deg: float) -> float:
     return a
 
 
+def seen_azimuth(relative_ccw_deg: float, fold: bool) -> float:
+    """The true azimuth a board's array sees (CCW, degrees): folded into its front half-plane, or
+    over the whole circle for an array that tells front from back."""
+    return fold_front(relative_ccw_deg) if fold else math.remainder(relative_ccw_deg, 360.0)
+
+
+def true_angles(d: np.ndarray, cone: bool) -> tuple[float, float]:
+    """The true (azimuth CCW, elevation) in degrees of a direction ``d`` in a planar array's frame
+    (x its boresight, z up); a direction behind its plane is seen as its front image. ``cone``:
+    the angles of a planar array's phase differences, sin(az) = d.y / |d| and sin(el) = d.z / |d|;
+    else the spherical angles atan2."""
+    if d[0] < 0:
+        d = d * np.array([-1.0, 1.0, 1.0])
+    if cone:
+        r = float(np.linalg.norm(d))
+        return math.degrees(math.asin(d[1] / r)), math.degrees(math.asin(d[2] / r))
+    return fold_front(math.degrees(math.atan2(d[1], d[0]))), math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
+
+
 def measure_azimuth(model: AoaModel, relative_ccw_deg: float, rng: np.random.Generator) -> float:
     """The azimuth the board reports (board sign: negative = left), before integer rounding."""
-    a = fold_front(relative_ccw_deg) if model.fold else math.remainder(relative_ccw_deg, 360.0)
+    a = seen_azimuth(relative_ccw_deg, model.fold)
     if model.kind == "uniform":
         a += float(rng.uniform(-model.angle_deg, model.angle_deg))
     else:
