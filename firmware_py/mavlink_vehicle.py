@@ -120,8 +120,8 @@ class MavlinkVehicle:
             wanted = (int(message.param2) << 16) | (int(message.param3) << 24)
         else:
             wanted = int(message.param2)
-        if wanted not in self.autopilot.modes:
-            return int(mav.MAV_RESULT_FAILED)
+        if wanted not in self.autopilot.modes or (wanted == self.rtl and self.home is None):
+            return int(mav.MAV_RESULT_FAILED)  # ArduPilot refuses RTL before home is set (Rover/mode_rtl.cpp)
         if wanted == self.autopilot.guided and self.autopilot.stream_before_switch and not self._streaming(t):
             return int(mav.MAV_RESULT_TEMPORARILY_REJECTED)  # PX4: no setpoint stream yet
         self.mode = wanted

@@ -2,7 +2,7 @@
 vehicle that lies (tests/hostile_vehicle.py, on UDP loopback; the AoA board is the emulator's).
 A vehicle sending NaN, one whose HEARTBEAT stops, someone speaking as it from another port, a
 refused (also of a vehicle already in GUIDED) or unanswered arming: the run stops (or refuses to start) with one line and exit 2, and
-the vehicle was last told HOLD. A pilot's mode change stops it too, and the pilot's mode stands.
+the vehicle was last told HOLD. A pilot's mode change ends it as taken over (exit 1, in its summary and log), and the pilot's mode stands.
 SIGTERM and the run's own end leave it in HOLD as well. Before the fix the vehicle stayed in
 GUIDED after a refusal, NaN, a lost HEARTBEAT and another port's packets were driven on for
 as long as the run lasted, and an error came out as two lines."""
