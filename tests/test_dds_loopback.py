@@ -64,6 +64,28 @@ def test_the_dds_participant_binds_loopback_only() -> None:
     assert {ip for ip, _, _ in found} == {"127.0.0.1"}, found
 
 
+async def test_the_emulators_participant_is_filtered_too() -> None:
+    """``emulate --pose-from`` (and ``--robot ros2``) join a domain too: the command filters
+    their sockets as the host's participant does."""
+    from rfhoming.cli.commands.emulate import start
+    from rfhoming.emulator.runtime import Emulator
+    from rfhoming.emulator.scenario import load
+
+    domain = random_domain()
+    emulator = Emulator(load("s0-open"), transport="pipe", pose_from={"topic": "/gt", "domain": domain})
+    await start(emulator)
+    try:
+        found = [c for c in psutil.Process().net_connections(kind="udp") if c.laddr.port in dds_guard.ports(domain)]
+        assert found and all(c.laddr.ip == "127.0.0.1" or first_instruction(c.fd) == "3000" for c in found), found
+    finally:
+        await emulator.close()
+
+
+def first_instruction(fd: int) -> str:
+    with socket.socket(fileno=os.dup(fd)) as sock:
+        return sock.getsockopt(socket.SOL_SOCKET, dds_guard.SO_ATTACH_FILTER, 64)[:2].hex()
+
+
 def test_the_filter_lets_loopback_in_and_keeps_other_sources_out() -> None:
     """On a socket bound as Cyclone binds its own: a datagram from this machine's non-loopback
     address (delivered on the machine, it never leaves it) is dropped, one from 127.0.0.1 is
