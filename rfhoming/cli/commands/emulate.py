@@ -54,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
 async def start(emulator: Emulator) -> list[dict[str, Any]]:
     """The emulator started, and the DDS sockets it opened on loopback domains (its ROS 2 robot,
     ``--pose-from``) kept to loopback traffic as the host's are (host/dds_guard.py)."""
-    links = [*(d.link for d in emulator.devices), emulator.pose_from]
-    domains = {link.domain for link in links if getattr(link, "discovery", None) == "localhost"}
+    joiners: list[Any] = [*(d.link for d in emulator.devices), emulator.pose_from]  # those of DDS have a domain
+    domains = {int(j.domain) for j in joiners if getattr(j, "discovery", None) == "localhost"}
     before = dds_guard.sockets() if domains else set()
     endpoints = await emulator.start()
     for domain in domains:
