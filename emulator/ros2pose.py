@@ -54,7 +54,7 @@ class PoseFollower:
             raise ValueError(f"wait={wait:g}, stale={stale:g}: seconds above 0")
         self.topic, self.domain, self.discovery, self.frame = ros2.topic_name("", topic), domain, discovery, frame
         self.wait_s, self.stale_s, self.frame_id, self.clock = wait, stale, frame_id, clock
-        self.counters = {"poses": 0, "refused": 0, "wrong_frame": 0, "stale": 0}
+        self.counters = {"poses": 0, "refused": 0, "wrong_frame": 0}
         self.type: str | None = None
         self.state = "waiting"  # -> following <-> stale
         self._latest: tuple[float, float, float] | None = None
@@ -121,7 +121,6 @@ class PoseFollower:
         elif now - self._heard_at > self.stale_s:
             if self.state != "stale":
                 self.state = "stale"
-                self.counters["stale"] += 1
                 self._said.pop("stale", None)
             self._say("stale", f"no pose for {now - self._heard_at:.1f} s (its publisher stopped or stalls): the "
                       "radios hear nothing until poses come again")
@@ -129,12 +128,11 @@ class PoseFollower:
             if self.state == "stale":
                 log.warning("--pose-from %s: poses again: the radios hear again", self.topic)
             self.state = "following"
-        for key, count, what in (("refused", self.counters["refused"], "with a value that is not finite (NaN, inf)"),
-                                 ("wrong_frame", self.counters["wrong_frame"],
-                                  f"in frame {self._wrong_frame!r}, not {self.frame_id!r} (the "
-                                  "first pose's, or frame_id=)")):
-            if count > self._said.get(key, (0.0, 0))[1]:
-                self._say(key, f"{count} pose(s) refused so far, {what}", count)
+        for key in ("refused", "wrong_frame"):
+            if (count := self.counters[key]) > self._said.get(key, (0.0, 0))[1]:
+                why = ("with a value that is not finite (NaN, inf)" if key == "refused" else
+                       f"in frame {self._wrong_frame!r}, not {self.frame_id!r} (the first pose's, or frame_id=)")
+                self._say(key, f"{count} pose(s) refused so far, {why}", count)
 
     def _say(self, key: str, what: str, count: int = 0) -> None:
         """A warning, said at once and again every REPEAT_S while it holds."""

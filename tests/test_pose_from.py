@@ -116,8 +116,7 @@ async def test_a_stale_publisher_is_said_and_its_radios_hear_nothing_until_poses
     assert len(stale) == 1 and "radios hear nothing" in stale[0]
     assert await step_at(5.0) == 0 and len(said(caplog, "no pose for")) == 1
     assert await step_at(5.1, pose=True) == targets and not f.stale
-    assert said(caplog, "poses again") and emulator.world.targets
-    assert f.counters["stale"] == 1
+    assert len(said(caplog, "poses again")) == 1 and emulator.world.targets
 
 
 @pytest.mark.slow
