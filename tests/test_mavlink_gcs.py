@@ -5,7 +5,7 @@ station took too) and the run has no stale stop; when the ground station switche
 to RTL, the run ends "taken over" (its summary and run.jsonl say RTL) and the vehicle drives
 back to where it was armed. Before the fix the vehicle answered only its last sender: the
 ground station's HEARTBEAT each second took the telemetry from rfhoming, and RTL stopped where
-the vehicle was."""
+the vehicle was. The run's capture replays to the same run log, takeover and all."""
 
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ pytest.importorskip("pymavlink")
 
 import rigs  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
+from stalls import reproducible  # noqa: E402
 
 from rfhoming.host.replay import read_capture  # noqa: E402
 from rfhoming.protocol import mavlink as ml  # noqa: E402
@@ -109,6 +110,10 @@ def test_a_ground_station_beside_the_run_gets_all_telemetry_and_its_rtl_goes_hom
              if m.get_type() == "LOCAL_POSITION_NED"}
     seen = {ms for ms, _, _ in gcs.positions}
     assert len(taken) > 100 and len(taken - seen) <= len(taken) // 100, (len(taken), len(taken - seen))
+    replayed = tmp_path / "replayed.jsonl"  # the takeover is in the capture's bytes: a replay ends alike
+    done = rigs.run("replay", str(capture), "--run", "--log", str(replayed))
+    assert done.returncode == 1 and json.loads(done.stdout)["taken_over"]["mode"] == "RTL", done.stderr
+    assert reproducible(replayed.read_text()) == reproducible(log.read_text())
 
 
 @pytest.mark.slow
