@@ -154,11 +154,11 @@ class MavlinkVehicle:
         if self.pose is None or self.home is None:
             return 0.0, 0.0
         dx, dy = self.home[0] - self.pose.x, self.home[1] - self.pose.y
-        if math.hypot(dx, dy) > RTL_ARRIVED_M:
+        if (distance := math.hypot(dx, dy)) > RTL_ARRIVED_M:
             self._landed_at = None
             error = math.remainder(math.atan2(dy, dx) - self.pose.theta, math.tau)
             w = max(-RTL_TURN_MAX, min(RTL_TURN_MAX, RTL_TURN_GAIN * error))
-            return RTL_SPEED_M_S * max(0.0, math.cos(error)), w
+            return min(RTL_SPEED_M_S, distance) * max(0.0, math.cos(error)), w  # slowing over its last 0.5 m
         if self.options.vehicle == "copter":
             if self._landed_at is not None:
                 self.altitude = max(0.0, self.altitude - LAND_SPEED_M_S * (t - self._landed_at))
