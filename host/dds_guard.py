@@ -2,7 +2,8 @@
 
 Cyclone binds its unicast receive sockets to INADDR_ANY whatever its configuration
 (eclipse-cyclonedds ``src/core/ddsi/src/ddsi_udp.c``, ``ddsi_udp_create_conn``: ``bind_to_any``
-for ``DDSI_TRAN_QOS_RECV_UC``; issues #1923 and #2090, open): with the loopback interface, no
+for ``DDSI_TRAN_QOS_RECV_UC``; open reports: github.com/eclipse-cyclonedds/cyclonedds/issues/1923,
+github.com/eclipse-cyclonedds/cyclonedds/issues/2090): with the loopback interface, no
 multicast and 127.0.0.1 peers it sends from and advertises 127.0.0.1 only, yet its discovery and
 data ports (7400 + 250·domain + 10 + 2·index, and + 1) take datagrams from the network. No
 option of the installed version (11.0.1: ``General/Interfaces``, ``DontRoute``,

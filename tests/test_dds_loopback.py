@@ -57,7 +57,8 @@ def test_the_dds_participant_takes_loopback_traffic_only() -> None:
 
 
 @pytest.mark.xfail(strict=True, reason="Cyclone DDS 11 binds its receive sockets to INADDR_ANY whatever its "
-                                       "configuration (ddsi_udp.c; cyclonedds issue #2090): filtered instead")
+                                       "configuration (ddsi_udp.c; "
+                                       "github.com/eclipse-cyclonedds/cyclonedds/issues/2090): filtered instead")
 def test_the_dds_participant_binds_loopback_only() -> None:
     domain = random_domain()
     found = sockets_of(f"from rfhoming.host.dds import participant\nparticipant({domain})")
