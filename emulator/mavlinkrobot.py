@@ -2,9 +2,12 @@
 autopilot model (rfhoming.firmware.mavlink_vehicle) speaks MAVLink 2 for it over UDP on
 127.0.0.1, as ArduPilot's SITL does.
 
-The vehicle listens on its own ephemeral port and answers whoever spoke last there (a ground
-station with ``udpout:127.0.0.1:PORT``), or sends to the ground station it was given
-(``--robot mavlink:udpout:127.0.0.1:PORT``; the ground station then listens with ``udpin:``).
+The vehicle listens on its own ephemeral port and serves every ground station that speaks there
+(``udpout:127.0.0.1:PORT``), as pymavlink's ``udpin:`` link (MAVProxy's ``--out udpin:``) serves
+its clients: each sender is a peer that gets all telemetry, up to ``MAX_PEERS`` at once, and a
+peer silent for ``PEER_SILENCE_S`` is forgotten (docs/protocol.md, "MAVLink vehicles"). A command's
+answer goes to its sender alone. Given a ground station (``--robot mavlink:udpout:127.0.0.1:PORT``;
+it listens with ``udpin:``), the vehicle sends to it always, and serves the others beside it.
 Each odometry record of the firmware becomes ATTITUDE and LOCAL_POSITION_NED (and a HEARTBEAT
 each second), and the firmware is told the velocity the autopilot drives at that instant.
 """
@@ -12,6 +15,7 @@ each second), and the firmware is told the velocity the autopilot drives at that
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -21,6 +25,11 @@ from rfhoming.protocol import mavlink as ml
 from rfhoming.protocol.frames import FrameDecoder, Odometry, VelocityCommand, encode_frame
 
 FIRMWARE_TIMEOUT_MS = 100  # each odometry tick re-sends the autopilot's velocity; the firmware stops if they stop
+MAX_PEERS = 8  # *assumed*: ground stations served at once; a newcomer beyond is not answered (counted)
+PEER_SILENCE_S = 5.0
+"""A peer silent this long (wall clock) is forgotten: the five missed HEARTBEATs after which the
+MAVLink heartbeat service calls a system gone (a ground station sends one a second)."""
+Address = tuple[str, int]
 
 
 class _Datagrams(asyncio.DatagramProtocol):
@@ -32,17 +41,19 @@ class _Datagrams(asyncio.DatagramProtocol):
 
 
 class MavlinkLink(Link):
-    def __init__(self, gcs: tuple[str, int] | None = None, options: VehicleOptions = VehicleOptions()) -> None:
+    def __init__(self, gcs: Address | None = None, options: VehicleOptions = VehicleOptions(),
+                 clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__()
         self.vehicle = MavlinkVehicle(options)
         self.gcs = gcs
-        self.peer = gcs
+        self.peers: dict[Address, float] = {}  # every other ground station, by when it last spoke (``clock``)
+        self.clock = clock
         self.decoder = FrameDecoder()
         self.t = 0.0  # the vehicle's boot clock, from the firmware's odometry
         self.port = 0
         self._transport: asyncio.DatagramTransport | None = None
         self._seq = 0
-        self.counters.update(datagrams_in=0, datagrams_out=0)
+        self.counters.update(datagrams_in=0, datagrams_out=0, peers_refused=0, peers_forgotten=0)
         self.on_command: Callable[[], None] = lambda: None  # a setpoint came: the lockstep's answer
 
     def describe(self) -> dict[str, Any]:
@@ -64,18 +75,36 @@ class MavlinkLink(Link):
     def from_gcs(self, data: bytes, addr: Any) -> None:
         if not self.plugged:
             return
-        if self.gcs is None:
-            self.peer = addr
+        peer = (str(addr[0]), int(addr[1]))
+        if peer != self.gcs and peer not in self.peers:
+            self._forget_silent()
+            if len(self.peers) >= MAX_PEERS:
+                self.counters["peers_refused"] += 1
+                return
+        if peer != self.gcs:
+            self.peers[peer] = self.clock()
         self.counters["datagrams_in"] += 1
         self.counters["rx_bytes"] += len(data)
         setpoints = self.vehicle.counters["setpoints"]
-        self._to_gcs(self.vehicle.feed(data, self.t))
+        self._send_to(self.vehicle.feed(data, self.t), peer)
         if self.vehicle.counters["setpoints"] != setpoints:
             self.on_command()
 
-    def _to_gcs(self, data: bytes) -> None:
-        if data and self._transport is not None and self.peer is not None:
-            self._transport.sendto(data, self.peer)
+    def _forget_silent(self) -> None:
+        now = self.clock()
+        for peer in [p for p, heard in self.peers.items() if now - heard > PEER_SILENCE_S]:
+            del self.peers[peer]
+            self.counters["peers_forgotten"] += 1
+
+    def _to_peers(self, data: bytes) -> None:
+        """Telemetry: to the ground station given, and to every peer not silent too long."""
+        self._forget_silent()
+        for peer in ([self.gcs] if self.gcs else []) + list(self.peers):
+            self._send_to(data, peer)
+
+    def _send_to(self, data: bytes, peer: Address) -> None:
+        if data and self._transport is not None:
+            self._transport.sendto(data, peer)
             self.counters["datagrams_out"] += 1
             self.counters["tx_bytes"] += len(data)
 
@@ -90,7 +119,7 @@ class MavlinkLink(Link):
                 self.t = record.t_us / 1e6
                 pose = ml.PoseEnu(record.x_mm / 1000, record.y_mm / 1000, record.theta_urad / 1e6,
                                   record.v_mm_s / 1000, record.w_mrad_s / 1000)
-                self._to_gcs(self.vehicle.telemetry(self.t, pose))
+                self._to_peers(self.vehicle.telemetry(self.t, pose))
                 self._drive(*self.vehicle.velocity(self.t))
 
     def _drive(self, v: float, w: float) -> None:

@@ -194,8 +194,11 @@ class Emulator:
         elif self.pose_from is not None and (pose := self.pose_from.pose(self._start)) is not None:
             r = self.world.robot
             r.x, r.y, r.theta = pose
-        for d in self._others:
-            d.step(self.world, t0, t1)
+        if self.pose_from is not None and self.pose_from.stale:
+            self._step_deaf(t0, t1)
+        else:
+            for d in self._others:
+                d.step(self.world, t0, t1)
         self.t = self.world.t = t1
         if self._replugs or self._timed or self._triggered:  # most steps have no fault to check
             await self._timed_faults()
@@ -204,6 +207,16 @@ class Emulator:
         self.counters["steps"] += 1
         if t1 + 1e-9 >= self._next_truth:
             self.write_truth()
+
+    def _step_deaf(self, t0: float, t1: float) -> None:
+        """The devices' step with no target in the world: a ``--pose-from`` robot whose pose is
+        stale is nowhere known, so its radios hear nothing (their firmware runs on)."""
+        targets, self.world.targets = self.world.targets, []
+        try:
+            for d in self._others:
+                d.step(self.world, t0, t1)
+        finally:
+            self.world.targets = targets
 
     async def _timed_faults(self) -> None:
         while self._replugs and self._replugs[0][0] <= self.t:

@@ -4,6 +4,7 @@ I/O). Imported only where DDS is used (the ros2 extra)."""
 
 # no `from __future__ import annotations`: as in protocol/ros2dds.py
 
+import logging
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -15,9 +16,11 @@ from cyclonedds.internal import InvalidSample
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
+from rfhoming.host import dds_guard
 from rfhoming.protocol import ros2
 from rfhoming.protocol.ros2dds import DEFAULT_QOS, SENSOR_QOS, TYPES, DdsError, config
 
+log = logging.getLogger(__name__)
 _participants: dict[int, tuple[Domain | None, DomainParticipant, str]] = {}
 _lock = threading.Lock()
 
@@ -32,13 +35,27 @@ def participant(domain: int, discovery: str = "localhost") -> DomainParticipant:
                 raise DdsError(f"ROS 2 domain {domain} is already open with discovery={held[2]} in this process")
             return held[1]
         xml = config(domain, discovery)
+        before = dds_guard.sockets()
         try:
             dom = _domain(domain, xml)
             dp = DomainParticipant(domain)
         except Exception as exc:  # cyclonedds raises DDSException with a return code
             raise DdsError(f"cannot join ROS 2 domain {domain} ({exc})") from None
+        if xml is not None:
+            _guard(domain, before)
         _participants[domain] = (dom, dp, discovery)
         return dp
+
+
+def _guard(domain: int, before: set[int]) -> None:
+    """Cyclone's receive sockets take loopback datagrams only (host/dds_guard.py); where the
+    system cannot filter them, said once."""
+    try:
+        dds_guard.guard(domain, before)
+    except OSError as exc:
+        log.warning("ROS 2 domain %d: Cyclone DDS listens on every interface and its sockets could not be kept to "
+                    "loopback traffic (%s); a firewall must keep the network off ports %d-%d", domain,
+                    exc.strerror or exc, dds_guard.ports(domain)[0], dds_guard.ports(domain)[-1])
 
 
 def _domain(domain: int, xml: str | None) -> Domain | None:

@@ -21,6 +21,7 @@ import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 from rfhoming.host import outputs
@@ -118,6 +119,12 @@ def plan(endpoints: dict[str, dict[str, Any]], out: Path, config: Config, sinks:
                   config, sinks=sinks, choose_tag_s=CHOOSE_TAG_S)
     plan.capture = CaptureWriter(out / "capture.pcapng", comment=run_record(plan))
     return plan
+
+
+def vehicle_of(endpoint: dict[str, Any]) -> str | None:
+    """The emulated MAVLink vehicle's UDP address (HOST:PORT) a ground station connects to
+    (``udpout:HOST:PORT``) beside the demo's run; None for another base."""
+    return endpoint.get("mavlink", {}).get("vehicle") if endpoint.get("kind") == "mavlink" else None
 
 
 def _spec(endpoint: dict[str, Any]) -> str:
@@ -284,7 +291,8 @@ def plot(truth_path: Path, runlog_path: Path, out_png: Path) -> None:
 
 
 async def _in_process(scenario: str, seed: int, out: Path, config: Config, target: str | None,
-                     receiver: str | None, sinks: tuple[Any, ...] = (), radio: str = "ideal") -> tuple[Outcome, Config]:
+                     receiver: str | None, sinks: tuple[Any, ...] = (), radio: str = "ideal",
+                     announce: Callable[[str], None] = lambda address: None) -> tuple[Outcome, Config]:
     """The same run with the emulator in this process on its byte pipe, in lockstep: the host
     settles after every step, so the result depends on the seed alone (as in the campaigns)."""
     from rfhoming.campaigns.closed_loop import PipePort
@@ -310,7 +318,8 @@ async def _in_process(scenario: str, seed: int, out: Path, config: Config, targe
         sensed = [Device(role, port=PipePort(n, pipe_end(em.device(n).link)), kind=devices.BOARDS[names[n]][0].name)
                   for n in sensors]
         base_link = em.device("base").link
-        if base_link.describe().get("kind") == "mavlink":  # a vehicle on UDP: the host connects as a ground station
+        if (vehicle := vehicle_of(base_link.describe())) is not None:  # on UDP: the host connects as a ground station
+            announce(vehicle)
             base = Device("base", spec=_spec(base_link.describe()))
         else:
             base = Device("base", port=PipePort("base", pipe_end(base_link)))
@@ -340,13 +349,15 @@ def check_outputs(out: Path) -> None:
 
 def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | None,
              receiver: str | None = None, sinks: list[Any] | tuple[Any, ...] = (), speed: float = 0.0,
-             in_process: bool = False, radio: str = "ideal") -> dict[str, Any]:
+             in_process: bool = False, radio: str = "ideal",
+             announce: Callable[[str], None] = lambda address: None) -> dict[str, Any]:
     """One demo run. ``receiver`` (esp32, esp-at, hci) serves the robot's BLE scanner as that
     device; ``sinks`` (an MCAP recorder, a live view) see every item and run log record too,
     and stay open. ``speed``: 0 lockstep, else simulated seconds per wall second (on ptys);
     ``in_process``: the emulator in this process, in lockstep (the same summary for the same
     seed), instead of in its own on ptys; ``radio``: the emulated radios (``ideal``,
-    ``measured`` or a profile file: docs/emulator.md, "Radio profiles")."""
+    ``measured`` or a profile file: docs/emulator.md, "Radio profiles"); ``announce`` is told
+    the emulated MAVLink vehicle's address as soon as it is up (a ground station may join)."""
     check_outputs(out)
     if scenario in SURVEYS:
         config = replace(config, loop=replace(config.loop, max_time_s=max(config.loop.max_time_s, SURVEY_TIME_S)))
@@ -355,7 +366,8 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     truth = out / "truth.jsonl"
     if in_process:
         outcome, config = asyncio.run(asyncio.wait_for(
-            _in_process(scenario, seed, out, config, target, receiver, tuple(sinks), radio), config.loop.max_time_s + 60))
+            _in_process(scenario, seed, out, config, target, receiver, tuple(sinks), radio, announce),
+            config.loop.max_time_s + 60))
         summary = summarise(outcome, truth, outcome.links, config.trilat.goal if scenario == "s3-arena" else None)
         for key in ("latency_ms_p50", "latency_ms_p99", "loop_stall_ms_max", "loop_stall_ms_p99"):  # wall-clock figures
             summary.pop(key)
@@ -363,6 +375,8 @@ def run_demo(scenario: str, seed: int, out: Path, config: Config, target: str | 
     link_dir = Path(tempfile.mkdtemp(prefix="rfhoming-demo-"))
     proc, endpoints = start_emulator(scenario, seed, truth, link_dir, None if scenario == "s3-arena" else target,
                                      receiver, speed, radio)
+    if "base" in endpoints and (vehicle := vehicle_of(endpoints["base"])) is not None:
+        announce(vehicle)
     try:
         if scenario == "s3-arena":  # S3 localises on beacons at surveyed places: take them from the truth
             config = trilat_config(config, truth, target)

@@ -17,9 +17,10 @@ import pytest
 
 pytest.importorskip("pymavlink")
 
+from rfhoming.emulator.mavlinkrobot import MAX_PEERS, MavlinkLink  # noqa: E402
 from rfhoming.firmware.mavlink_vehicle import MavlinkVehicle, VehicleOptions  # noqa: E402
 from rfhoming.host.drivers.mavlink_base import MavlinkBaseDriver  # noqa: E402
-from rfhoming.host.drivers.robot import Pose2D, RobotBase  # noqa: E402
+from rfhoming.host.drivers.robot import Pose2D, RobotBase, TakenOver  # noqa: E402
 from rfhoming.host.drivers.robot_base import BaseDriver  # noqa: E402
 from rfhoming.host.drivers.ros2_base import Ros2BaseDriver  # noqa: E402
 from rfhoming.host.ports import HostPort  # noqa: E402
@@ -176,11 +177,72 @@ def test_a_refused_arming_fails_the_run() -> None:
 
 
 def test_a_vehicle_taken_over_gets_no_more_setpoints() -> None:
+    """Not an error: the loop ends the run on the TakenOver item, in the vehicle's order."""
     driver, link = driven(VehicleOptions(mode="HOLD"), arm=True)
     link.vehicle.mode = 0  # the pilot's switch: MANUAL
     exchange(driver, link, 1.1)
-    assert "left GUIDED for MANUAL" in str(driver.error)
+    assert driver.error is None and driver.taken_over
+    taken = [item for item in iter(driver.out.get_nowait, None) if isinstance(item, TakenOver)]
+    assert len(taken) == 1 and taken[0].mode == "MANUAL" and "left GUIDED for MANUAL" in taken[0].why
     assert not driver.send_velocity(0.5, 0.0)
+
+
+def rtl(vehicle: MavlinkVehicle, start: ml.PoseEnu, seconds: float) -> ml.PoseEnu:
+    """The vehicle's own RTL, integrated at 50 Hz from ``start`` (a unicycle: what the base does)."""
+    pose, t = start, 0.0
+    for _ in range(round(seconds * 50)):
+        vehicle.telemetry(t, pose)
+        v, w = vehicle.velocity(t)
+        pose = ml.PoseEnu(pose.x + v * math.cos(pose.theta) * 0.02, pose.y + v * math.sin(pose.theta) * 0.02,
+                          pose.theta + w * 0.02, v, w)
+        t += 0.02
+    return pose
+
+
+@pytest.mark.parametrize("vehicle", ["rover", "copter"])
+def test_rtl_returns_to_where_the_vehicle_was_armed(vehicle: str) -> None:
+    """ArduPilot and PX4 return to home (set at arming) in RTL: a rover stops there, a copter
+    lands and disarms; not where the mode changed."""
+    model = MavlinkVehicle(VehicleOptions(mode="GUIDED", vehicle=vehicle, altitude=1.0))
+    model.telemetry(0.0, ml.PoseEnu(1.0, 2.0, 0.0, 0.0, 0.0))
+    model.feed(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+               .pack(mav.MAVLink(None, 255, 190)), 0.0)
+    assert model.armed and model.home == (1.0, 2.0)
+    model.mode = model.rtl
+    end = rtl(model, ml.PoseEnu(4.0, -1.0, 2.0, 0.0, 0.0), 30.0)
+    assert math.dist((end.x, end.y), (1.0, 2.0)) < 0.25 and model.velocity(30.0) == (0.0, 0.0)
+    assert model.armed == (vehicle == "rover") and model.altitude == 0.0
+
+
+class Peers:
+    """An emulated vehicle's link on a fake transport, its clock in the test's hands."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+        self.link = MavlinkLink(clock=lambda: self.now)
+        self.sent: list[tuple[str, int]] = []
+        self.link._transport = SimpleNamespace(sendto=lambda data, peer: self.sent.append(peer))  # type: ignore[assignment]
+        self.link.plugged = True
+
+    def telemetry(self) -> set[tuple[str, int]]:
+        self.sent.clear()
+        self.link._to_peers(b"telemetry")
+        return set(self.sent)
+
+
+def test_the_vehicle_serves_every_ground_station_and_forgets_the_silent() -> None:
+    peers = Peers()
+    hello = ml.Codec(255, 190).encode(ml.gcs_heartbeat())
+    for port in (14550, 14551):
+        peers.link.from_gcs(hello, ("127.0.0.1", port))
+    assert peers.telemetry() == {("127.0.0.1", 14550), ("127.0.0.1", 14551)}  # both get all of it
+    peers.now = 4.0
+    peers.link.from_gcs(hello, ("127.0.0.1", 14550))
+    peers.now = 6.0  # 14551 silent for 6 s
+    assert peers.telemetry() == {("127.0.0.1", 14550)} and peers.link.counters["peers_forgotten"] == 1
+    for port in range(20000, 20000 + MAX_PEERS):
+        peers.link.from_gcs(hello, ("127.0.0.1", port))
+    assert len(peers.telemetry()) == MAX_PEERS and peers.link.counters["peers_refused"] == 1
 
 
 def test_the_guided_timeout_stops_the_vehicle() -> None:

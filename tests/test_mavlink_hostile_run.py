@@ -2,7 +2,7 @@
 vehicle that lies (tests/hostile_vehicle.py, on UDP loopback; the AoA board is the emulator's).
 A vehicle sending NaN, one whose HEARTBEAT stops, someone speaking as it from another port, a
 refused (also of a vehicle already in GUIDED) or unanswered arming: the run stops (or refuses to start) with one line and exit 2, and
-the vehicle was last told HOLD. A pilot's mode change stops it too, and the pilot's mode stands.
+the vehicle was last told HOLD. A pilot's mode change ends it as taken over (exit 1, in its summary and log), and the pilot's mode stands.
 SIGTERM and the run's own end leave it in HOLD as well. Before the fix the vehicle stayed in
 GUIDED after a refusal, NaN, a lost HEARTBEAT and another port's packets were driven on for
 as long as the run lasted, and an error came out as two lines."""
@@ -69,7 +69,7 @@ CASES: list[Any] = [
                  marks=pytest.mark.slow),
     pytest.param("ack", {"unanswered": {mav.MAV_CMD_COMPONENT_ARM_DISARM}}, None, 2, "no COMMAND_ACK", id="no-ack",
                  marks=pytest.mark.slow),
-    pytest.param("pilot", {}, pilot, 2, "left GUIDED for MANUAL", id="pilot-mode", marks=pytest.mark.slow),
+    pytest.param("pilot", {}, pilot, 1, "left GUIDED for MANUAL", id="pilot-mode", marks=pytest.mark.slow),
     pytest.param("sigterm", {}, sigterm, 128 + signal.SIGTERM, "the base was told to stop", id="sigterm", marks=pytest.mark.slow),
     pytest.param("end", {}, None, 1, None, id="end-of-run", marks=pytest.mark.slow),
 ]
@@ -94,6 +94,12 @@ def test_every_exit_is_one_line_and_leaves_the_vehicle_holding(
             lines = said(run)
     if line is None:
         assert lines == [] and json.loads(run.stdout())["reason"]
+    elif name == "pilot":  # taken over: not an error but the run's end, in its summary and log
+        summary = json.loads(run.stdout())
+        assert summary["reason"] == "taken over" and summary["taken_over"]["mode"] == "MANUAL", summary
+        assert len(lines) == 1 and line in lines[0] and "WARNING" in lines[0], lines
+        ends = [json.loads(r) for r in log.read_text().splitlines() if '"taken over"' in r]
+        assert [(e["what"], e["mode"]) for e in ends] == [("taken over", "MANUAL")]
     else:
         assert len(lines) == 1 and line in lines[0] and lines[0].startswith("rfhoming run: "), lines
     asked = vehicle.modes_asked()

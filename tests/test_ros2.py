@@ -357,6 +357,7 @@ async def test_pose_from_carries_the_robot_and_its_receivers_on_a_ros2_robots_po
     ("ros2:/ground_truth/pose", {"topic": "/ground_truth/pose"}),
     ("ros2:odom,domain=7,frame=world,discovery=subnet", {"topic": "odom", "domain": 7, "frame": "world",
                                                          "discovery": "subnet"}),
+    ("ros2:/gt,wait=2.5,stale=0.5,frame_id=map", {"topic": "/gt", "wait": 2.5, "stale": 0.5, "frame_id": "map"}),
 ])
 def test_pose_from_specs(text: str, settings: dict[str, object]) -> None:
     from rfhoming.cli.parsers.emulate import pose_source
@@ -365,7 +366,8 @@ def test_pose_from_specs(text: str, settings: dict[str, object]) -> None:
 
 
 @pytest.mark.parametrize("text", ["/gt", "ros2:", "ros2:a b", "ros2:/gt,domain=300", "ros2:/gt,frame=map",
-                                  "ros2:/gt,type=odometry", "mavlink:/gt"])
+                                  "ros2:/gt,type=odometry", "mavlink:/gt", "ros2:/gt,wait=0", "ros2:/gt,stale=inf",
+                                  "ros2:/gt,wait=soon", "ros2:/gt,frame_id=a b"])
 def test_bad_pose_from_specs_say_what_is_wanted(text: str) -> None:
     import argparse
 

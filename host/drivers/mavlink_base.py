@@ -10,10 +10,11 @@ the autopilot's own setpoint timeout (GUID_TIMEOUT, COM_OF_LOSS_T) stops it.
 
 It drives one vehicle, and believes nothing else: the first vehicle HEARTBEAT (or ``sysid=``)
 fixes the system and component it listens to, a UDP link the address (host/mavlinkport.py).
-Each of these ends the run with one line (an Error the supervisor raises):
+A vehicle that leaves the guided mode or disarms (a ground station's mode change, the pilot's
+switch, a failsafe) is taken over: no more setpoints, and no mode command either -- the mode
+someone else chose stands; the loop ends the run on the TakenOver item, which its log and
+summary record. Each of these ends the run with one line (an Error the supervisor raises):
 
-- the vehicle leaves the guided mode or disarms (the pilot's switch, a failsafe): no more
-  setpoints, and no mode command either -- the mode someone else chose stands;
 - its HEARTBEAT stops for ``HEARTBEAT_LOSS_S`` of its own clock while its telemetry goes on, or
   (live) the vehicle falls silent for that long on the wall clock;
 - it sends a value no vehicle can mean (NaN, inf, 1e38: rfhoming.protocol.mavlink.refusal);
@@ -45,7 +46,7 @@ import time
 from typing import Any
 
 from rfhoming.host.drivers.common import BoundedStream, Wiring
-from rfhoming.host.drivers.robot import CommandedBase, Pose2D
+from rfhoming.host.drivers.robot import CommandedBase, Pose2D, TakenOver
 from rfhoming.host.mavlinkport import MavlinkPort
 from rfhoming.host.ports import Disconnected, Tap
 from rfhoming.host.portspec import PortSpec
@@ -58,6 +59,7 @@ SETUP_TIMEOUT_S = 5.0  # *assumed*: from the first HEARTBEAT to driving (two com
 TELEMETRY_HZ = 50  # LOCAL_POSITION_NED and ATTITUDE, asked of the vehicle: the loop's odometry rate
 STREAM_BEFORE_SWITCH_S = 1.0  # PX4 enables offboard after more than a second of setpoints (PX4 Offboard Mode)
 HEARTBEAT_PERIOD_S = 1.0  # ArduPilot and PX4 send HEARTBEAT at 1 Hz (docs/protocol.md §10)
+ENDED = ("failed", "done", "taken")  # the set-up's steps after which nothing more is sent or believed
 HEARTBEAT_LOSS_S = 3.5
 """Three HEARTBEATs missed, and half a period for jitter: the link is lost (MAVLink's heartbeat
 service calls a system gone after four or five missed; a vehicle being driven, sooner)."""
@@ -109,7 +111,7 @@ class MavlinkBaseDriver(CommandedBase):
         self._attitude: Any = None
         self._local: tuple[Any, float] | None = None  # the newest LOCAL_POSITION_NED and when it came
         self._heartbeat = asyncio.Event()
-        self.step = "waiting"  # of the set-up: waiting, streaming, switching, arming, driving, failed, done
+        self.step = "waiting"  # of the set-up: waiting, streaming, switching, arming, driving, then one of ENDED
         self.took = False  # rfhoming asked for the guided mode, to arm, or drove: every exit leaves the vehicle holding
         self.taken_over = False  # the pilot or a failsafe changed its mode or disarmed it: their choice stands
         self._asked: int | None = None  # the command whose COMMAND_ACK the set-up waits for
@@ -182,10 +184,10 @@ class MavlinkBaseDriver(CommandedBase):
             return
         self.counters["packets"] += 1
         self._heard_at = time.monotonic()
-        if self.step in ("failed", "done"):
+        if self.step in ENDED:
             return
         if vehicle:
-            self._on_heartbeat(message)
+            self._on_heartbeat(message, t_host)
         elif kind == "COMMAND_ACK" and message.command == self._asked:
             self._on_ack(message)
         elif kind == "ATTITUDE":
@@ -197,13 +199,13 @@ class MavlinkBaseDriver(CommandedBase):
         """A value no vehicle can mean, from the vehicle: its estimate cannot be driven on."""
         if self.sysid is None or not self._ours(refused.message):
             self.counters["other_systems"] += 1
-        elif self.step not in ("failed", "done"):
+        elif self.step not in ENDED:
             self._fail(f"the vehicle sent {refused.why}: its position or attitude cannot be driven on (check its "
                        "EKF and position source); rfhoming stopped")
 
     def _on_foreign(self, source: tuple[str, int], data: bytes) -> None:
         """A datagram from a sender that is not the vehicle (dropped by the port, counted there)."""
-        if self.step in ("failed", "done") or self.sysid is None:
+        if self.step in ENDED or self.sysid is None:
             return
         for item in self._foreign.feed(data, datagram=True):
             message = item.message if isinstance(item, ml.Refused) else item
@@ -219,7 +221,7 @@ class MavlinkBaseDriver(CommandedBase):
         """Another vehicle speaks: before the driving starts, with no ``sysid=``, there is no
         telling which one the user meant; after it, it is ignored (warned once)."""
         who = f"system {heartbeat.get_srcSystem()} component {heartbeat.get_srcComponent()}"
-        if who in self._others or self.step in ("failed", "done"):
+        if who in self._others or self.step in ENDED:
             return
         self._others.add(who)
         if self.step != "driving" and not self.chosen:
@@ -229,7 +231,7 @@ class MavlinkBaseDriver(CommandedBase):
             log.warning("%s: another vehicle, %s, speaks %s: ignored (rfhoming drives system %s only)",
                         self.port.name, who, where, self.sysid)
 
-    def _on_heartbeat(self, message: Any) -> None:
+    def _on_heartbeat(self, message: Any, t_host: float) -> None:
         self.counters["heartbeats"] += 1
         self._beat_ms = None  # heartbeat loss counts from the next telemetry
         if self.compid is None:
@@ -246,12 +248,21 @@ class MavlinkBaseDriver(CommandedBase):
         if self.step == "waiting":
             self._begin()
         elif self.step == "driving" and self.mode != ap.guided:
-            self.taken_over = True
-            self._fail(f"the vehicle left {ap.mode_name(ap.guided)} for {ap.mode_name(self.mode)} (the pilot or a "
-                       "failsafe took over); rfhoming stopped sending setpoints and leaves it there")
+            self._taken(ap.mode_name(self.mode), f"the vehicle left {ap.mode_name(ap.guided)} for "
+                        f"{ap.mode_name(self.mode)} (a ground station, the pilot or a failsafe took over); rfhoming "
+                        "stopped sending setpoints and leaves it there", t_host)
         elif self.step == "driving" and not self.armed:
-            self.taken_over = True
-            self._fail("the vehicle disarmed; rfhoming stopped sending setpoints")
+            self._taken("disarmed", "the vehicle disarmed (a ground station, the pilot or a failsafe); rfhoming "
+                        "stopped sending setpoints", t_host)
+
+    def _taken(self, mode: str, why: str, t_host: float) -> None:
+        """Someone else has the vehicle: nothing more is sent, and the loop ends the run on the
+        item (its log and summary say so), in the order of the vehicle's messages."""
+        self.step, self.taken_over = "taken", True
+        log.info("%s: %s", self.port.name, why)
+        item = TakenOver(t_host, mode, why)
+        self.emit(item.t_host, item)
+        self.out.put(item)
 
     def _begin(self) -> None:
         """The first HEARTBEAT: ask for odometry, check the vehicle may be driven, then switch
@@ -342,7 +353,7 @@ class MavlinkBaseDriver(CommandedBase):
         replay and a lockstep world decide the same)?"""
         if self._beat_ms is None or time_boot_ms < self._beat_ms:  # after a HEARTBEAT, or a reboot's clock
             self._beat_ms = time_boot_ms
-        elif time_boot_ms - self._beat_ms > HEARTBEAT_LOSS_S * 1000 and self.step not in ("waiting", "failed", "done"):
+        elif time_boot_ms - self._beat_ms > HEARTBEAT_LOSS_S * 1000 and self.step != "waiting" and self.step not in ENDED:
             self._fail(f"no HEARTBEAT from the vehicle for {HEARTBEAT_LOSS_S:g} s of its clock while its telemetry "
                        f"goes on (it sends one a second): its link or autopilot is not well; rfhoming stopped")
 

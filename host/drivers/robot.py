@@ -31,6 +31,15 @@ class Pose2D(NamedTuple):
     flags: int
 
 
+class TakenOver(NamedTuple):
+    """The base is no longer the loop's: someone else chose its mode or disarmed it (a ground
+    station, the pilot, a failsafe). The run ends with it, recorded in its log and summary."""
+
+    t_host: float
+    mode: str  # the mode it was put in ("disarmed" when that was all)
+    why: str  # one line for the user
+
+
 SCAN_V1_RANGE_MAX = 65.535  # a version-1 scan does not say its sensor's range: the record's largest
 SCAN_RANGE_MIN = 0.001  # the records' shortest range: 1 mm (0 mm means no return; docs/protocol.md, 0x22/0x23)
 SCAN_PERIOD_S = 0.1  # the emulated scanner's period (emulator BaseRunner.SCAN_PERIOD_S); *assumed* for a real base

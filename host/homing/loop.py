@@ -45,7 +45,7 @@ from typing import IO, Any
 from rfhoming.host.drivers.common import BoundedStream, Driver
 from rfhoming.host import outputs
 from rfhoming.host.losses import with_losses
-from rfhoming.host.drivers.robot import Pose2D, RobotBase, Scan
+from rfhoming.host.drivers.robot import Pose2D, RobotBase, Scan, TakenOver
 from rfhoming.host.homing.avoidance import ObstacleAvoidance
 from rfhoming.host.homing.config import Config
 from rfhoming.host.homing.grid import OccupancyGrid, lookahead
@@ -79,6 +79,7 @@ class Outcome:
     stalls: dict[str, Any] = field(default_factory=dict)  # the event loop's (host/loopstall.py)
     plans: int = 0
     plans_late: int = 0
+    taken_over: dict[str, Any] | None = None  # the base was taken over: its mode and why (reason "taken over")
 
     def summary(self) -> dict[str, Any]:
         lat = sorted(self.latency_ms)
@@ -90,7 +91,8 @@ class Outcome:
                 "latency_ms_p50": pick(0.5), "latency_ms_p99": pick(0.99),
                 "loop_stall_ms_max": self.stalls.get("loop_stall_ms_max"),
                 "loop_stall_ms_p99": self.stalls.get("loop_stall_ms_p99"),
-                **({"plans": self.plans, "plans_late": self.plans_late} if self.plans else {})}
+                **({"plans": self.plans, "plans_late": self.plans_late} if self.plans else {}),
+                **({"taken_over": self.taken_over} if self.taken_over else {})}
 
 
 class RunLog:
@@ -290,6 +292,11 @@ class HomingLoop:
                 outcome = self._on_odometry(item)
                 if outcome is not None:
                     return outcome
+            elif isinstance(item, TakenOver):  # a ground station, the pilot or a failsafe has the base now
+                log.warning("%s: %s", self.base.port.name, item.why)
+                elapsed = self.t - self.t0 if self.t0 is not None else 0.0
+                return self._outcome(False, "taken over", elapsed, self.pose, self.controller.reported,
+                                     taken_over={"mode": item.mode, "why": item.why})
             else:
                 self._on_reading(item)
 
@@ -524,15 +531,16 @@ class HomingLoop:
         self.latency_ms.append((time.time() - odo.t_host) * 1000)
         self.log.write("command", t, v=round(decision.v, 4), w=round(decision.w, 4), note=decision.note, **fields)
 
-    def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose | None, goal: Any) -> Outcome:
+    def _outcome(self, arrived: bool, reason: str, duration: float, pose: Pose | None, goal: Any,
+                 taken_over: dict[str, Any] | None = None) -> Outcome:
         self.base.stop()
-        self.log.write("event", duration, what=reason)
+        self.log.write("event", duration, what=reason, **(taken_over or {}))
         drivers: list[Driver | RobotBase] = [*self.sensors, self.base]
         kinds = [d.kind for d in drivers]
         links = {(d.kind if kinds.count(d.kind) == 1 else f"{d.kind}:{d.port.name}"): with_losses(d.health())
                  for d in drivers}
         return Outcome(arrived, reason, duration, pose, goal, self.commands, self.stale_stops, list(self.latency_ms),
-                       links, plans=self.plans, plans_late=self.plans_late)
+                       links, plans=self.plans, plans_late=self.plans_late, taken_over=taken_over)
 
 
 def _round(v: Any) -> list[float] | None:

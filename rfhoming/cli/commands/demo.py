@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
         wait_for_viewer(view, args.wait_viewer)
         summary = run_demo(args.scenario, args.seed, args.out, config, args.target, args.receiver,
                            sinks=[*sinks, *([view] if view else [])], speed=speed, in_process=args.in_process,
-                           radio=args.radio)
+                           radio=args.radio, announce=say_vehicle)
     except BaseException:
         if view is not None:
             view.close()
@@ -68,6 +68,13 @@ def run(args: argparse.Namespace) -> int:
         finally:
             view.close()
     return 0 if summary["success"] else 1
+
+
+def say_vehicle(address: str) -> None:
+    """Where a ground station joins the emulated vehicle beside the demo (stderr, --json too:
+    the summary comes only at the end)."""
+    print(f"demo: the emulated MAVLink vehicle is at {address} (UDP); a ground station joins it beside the run with "
+          f"udpout:{address}, e.g. mavproxy.py --master=udpout:{address}", file=sys.stderr, flush=True)
 
 
 def print_localisation(located: dict[str, Any] | None) -> None:

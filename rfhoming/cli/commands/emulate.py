@@ -9,11 +9,13 @@ import json
 import math
 import signal
 import sys
+from typing import Any
 
 from rfhoming.cli.parsers.common import IDEAL, MEASURED
 from rfhoming.emulator.faults import Fault, FaultError
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.emulator.scenario import ScenarioError, load
+from rfhoming.host import dds_guard
 from rfhoming.host.outputs import Output
 from rfhoming.protocol.errors import Error
 
@@ -51,8 +53,24 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+async def start(emulator: Emulator) -> list[dict[str, Any]]:
+    """The emulator started, and the DDS sockets it opened on loopback domains (its ROS 2 robot,
+    ``--pose-from``) kept to loopback traffic as the host's are (host/dds_guard.py)."""
+    joiners: list[Any] = [*(d.link for d in emulator.devices), emulator.pose_from]  # those of DDS have a domain
+    domains = {int(j.domain) for j in joiners if getattr(j, "discovery", None) == "localhost"}
+    before = dds_guard.sockets() if domains else set()
+    endpoints = await emulator.start()
+    for domain in domains:
+        try:
+            dds_guard.guard(domain, before)
+        except OSError as exc:
+            print(f"rfhoming emulate: warning: ROS 2 domain {domain}: Cyclone DDS listens on every interface and its "
+                  f"sockets could not be kept to loopback traffic ({exc.strerror or exc})", file=sys.stderr)
+    return endpoints
+
+
 async def _serve(emulator: Emulator, duration: float | None, truth: Output | None) -> None:
-    for endpoint in await emulator.start():
+    for endpoint in await start(emulator):
         print(json.dumps(endpoint), flush=True)
     if truth is not None:
         truth.own()  # its devices are up: this run's truth replaces the old however it ends

@@ -76,28 +76,45 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                         "MAVLink vehicle on UDP 127.0.0.1 (mavlink[:udpout:127.0.0.1:PORT][,autopilot=ardupilot|px4,"
                         "vehicle=rover|copter,mode=HOLD,armed=1,prearm=fail,timeout=S]), not a serial port "
                         "(docs/hardware.md, Robots)")
-    p.add_argument("--pose-from", type=pose_source, metavar="ros2:TOPIC[,domain=N,frame=world,discovery=subnet]",
+    p.add_argument("--pose-from", type=pose_source, metavar="ros2:TOPIC[,domain=N,frame=world,discovery=subnet,...]",
                    help="the robot is a ROS 2 robot of its own (a simulator's, a real one): the emulated receivers "
                         "ride on it, moved by its pose on TOPIC (nav_msgs/Odometry or geometry_msgs/PoseStamped, "
                         "e.g. a Gazebo robot's ground truth); the scenario's base is not served -- drive that robot "
                         "with run --base ros2:. frame=start (default): its first pose is the scenario's start pose; "
-                        "frame=world: its poses are the scenario's coordinates (docs/emulator.md)")
+                        "frame=world: its poses are the scenario's coordinates. It warns when no pose comes within "
+                        "wait=S (5), when poses stop for stale=S (1: the radios then hear nothing until they come "
+                        "again), and of poses refused: not finite, or not in frame_id=ID (the first's) "
+                        "(docs/emulator.md)")
     p.add_argument("--link-dir", type=path, help="directory for the pty symlinks (default: a new temp dir)")
     p.set_defaults(func=command("emulate"))
 
 
 TOPIC = re.compile(r"/?[A-Za-z_~][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
 """A ROS 2 topic name (design.ros2.org "Topic and Service names"), relative or absolute."""
+
+
+def _seconds(text: str) -> float | None:
+    """A positive, finite number of seconds, or None."""
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return value if 0 < value < float("inf") else None
+
+
 POSE_SOURCE: dict[str, Callable[[str], Any]] = {
     "domain": lambda v: int(v) if v.isdigit() and int(v) <= 232 else None,
     "discovery": lambda v: v if v in ("localhost", "subnet") else None,
     "frame": lambda v: v if v in ("start", "world") else None,
+    "wait": _seconds,
+    "stale": _seconds,
+    "frame_id": lambda v: v if TOPIC.fullmatch(v) else None,
 }
 
 
 def pose_source(text: str) -> dict[str, Any]:
-    """``ros2:TOPIC[,domain=N,discovery=localhost|subnet,frame=start|world]`` -> PoseFollower's
-    arguments (emulator/ros2pose.py)."""
+    """``ros2:TOPIC[,domain=N,discovery=localhost|subnet,frame=start|world,wait=S,stale=S,frame_id=ID]``
+    -> PoseFollower's arguments (emulator/ros2pose.py)."""
     head, *pairs = text.split(",")
     kind, _, topic = head.partition(":")
     if kind != "ros2" or not TOPIC.fullmatch(topic):
@@ -111,7 +128,8 @@ def pose_source(text: str) -> dict[str, Any]:
         settings[key] = POSE_SOURCE[key](raw)
         if settings[key] is None:
             raise argparse.ArgumentTypeError(f"{text!r}: bad {key}={raw!r} (domain=0..232, "
-                                             "discovery=localhost|subnet, frame=start|world)")
+                                             "discovery=localhost|subnet, frame=start|world, wait= and stale= "
+                                             "seconds above 0, frame_id=a frame name)")
     return settings
 
 
