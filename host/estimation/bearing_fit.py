@@ -143,14 +143,14 @@ class BearingFit:
             near = np.minimum(r / self.near_m, 1.0)  # within near_m of a ray's origin: its miss distance
             return np.concatenate([angle * near / scale, (r - d) / range_sigma])
 
-        starts = []
+        starts: list[tuple[float, float]] = []
         if guess is not None:
-            starts.append(np.array(guess, dtype=float))
+            starts.append((float(guess[0]), float(guess[1])))
         if self._fit is not None:
-            starts.append(np.array(self._fit.position, dtype=float))
-        starts.append(np.array([np.mean(x + d * np.cos(a)), np.mean(y + d * np.sin(a))]))  # the vector goals' mean
+            starts.append(self._fit.position)
+        starts.append((float(np.mean(x + d * np.cos(a))), float(np.mean(y + d * np.sin(a)))))  # the vector goals' mean
         best = None
-        for start in starts:
+        for start in dict.fromkeys(starts):  # each distinct start once: a trusted fit is also S0's guess
             try:
                 sol = least_squares(residuals, start, loss="cauchy", f_scale=1.0, max_nfev=60, x_scale=1.0)
             except ValueError:
