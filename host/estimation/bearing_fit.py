@@ -39,6 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 
 
+EPS = float(np.finfo(float).eps)
+
+
 @dataclass(frozen=True)
 class _Solution:
     x: np.ndarray
@@ -48,8 +51,8 @@ class _Solution:
 
 def _cauchy_least_squares(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], start: tuple[float, float],
                           max_nfev: int = 60, tol: float = 1e-8) -> _Solution | None:
-    """Minimise ½ Σ ln(1 + f_i(p)²) over a 2-D p: Levenberg-Marquardt on the reweighted normal
-    equations (weights 1 / (1 + f²), the Cauchy loss's ρ'). The cost and stopping rules are
+    """Minimise ½ Σ ln(1 + f_i(p)²) over a 2-D p: Levenberg-Marquardt with the loss's curvature in
+    the normal matrix (Jᵀ diag(max(ρ' + 2ρ''f², ε)) J, as scipy's robust-loss scaling). The cost and stopping rules are
     scipy ``least_squares(loss="cauchy", max_nfev=60)``'s (ftol = xtol = gtol = 1e-8), without
     its trust-region machinery, which cost ~50 times the residuals on two parameters.
     ``fun`` gives the residuals and their Jacobian. None when the start's residuals are not finite."""
@@ -61,10 +64,10 @@ def _cauchy_least_squares(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     cost = 0.5 * float(np.sum(np.log1p(z)))
     nfev, damping = 1, 1e-3
     while nfev < max_nfev:
-        w = 1.0 / (1.0 + z)
-        jw = j * w[:, None]
-        (a11, a12), (_, a22) = (jw.T @ j).tolist()
-        g1, g2 = (jw.T @ f).tolist()
+        t = 1.0 + z
+        curvature = np.maximum((1.0 - z) / (t * t), EPS)  # ρ' + 2ρ''f², as scipy scales J
+        (a11, a12), (_, a22) = ((j * curvature[:, None]).T @ j).tolist()
+        g1, g2 = (j.T @ (f / t)).tolist()  # the gradient: Σ ρ' f ∇f
         if max(abs(g1), abs(g2)) < tol:
             break
         done = False
@@ -98,7 +101,7 @@ def _cauchy_least_squares(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
             break
     if not np.all(np.isfinite(p)):
         return None
-    scale = np.sqrt(np.maximum((1.0 - z) / (1.0 + z) ** 2, np.finfo(float).eps))
+    scale = np.sqrt(np.maximum((1.0 - z) / (1.0 + z) ** 2, EPS))
     return _Solution(p, cost, j * scale[:, None])
 
 
@@ -200,24 +203,26 @@ class BearingFit:
         scale = math.radians(self.scale_deg)
         range_sigma = np.maximum(self.range_rel_sigma * d, 0.3)
 
-        near_m = self.near_m
+        near_m, n = self.near_m, len(rays)
+        cos_a, sin_a = np.cos(a), np.sin(a)
+        inv_sigma = 1.0 / range_sigma
+        j = np.empty((2 * n, 2))
 
         def residuals(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             """The residuals and their Jacobian in closed form, from one shared difference."""
             dx, dy = p[0] - x, p[1] - y
-            angle = np.remainder(np.arctan2(dy, dx) - a + math.pi, 2 * math.pi) - math.pi
+            angle = np.arctan2(dy * cos_a - dx * sin_a, dx * cos_a + dy * sin_a)  # seen minus ray, wrapped
             r = np.maximum(np.hypot(dx, dy), 1e-12)
-            inside = r < near_m
-            near = np.where(inside, r / near_m, 1.0)  # within near_m of a ray's origin: its miss distance
-            fade = np.where(inside, angle / (r * near_m), 0.0)  # ∂near/∂p = (dx, dy) / (r near_m) inside
-            f = np.concatenate([angle * near / scale, (r - d) / range_sigma])
-            j = np.empty((len(f), 2))
-            n, rr = len(x), r * r
-            j[:n, 0] = (-dy / rr * near + fade * dx) / scale
-            j[:n, 1] = (dx / rr * near + fade * dy) / scale
-            j[n:, 0] = dx / r / range_sigma
-            j[n:, 1] = dy / r / range_sigma
-            return f, j
+            near = np.minimum(r * (1.0 / near_m), 1.0)  # within near_m of a ray's origin: its miss distance
+            f = np.concatenate([angle * near * (1.0 / scale), (r - d) * inv_sigma])
+            fade = np.where(near < 1.0, angle * (1.0 / (near_m * scale)) / r, 0.0)  # ∂near/∂p = (dx, dy) / (r near_m)
+            k = near / (r * r * scale)
+            j[:n, 0] = fade * dx - dy * k
+            j[:n, 1] = fade * dy + dx * k
+            q = inv_sigma / r
+            j[n:, 0] = dx * q
+            j[n:, 1] = dy * q
+            return f, j.copy()
 
         starts: list[tuple[float, float]] = []
         if guess is not None:
