@@ -9,6 +9,9 @@
 
     python bench/estimation_bench.py [--json]
 
+Times are CPU time (``time.process_time``), the best of a few repeats: on a shared machine the
+wall clock measures the other users too.
+
 Needs the bench extra: pip install -e '.[bench]'
 """
 
