@@ -9,6 +9,9 @@
 
     python bench/estimation_bench.py [--json]
 
+Times are CPU time (``time.process_time``), the best of a few repeats: on a shared machine the
+wall clock measures the other users too.
+
 Needs the bench extra: pip install -e '.[bench]'
 """
 
@@ -33,9 +36,9 @@ from rfhoming.host.estimation.particle import ParticleFilter, PfParams
 def best(fn: Callable[[], None], repeats: int = 5) -> float:
     times = []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         fn()
-        times.append(time.perf_counter() - t0)
+        times.append(time.process_time() - t0)
     return min(times)
 
 

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from rfhoming.emulator import draws
 from rfhoming.emulator.aoa_error import MeasuredAoa
 from rfhoming.emulator.faults import ByteFaults, scramble
 from rfhoming.emulator.links import Link, TcpLink
@@ -173,11 +174,11 @@ class _Schedule:
     def due(self, source: str, interval_s: float, jitter_s: float, t0: float, t1: float) -> list[float]:
         t = self.next.get(source)
         if t is None:
-            t = t0 + float(self.rng.uniform(0, interval_s))
+            t = t0 + draws.uniform(self.rng, 0, interval_s)
         times = []
         while t <= t1:
             times.append(t)
-            t += interval_s + float(self.rng.uniform(0, jitter_s))
+            t += interval_s + draws.uniform(self.rng, 0, jitter_s)
         self.next[source] = t
         return times
 
@@ -309,7 +310,7 @@ class AoaRunner(DeviceRunner):
                     azimuth, elevation = got
                 else:
                     azimuth = measure_azimuth(self.aoa, relative, self.rng)
-                    elevation += float(self.rng.normal(0, self.aoa.angle_deg))
+                    elevation += draws.normal(self.rng, 0, self.aoa.angle_deg)
                 if self.upside_down:
                     azimuth = -azimuth
                 fw.on_advertisement(Advertisement(tag_id, self.namespace, azimuth, elevation, rssi,
@@ -494,6 +495,7 @@ class BaseRunner(DeviceRunner):
         self.radius = radius
         self.commanded = asyncio.Event()
         self._next_scan = 0.0
+        self._beams = np.linspace(-math.pi / 2, math.pi / 2, self.SCAN_BEAMS)  # robot frame, made once
         self._commands_seen = 0
         # a link that drives the firmware itself (a MAVLink vehicle) says when the host commanded
         self._link_commands = hasattr(link, "on_command")
@@ -525,8 +527,7 @@ class BaseRunner(DeviceRunner):
             r.x, r.y, _ = before
         if self.scan and t1 >= self._next_scan:
             self._next_scan = t1 + self.SCAN_PERIOD_S
-            angles = np.linspace(-math.pi / 2, math.pi / 2, self.SCAN_BEAMS)
-            ranges = world.cast((r.x, r.y), angles + r.theta, self.SCAN_RANGE_M)
+            ranges = world.cast((r.x, r.y), self._beams + r.theta, self.SCAN_RANGE_M)
             if self.scan_noise_m > 0:
                 ranges = np.maximum(ranges + self.rng.normal(0, self.scan_noise_m, len(ranges)), 0.0)
             fw.send_scan_mm(-math.pi / 2, math.pi / 2, self.SCAN_RANGE_M, scan_mm(ranges))

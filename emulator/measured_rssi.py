@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rfhoming.emulator import draws
 from rfhoming.emulator.radio import Ends, PathLossModel, RadioChannel
 from rfhoming.protocol import devices
 from rfhoming.protocol.rssi_profile import RssiProfile
@@ -147,13 +148,13 @@ class MeasuredChannel(RadioChannel):
         r = p.residual
         if r.sd_db > 0:
             if state.residual_db is None:
-                state.residual_db = float(self.rng.normal(0.0, r.sd_db))
+                state.residual_db = draws.normal(self.rng, 0.0, r.sd_db)
             else:
                 keep = float(ou_keep(t - state.residual_t, r.time_s))
-                state.residual_db = state.residual_db * keep + math.sqrt(1 - keep * keep) * float(self.rng.normal(0.0, r.sd_db))
+                state.residual_db = state.residual_db * keep + math.sqrt(1 - keep * keep) * draws.normal(self.rng, 0.0, r.sd_db)
             state.residual_t = t
             power += state.residual_db
-        return power + float(self.rng.normal(0.0, r.white_sd_db))
+        return power + draws.normal(self.rng, 0.0, r.white_sd_db)
 
     def lost(self, link: tuple[str, str], t: float) -> bool:
         """Whether the reading at ``t`` is missed: a chain in time with the link's loss fraction
@@ -171,7 +172,7 @@ class MeasuredChannel(RadioChannel):
         pol = self.profile.polarisation
         if pol is None:
             return super().second_dbm(link, rssi_dbm)
-        return rssi_dbm + float(self.rng.normal(pol.mean_db, pol.sd_db))
+        return rssi_dbm + draws.normal(self.rng, pol.mean_db, pol.sd_db)
 
 
 def channel(board: str, model: PathLossModel, rng: np.random.Generator,

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rfhoming.emulator import draws
+
 
 @dataclass(frozen=True)
 class PathLossModel:
@@ -80,8 +82,8 @@ class RadioChannel:
         m = self.model
         bias = self._bias.get(link)
         if bias is None:
-            bias = self._bias[link] = float(self.rng.normal(0, m.link_sigma_db))
-        power = mean_dbm + bias + float(self.rng.normal(0, m.fast_sigma_db))
+            bias = self._bias[link] = draws.normal(self.rng, 0, m.link_sigma_db)
+        power = mean_dbm + bias + draws.normal(self.rng, 0, m.fast_sigma_db)
         if m.rician_k is not None:
             k = m.rician_k
             los = math.sqrt(k / (k + 1))
@@ -96,7 +98,7 @@ class RadioChannel:
 
     def second_dbm(self, link: tuple[str, str], rssi_dbm: float) -> float:
         """The XPLR-AOA's second polarisation for a reading of ``rssi_dbm`` on the first."""
-        return rssi_dbm + float(self.rng.normal(0, 1.5))
+        return rssi_dbm + draws.normal(self.rng, 0, 1.5)
 
 
 def power_sum_dbm(powers_dbm: list[float]) -> float:
@@ -171,15 +173,15 @@ def measure_azimuth(model: AoaModel, relative_ccw_deg: float, rng: np.random.Gen
     """The azimuth the board reports (board sign: negative = left), before integer rounding."""
     a = seen_azimuth(relative_ccw_deg, model.fold)
     if model.kind == "uniform":
-        a += float(rng.uniform(-model.angle_deg, model.angle_deg))
+        a += draws.uniform(rng, -model.angle_deg, model.angle_deg)
     else:
-        a += float(rng.normal(0, model.sigma_deg(a)))
+        a += draws.normal(rng, 0, model.sigma_deg(a))
     return -max(-90.0, min(90.0, a))
 
 
 def idealised_rssi(model: AoaModel, path: PathLossModel, distance_m: float, tx_power_dbm: float,
                    rng: np.random.Generator) -> float:
     """S0's idealised distance noise expressed as the RSSI the calibration inverts."""
-    noisy = distance_m * (1 + rng.uniform(-model.distance_rel, model.distance_rel))
-    noisy += rng.uniform(-model.distance_abs_m, model.distance_abs_m)
+    noisy = distance_m * (1 + draws.uniform(rng, -model.distance_rel, model.distance_rel))
+    noisy += draws.uniform(rng, -model.distance_abs_m, model.distance_abs_m)
     return path.mean_dbm(max(noisy, 0.05), tx_power_dbm)

@@ -118,3 +118,30 @@ def test_rays_from_beside_the_fit_do_not_vouch_for_it() -> None:
         fit.add(0.3 * k, x, y, a, 0.3 * float(rng.lognormal(0.0, 0.3)))
     assert fit.last_fit is not None
     assert fit.estimate() is None
+
+
+def test_the_cauchy_solver_lands_where_scipy_least_squares_does() -> None:
+    from scipy.optimize import least_squares
+
+    from rfhoming.host.estimation.bearing_fit import _cauchy_least_squares
+
+    rng = np.random.default_rng(5)
+    path = _path(120)
+    a = np.array(_bearings(rng, path, slice(40, 60), 35.0, 0.1))
+    x, y = np.array(path).T
+
+    def fun(p: np.ndarray) -> np.ndarray:
+        return np.remainder(np.arctan2(p[1] - y, p[0] - x) - a + math.pi, 2 * math.pi) - math.pi
+
+    def jac(p: np.ndarray) -> np.ndarray:
+        dx, dy = p[0] - x, p[1] - y
+        r2 = dx * dx + dy * dy
+        return np.stack([-dy / r2, dx / r2], axis=1)
+
+    for start in [(1.0, 1.0), (8.0, -2.0), (4.5, 3.5)]:
+        ref = least_squares(fun, start, jac=jac, loss="cauchy", f_scale=1.0, max_nfev=60)
+        ours = _cauchy_least_squares(lambda p: (fun(p), jac(p)), start)
+        assert ours is not None
+        assert math.dist(ours.x, ref.x) < 1e-3 and ours.cost <= ref.cost * (1 + 1e-8)
+        assert np.allclose(ours.jac, ref.jac, rtol=1e-2, atol=1e-4)  # scipy's robust-loss scaling
+    assert _cauchy_least_squares(lambda p: (fun(p) * np.nan, jac(p)), (1.0, 1.0)) is None

@@ -259,6 +259,60 @@ def test_missing_rssi_equals_the_update_without_that_row() -> None:
     assert np.allclose(ekf.p[0], (np.eye(m.size) - k @ h) @ p0)
 
 
+def _seeded_s4_run(steps: int = 300) -> tuple[S4Model, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One beacon, three receivers wandering around it: (model, x0, u, z_pos, rssi), all heard."""
+    m = S4Model()
+    rng = np.random.default_rng(11)
+    x0 = np.concatenate([rng.uniform(0, 4, 6), [2.0, 2.0]])
+    u = rng.normal(0, 0.05, (steps, 6))
+    truth = x0[:6] + np.cumsum(u, axis=0)
+    z_pos = truth + rng.normal(0, 0.2, truth.shape)
+    beacon = np.array([1.5, 2.5])
+    d = np.linalg.norm(truth.reshape(steps, 3, 2) - beacon, axis=2)
+    rssi = m.p0_dbm - 20 * np.log10(d) + rng.normal(0, 3, d.shape)
+    return m, x0, u, z_pos, rssi
+
+
+def test_s4_ekf_matches_a_textbook_joseph_form_ekf_over_a_seeded_run() -> None:
+    m, x0, u, z_pos, rssi = _seeded_s4_run()
+    rssi[::7, 1] = np.nan  # and a receiver that sometimes hears nothing
+    ekf = BeaconEkf(m, x0[None], np.eye(8))
+    x, p = x0.copy(), np.eye(8)
+    q = np.diag([m.q] * 6 + [0.0, 0.0])
+    for s in range(len(u)):
+        ekf.predict(u[s][None])
+        ekf.update(z_pos[s][None], rssi[s][None])
+        x[:6] += u[s]
+        p = p + q
+        keep = np.concatenate([np.ones(6, bool), ~np.isnan(rssi[s])])
+        h = jacobian(m, x[None])[0][keep]
+        r = np.diag(np.array([m.r_pos] * 6 + [m.r_rssi] * 3)[keep])
+        k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r)
+        x = x + k @ (np.concatenate([z_pos[s], rssi[s]])[keep] - measure(m, x[None])[0][keep])
+        i_kh = np.eye(8) - k @ h
+        p = i_kh @ p @ i_kh.T + k @ r @ k.T
+        assert np.abs(ekf.x[0] - x).max() < 1e-9 and np.abs(ekf.p[0] - p).max() < 1e-9, s
+
+
+def test_s4_ekf_matches_filterpy_over_a_seeded_run() -> None:
+    kalman = pytest.importorskip("filterpy.kalman")
+    m, x0, u, z_pos, rssi = _seeded_s4_run()
+    ekf = BeaconEkf(m, x0[None], np.eye(8))
+    ref = kalman.ExtendedKalmanFilter(dim_x=8, dim_z=9, dim_u=6)
+    ref.x = x0.reshape(8, 1).copy()
+    ref.P = np.eye(8)
+    ref.B = np.vstack([np.eye(6), np.zeros((2, 6))])
+    ref.Q = np.diag([m.q] * 6 + [0.0, 0.0])
+    ref.R = np.diag([m.r_pos] * 6 + [m.r_rssi] * 3)
+    for s in range(len(u)):
+        ekf.predict(u[s][None])
+        ekf.update(z_pos[s][None], rssi[s][None])
+        ref.predict(u[s].reshape(6, 1))
+        ref.update(np.concatenate([z_pos[s], rssi[s]]).reshape(9, 1), lambda x: jacobian(m, x.reshape(1, 8))[0],
+                   lambda x: measure(m, x.reshape(1, 8))[0].reshape(9, 1))
+        assert np.abs(ekf.x[0] - ref.x[:, 0]).max() < 1e-9 and np.abs(ekf.p[0] - ref.P).max() < 1e-9, s
+
+
 def test_circle_initializer_finds_the_beacon_from_exact_ranges() -> None:
     m = S4Model()
     init = CircleInitializer(m, 1, n_init=5)

@@ -94,12 +94,29 @@ def _observation(model: S4Model, z_pos: np.ndarray, rssi: np.ndarray) -> tuple[n
 
 
 class BeaconEkf:
-    """Extended Kalman filter over K beacons at once."""
+    """Extended Kalman filter over K beacons at once.
+
+    The step is written for its fixed shapes: H's constant identity block, R and I are built
+    once (per K), h(x) and its Jacobian come from one shared difference, and the rest is
+    a handful of batched matrix products, because at K = 1 numpy's per-call overhead, not
+    arithmetic, is the cost (bench/estimation_bench.py). The x and p attributes stay plain
+    arrays a caller may replace (s4_air grows K).
+    """
 
     def __init__(self, model: S4Model, x0: np.ndarray, p0: np.ndarray) -> None:
         self.model = model
         self.x = np.array(x0, float).reshape(-1, model.size)
         self.p = np.broadcast_to(p0, (len(self.x), model.size, model.size)).copy()
+        q, r = _noise(model, model.nominal_dt)
+        self._q_nominal = q
+        self._r = r
+        self._r_diag = np.diag(r)
+        self._eye = np.eye(model.size)
+        self._h = np.zeros((0, len(r), model.size))  # Jacobian buffer, sized per K on first use
+        self._slope = -10 * model.n / LN10  # as in jacobian()
+        rd = model.receivers * model.dim
+        self._g_rows = rd + np.repeat(np.arange(model.receivers), model.dim)
+        self._g_cols = np.arange(rd)
 
     @property
     def beacon(self) -> np.ndarray:
@@ -108,22 +125,37 @@ class BeaconEkf:
     def predict(self, u: np.ndarray, dt: float | None = None) -> None:
         """u: receiver displacements (K, M·D) since the last step."""
         m = self.model
-        q, _ = _noise(m, m.nominal_dt if dt is None else dt)
+        q = self._q_nominal if dt is None else _noise(m, dt)[0]
         self.x[:, : m.receivers * m.dim] += np.asarray(u, float).reshape(len(self.x), -1)
         self.p += q
+
+    def _jacobian_buffer(self, k: int) -> np.ndarray:
+        if self._h.shape[0] != k:
+            rd = self.model.receivers * self.model.dim
+            self._h = np.zeros((k, len(self._r), self.model.size))
+            self._h[:, :rd, :rd] = np.eye(rd)
+        return self._h
 
     def update(self, z_pos: np.ndarray, rssi: np.ndarray) -> None:
         """z_pos: measured receiver positions (K, M·D); rssi: (K, M), NaN where not heard."""
         m = self.model
-        z, present = _observation(m, z_pos, rssi)
-        _, r = _noise(m, m.nominal_dt)
-        h = jacobian(m, self.x) * present[:, :, None]
-        y = (z - measure(m, self.x)) * present
-        s = h @ self.p @ h.transpose(0, 2, 1) + np.diag(r)
-        k = np.linalg.solve(s, h @ self.p).transpose(0, 2, 1)  # P Hᵀ S⁻¹ (S, P symmetric)
-        self.x += np.einsum("kij,kj->ki", k, y)
-        i_kh = np.eye(m.size) - k @ h
-        self.p = i_kh @ self.p @ i_kh.transpose(0, 2, 1) + k @ (r[:, None] * k.transpose(0, 2, 1))  # Joseph form
+        x, k, rd, mr = self.x, len(self.x), m.receivers * m.dim, m.receivers
+        rssi = np.asarray(rssi, float).reshape(k, mr)
+        heard = rssi == rssi  # not NaN
+        diff = x[:, :rd].reshape(k, mr, m.dim) - x[:, None, rd:]
+        dist2 = np.maximum((diff * diff).sum(axis=2) + m.height_m**2, 1e-6)  # as measure()/jacobian() clamp
+        y = np.empty((k, len(self._r)))
+        y[:, :rd] = np.asarray(z_pos, float).reshape(k, rd) - x[:, :rd]
+        y[:, rd:] = np.where(heard, rssi - (m.p0_dbm - 5 * m.n * np.log10(dist2)), 0.0)
+        g = diff * (heard * self._slope / dist2)[:, :, None]  # unheard: a zero row
+        h = self._jacobian_buffer(k)
+        h[:, self._g_rows, self._g_cols] = g.reshape(k, rd)  # ∂rssi_i/∂p_i: block diagonal
+        h[:, rd:, rd:] = -g
+        hp = h @ self.p
+        kt = np.linalg.solve(hp @ h.transpose(0, 2, 1) + self._r_diag, hp)  # Kᵀ = S⁻¹ H P (S, P symmetric)
+        x += (y[:, None, :] @ kt)[:, 0]
+        p = self.p - kt.transpose(0, 2, 1) @ hp  # P − K S Kᵀ, the Joseph form's value at the optimal gain
+        self.p = 0.5 * (p + p.transpose(0, 2, 1))  # kept exactly symmetric
 
 
 class BeaconUkf:
