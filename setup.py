@@ -20,8 +20,11 @@ from pathlib import Path
 
 from setuptools import Extension, find_namespace_packages, setup
 
+# src/rfhoming/ is the link in a checkout and the copied folder in an sdist; in a checkout made
+# without links it is a plain file, and rfhoming/_links.py is the one there to say so.
+LINKS = [p for p in (Path(__file__).parent / d / "_links.py" for d in ("src/rfhoming", "rfhoming")) if p.is_file()][0]
 try:  # a checkout without symlinks would build an empty wheel: say what to set instead
-    runpy.run_path(str(Path(__file__).parent / "src" / "rfhoming" / "_links.py"))["check"]()
+    runpy.run_path(str(LINKS))["check"]()
 except ImportError as exc:
     raise SystemExit(f"error: {exc}") from None
 

@@ -31,8 +31,13 @@ More targets, each fed random, mutated and structure-aware input the same way:
   readings and counters are the same in any chunking;
 - ``cref``: the C reference (tests/rfh_harness.c, built here) against FrameDecoder, frame end by
   frame end, on near-limit frames, log_text bodies, mutated frames and random bytes;
-- ``config``, ``site``, ``points``: the TOML readers on random, mutated and retyped files: only
-  the project's Error may come out (``escaped.<type>`` counts the rest by type);
+- ``config``, ``site``, ``points``, ``profile``: the TOML readers (the last: radio profiles, from
+  the shipped measured one) on random, mutated and retyped files, values among them nested 1,000
+  deep and 400-digit numbers: only the project's Error may come out (``escaped.<type>`` counts
+  the rest by type);
+- ``truth``: the ground-truth (waypoint CSV) reader, with a site's area, on random, mutated and
+  retyped files (waypoints 10^10 m away, times 10^15 ms apart or backwards, 400-digit numbers,
+  UTF-16 and Latin-1 text): only the project's Error may come out;
 - ``sitebus``: a site worker's drain (host/sitebus.py: the angle-batch decoder, then numpy and the
   batched engine) on one message between two good batches: random bytes, mutated batches
   (versions 1 and 2), and hostile JSON (nesting to 100,000 levels, numbers of up to 20,000 digits,
@@ -53,6 +58,7 @@ More targets, each fed random, mutated and structure-aware input the same way:
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import os
@@ -62,6 +68,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -712,6 +719,7 @@ class CrefTarget:
 # -- file readers: only the project's Error (or CaptureFormatError) may come out -------------
 SITE = (ROOT / "docs/sites/kit-room.toml").read_bytes()
 POINTS = (ROOT / "docs/sites/kit-room-points.toml").read_bytes()
+PROFILE = (ROOT / "protocol/profiles/measured.toml").read_bytes()
 def _config_sample() -> bytes:
     """The documented default config (every section and key), comments dropped (they only feed
     the TOML parser), with device tables and anchors: a file the reader accepts, so mutations
@@ -728,7 +736,8 @@ def _config_sample() -> bytes:
 
 CONFIG = _config_sample()
 TOML_VALUES = (b"1", b"-1", b"0.5", b"1e400", b"nan", b"inf", b"true", b'"x"', b"[1, 2, 3]", b"[]", b"{}",
-               b'{a = 1}', b"[1, 2]", b'"\\u0000"', b"1979-05-27", b"[[1]]")
+               b'{a = 1}', b"[1, 2]", b'"\\u0000"', b"1979-05-27", b"[[1]]", b"9" * 400, b"-" + b"9" * 400,
+               b"[" * 1000 + b"]" * 1000, b"{a = " * 100 + b"1" + b"}" * 100)
 
 
 def toml_input(rng: random.Random, kind: str, sample: bytes) -> bytes:
@@ -746,19 +755,47 @@ def toml_input(rng: random.Random, kind: str, sample: bytes) -> bytes:
     return b"\n".join(lines)
 
 
-class FilesTarget:
-    """config, site and points files: any bytes in the file give a result or the project's
-    Error (a one-line message), nothing else."""
+TRUTH = (b"arrival_ms,leave_ms,x_cm,y_cm\n1670598717410,NaN,240,480\n1670598719949,NaN,240,360\n"
+         b"1670598722480,1670598723480,240,240\n1670598724965,NaN,360,120\n1670598727811,NaN,600,120\n")
+"""A waypoint file of the layout of girolami_xplr_aoa/ground_truth/*.csv (ms, ms, cm, cm), inside kit-room."""
+TRUTH_VALUES = (b"NaN", b"nan", b"inf", b"-1", b"0", b"1e10", b"1e12", b"1e15", b"1670598717410", b"9" * 400, b"",
+                b"x", b"\xff", b'"1,2"', b"1e999", b"-0")
 
-    def __init__(self, name: str, sample: bytes, load: Callable[[Path], Any], ok: tuple[type, ...] = ()) -> None:
-        self.name, self.sample, self.load, self.ok = name, sample, load, ok
+
+def truth_input(rng: random.Random, kind: str, sample: bytes) -> bytes:
+    if kind != "structure":
+        return toml_input(rng, kind, sample)
+    rows = [row.split(b",") for row in sample.split(b"\n")]
+    for _ in range(rng.randint(1, 3)):  # a field of another size or sign, a row moved, repeated or dropped
+        row = rows[rng.randrange(1, len(rows) - 1)]
+        edit = rng.random()
+        if edit < 0.6 and len(row) == 4:
+            row[rng.randrange(4)] = rng.choice(TRUTH_VALUES)
+        elif edit < 0.8:
+            rows.insert(rng.randrange(1, len(rows)), list(row))
+        elif len(rows) > 2:
+            rows.pop(rng.randrange(1, len(rows) - 1))
+    text = b"\n".join(b",".join(row) for row in rows)
+    if rng.random() < 0.1:  # another encoding of the same rows (a Latin-1 header with its accent, as Excel saves it)
+        encoding = rng.choice(("utf-16", "utf-16-le", "utf-8-sig", "latin-1"))
+        text = text.decode("latin-1").replace("arrival_ms", "arrivée_ms").encode(encoding, errors="replace")
+    return text
+
+
+class FilesTarget:
+    """config, site, points, profile and ground-truth files: any bytes in the file give a result or
+    the project's Error (a one-line message), nothing else."""
+
+    def __init__(self, name: str, sample: bytes, load: Callable[[Path], Any], ok: tuple[type, ...] = (),
+                 make: Callable[[random.Random, str, bytes], bytes] = toml_input) -> None:
+        self.name, self.sample, self.load, self.ok, self.make = name, sample, load, ok, make
         # The reader opens a real file each time; on tmpfs that costs 0.03 ms, not the 0.5-3 ms
         # of the disk's file system (most of what an input cost).
         shm = "/dev/shm" if os.access("/dev/shm", os.W_OK) else None
         self.path = Path(tempfile.mkdtemp(dir=shm)) / f"fuzz-{name}.toml"
 
     def one(self, rng: random.Random, kind: str, c: Counts, examples: list[str]) -> None:
-        data = toml_input(rng, kind, self.sample)
+        data = self.make(rng, kind, self.sample)
         self.path.write_bytes(data)
         c.add("streams")
         try:
@@ -789,6 +826,25 @@ def _site(path: Path) -> Any:
     from rfhoming.host import site
 
     return site.load(path)
+
+
+def _profile(path: Path) -> Any:
+    from rfhoming.protocol import radio_profile
+
+    return radio_profile.load(path)
+
+
+@functools.cache
+def _site_area() -> tuple[float, float, float, float]:
+    from rfhoming.host import groundtruth, site
+
+    return groundtruth.area_of(a.position for a in site.parse(tomllib.loads(SITE.decode())).anchors)
+
+
+def _truth(path: Path) -> Any:
+    from rfhoming.host import groundtruth
+
+    return groundtruth.load_waypoints(path, _site_area())
 
 
 def _capture(path: Path) -> Any:
@@ -939,6 +995,7 @@ TARGETS: dict[str, Any] = {
     "h4": H4Target(), "ad": AdTarget(), "hci": HciDriverTarget(), "cref": CrefTarget(),
     "config": FilesTarget("config", CONFIG, _config), "site": FilesTarget("site", SITE, _site),
     "points": FilesTarget("points", POINTS, _points), "sitebus": SitebusTarget(),
+    "profile": FilesTarget("profile", PROFILE, _profile), "truth": FilesTarget("truth", TRUTH, _truth, make=truth_input),
 }
 
 

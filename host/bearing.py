@@ -47,3 +47,8 @@ class Bearing(NamedTuple):
         XPLR-AOA's own, docs/protocol.md "The angle event")."""
         return 0.0 - self.azimuth_deg  # 0.0 - x: no -0.0 at the boresight
 
+
+def wrap(azimuth: float) -> float:
+    """An angle in radians onto (-pi, pi]."""
+    a = math.remainder(azimuth, math.tau)
+    return math.pi if a == -math.pi else a

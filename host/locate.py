@@ -134,15 +134,21 @@ class Locator:
         self._lost: dict[str, float] = {}  # anchor id -> host time its driver last reported it gone
         self.counters = {"events": 0, "unknown_anchor": 0, "other_tag": 0, "late": 0, "overflow": 0,
                          "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0, "restarts": 0,
-                         "disconnects": 0, "downweighted": 0}
+                         "disconnects": 0, "downweighted": 0, "outside_fov": 0}
 
     # -- input -------------------------------------------------------------------------
     def feed(self, reading: Bearing) -> list[Position]:
         """One reading (stamped with its host arrival time); the positions now due."""
         t = reading.t
-        if reading.anchor not in self.anchors:
+        anchor = self.anchors.get(reading.anchor)
+        if anchor is None:
             self.counters["unknown_anchor"] += 1
             return []
+        admitted = anchor.admit(reading)
+        if admitted is None:
+            self.counters["outside_fov"] += 1
+            return []
+        reading = admitted
         if self.wanted and reading.tag not in self.wanted:
             self.counters["other_tag"] += 1
             return []

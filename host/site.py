@@ -19,6 +19,8 @@ calibrated, and which tags to locate.
     pitch_deg = -20                   # boresight tilt, negative = down (ceiling: -90)
     roll_deg = 0
     two_sided = false                 # true when tags can be behind it (a pole, not a wall)
+    fov_deg = 180                     # the azimuths it reports (XPLR-AOA: 180; a circular array: 360)
+    elevation = true                  # false: a board that reports no elevation (its readings' is dropped)
     angle_model = "cone"              # or "spherical" (atan2 angles); `calibrate` may choose it
     [anchors.north.calibration]       # written by `rfhoming calibrate`
     yaw_offset_deg = 0.0
@@ -43,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host import outputs, portspec
+from rfhoming.host.bearing import Bearing
 from rfhoming.host.estimation.anchors3d import ANGLE_MODELS, rotation
 from rfhoming.host.portspec import PortSpecError
 from rfhoming.protocol import devices
@@ -108,10 +111,21 @@ class Anchor:
     two_sided: bool = False
     calibration: Calibration = Calibration()
     angle_model: str = "cone"
+    fov_deg: float = 180.0
+    """The azimuths it can report, centred on its boresight (degrees; 360: the whole circle)."""
+    elevation: bool = True
+    """Whether its board reports elevation (a circular array in one plane does not)."""
 
     def rotation(self) -> np.ndarray:
         """Board -> world, the calibrated yaw offset included."""
         return rotation(self.yaw_deg + self.calibration.yaw_offset_deg, self.pitch_deg, self.roll_deg)
+
+    def admit(self, reading: Bearing) -> Bearing | None:
+        """``reading`` as this anchor gives it: None outside its field of view (a board cannot
+        report that: a decoding or mapping error), its elevation dropped if it has none."""
+        if abs(reading.azimuth) > math.radians(self.fov_deg) / 2 + 1e-9:
+            return None
+        return reading if self.elevation or reading.elevation is None else reading._replace(elevation=None)
 
 
 CALIBRATION_LIMITS = {"yaw_offset_deg": (-45.0, 45.0), "az_scale": (0.5, 2.0), "az_bias_deg": (-45.0, 45.0),
@@ -200,7 +214,7 @@ def _anchor(name: str, table: Any) -> Anchor:
     if not isinstance(table, dict):
         raise SiteError(f"[{where}] must be a table")
     _check_keys(table, {"id", "port", "position", "yaw_deg", "pitch_deg", "roll_deg", "two_sided", "calibration",
-                        "angle_model"}, where)
+                        "angle_model", "fov_deg", "elevation"}, where)
     anchor_id = table.get("id")
     if not isinstance(anchor_id, str) or not 0 < len(anchor_id) <= 30:
         raise SiteError(f"[{where}] needs id = \"<its +UUDF anchor id>\" (1-30 characters; by default the board's MAC)")
@@ -228,12 +242,13 @@ def _anchor(name: str, table: Any) -> Anchor:
     if model not in ANGLE_MODELS:
         raise SiteError(f"[{where}] angle_model = {model!r}: expected \"spherical\" (atan2 angles) or \"cone\" "
                         "(direction cosines of the array's axes; docs/estimation.md)")
-    two_sided = table.get("two_sided", False)
-    if not isinstance(two_sided, bool):
-        raise SiteError(f"[{where}] two_sided must be true or false")
+    two_sided, elevation = table.get("two_sided", False), table.get("elevation", True)
+    if not isinstance(two_sided, bool) or not isinstance(elevation, bool):
+        raise SiteError(f"[{where}] two_sided and elevation must be true or false")
     return Anchor(name, anchor_id, None if port is None else str(port), tuple(float(v) for v in pos),  # type: ignore[arg-type]
                   _number(table, "yaw_deg", where, 0.0, -360, 360), _number(table, "pitch_deg", where, 0.0, -90, 90),
-                  _number(table, "roll_deg", where, 0.0, -180, 180), two_sided, calibration, model)
+                  _number(table, "roll_deg", where, 0.0, -180, 180), two_sided, calibration, model,
+                  _number(table, "fov_deg", where, 180.0, 1, 360), elevation)
 
 
 def _tag(tag_id: str, table: Any) -> TagInfo:

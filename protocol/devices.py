@@ -72,6 +72,18 @@ class Board:
 
 
 @dataclass(frozen=True)
+class Reports:
+    """What a kind's readings carry (``rfhoming devices --kinds``): a new AoA board's record says
+    which azimuths it reports, whether elevation and RSSI, and how often."""
+
+    readings: str  # what its driver puts out, in words
+    azimuth_deg: tuple[float, float] | None = None  # an AoA board's azimuths (degrees, REP 103)
+    elevation: bool = False
+    rssi: bool = False
+    rate: str = ""  # how often, with its source
+
+
+@dataclass(frozen=True)
 class Role:
     """A place a device takes in a homing run: its command-line option and the kind it defaults to."""
 
@@ -129,6 +141,7 @@ class DeviceKind:
     aliases: tuple[str, ...] = ()
     emulated_as: str | None = None  # how the emulator serves a kind that is no board of a scenario
     default_where: str | None = None  # a kind reached by settings, not a path: WHERE when none is given
+    reports: Reports = Reports("")  # what its readings carry
     brakes: bool = False  # a base with a brake mode (emergency deceleration) the loop can switch on; a base
     # without one sheds speed at its normal deceleration, so the loop bounds its speed (host/homing/loop.py)
 
@@ -143,35 +156,46 @@ KINDS: dict[str, DeviceKind] = {k.name: k for k in (
     DeviceKind("xplr-aoa", "u-blox XPLR-AOA direction-finding kit (u-connectLocate)", "uconnect",
                {**s.SERIAL, "tags": s.tags}, "rfhoming.host.drivers.aoa:AoaDriver",
                (Board("xplr-aoa", "rfhoming.firmware.xplr_aoa:XplrAoaFirmware", f"{EMULATOR}:AoaRunner", "xplr"),),
-               ("aoa", "anchor"), 20.0, USB_XPLR_AOA, sniff=20, rtscts=True, aliases=("ublox-aoa",)),
+               ("aoa", "anchor"), 20.0, USB_XPLR_AOA, sniff=20, rtscts=True, aliases=("ublox-aoa",),
+               reports=Reports("bearings (+UUDF)", (-90.0, 90.0), elevation=True, rssi=True,
+                               rate="one per tag advertisement: 20 ms (1.x tags, assumed) or 50-1000 ms (2.x); "
+                                    "at most about 180 a second on a 115200 Bd link (docs/hardware.md, section 6)")),
     DeviceKind("rss-node", "rfhoming node firmware: ESP32 BLE scanner or STM32 + AT86RF212 four-dish node",
                "frames", s.SERIAL, "rfhoming.host.drivers.rss:RssDriver",
                (Board("esp32", "rfhoming.firmware.esp32_scanner:Esp32ScannerFirmware", f"{EMULATOR}:Esp32Runner", "ble"),
                 Board("at86rf212", "rfhoming.firmware.at86rf212_node:At86rf212NodeFirmware", f"{EMULATOR}:RssRunner", "subghz")),
-               ("rss", "ble"), 5.0, USB_ESP32, sniff=10, aliases=("rss",)),
+               ("rss", "ble"), 5.0, USB_ESP32, sniff=10, aliases=("rss",),
+               reports=Reports("BLE RSSI (ESP32) or four dishes' sub-GHz RSSI (AT86RF212)", rssi=True,
+                               rate="one per advertisement heard, or per antenna set")),
     DeviceKind("esp-at", "ESP32 with Espressif's ESP-AT firmware (BLE scan)", "esp-at", {**s.SERIAL, **s.SCAN},
                "rfhoming.host.drivers.espat:EspAtDriver",
                (Board("esp-at", "rfhoming.firmware.esp_at:EspAtFirmware", f"{EMULATOR}:EspAtRunner", "ble"),),
-               ("ble",), 5.0, USB_ESP32),
+               ("ble",), 5.0, USB_ESP32,
+               reports=Reports("BLE RSSI (+BLESCAN)", rssi=True, rate="one per advertisement heard in a scan window")),
     DeviceKind("hci", "Bluetooth controller through a bumble transport (HCI advertising reports)", "h4",
                {"name": s.name, "timeout": s.seconds, **s.SCAN, **s.HCI_SCAN}, "rfhoming.host.drivers.hci:HciDriver",
                (Board("hci", "rfhoming.firmware.hci_controller:HciControllerFirmware", f"{EMULATOR}:HciRunner", "ble"),),
-               ("ble",), 5.0, None, extra="hci"),
+               ("ble",), 5.0, None, extra="hci",
+               reports=Reports("BLE RSSI (HCI advertising reports)", rssi=True,
+                               rate="one per advertisement heard in a scan window")),
     DeviceKind("base", "rfhoming robot base (velocity commands, odometry, range scans)", "frames", s.SERIAL,
                "rfhoming.host.drivers.robot_base:BaseDriver",
                (Board("base", "rfhoming.firmware.robot_base:RobotBaseFirmware", f"{EMULATOR}:BaseRunner"),),
-               ("base",), 5.0, USB_STM32, commanded=True, aliases=("robot-base",), brakes=True),
+               ("base",), 5.0, USB_STM32, commanded=True, aliases=("robot-base",), brakes=True,
+               reports=Reports("odometry and range scans; takes velocity commands")),
     DeviceKind("ros2", "a ROS 2 robot base over DDS (nav_msgs/Odometry, sensor_msgs/LaserScan in; "
                "geometry_msgs/Twist out); WHERE is its namespace", "ros2",
                {"name": s.name, "timeout": s.seconds, **s.ROS2},
                "rfhoming.host.drivers.ros2_base:Ros2BaseDriver", (), ("base",), 10.0, None,
-               commanded=True, extra="ros2", emulated_as="rfhoming emulate SCENARIO --robot ros2", default_where="/"),
+               commanded=True, extra="ros2", emulated_as="rfhoming emulate SCENARIO --robot ros2", default_where="/",
+               reports=Reports("odometry and laser scans; takes velocity commands")),
     DeviceKind("mavlink", "a MAVLink vehicle (ArduPilot Rover or Copter, PX4) in GUIDED/OFFBOARD; WHERE is a "
                "pymavlink connection string (udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, a serial device)",
                "mavlink", {"name": s.name, "timeout": s.seconds, "baud": s.baud, **s.MAVLINK},
                "rfhoming.host.drivers.mavlink_base:MavlinkBaseDriver", (), ("base",), 10.0, None,
                commanded=True, extra="mavlink",
-               emulated_as="rfhoming emulate SCENARIO --robot mavlink"),  # brakes: no (docs/protocol.md)
+               emulated_as="rfhoming emulate SCENARIO --robot mavlink",  # brakes: no (docs/protocol.md)
+               reports=Reports("the vehicle's position and attitude; takes guided setpoints")),
 )}
 
 BOARDS: dict[str, tuple[DeviceKind, Board]] = {b.name: (k, b) for k in KINDS.values() for b in k.boards}

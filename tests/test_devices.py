@@ -143,3 +143,24 @@ def test_a_new_kind_needs_only_its_record(monkeypatch, tmp_path: Path) -> None:
     assert recorded_kind(load_capture(tmp_path / "p.pcapng")[0][0]) is record
     with pytest.raises(portspec.PortSpecError, match="unknown device kind 'probe-nod'"):
         portspec.parse("probe-nod:/dev/ttyUSB7")
+
+
+def test_devices_kinds_says_what_each_kind_reports(capsys) -> None:
+    """``rfhoming devices --kinds``: every kind, and an AoA board's azimuths, elevation and rate
+    (a kind that fills the anchor role must say them: a site's field of view rests on them)."""
+    import json
+
+    from rfhoming.cli.main import main
+
+    for name in KINDS:
+        r = devices.KINDS[name].reports
+        assert r.readings, name
+        if "anchor" in devices.KINDS[name].roles:
+            assert r.azimuth_deg is not None and r.rate, name
+    assert main(["devices", "--kinds", "--json"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [x["kind"] for x in lines] == [*devices.KINDS, "angles"]
+    assert lines[0]["azimuth_deg"] == [-90.0, 90.0] and lines[0]["elevation"] is True
+    assert lines[-1]["azimuth_deg"] == [-180.0, 180.0]
+    assert main(["devices", "--kinds"]) == 0
+    assert "xplr-aoa   bearings (+UUDF); azimuth -90..90 deg, elevation yes; RSSI" in capsys.readouterr().out

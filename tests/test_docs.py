@@ -9,9 +9,11 @@ Rules, so that a reader can trust an example (docs/api.md says the same for user
 - ``pip install`` lines must install this project (``.`` or ``'.[extra]'``); they are checked,
   not re-run: the suite runs on that installation. The test command itself (README) is checked
   to be the one .ci/run runs, not run inside itself.
-- A comment line ``<!-- long-running -->`` right before a block: each command must still be
-  running (or have succeeded) after a few seconds; it is then terminated (servers, campaigns,
-  benchmarks: their results are checked by their own tests and recorded in docs/).
+- A comment line ``<!-- long-running -->`` right before a block: each command is judged by what it
+  prints, not by a wall clock: the lines the doc shows after ``$ CMD``, else its first output (on
+  stdout or stderr), each waited for up to TIMEOUT_S, or its successful end; it is then terminated
+  (servers, campaigns, benchmarks: their results are checked by their own tests and recorded in
+  docs/) and must not have printed a traceback.
 - ``<!-- not-run: needs ... -->`` right before a block: not run, for what the machine cannot
   have (hardware, a cluster); the reason must say what is needed. ``<!-- needs-hardware -->``
   is short for ``not-run: needs hardware``.
@@ -27,6 +29,7 @@ from __future__ import annotations
 import fnmatch
 import os
 import re
+import selectors
 import shlex
 import shutil
 import signal
@@ -42,7 +45,6 @@ import rigs
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 FENCE = re.compile(r"(?:^<!-- (?P<mark>[^>]*?) -->\n)?^```(?P<lang>python|sh)\n(?P<body>.*?)^```$", re.M | re.S)
-LONG_S = 6.0
 TIMEOUT_S = 600.0  # a hang guard: a long example on a loaded machine is slow, not wrong
 
 
@@ -111,6 +113,15 @@ def matches(expected: list[str], got: list[str]) -> bool:
     return fnmatch.fnmatchcase("\n".join(got).strip(), pattern.strip())
 
 
+def printed(proc: subprocess.Popen[str], deadline_s: float) -> bool:
+    """Whether ``proc`` prints something (stdout or stderr: left unread in its pipes) or ends within the deadline."""
+    with selectors.DefaultSelector() as pipes:
+        for pipe in (proc.stdout, proc.stderr):
+            assert pipe is not None
+            pipes.register(pipe, selectors.EVENT_READ)
+        return bool(pipes.select(deadline_s)) or proc.poll() is not None
+
+
 def run_sh(body: str, cwd: Path, long: bool) -> None:
     lines = body.splitlines()
     background: list[subprocess.Popen] = []
@@ -147,9 +158,8 @@ def run_sh(body: str, cwd: Path, long: bool) -> None:
                 assert matches(expected, got), f"{command!r} printed {got}, the doc shows {expected}"
                 if command.endswith("&"):
                     continue
-                try:
-                    proc.wait(timeout=LONG_S)
-                except subprocess.TimeoutExpired:
+                assert expected or printed(proc, TIMEOUT_S), f"{command!r} printed nothing within {TIMEOUT_S:g} s"
+                if proc.poll() is None:
                     os.killpg(proc.pid, signal.SIGTERM)
                 out, err = proc.communicate(timeout=60)
                 assert proc.returncode in (0, -signal.SIGTERM, 128 + signal.SIGTERM) and "Traceback" not in err, \

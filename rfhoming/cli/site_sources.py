@@ -1,6 +1,6 @@
 """A site's anchors as one stream of bearing readings (host/bearing.py): what ``locate``,
 ``calibrate``, ``radio-fit`` and ``gateway`` open and read (the site file's ports, or --from /
---device specs, or captures)."""
+--device specs, or captures, or angles files)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from typing import Any
 
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
+from rfhoming.host.angles_file import AnglesFileError, load_angles
 from rfhoming.host.bearing import Bearing
 from rfhoming.host.drivers.aoa import replayed_without_set_up
 from rfhoming.host.drivers.common import BoundedStream, Driver
@@ -23,6 +24,9 @@ from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.errors import Error
 
 log = logging.getLogger(__name__)
+
+ANGLES = "angles:"
+"""A --from source that is an angles file, not a port spec."""
 
 
 def load_site(path: Path, command: str) -> sites.Site | None:
@@ -52,7 +56,35 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
     board's own item it came from, for exports that show the board's fields), and tell
     ``on_lost`` the anchor ids of a device that went away; ``capture_to``: also record every
     byte there; ``counters``: print each device's counters on stderr at the end (losses are
-    warned of either way). 2 on a port/capture error, said in one line naming ``command``."""
+    warned of either way). ``angles:FILE`` sources are angles files (host/angles_file.py), read
+    whole and fed in time order. 2 on a port/capture/file error, said in one line naming ``command``."""
+    by_id = site.anchor_by_id()
+    refused: dict[str, int] = {}
+
+    def admit(reading: Bearing) -> None:  # an anchor the site does not know: the consumers count it
+        anchor = by_id.get(reading.anchor)
+        admitted = reading if anchor is None else anchor.admit(reading)
+        if admitted is not None:
+            on_angle(admitted)
+        elif anchor is not None:
+            refused[anchor.name] = refused.get(anchor.name, 0) + 1
+
+    try:
+        files = [s.removeprefix(ANGLES) for s in sources or [] if s.startswith(ANGLES)]
+        if files:
+            return _from_files(command, site, files, len(files) != len(sources or []), admit)
+        return await _from_devices(command, site, sources, admit, on_lost, baud=baud, flow=flow, duration=duration,
+                                   capture_to=capture_to, counters=counters, on_item=on_item)
+    finally:
+        if refused:
+            print(f"rfhoming {command}: readings outside their anchor's field of view (fov_deg in the site file) "
+                  f"refused: " + ", ".join(f"{n} {k}" for n, k in sorted(refused.items())), file=sys.stderr)
+
+
+async def _from_devices(command: str, site: sites.Site, sources: list[str] | None, on_angle: Callable[[Bearing], None],
+                        on_lost: Callable[[float, set[str]], None], *, baud: int | None, flow: str | None,
+                        duration: float | None, capture_to: Path | None, counters: bool,
+                        on_item: Callable[[float, Any], None] | None) -> int:
     specs = _specs(site, sources)
     capture = CaptureWriter(capture_to) if capture_to else None
     try:
@@ -105,6 +137,23 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
         if capture is not None:
             capture.close()
             print(capture.said(), file=sys.stderr)
+    return 0
+
+
+def _from_files(command: str, site: sites.Site, files: list[str], mixed: bool,
+                on_angle: Callable[[Bearing], None]) -> int:
+    if mixed:
+        print(f"rfhoming {command}: --from {ANGLES}FILE cannot be mixed with ports or captures: give only angles "
+              "files (or render the others into one)", file=sys.stderr)
+        return 2
+    ids = {a.id for a in site.anchors}
+    try:
+        readings = sorted((r for f in files for r in load_angles(Path(f), ids)), key=lambda r: r.t)
+    except AnglesFileError as exc:
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return 2
+    for reading in readings:
+        on_angle(reading)
     return 0
 
 

@@ -26,8 +26,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.rate:
         site = replace(site, rate_hz=args.rate)
-    if args.smooth and not (args.sources and all(s.startswith("capture:") for s in args.sources)):
-        print("rfhoming locate: --smooth needs a whole recording (--from capture:FILE); a live run stays causal",
+    if args.smooth and not (args.sources and all(s.startswith(("capture:", "angles:")) for s in args.sources)):
+        print("rfhoming locate: --smooth needs a whole recording (--from capture:FILE or angles:FILE); a live run "
+              "stays causal",
               file=sys.stderr)
         return 2
     print(f"rfhoming locate: {_calibration_in_use(site)}", file=sys.stderr)

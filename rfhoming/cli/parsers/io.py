@@ -60,7 +60,10 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p = sub.add_parser("devices", help="list serial ports and what each seems to be",
                        description="List the serial ports this machine sees and what each probably is, from "
                                    "its USB ids (the XPLR-AOA's FTDI bridge, ESP32 bridges, ST's VCP).")
-    p.add_argument("--json", action="store_true", help="one JSON object per port")
+    p.add_argument("--json", action="store_true", help="one JSON object per port (or kind)")
+    p.add_argument("--kinds", action="store_true",
+                   help="list the device kinds and what each reports instead (AoA boards: azimuths, elevation, "
+                        "RSSI, rate)")
     p.set_defaults(func=command("devices"))
 
     for name, helptext in (("listen", "show live decoded records from devices"),

@@ -39,6 +39,7 @@ examples:
   rfhoming locate site.toml --duration 30 --capture run.pcapng
   rfhoming locate site.toml --from capture:run.pcapng      # the same positions, from the capture
   rfhoming locate site.toml --from capture:run.pcapng --smooth --loss cauchy   # after the fact
+  rfhoming locate site.toml --from angles:angles.csv       # any board's angles (docs/usage.md, "An angles file")
   rfhoming locate site-64x1000 --from mqtt://127.0.0.1:1883/8 --id w1      # a site worker (below)
 
 the kit room of docs/sites, emulated (its first line printed, every link exists):
@@ -86,6 +87,7 @@ examples:
   rfhoming calibrate site.toml --points points.toml --from capture:cal.pcapng --dry-run
   rfhoming calibrate site.toml --points points.toml --azimuth-only --from capture:cal.pcapng
   rfhoming calibrate site.toml --self --from capture:walk1.pcapng --from capture:walk2.pcapng
+  rfhoming calibrate site.toml --self --from angles:walk1.csv --from angles:walk2.csv
 """
 
 
@@ -106,6 +108,7 @@ examples:
   rfhoming radio-fit site.toml --from capture:walk1.pcapng --truth walk1.csv -o room.toml
   rfhoming radio-fit site.toml --from capture:a.pcapng --truth a.csv --from capture:b.pcapng --truth b.csv -o room.toml
   rfhoming radio-fit site.toml --from capture:walk.pcapng -o room.toml      (no ground truth)
+  rfhoming radio-fit site.toml --from angles:walk.csv --truth walk.csv -o room.toml
 then rehearse with it: --radio room.toml on emulate, demo or campaign.
 """
 
@@ -148,7 +151,8 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         p = sub.add_parser(name, help=helptext, description=description, formatter_class=raw)
         p.add_argument("site", type=path, help="site file (TOML): anchors, their poses and ports, tags")
         p.add_argument("--from", dest="sources", type=from_spec, action="append", metavar="SPEC",
-                       help="read these ports instead of the site's (repeatable), e.g. capture:run.pcapng")
+                       help="read these ports instead of the site's (repeatable), e.g. capture:run.pcapng, "
+                            "or angles files: angles:FILE (CSV or JSON lines, docs/usage.md)")
         p.add_argument("--duration", type=duration, help="stop after this many seconds (a capture ends by itself)")
         add_port_defaults(p)
         if name == "locate":
@@ -202,7 +206,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
                        description=RADIO_FIT_HELP, formatter_class=raw)
     p.add_argument("site", type=path, help="site file (TOML): the anchors as mounted, and the walked tag's height")
     p.add_argument("--from", dest="sources", type=nonempty, action="append", required=True, metavar="SPEC",
-                   help="a recording of the anchors (repeatable), e.g. capture:walk1.pcapng")
+                   help="a recording of the anchors (repeatable), e.g. capture:walk1.pcapng or angles:walk1.csv")
     p.add_argument("--truth", type=nonempty, action="append", default=[], metavar="FILE",
                    help="the waypoint file of the --from at the same place in the order (repeatable; none: "
                         "that recording stands in for its own truth)")
