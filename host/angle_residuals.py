@@ -82,7 +82,7 @@ def residuals(site: Site, events: Iterable[tuple[float, AngleEvent]], path: Walk
     by_anchor: dict[str, list[tuple[float, int, int, int]]] = {}
     names = {a.id: a for a in site.anchors}
     for t, e in events:
-        if e.anchor_id in names and (tag is None or e.instance_id == tag) and path.start_s <= t <= path.end_s:
+        if e.anchor_id in names and (tag is None or e.instance_id == tag) and path.start_s <= t <= path.last_s:
             by_anchor.setdefault(e.anchor_id, []).append((t, e.azimuth, e.elevation, e.rssi1))
     out = {}
     for anchor_id, rows in by_anchor.items():

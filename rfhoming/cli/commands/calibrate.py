@@ -77,8 +77,9 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
         def keep(t: float, event: Any, into: list[tuple[float, Any]] = events) -> None:
             into.append((t, event))
 
-        code = asyncio.run(gather("calibrate", site, [source] if source else None, keep, baud=args.baud,
-                                  flow=args.flow, duration=args.duration, counters=args.verbose))
+        named = f"calibrate: {source}" if source else "calibrate"  # an error names the recording
+        code = asyncio.run(gather(named, site, [source] if source else None, keep, baud=args.baud, flow=args.flow,
+                                  duration=args.duration, counters=args.verbose))
         if code:
             return code
         recordings.append(events)
