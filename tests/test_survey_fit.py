@@ -10,7 +10,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 import tomlkit
 
 from rfhoming.host.angle_residuals import true_angles
@@ -29,8 +28,8 @@ SQUARE = {"site": {"name": "survey-square"},
           "tags": {TAG: {"height": 1.0}}}
 """Four beacons-as-anchors at the corners of a 12 x 12 m square, facing its middle, level with the tag."""
 
-POINTS = ((3.0, 3.0), (6.0, 3.0), (9.0, 3.0), (3.0, 6.0), (6.0, 6.0), (9.0, 6.0), (3.0, 9.0), (6.0, 9.0),
-          (9.0, 9.0), (4.5, 7.5))
+POINTS = ((2.0, 2.0), (6.0, 2.0), (10.0, 2.0), (2.0, 6.0), (6.0, 6.0), (10.0, 6.0), (2.0, 10.0), (6.0, 10.0),
+          (10.0, 10.0), (4.0, 8.0))
 DWELL_S = 120.0
 RATE_HZ = 1.0
 
@@ -96,3 +95,30 @@ def test_figures_at_the_end_of_the_fits_grid_are_warned_of() -> None:
     assert any(line.startswith("elevation.field_length_m = 0.05") for line in said)
     assert not warnings(AoaProfile(azimuth=AngleError(field_length_m=1.0, field_heading_m=1.0, slow_time_s=0.5),
                                    elevation=AngleError(field_length_m=1.0, slow_time_s=0.5)))
+
+
+def calibrate_self(site_file: Path, points: list[tuple[Path, Path]], cwd: Path) -> subprocess.CompletedProcess[str]:
+    sources = [a for capture, _ in points for a in ("--from", f"capture:{capture}")]
+    return subprocess.run([*RFHOMING, "calibrate", str(site_file), "--self", "--dry-run", *sources], cwd=cwd,
+                          capture_output=True, text=True, timeout=600, check=False)
+
+
+def test_calibrate_self_takes_a_slow_static_survey_and_says_why_it_writes_nothing(tmp_path: Path) -> None:
+    """One report a second, no elevation, each point its own capture: calibrate --self reads
+    it (each anchor's epoch window grows to hold three reports) and, the boards being true,
+    finds no parameter the ten points determine -- each held with its value and uncertainty."""
+    site_file, points = survey(tmp_path)
+    done = calibrate_self(site_file, points, tmp_path)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout.splitlines()[-1])
+    assert not summary["written"] and summary["verdict"].startswith("not written"), summary["verdict"]
+
+
+def test_calibrate_self_names_anchors_that_report_too_slowly(tmp_path: Path) -> None:
+    """A report every 5 s: no window up to 10 s holds three, and the refusal says that -- not
+    "record longer"."""
+    site_file, points = survey(tmp_path, rate_hz=0.2, points=POINTS[:4])
+    done = calibrate_self(site_file, points, tmp_path)
+    last = done.stderr.strip().splitlines()[-1]
+    assert done.returncode == 2 and "report too slowly" in last and "every 5.0 s" in last, done.stderr
+    assert "record longer" not in last
