@@ -36,6 +36,7 @@ from real_aoa import locate
 
 import rfhoming
 from rfhoming.host import site as sites
+from rfhoming.host.calibration import CalibrationError
 from rfhoming.host.groundtruth import WalkedPath, Waypoint, load_waypoints, score
 from rfhoming.host.self_calibration import self_calibrate
 from rfhoming.protocol.radio_profile import load as load_profile
@@ -116,19 +117,24 @@ def main() -> int:
         for fit_kind, judge_kind in (("carried", "walked"), ("walked", "carried")):
             events = [[(g.t, g.item) for g in rfhoming.read(f"capture:{c}", kinds={"angle"})]
                       for c, _ in kinds[fit_kind]]
-            cal = self_calibrate(site, events, progress=lambda text: print(text, end="", file=sys.stderr))
             copy = folder / f"site-{fit_kind}.toml"
             shutil.copy(site_file, copy)
-            if cal.write:
-                sites.write_calibration(copy, {f.anchor: f.calibration for f in cal.fits},
-                                        {f.anchor: f.angle_model for f in cal.fits})
+            try:
+                cal = self_calibrate(site, events, progress=lambda text: print(text, end="", file=sys.stderr))
+            except CalibrationError as exc:  # refused: the user keeps the uncalibrated site
+                written, verdict, anchors = False, f"refused: {exc}", {}
+            else:
+                written, verdict = cal.write, cal.verdict
+                anchors = {f.anchor: {"az_scale": round(f.calibration.az_scale, 3),
+                                      "az_bias_deg": round(f.calibration.az_bias_deg, 2), "sigma": f.sigma,
+                                      "model": f.angle_model} for f in cal.fits}
+                if cal.write:
+                    sites.write_calibration(copy, {f.anchor: f.calibration for f in cal.fits},
+                                            {f.anchor: f.angle_model for f in cal.fits})
             result[f"fit_{fit_kind}_locate_{judge_kind}"] = {
                 "default_m": mean_error(site_file, kinds[judge_kind]),
-                "self_calibrated_m": mean_error(copy, kinds[judge_kind]), "written": cal.write,
-                "verdict": cal.verdict,
-                "anchors": {f.anchor: {"az_scale": round(f.calibration.az_scale, 3),
-                                       "az_bias_deg": round(f.calibration.az_bias_deg, 2), "sigma": f.sigma,
-                                       "model": f.angle_model} for f in cal.fits}}
+                "self_calibrated_m": mean_error(copy, kinds[judge_kind]), "written": written,
+                "verdict": verdict, "anchors": anchors}
     result["load_after"] = os.getloadavg()[0]
     if args.json:
         print(json.dumps(result, indent=1))

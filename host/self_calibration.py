@@ -5,13 +5,18 @@ Each anchor's reported azimuth is modelled as ``scale * compress(true) + bias`` 
 as ``el_scale * true + el_bias``), fitted jointly with every epoch's tag position by a robust
 sparse least-squares fit (soft-L1). What keeps it honest on real rooms:
 
-- **Held out.** The epochs are cut into time blocks dealt into ``FOLDS`` folds; each fold is
+- **Places, not reports.** A board's error stays put at a place, so the epochs are grouped by
+  place (:func:`_clusters`: CELL_M squares; a stop is one place however long). Each
+  parameter's uncertainty is a sandwich over places (:func:`_uncertainty`).
+- **Only what the data determine.** A parameter is written only when its uncertainty is at
+  most DATA_OVER_PRIOR of its prior's (PRIOR_SD: biases toward 0, scales toward 1) and its
+  value Z_WRITE uncertainties from its default; the rest is held, its value and uncertainty
+  said. The written ones are refitted with the prior, so each shrinks as far as it is unsure.
+- **Held out, and of another kind.** The places are dealt into ``FOLDS`` folds; each fold is
   fitted on the others and scored on itself (its positions re-solved with the parameters
-  fixed). The held-out azimuth residual and ray miss (metres), before and after, decide: a
-  calibration that does not beat the uncalibrated site on unseen data is not written.
-- **Only what the data determine.** A parameter that runs to its bound, or whose fold fits
-  spread more than ``DETERMINED`` allows (a flat profile), is held at its default with the
-  reason; sigmas are the folds' jackknife spread, not a Jacobian at a bound.
+  fixed); and a fit to the walking is judged on the stops, and the reverse (:func:`_cross_kind`).
+  A calibration that does not beat the uncalibrated site on held-out places, or is worse on
+  either kind, is not written.
 - **Elevation held unless asked for** (``elevation=True``, ``--fit-elevation``). From anchors
   high on the walls a tag's elevation changes little over the room, and its bias trades
   against the tag's height and range: on real walks the fitted elevation biases were the walk's
