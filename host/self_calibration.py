@@ -569,32 +569,45 @@ def _adjust(model: _Model, ep: _Epochs, x: np.ndarray, iterations: int = 60) -> 
     return x, pos
 
 
-def _uncertainty(model: _Model, ep: _Epochs, x: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, float]:
-    """(A, 5) standard deviations of the fitted parameters (0 where held) and how many times the
-    rows' own information overstates the data (the median variance ratio): a sandwich over the
-    places (:func:`_clusters`), whose errors are correlated within, so a long stop counts as one
-    sample of its place, not hundreds of reports."""
+@dataclass(frozen=True)
+class _Posterior:
+    """What the places say of each parameter, (A, 5) tables: the mean and sd after the prior
+    (0 where held), and how many times the reports' own information overstates the places'."""
+
+    mean: np.ndarray
+    sd: np.ndarray
+    overstated: float
+
+
+def _posterior(model: _Model, ep: _Epochs, x: np.ndarray, pos: np.ndarray) -> _Posterior:
+    """The fit ``x`` (no prior) shrunk, parameter by parameter, by the prior (PRIOR_SD), each
+    one's variance from a sandwich over the places (:func:`_clusters`) -- their errors are
+    correlated within, so a long stop counts as one sample of its place, not hundreds of
+    reports -- with every other parameter free beside it: one the places cannot tell from
+    another (a bias from a scale seen on one side of boresight) stays as uncertain as that."""
     n_p = model.n_params
     if not n_p:
-        return np.zeros(model.free.shape), 1.0
+        zero = np.zeros(model.free.shape)
+        return _Posterior(zero, zero, 1.0)
     sy = _system(model, ep, x, pos, np.isnan(ep.height))
     v_inv = np.linalg.inv(sy.v + 1e-9 * np.eye(3))
     bread = sy.u - np.einsum("npi,nij,nqj->pq", sy.w_e, v_inv, sy.w_e) + 1e-9 * np.eye(n_p)
     rows = np.einsum("rkp,rk,rk->rp", sy.jp, sy.w, sy.res)
-    cluster = ep.cluster[ep.row_e]
-    ids, which = np.unique(cluster, return_inverse=True)
+    ids, which = np.unique(ep.cluster[ep.row_e], return_inverse=True)
     scores = np.zeros((len(ids), n_p))
-    np.add.at(scores, which, rows)
-    g = len(ids)
-    meat = scores.T @ scores * (g / max(g - 1, 1))
+    np.add.at(scores, np.asarray(which).ravel(), rows)
+    meat = scores.T @ scores * (len(ids) / max(len(ids) - 1, 1))
     inv = np.linalg.inv(bread)
     m = model.mapping()
-    cov = m @ inv @ meat @ inv.T @ m.T
-    naive = m @ inv @ m.T
-    diag, base = np.maximum(np.diag(cov), 0.0), np.maximum(np.diag(naive), 1e-18)
-    free = model.free.ravel()
-    ratio = float(np.median(diag[free] / base[free])) if free.any() else 1.0
-    return np.sqrt(diag).reshape(model.free.shape), max(ratio, 1.0)
+    honest = np.maximum(np.diag(m @ inv @ meat @ inv.T @ m.T), 1e-18)
+    naive = np.diag(m @ inv @ m.T)
+    prior = np.tile(np.array(PRIOR_SD), model.free.shape[0]) ** 2
+    sd = np.sqrt(1 / (1 / honest + 1 / prior))
+    mean = (m @ x) * prior / (prior + honest)
+    free = model.free.ravel() & (naive > 0)
+    ratio = float(np.median(honest[free] / naive[free])) if free.any() else 1.0
+    return _Posterior((mean * model.free.ravel()).reshape(model.free.shape),
+                      (sd * model.free.ravel()).reshape(model.free.shape), max(ratio, 1.0))
 
 
 def _fit(model: _Model, ep: _Epochs) -> np.ndarray:
@@ -693,16 +706,17 @@ def _observable(ep: _Epochs, n_a: int, elevation: bool) -> tuple[np.ndarray, lis
     return base_free, held
 
 
-def _hold_undetermined(p: np.ndarray, sd: np.ndarray, free: np.ndarray, held: list[dict[str, str]]) -> bool:
-    """Hold (in ``free`` and ``held``, with the value and its uncertainty) every parameter that
-    ran to its bound, whose uncertainty is over DATA_OVER_PRIOR of its prior's, or whose value is
-    within Z_WRITE uncertainties of its default; True when any was."""
-    newly = False
+def _hold_undetermined(mean: np.ndarray, sd: np.ndarray, free: np.ndarray, held: list[dict[str, str]],
+                       fitted: np.ndarray) -> None:
+    """Hold (in ``free`` and ``held``, with its value and uncertainty) every parameter whose fit
+    without the prior ran to its bound, whose uncertainty is over DATA_OVER_PRIOR of its
+    prior's, or whose value is within Z_WRITE uncertainties of its default."""
     for k, j in zip(*np.nonzero(free)):
         lo, hi = LIMITS[j]
-        value, prior, got = float(p[k, j]), PRIOR_SD[j], f"{_show(j, float(p[k, j]))} +- {_show_sd(j, float(sd[k, j]))}"
-        if min(value - lo, hi - value) < 0.01 * (hi - lo):
-            why = f"ran to its bound ({_show(j, value)}): the data do not determine it"
+        value, prior = float(mean[k, j]), PRIOR_SD[j]
+        got = f"{_show(j, value)} +- {_show_sd(j, float(sd[k, j]))}"
+        if min(fitted[k, j] - lo, hi - fitted[k, j]) < 0.01 * (hi - lo):
+            why = f"ran to its bound ({_show(j, float(fitted[k, j]))}): the data do not determine it"
         elif sd[k, j] > DATA_OVER_PRIOR * prior:
             why = (f"not determined: {got}, more than {DATA_OVER_PRIOR:g} of the prior's +- {_show_sd(j, prior)} "
                    "(the places the tags were do not pin it)")
@@ -712,8 +726,6 @@ def _hold_undetermined(p: np.ndarray, sd: np.ndarray, free: np.ndarray, held: li
             continue
         free[k, j] = False
         held[k][NAMES[j]] = why
-        newly = True
-    return newly
 
 
 def self_calibrate(site: Site, recordings: Sequence[Sequence[tuple[float, AngleEvent]]], *,
@@ -852,38 +864,45 @@ def _choose(anchors: list[Anchor], scores: dict[str, dict[str, float]], candidat
 
 def _final_fit(site: Site, chosen_models: list[str], free: np.ndarray, held: list[dict[str, str]], ep: _Epochs,
                progress: Callable[[str], None]) -> tuple[_Model, np.ndarray, np.ndarray, _CrossValidated]:
-    """The chosen models fitted on every epoch, holding (in ``free`` and ``held``) what the data
-    do not determine and fitting again (at most three times); then fitted with the prior (its
-    weight raised by how much the rows overstate the data) and cross-validated. Returns the
-    model, its parameters on every epoch, their uncertainties and the cross-validation."""
+    """The chosen models fitted on every epoch, every parameter free; each one the places do not
+    determine held (in ``free`` and ``held``: :func:`_posterior`, :func:`_hold_undetermined`);
+    the rest fitted again with the prior (its weight raised by how much the reports overstate
+    the places) and cross-validated. Returns the model, its parameters on every epoch, their
+    uncertainties and the cross-validation."""
     progress("; final")
     thin = _thin(ep)
-    overstated = 1.0
-    for _ in range(3):
-        model = _Model(site, chosen_models, free)
-        x, pos = _adjust(model, thin, np.zeros(model.n_params))
-        sd, overstated = _uncertainty(model, thin, x, pos)
-        if not _hold_undetermined(model.params(x), sd, free, held):
-            break
-        progress("; refit")
     model = _Model(site, chosen_models, free)
-    model.prior_info = overstated
     x, pos = _adjust(model, thin, np.zeros(model.n_params))
-    sd, _ = _uncertainty(model, thin, x, pos)
+    post = _posterior(model, thin, x, pos)
+    _hold_undetermined(post.mean, post.sd, free, held, model.params(x))
+    model = _Model(site, chosen_models, free)
+    model.prior_info = post.overstated
+    x, _ = _adjust(model, thin, np.zeros(model.n_params))
     progress("; held out")
-    return model, model.params(x), sd, _cross_validate(model, ep, progress)
+    return model, model.params(x), np.where(free, post.sd, 0.0), _cross_validate(model, ep, progress)
+
+
+def _kinds(ep: _Epochs, origins: np.ndarray) -> dict[str, np.ndarray]:
+    """Kinds of data a calibration is judged on when fitted on the rest: standing and moving,
+    and each half of the room (west/east, south/north of the anchors' middle), where a wall
+    anchor sees its azimuths on the other side of boresight: an error odd in the angle, seen on
+    one side only, is not a bias."""
+    mid = (origins[:, :2].min(axis=0) + origins[:, :2].max(axis=0)) / 2
+    x, y = ep.start[:, 0], ep.start[:, 1]
+    return {"standing": ep.standing, "moving": ~ep.standing, "west half": x < mid[0], "east half": x >= mid[0],
+            "south half": y < mid[1], "north half": y >= mid[1]}
 
 
 def _cross_kind(model: _Model, ep: _Epochs, r0: np.ndarray, miss0: np.ndarray,
                 progress: Callable[[str], None]) -> dict[str, HeldOut]:
-    """Kind of motion -> the calibration fitted on the other kind, judged on this one (standing
-    on a fit to walking, and walking on a fit to stops); {} unless each kind has enough epochs
-    and two clusters or more."""
-    kinds = {"standing": ep.standing, "moving": ~ep.standing}
-    if not all(m.sum() >= SELF_MIN_EPOCHS // 2 and len(np.unique(ep.cluster[m])) >= 2 for m in kinds.values()):
-        return {}
-    out = {}
-    for name, mine in kinds.items():
+    """Kind (:func:`_kinds`) -> the calibration fitted on the rest, judged on that kind; only
+    kinds with SELF_MIN_EPOCHS / 2 epochs and two places or more, the rest as well."""
+    out: dict[str, HeldOut] = {}
+    if not model.n_params:
+        return out
+    for name, mine in _kinds(ep, model.origins).items():
+        if not all(m.sum() >= SELF_MIN_EPOCHS // 2 and len(np.unique(ep.cluster[m])) >= 2 for m in (mine, ~mine)):
+            continue
         progress(f"; {name}")
         p = _fit(model, _thin(ep.subset(~mine)))
         r, miss, _ = _score(model, p, ep.subset(mine))
@@ -909,9 +928,9 @@ def _verdict(held_out: HeldOut, cross: dict[str, HeldOut], foresight: tuple[floa
              changes: bool, clusters: int) -> str:
     figures = f"held-out {held_out.said()}"
     for kind, h in cross.items():
-        figures += f"; {kind}, fitted on the other kind: {h.said()}"
+        figures += f"; {kind}, fitted on the rest: {h.said()}"
     if not cross:
-        figures += "; one kind of motion only (judged on held-out places alone)"
+        figures += "; no other kind of data to judge it on (held-out places alone)"
     if not changes:
         return (f"not written: no parameter is determined by the data (the tags at {clusters} places, each a "
                 f"{CELL_M:g} m square; each anchor's fit and why it is held: --verbose); take the tags over more of "
@@ -919,8 +938,8 @@ def _verdict(held_out: HeldOut, cross: dict[str, HeldOut], foresight: tuple[floa
     worse = [kind for kind, h in cross.items() if not h.not_worse]
     if held_out.improves and worse:
         return (f"not written: {figures}: worse on {' and '.join(worse)} than the uncalibrated site -- what it "
-                "fitted belongs to one kind of walk, not to the boards; record both stops and walking, or calibrate "
-                "on known points (--points)")
+                "fitted belongs to one walk or one part of the room, not to the boards; walk the whole room, stand "
+                "at places too, or calibrate on known points (--points)")
     if held_out.improves and not el_fitted:
         return f"{figures} (elevation held)"
     if held_out.improves and foresight[1] > foresight[0]:
