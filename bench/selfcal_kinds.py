@@ -58,7 +58,7 @@ def carried_walk(rng: np.random.Generator, t0: float, site: sites.Site) -> Walke
     """~280 s: walk at 0.8 m/s between random places, four stops of 40-70 s among them."""
     xs = [a.position[0] for a in site.anchors]
     ys = [a.position[1] for a in site.anchors]
-    lo, hi = np.array([min(xs) + 1.0, min(ys) + 1.0]), np.array([max(xs) - 1.0, max(ys) - 1.0])
+    lo, hi = np.array([min(xs) + 0.6, min(ys) + 0.6]), np.array([max(xs) - 0.6, max(ys) - 0.6])
     points, t, here = [], t0, rng.uniform(lo, hi)
     stops = set(rng.choice(np.arange(1, 12), 4, replace=False).tolist())
     for k in range(13):
