@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from rfhoming.host import site as sites
+from rfhoming.host.bearing import Bearing
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.host.estimation.anchors3d import board_angles
 from rfhoming.protocol.uconnect import AngleEvent
 from test_locate import SITE
@@ -16,12 +18,12 @@ TAG = "CCF9578E0D8A"  # the kit site's "cart", height 1.0 m
 
 
 def stops(site: sites.Site, places: list[tuple[float, float]], *, bias: dict[str, float], stays_deg: float,
-          dwell_s: float = 8.0, rate_hz: float = 10.0, seed: int = 0) -> list[tuple[float, AngleEvent]]:
+          dwell_s: float = 8.0, rate_hz: float = 10.0, seed: int = 0) -> list[Bearing]:
     """The tag carried from place to place (a second between) and standing ``dwell_s`` at each:
     every anchor's azimuth off by its ``bias``, an error drawn per place that stays put while
     the tag stands there (``stays_deg``), and 1 deg of white noise; level boards, whole degrees."""
     rng = np.random.default_rng(seed)
-    events = []
+    events: list[Bearing] = []
     t0 = 0.0
     for x, y in places:
         put = {a.id: rng.normal(0, stays_deg) for a in site.anchors}
@@ -32,9 +34,9 @@ def stops(site: sites.Site, places: list[tuple[float, float]], *, bias: dict[str
                 az, el = board_angles(d)
                 az += bias.get(a.name, 0.0) + put[a.id] + rng.normal(0, 1.0)
                 el += rng.normal(0, 2.0)
-                events.append((round(t, 6), AngleEvent(TAG, -50, int(round(np.clip(az, -90, 90))),
-                                                       int(round(np.clip(el, -90, 90))), -50, 37, a.id, "",
-                                                       int(t * 1000))))
+                events.append(bearing_of(round(t, 6), AngleEvent(TAG, -50, int(round(np.clip(az, -90, 90))),
+                                                                 int(round(np.clip(el, -90, 90))), -50, 37, a.id, "",
+                                                                 int(t * 1000))))
         t0 += dwell_s + 1.0
     return events
 
