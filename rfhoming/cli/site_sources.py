@@ -1,17 +1,19 @@
 """A site's anchors as one stream of bearing readings (host/bearing.py): what ``locate``,
 ``calibrate``, ``radio-fit`` and ``gateway`` open and read (the site file's ports, or --from /
---device specs, or captures)."""
+--device specs, or captures, or Silicon Labs locators' broker: host/silabs_source.py)."""
 
 from __future__ import annotations
 
 import asyncio
 import json
 import logging
+import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from rfhoming.cli.args import is_silabs
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.bearing import Bearing
@@ -46,13 +48,18 @@ def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
 async def gather(command: str, site: sites.Site, sources: list[str] | None, on_angle: Callable[[Bearing], None],
                  on_lost: Callable[[float, set[str]], None] = lambda t, ids: None, *, baud: int | None = None,
                  flow: str | None = None, duration: float | None = None, capture_to: Path | None = None,
-                 counters: bool = True, on_item: Callable[[float, Any], None] | None = None) -> int:
+                 counters: bool = True, on_item: Callable[[float, Any], None] | None = None,
+                 password_file: str | None = None, ca_file: str | None = None) -> int:
     """Open the site's anchors (or ``sources``, locate's --from), feed every reading to
     ``on_angle`` in arrival order until ``duration`` or the end of a capture (``on_item``: the
     board's own item it came from, for exports that show the board's fields), and tell
     ``on_lost`` the anchor ids of a device that went away; ``capture_to``: also record every
     byte there; ``counters``: print each device's counters on stderr at the end (losses are
-    warned of either way). 2 on a port/capture error, said in one line naming ``command``."""
+    warned of either way). 2 on a port/capture error, said in one line naming ``command``.
+    ``mqtt+silabs://`` sources: Silicon Labs' locators on their broker (``password_file``,
+    ``ca_file``: its login and TLS), read until ``duration`` or Ctrl-C."""
+    if sources and any(is_silabs(s) for s in sources):
+        return await _from_silabs(command, sources, on_angle, duration, counters, password_file, ca_file)
     specs = _specs(site, sources)
     capture = CaptureWriter(capture_to) if capture_to else None
     try:
@@ -105,6 +112,42 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
         if capture is not None:
             capture.close()
             print(capture.said(), file=sys.stderr)
+    return 0
+
+
+SILABS_POLL_S = 0.02
+"""Seconds between takes of the locators' readings: the locator's 0.3 s windows see no gap."""
+
+
+async def _from_silabs(command: str, sources: list[str], on_angle: Callable[[Bearing], None],
+                       duration: float | None, counters: bool, password_file: str | None,
+                       ca_file: str | None) -> int:
+    from rfhoming.host.silabs_source import SilabsLocators, Source  # paho-mqtt: the "site" extra
+
+    if len(sources) > 1:
+        print(f"rfhoming {command}: --from mqtt+silabs:// is one broker's locators; give it alone (every locator "
+              "under its topic prefix is read)", file=sys.stderr)
+        return 2
+    try:
+        locators = SilabsLocators(Source.parse(sources[0]), password_file=password_file, ca_file=ca_file)
+    except Error as exc:
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return 2
+    loop = asyncio.get_running_loop()
+    end = math.inf if duration is None else loop.time() + duration
+    try:
+        while loop.time() < end:
+            await asyncio.sleep(min(SILABS_POLL_S, max(0.0, end - loop.time())))
+            locators.check()
+            for reading in locators.take():
+                on_angle(reading)
+    except Error as exc:  # the broker refused for good: a login, a certificate
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        locators.close()
+        if counters:
+            print(json.dumps({"kind": "counters", **locators.health()}), file=sys.stderr)
     return 0
 
 
