@@ -2,8 +2,9 @@
 
 ``mqtt+silabs://[USER@]HOST[:PORT][/TOPIC/PREFIX]`` (``mqtts+silabs://``: TLS) names the broker
 that the Gecko SDK's ``bt_aoa_host_locator`` publishes to and the root of its topics
-(``silabs/aoa`` when the URL has none). Each locator's id in its topics (``ble-pd-<its address>``)
-is the site file's anchor ``id``; its azimuth, degrees counter-clockwise from its array's x axis
+(``silabs/aoa`` when the URL has none). A locator's and a tag's id in the topics are
+``ble-pd-`` and the device's address: the address (12 hex digits) is the site file's anchor
+``id`` and tag id, as for an XPLR-AOA; its azimuth, degrees counter-clockwise from its array's x axis
 (docs/protocol.md, "Silicon Labs AoA locator (MQTT)"), becomes the reading's REP 103 azimuth with
 that axis as the anchor's boresight. The connection is the site bus's (host/sitebus.py): paho's
 thread, reconnects 0.1 s doubling to 5 s, a password from a file or the environment, never the
@@ -60,12 +61,12 @@ class Source:
 
 
 def to_bearing(t: float, angle: silabs_aoa.Angle) -> Bearing:
-    """The neutral reading of a locator's angle: its azimuth wrapped into (-180, 180] degrees
-    (releases write 0..360 or -180..180), both angles in radians."""
+    """The neutral reading of a locator's angle: anchor and tag named by their addresses, the
+    azimuth wrapped into (-180, 180] degrees (releases write 0..360 or -180..180), radians."""
     az = math.remainder(angle.azimuth_deg, 360.0)
     az = 180.0 if az == -180.0 else az
     el = None if angle.elevation_deg is None else math.radians(angle.elevation_deg)
-    return Bearing(t, angle.locator, angle.tag, math.radians(az), el, None)
+    return Bearing(t, silabs_aoa.address(angle.locator), silabs_aoa.address(angle.tag), math.radians(az), el, None)
 
 
 class SilabsLocators:

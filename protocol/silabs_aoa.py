@@ -65,6 +65,12 @@ class Angle:
     """Older releases' IQ-sample quality bits (0: all good); newer ones write the stdevs instead."""
 
 
+def address(sdk_id: str) -> str:
+    """The 12 hex digits of the device address in an id of the SDK's form (``ble-pd-`` or
+    ``ble-sr-`` and them), which is how a site file names boards and tags; any other id as it is."""
+    return sdk_id[7:] if ID_FORMAT.fullmatch(sdk_id) else sdk_id
+
+
 def angle_topic(locator: str, tag: str, prefix: str = PREFIX) -> str:
     return f"{prefix}/angle/{_checked_id(locator, 'locator')}/{_checked_id(tag, 'tag')}"
 
@@ -113,7 +119,7 @@ def decode(topic: str, payload: bytes, prefix: str = PREFIX) -> Angle:
         if isinstance(exc, SilabsAoaError):
             raise SilabsAoaError(f"{topic}: {exc}") from None
         raise SilabsAoaError(f"{topic}: payload is not JSON ({str(exc)[:80]})") from None
-    if not isinstance(obj, dict) or len(obj) > MAX_KEYS:
+    if not isinstance(obj, dict) or len(obj) > MAX_KEYS or any(isinstance(v, (dict, list)) for v in obj.values()):
         raise SilabsAoaError(f"{topic}: payload must be one flat JSON object of at most {MAX_KEYS} keys")
     values: dict[str, float] = {}
     for key, (low, high) in LIMITS.items():
