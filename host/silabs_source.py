@@ -93,7 +93,7 @@ class SilabsLocators:
         t = self._clock()
         self.counters["messages"] += 1
         try:
-            angle = silabs_aoa.decode(msg.topic, msg.payload, self.source.prefix)
+            angle = silabs_aoa.decode(msg.topic, bytes(msg.payload), self.source.prefix)
         except silabs_aoa.SilabsAoaError as exc:
             self.counters["bad_payload"] += 1
             if not self._warned_bad:  # one line, then counted: a broken publisher must not flood the log

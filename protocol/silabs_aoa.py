@@ -34,14 +34,16 @@ MAX_ID = 64
 _ID = re.compile(r"[A-Za-z0-9_.:-]{1,64}")
 """One topic level that is an id: no ``/``, ``+``, ``#``, spaces or controls."""
 
-ID_FORMAT = re.compile(r"ble-(pd|sr)-[0-9A-F]{12}")
-"""The SDK's own id form (aoa_address_to_id); other ids are read too (a deployment's own)."""
+ID_FORMAT = re.compile(r"ble-(pd|sr)-[0-9A-F]{12}", re.IGNORECASE)
+"""The SDK's own id form (aoa_address_to_id writes upper case; its parser and comparison take
+any case); other ids are read too (a deployment's own)."""
 
 LIMITS = {"azimuth": (-360.0, 360.0), "elevation": (-90.0, 90.0), "distance": (0.0, 1000.0),
-          "azimuth_stdev": (0.0, 360.0), "elevation_stdev": (0.0, 180.0), "distance_stdev": (0.0, 1000.0),
+          "azimuth_stdev": (-360.0, 360.0), "elevation_stdev": (-180.0, 180.0), "distance_stdev": (0.0, 1000.0),
           "quality": (0.0, 2.0**32 - 1), "sequence": (-(2.0**31), 2.0**31 - 1)}
 """Each number's plausible range: outside it a message is refused, not fed to a locator
-(azimuth: the RTL library's degrees, written 0..360 or -180..180 by releases; distance: metres)."""
+(azimuth: the RTL library's degrees, written 0..360 or -180..180 by releases; distance: metres;
+a stdev is negative when the library takes the estimate for non-line-of-sight)."""
 
 
 class SilabsAoaError(Error, ValueError):
@@ -60,6 +62,7 @@ class Angle:
     """The RTL library's distance from RSSI (sl_rtl_util_rssi2distance): coarse, not used to fix."""
     sequence: int | None = None
     azimuth_stdev_deg: float | None = None
+    """Negative: the RTL library takes the estimate for non-line-of-sight (sl_rtl_clib_api.h)."""
     elevation_stdev_deg: float | None = None
     quality: int | None = None
     """Older releases' IQ-sample quality bits (0: all good); newer ones write the stdevs instead."""
@@ -68,7 +71,7 @@ class Angle:
 def address(sdk_id: str) -> str:
     """The 12 hex digits of the device address in an id of the SDK's form (``ble-pd-`` or
     ``ble-sr-`` and them), which is how a site file names boards and tags; any other id as it is."""
-    return sdk_id[7:] if ID_FORMAT.fullmatch(sdk_id) else sdk_id
+    return sdk_id[7:].upper() if ID_FORMAT.fullmatch(sdk_id) else sdk_id
 
 
 def angle_topic(locator: str, tag: str, prefix: str = PREFIX) -> str:

@@ -37,6 +37,8 @@ def test_topic_and_the_sdks_payload_decode() -> None:
     assert a.azimuth_stdev_deg == 1.25 and a.quality is None
     old = sa.decode(topic, b'{"azimuth": 10, "elevation": 0, "distance": 2, "quality": 0, "sequence": 3}')
     assert old.quality == 0  # an older release's payload: quality, no stdevs
+    nlos = sa.decode(topic, b'{"azimuth": 10, "azimuth_stdev": -4.5}')
+    assert nlos.azimuth_stdev_deg == -4.5  # the library's sign for "likely non-line-of-sight"
 
 
 def test_encode_decodes_to_itself() -> None:
@@ -90,6 +92,7 @@ def test_azimuth_becomes_rep103_radians_over_the_circle() -> None:
     r = to_bearing(12.5, sa.Angle(LOC, TAG, 30.0, 5.0))
     assert (r.t, r.anchor, r.tag, r.elevation_deg, r.rssi) == (12.5, "842E1431C8B1", "588E81A54222", 5.0, None)
     assert to_bearing(0.0, sa.Angle("hall-3", "cart", 1.0)).anchor == "hall-3"  # not the SDK's form: as it is
+    assert to_bearing(0.0, sa.Angle("BLE-sr-842e1431c8b1", TAG, 1.0)).anchor == "842E1431C8B1"
     assert r.clockwise_deg == -30.0  # a tag to the left: negative in the XPLR-AOA's sign
 
 
