@@ -11,7 +11,7 @@ import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rfhoming.cli.args import is_silabs
 from rfhoming.host import site as sites
@@ -23,6 +23,9 @@ from rfhoming.host.ports import PortError
 from rfhoming.host.run_until import run_until
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.errors import Error
+
+if TYPE_CHECKING:
+    from rfhoming.host.silabs_source import SilabsLocators
 
 log = logging.getLogger(__name__)
 
@@ -119,17 +122,23 @@ SILABS_POLL_S = 0.02
 """Seconds between takes of the locators' readings: the locator's 0.3 s windows see no gap."""
 
 
+def _open_silabs(url: str, password_file: str | None, ca_file: str | None) -> SilabsLocators:
+    """The locators' subscription (paho-mqtt, the "site" extra), opened off the event loop: the
+    import and a password file's read would stall it."""
+    from rfhoming.host.silabs_source import SilabsLocators, Source
+
+    return SilabsLocators(Source.parse(url), password_file=password_file, ca_file=ca_file)
+
+
 async def _from_silabs(command: str, sources: list[str], on_angle: Callable[[Bearing], None],
                        duration: float | None, counters: bool, password_file: str | None,
                        ca_file: str | None) -> int:
-    from rfhoming.host.silabs_source import SilabsLocators, Source  # paho-mqtt: the "site" extra
-
     if len(sources) > 1:
         print(f"rfhoming {command}: --from mqtt+silabs:// is one broker's locators; give it alone (every locator "
               "under its topic prefix is read)", file=sys.stderr)
         return 2
     try:
-        locators = SilabsLocators(Source.parse(sources[0]), password_file=password_file, ca_file=ca_file)
+        locators = await asyncio.to_thread(_open_silabs, sources[0], password_file, ca_file)
     except Error as exc:
         print(f"rfhoming {command}: {exc}", file=sys.stderr)
         return 2
@@ -145,7 +154,7 @@ async def _from_silabs(command: str, sources: list[str], on_angle: Callable[[Bea
         print(f"rfhoming {command}: {exc}", file=sys.stderr)
         return 2
     finally:
-        locators.close()
+        await asyncio.to_thread(locators.close)  # joins paho's thread, which may be waiting to reconnect
         if counters:
             print(json.dumps({"kind": "counters", **locators.health()}), file=sys.stderr)
     return 0
