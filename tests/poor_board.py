@@ -2,9 +2,11 @@
 
 Four anchors at the corners of a 12 x 12 m square, each facing the centre, report a tag that
 stands at surveyed points (a static survey: each point a dwell, as in Paulino & Pessoa's
-recordings): about ``rate_hz`` reports a second per anchor (Poisson), no elevation (always 0),
-azimuth errors whose median is about 25 degrees with about 5 % beyond 90 degrees (a 360-degree
-array's flips, folded into +-90 as a user renders them as ``+UUDF`` lines: the mirror image).
+recordings): about ``rate_hz`` reports a second per anchor (Poisson), no elevation, azimuth
+errors whose median is about 25 degrees with about 5 % beyond 90 degrees (a 360-degree array's
+flips). As the neutral reading (host/bearing.py) such a board gives, azimuth all round and no
+elevation; or ``folded``: as ``+UUDF`` lines a user renders them in (azimuth folded into +-90,
+the mirror image, elevation 0).
 Each anchor's error at a point is a bias that stays while the tag stands there (multipath of a
 still scene) plus white noise. ``wild`` lists (start, end) times when every report is anywhere.
 Not the emulator: its boards clip azimuth to +-90 and cannot flip (emulator/aoa_error.py).
@@ -16,6 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import math
+
+from rfhoming.host.bearing import Bearing
+from rfhoming.host.drivers.aoa import bearing_of
 from rfhoming.host.site import Anchor, Site, TagInfo
 from rfhoming.protocol.uconnect import AngleEvent
 
@@ -31,15 +37,15 @@ SQUARE = Site("square-12m", (
 
 BIAS_DEG = 20.0
 WHITE_DEG = 28.0
-FLIP = 0.05
+FLIP = 0.04
 """A report's error: bias (per anchor and point) and white noise, Gaussian (35 degrees together:
-a median of 24 over the core), or with probability FLIP anywhere beyond 90 degrees."""
+a median of 24 over the core), or with probability FLIP anywhere beyond 90 degrees: with the core's own tail, 5 %)."""
 
 
 @dataclass(frozen=True)
 class Survey:
-    events: list[tuple[float, AngleEvent]]
-    errors_deg: np.ndarray  # every report's azimuth error before the fold (for the statistics)
+    events: list[Bearing]
+    errors_deg: np.ndarray  # each event's azimuth error before the fold (for the statistics)
     stops: list[tuple[float, float, tuple[float, float]]]  # (from, to, point)
 
     def truth(self, t: float) -> np.ndarray:
@@ -57,15 +63,14 @@ def _fold(deg: np.ndarray) -> np.ndarray:
 
 
 def survey(seed: int, stops: list[tuple[float, tuple[float, float]]], *, rate_hz: float = 1.0,
-           wild: tuple[tuple[float, float], ...] = (), site: Site = SQUARE) -> Survey:
+           wild: tuple[tuple[float, float], ...] = (), folded: bool = False, site: Site = SQUARE) -> Survey:
     """The tag stands at each point for its duration (s), one after the other (it jumps)."""
     rng = np.random.default_rng(seed)
     spans, t = [], 0.0
     for duration, point in stops:
         spans.append((t, t + duration, point))
         t += duration
-    events: list[tuple[float, AngleEvent]] = []
-    errors = []
+    rows: list[tuple[Bearing, float]] = []
     for anchor in site.anchors:
         times = np.cumsum(rng.exponential(1.0 / rate_hz, int(3 * t * rate_hz) + 10))
         times = times[times < t]
@@ -81,9 +86,11 @@ def survey(seed: int, stops: list[tuple[float, tuple[float, float]]], *, rate_hz
         for a, b in wild:
             now = (times >= a) & (times < b)
             err[now] = rng.uniform(-180.0, 180.0, int(now.sum()))
-        errors.append(_wrap(err))
-        reported = _fold(true_az + err)
-        for t_k, az in zip(times, reported):
-            events.append((float(t_k), AngleEvent(TAG, -70, int(round(float(az))), 0, -70, 37, anchor.id, "", 0)))
-    events.sort(key=lambda item: item[0])
-    return Survey(events, np.concatenate(errors), spans)
+        seen = _wrap(true_az + err)  # board sign: clockwise
+        for t_k, az, e in zip(times, seen, _wrap(err)):
+            reading = (bearing_of(float(t_k), AngleEvent(TAG, -70, int(round(float(_fold(az)))), 0, -70, 37, anchor.id,
+                                                         "", 0)) if folded
+                       else Bearing(float(t_k), anchor.id, TAG, math.radians(-round(float(az))), None, -70.0))
+            rows.append((reading, float(e)))
+    rows.sort(key=lambda item: item[0].t)
+    return Survey([r for r, _ in rows], np.array([e for _, e in rows]), spans)

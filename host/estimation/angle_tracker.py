@@ -226,7 +226,8 @@ class AngleTracker:
             self.x, self.p, self.t = x, p, max(t, self.t)
             return math.nan
         ba, be = 6 + k, 6 + n_a + k
-        innovation = np.array([azimuth_deg - angles[0] - x[ba], elevation_deg - angles[1] - x[be]])
+        miss = (azimuth_deg - angles[0] - x[ba] + 180.0) % 360.0 - 180.0  # a board that sees all round: +-180 meet
+        innovation = np.array([miss, elevation_deg - angles[1] - x[be]])
         off = max(math.cos(math.radians(angles[0])) * math.cos(math.radians(angles[1])), 1.0 / nz.max_cos_factor)
         r_diag = np.array([(nz.white_deg / off) ** 2, (nz.el_white_deg / off) ** 2])
         # P H^T for H = [jac | 0 | e_ba | e_be]: the position columns through jac, one column each bias

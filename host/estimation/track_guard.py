@@ -50,7 +50,10 @@ HELD_S = 5.0
 """A track held back inside the extent (Extent.hold) at every report for this long is lost (s)."""
 
 SPREAD_CHECKS = 30
-"""The board's error scale (:attr:`TrackGuard.spread_deg`) is the median over this many checks."""
+"""The board's error scale (:attr:`TrackGuard.spread_deg`) is the median over this many checks,
+once there are SPREAD_MIN (the first few, while a new track settles, miss by more)."""
+
+SPREAD_MIN = 10
 
 
 class TrackGuard:
@@ -67,8 +70,8 @@ class TrackGuard:
     @property
     def spread_deg(self) -> float | None:
         """How far the reports miss the tag (balanced median, degrees), over the last checks: the
-        track's miss while it holds, the consensus' when it is lost; None before any check."""
-        return float(np.median(self._spreads)) if self._spreads else None
+        track's miss while it holds, the consensus' when it is lost; None before SPREAD_MIN checks."""
+        return float(np.median(self._spreads)) if len(self._spreads) >= SPREAD_MIN else None
 
     def reset(self) -> None:
         """A new track: the old one's positions no longer speak for it."""
