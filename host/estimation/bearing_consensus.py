@@ -50,7 +50,7 @@ class Bearings:
         seen = np.arctan2(d[..., 1], d[..., 0])
         r = np.abs(_wrap(seen - self.theta[None, :]))
         back = np.abs(_wrap(seen - self.mirror[None, :]))
-        return np.degrees(np.where(np.isnan(back), r, np.fmin(r, back)))
+        return np.asarray(np.degrees(np.where(np.isnan(back), r, np.fmin(r, back))))
 
     def residuals_along(self, points: np.ndarray) -> np.ndarray:
         """|residual| (degrees) of report i at ``points[i]`` (n, 2): each against where a track put the tag then."""
