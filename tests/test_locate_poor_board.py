@@ -58,3 +58,20 @@ def test_a_poor_board_stays_inside_the_site_and_recovers_after_a_lost_track(seed
         fresh, _ = located([r for r in s.events if r.t >= since])
         assert mean_error(s, out, since + 30, since + 70) < mean_error(s, fresh, since + 30, since + 70) + 1.0
     assert mean_error(s, out, 0.0, times[-1]) < 4.5  # answering the square's centre: 4.95 m
+
+
+def test_the_site_extent_is_the_anchors_box_and_an_open_side_reaches_past_it() -> None:
+    """Anchors on four walls facing in close the box; two anchors on two walls leave the other
+    two sides open (10 m past the anchors); a site file's extent is taken as written, a bad one
+    refused in one line naming the key."""
+    from rfhoming.host.site import SiteError, parse
+
+    assert SQUARE.bounds().lo[:2] == (0.0, 0.0) and SQUARE.bounds().hi[:2] == (SIDE_M, SIDE_M)
+    two = {"a": {"id": "A1", "position": [0.0, 3.0, 2.3], "yaw_deg": 0.0},
+           "b": {"id": "A2", "position": [6.0, 0.0, 2.3], "yaw_deg": 90.0}}
+    box = parse({"anchors": two}).bounds()
+    assert box.lo[:2] == (0.0, 0.0) and box.hi[:2] == (16.0, 13.0) and box.margin_m == 2.0
+    given = parse({"site": {"extent": [[-1.0, -1.0], [20.0, 8.0]], "margin_m": 0.5}, "anchors": two}).bounds()
+    assert given.lo == (-1.0, -1.0, 0.0) and given.hi == (20.0, 8.0, 2.3) and given.margin_m == 0.5
+    with pytest.raises(SiteError, match=r"\[site\] extent"):
+        parse({"site": {"extent": [[5.0, 0.0], [1.0, 6.0]]}, "anchors": two})
