@@ -10,7 +10,9 @@ from the first waypoint + 0.5 s to the last, the last position printed at or bef
 5 m before the first) and for the angle statistics (host/angle_residuals.py: each report against
 the angle the board would give for the true position; bias, spread, tails, |azimuth| compression,
 autocorrelation time, missing events). Use cases are the captures' name prefixes (``uc1_run3`` is
-use case ``uc1``).
+use case ``uc1``). Each use case's positions are also scored for their stated uncertainty:
+``coverage95``, the fraction of ticks whose truth lies inside the position's 95 % ellipse (its x-y
+covariance; 0.90-0.98 wanted), and the positions' median sigma.
 
 ``--self-cal``: also, for each use case, `rfhoming calibrate SITE --self` on the recordings of
 every *other* use case (a copy of the site file, no ground truth), then locate this use case's
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shlex
 import shutil
@@ -37,6 +40,7 @@ import tempfile
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +48,7 @@ import rfhoming
 from rfhoming.host import site as sites
 from rfhoming.host.angle_residuals import angle_stats, residuals
 from rfhoming.host.drivers.aoa import bearing_of
-from rfhoming.host.groundtruth import area_of, load_waypoints, score
+from rfhoming.host.groundtruth import FIRST_TICK_S, TICK_S, WalkedPath, area_of, load_waypoints, score
 
 RFHOMING = [sys.executable, "-m", "rfhoming"]
 
@@ -71,14 +75,50 @@ def recordings(data: Path) -> dict[str, list[tuple[Path, Path]]]:
     return found
 
 
-def locate(site: Path, capture: Path, extra: Sequence[str]) -> list[tuple[float, float, float]]:
-    """(t, x, y) of every position `rfhoming locate` prints for the capture."""
+def positions(site: Path, capture: Path, extra: Sequence[str]) -> list[dict[str, Any]]:
+    """Every position line `rfhoming locate` prints for the capture (t, x, y, cov, ...)."""
     done = subprocess.run([*RFHOMING, "locate", str(site), "--from", f"capture:{capture}", *extra],
                           capture_output=True, text=True, check=False)
     if done.returncode:
         raise SystemExit(f"real_aoa: rfhoming locate failed on {capture}: {done.stderr.strip().splitlines()[-1:]}")
     rows = (json.loads(line) for line in done.stdout.splitlines() if line.startswith("{"))
-    return [(p["t"], p["x"], p["y"]) for p in rows if p.get("kind") == "position"]
+    return [p for p in rows if p.get("kind") == "position"]
+
+
+def locate(site: Path, capture: Path, extra: Sequence[str]) -> list[tuple[float, float, float]]:
+    """(t, x, y) of every position `rfhoming locate` prints for the capture."""
+    return [(p["t"], p["x"], p["y"]) for p in positions(site, capture, extra)]
+
+
+ELLIPSE_95 = -2.0 * math.log(0.05)
+"""The squared Mahalanobis radius of a 2-D Gaussian's 95 % ellipse (chi-square, 2 dof: 5.99)."""
+
+
+def inside_95(path: WalkedPath, rows: Sequence[dict[str, Any]]) -> np.ndarray:
+    """Per scoring tick (groundtruth.score's: the last position at or before it) whether the
+    truth lies inside that position's 95 % ellipse (its x-y covariance); ticks before the first
+    position are left out."""
+    ticks = np.arange(path.start_s + FIRST_TICK_S, path.end_s + 1e-9, TICK_S)
+    rows = sorted(rows, key=lambda p: p["t"])
+    idx = np.searchsorted([p["t"] for p in rows], ticks + 1e-9, side="right") - 1
+    truth = path.at(ticks)
+    inside = []
+    for k in np.flatnonzero(idx >= 0):
+        p = rows[idx[k]]
+        e = np.array([p["x"], p["y"]]) - truth[k]
+        cov = np.array(p["cov"], float)[:2, :2]
+        inside.append(bool(np.linalg.det(cov) > 0 and e @ np.linalg.solve(cov, e) <= ELLIPSE_95))
+    return np.array(inside, bool)
+
+
+def coverage(runs: Sequence[tuple[Path, Path]], located: Sequence[Sequence[dict[str, Any]]]) -> dict[str, object]:
+    """The fraction of ticks whose truth lies inside the position's 95 % ellipse (want 0.90-0.98),
+    pooled and per run, and the positions' median sigma (sqrt of the x-y covariance's mean diagonal)."""
+    per_run = [inside_95(load_waypoints(truth), rows) for (_, truth), rows in zip(runs, located)]
+    sigmas = [math.sqrt(max(0.0, (p["cov"][0][0] + p["cov"][1][1]) / 2)) for rows in located for p in rows]
+    return {"coverage95": round(float(np.mean(np.concatenate(per_run))), 3),
+            "coverage95_runs": {c.stem: round(float(np.mean(i)), 3) for (c, _), i in zip(runs, per_run)},
+            "sigma_median_m": round(float(np.median(sigmas)), 3) if sigmas else None}
 
 
 def self_calibrated(site: Path, captures: Sequence[Path], into: Path) -> tuple[Path, str]:
@@ -103,10 +143,12 @@ def summary(errors: np.ndarray) -> dict[str, float]:
 
 def score_case(site: Path, runs: Sequence[tuple[Path, Path]], extra: Sequence[str], jobs: int) -> dict[str, object]:
     with ThreadPoolExecutor(jobs) as pool:
-        located = list(pool.map(lambda run: locate(site, run[0], extra), runs))
-    per_run = [score(load_waypoints(truth), positions) for (_, truth), positions in zip(runs, located)]
+        located = list(pool.map(lambda run: positions(site, run[0], extra), runs))
+    per_run = [score(load_waypoints(truth), [(p["t"], p["x"], p["y"]) for p in rows])
+               for (_, truth), rows in zip(runs, located)]
     return {**summary(np.concatenate(per_run)), "runs": {c.stem: round(float(np.mean(e)), 3)
-                                                         for (c, _), e in zip(runs, per_run)}}
+                                                         for (c, _), e in zip(runs, per_run)},
+            **coverage(runs, located)}
 
 
 def angle_figures(site_path: Path, runs: Sequence[tuple[Path, Path]], model: str = "spherical") -> dict[str, object]:
@@ -238,6 +280,7 @@ def print_tables(result: dict[str, object]) -> None:
     for name, table in rows:
         for uc, s in table.items():  # type: ignore[attr-defined]
             print(f"| {name} | {uc} | {s['mean_m']:.3f} m | {s['median_m']:.3f} m | {s['p95_m']:.3f} m | {s['ticks']} |")
+    print_coverage(rows)
     print("\nAngle residuals against the ground truth (degrees; tails: fraction beyond 20 deg; "
           "acf: autocorrelation time, s; missing: worst recording's fraction)\n")
     print("| use case | anchor | az bias | az std | az 1.4826 MAD | az tail | el bias | el std | el tail "
@@ -249,6 +292,14 @@ def print_tables(result: dict[str, object]) -> None:
                   f"| {100 * s['az_tail']:.1f} % | {s['el_bias']:+.1f} | {s['el_std']:.1f} | {100 * s['el_tail']:.1f} % "
                   f"| {c.get('45-60', float('nan')):+.1f} / {c.get('60-90', float('nan')):+.1f} "
                   f"| {s['corr_time_s']:.2f} | {100 * s['missing']:.1f} % |")
+
+
+def print_coverage(rows: Sequence[tuple[str, object]]) -> None:
+    """The 95 % ellipses' coverage of the truth, per pipeline and use case (want 0.90-0.98)."""
+    print("\n| pipeline | use case | truth inside the 95 % ellipse | median sigma |\n|---|---|---|---|")
+    for name, table in rows:
+        for uc, s in table.items():  # type: ignore[attr-defined]
+            print(f"| {name} | {uc} | {100 * s['coverage95']:.1f} % of ticks | {s['sigma_median_m']:.3f} m |")
 
 
 if __name__ == "__main__":
