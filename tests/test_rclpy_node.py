@@ -103,7 +103,7 @@ def test_a_client_homes_through_the_node_with_feedback_parameters_diagnostics_an
         (True, False), (False, True), (True, False)]
     parameters = one(lines, "parameters")["parameters"]
     assert parameters["tag"] == TAG and parameters["mode"] == "cmd_vel" and parameters["stand_off_m"] == 0.4
-    assert {"reach_m", "resend_m", "frame", "tag_frame_prefix"} <= set(parameters)
+    assert {"reach_m", "resend_m", "resend_s", "frame", "tag_frame_prefix"} <= set(parameters)
     assert one(lines, "called")["success"], one(lines, "called")
     feedback = [f for f in on(lines, "feedback") if "x" in f]
     assert feedback and all(f["tag"] == TAG and f["phase"] == "homing" for f in feedback)

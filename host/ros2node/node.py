@@ -55,6 +55,7 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "stand_off_m": (0.5, "nav2 mode: each goal lies this far short of the estimate, facing it"),
     "reach_m": (0.8, "nav2 mode: homing has arrived once the robot is this near the estimate"),
     "resend_m": (0.3, "nav2 mode: a new goal once the estimate has moved this far from the last one sent"),
+    "resend_s": (1.0, "nav2 mode: and at most one new goal in this many seconds of robot time"),
     "frame": ("odom", "the frame of the estimates and the tags' parent on /tf: the base's odometry frame"),
     "tag_frame_prefix": ("tag_", "each tag's TF frame is PREFIX<id>"),
 }
@@ -126,7 +127,8 @@ class HomingNode(Node):
         return True, f"homing on {tag or 'the only tag in view'}, mode {self.mode}"
 
     async def _home(self, plan: Homing) -> None:
-        sink = NodeSink(self, self.mode, prog.Resender(float(self.value("resend_m"))))
+        sink = NodeSink(self, self.mode, prog.Resender(float(self.value("resend_m")),
+                                                              float(self.value("resend_s"))))
         plan.sinks = [sink]
         try:
             outcome = await assembly.run(plan)
@@ -254,9 +256,9 @@ def _tag_of(loop: HomingLoop) -> str:
 def _invalid(name: str, value: Any) -> str | None:
     if name == "mode" and value not in MODES:
         return f"mode is {' or '.join(MODES)}"
-    if name in ("stand_off_m", "reach_m", "resend_m") and not (isinstance(value, float) and math.isfinite(value)
+    if name in ("stand_off_m", "reach_m", "resend_m", "resend_s") and not (isinstance(value, float) and math.isfinite(value)
                                                                and value >= 0):
-        return f"{name} is a distance in metres, >= 0"
+        return f"{name} is a number >= 0 (metres or seconds, as its name says)"
     if name == "tag" and value:
         try:
             tag_ids(str(value))

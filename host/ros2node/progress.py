@@ -53,20 +53,23 @@ def stand_off(p: Progress, distance_m: float) -> tuple[float, float, float]:
 
 
 class Resender:
-    """When to hand the planner a new goal: the first estimate in the homing phase, then each time
-    the estimate has moved ``moved_m`` from the one last sent (it firms up as the robot drives)."""
+    """When to hand the planner a new goal: the first estimate in the homing phase, then once the
+    estimate has moved ``moved_m`` from the one last sent (it firms up as the robot drives), at
+    most once per ``every_s`` of robot time: S0's estimate wanders by about half a metre from one
+    control period to the next, and each new goal makes Nav2 plan again."""
 
-    def __init__(self, moved_m: float) -> None:
-        self.moved_m = moved_m
+    def __init__(self, moved_m: float, every_s: float) -> None:
+        self.moved_m, self.every_s = moved_m, every_s
         self.sent: tuple[float, float] | None = None
+        self.sent_t = -math.inf
         self.count = 0
 
     def due(self, p: Progress) -> bool:
-        if p.goal is None or p.phase not in ("homing", ""):
+        if p.goal is None or p.phase != "homing" or p.t - self.sent_t < self.every_s:
             return False
         if self.sent is not None and math.dist(self.sent, p.goal) < self.moved_m:
             return False
-        self.sent = p.goal
+        self.sent, self.sent_t = p.goal, p.t
         self.count += 1
         return True
 
