@@ -22,8 +22,14 @@ recordings with that calibration: what a user gets who calibrated on an earlier 
 a coordinate search over the report model's and the motion's settings (CV_STEPS) from the
 defaults, scored on that use case alone (in-process, the same scoring rule), then judged on
 every other use case; the defaults themselves scored beside (~25 scorings a fold, minutes).
+``--kinds FOLDER``: cross-kind folds (issue 50): the defaults and every one-setting move of CV_STEPS
+scored on each kind of walk -- the use cases, and the walks in FOLDER as one more kind
+(bench/carried_walks.py --keep FOLDER writes emulated carried walks of the same room) -- then the
+best on each kind alone and on each mix that leaves one kind out, judged on every kind, the held-out
+ones marked (one scoring per candidate and kind: ~20 x the kinds' locate time).
 
     python bench/real_aoa.py --data DIR [--self-cal] [--json]
+    python bench/carried_walks.py --data DIR --keep walks && python bench/real_aoa.py --data DIR --kinds walks
 """
 
 from __future__ import annotations
@@ -227,6 +233,80 @@ def cross_validate(site_path: Path, cases: dict[str, list[tuple[Path, Path]]]) -
             "folds": folds}
 
 
+_KIND_WALKS: dict[str, list[tuple[list[tuple[float, object]], object]]] = {}
+"""cross_kind's walks by kind (events, waypoints), set before its worker processes fork."""
+
+
+def _kind_error(site: sites.Site, setting: dict[str, float], kind: str) -> float:
+    """locate's mean error on one kind's walks with ``setting`` (in-process, the data set's rule)."""
+    from dataclasses import fields, replace
+
+    from rfhoming.host.estimation.angle_tracker import AngleNoise
+    from rfhoming.host.locate import Locator
+
+    noise_keys = {f.name for f in fields(AngleNoise)}
+    noise = AngleNoise(**{k: v for k, v in setting.items() if k in noise_keys})
+    s = replace(site, az_compression=setting["az_compression"])
+    errors = []
+    for events, truth in _KIND_WALKS[kind]:
+        loc = Locator(s, noise=noise, accel_psd=setting["accel_psd"])
+        out = [p for t, e in events for p in loc.feed(t, e)] + loc.flush()  # type: ignore[arg-type]
+        errors.append(score(truth, [(p.t, float(p.point[0]), float(p.point[1])) for p in out]))  # type: ignore[arg-type]
+    got = float(np.mean(np.concatenate(errors)))
+    print(f"[kinds] {kind} {json.dumps(setting)}: {got:.3f} m", file=sys.stderr, flush=True)
+    return got
+
+
+def cross_kind(site_path: Path, kinds: dict[str, list[tuple[Path, Path]]], jobs: int = 2) -> dict[str, object]:
+    """Settings chosen on one kind of walk (or a mix), judged on the others (issue 50). Every
+    candidate -- the defaults, and each one-setting move of CV_STEPS from them -- is scored once
+    on every kind (``jobs`` processes); a training set (each kind alone, and each mix that
+    leaves one kind out) picks the candidate with the least mean of its kinds' mean errors (each
+    kind weighing alike), and that choice is read off on every kind. One table serves every fold."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rfhoming.host.estimation.angle_tracker import AngleNoise
+    from rfhoming.host.locate import ACCEL_PSD
+
+    site = sites.load(site_path)
+    for kind, runs in kinds.items():
+        _KIND_WALKS[kind] = [([(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})],
+                              load_waypoints(t)) for c, t in runs]
+    defaults = {k: float(getattr(AngleNoise(), k)) for k in CV_STEPS if hasattr(AngleNoise(), k)}
+    defaults |= {"accel_psd": ACCEL_PSD["angles"], "az_compression": site.az_compression}
+    candidates = [{}] + [{k: v} for k, values in CV_STEPS.items() for v in values if v != defaults[k]]
+    names = list(kinds)
+    jobs_list = [(defaults | moved, k) for moved in candidates for k in names]
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:  # the walks, shared
+        scores = list(pool.map(_kind_error, [site] * len(jobs_list), *zip(*jobs_list)))
+    table = [dict(zip(names, scores[i * len(names):(i + 1) * len(names)])) for i in range(len(candidates))]
+    trainings = [[k] for k in names] + ([[k for k in names if k != out] for out in names] if len(names) > 2 else [])
+    folds = {}
+    for train in trainings:
+        best = min(range(len(candidates)), key=lambda i: float(np.mean([table[i][k] for k in train])))
+        folds["+".join(train)] = {"chosen": candidates[best],
+                                  "judged_m": {k: round(table[best][k], 3) for k in names}}
+    return {"kinds": {k: len(v) for k, v in kinds.items()}, "defaults": defaults,
+            "defaults_m": {k: round(table[0][k], 3) for k in names}, "folds": folds,
+            "candidates": [{"moved": c, "m": {k: round(v, 3) for k, v in row.items()}}
+                           for c, row in zip(candidates, table)]}
+
+
+def print_cross_kind(table: dict[str, object]) -> None:
+    """Cross-kind folds as a Markdown table: each row a training set, each column a kind."""
+    names = list(table["kinds"])  # type: ignore[call-overload]
+    print("cross-kind folds: the setting chosen on the row's kinds (the best of the defaults and each one-setting "
+          "move), its mean error on each kind\n")
+    print("| chosen on | moved from the defaults | " + " | ".join(names) + " |\n|---|---|" + "---|" * len(names))
+    defaults = table["defaults_m"]  # type: ignore[index]
+    print("| (the defaults) | - | " + " | ".join(f"{defaults[k]:.3f} m" for k in names) + " |")
+    for train, fold in table["folds"].items():  # type: ignore[attr-defined]
+        cells = [f"{fold['judged_m'][k]:.3f} m" + ("" if k in train.split("+") else " (held out)") for k in names]
+        print(f"| {train} | {json.dumps(fold['chosen'])} | " + " | ".join(cells) + " |")
+    print()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, required=True, help="a folder laid out as girolami_xplr_aoa/")
@@ -234,6 +314,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--locate", default="", metavar="ARGS", help="extra arguments for every rfhoming locate")
     ap.add_argument("--jobs", type=int, default=2, help="locate processes at once (default 2)")
     ap.add_argument("--cv", action="store_true", help="also: the cross-validation of the angles tracker's defaults")
+    ap.add_argument("--kinds", type=Path, metavar="FOLDER", help="also: cross-kind folds over DIR's use cases and "
+                    "the walks in FOLDER (captures and waypoint files, e.g. bench/carried_walks.py --keep FOLDER: "
+                    "emulated carried walks of the same room), as one more kind named by their prefix")
     ap.add_argument("--angle-model", choices=("spherical", "cone"), default="spherical",
                     help="the angle table's reading of the reports (default spherical: the reading the data set's figures were measured in)")
     ap.add_argument("--json", action="store_true", help="one JSON object instead of tables")
@@ -255,6 +338,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         result["self_calibrated"] = calibrated
     if args.cv:
         result["cross_validation"] = cross_validate(site, cases)
+    if args.kinds:
+        result["cross_kind"] = cross_kind(site, {**cases, **other_kinds(args.kinds)}, args.jobs)
     result["angles"] = {uc: angle_figures(site, runs, args.angle_model) for uc, runs in cases.items()}
     result["angles"]["all"] = angle_figures(site, [r for runs in cases.values() for r in runs],  # type: ignore[index]
                                             args.angle_model)
@@ -266,7 +351,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def other_kinds(folder: Path) -> dict[str, list[tuple[Path, Path]]]:
+    """Walks of other kinds in ``folder``: each ``KIND_runR.pcapng`` with its ``KIND_runR.csv``."""
+    found: dict[str, list[tuple[Path, Path]]] = {}
+    for capture in sorted(folder.glob("*_run*.pcapng")):
+        truth = capture.with_suffix(".csv")
+        if not truth.exists():
+            raise SystemExit(f"real_aoa: {capture} has no waypoint file {truth}")
+        found.setdefault(capture.stem.rsplit("_run", 1)[0], []).append((capture, truth))
+    if not found:
+        raise SystemExit(f"real_aoa: --kinds {folder} holds no KIND_runR.pcapng with its KIND_runR.csv")
+    return found
+
+
 def print_tables(result: dict[str, object]) -> None:
+    if "cross_kind" in result:
+        print_cross_kind(result["cross_kind"])  # type: ignore[arg-type]
     if "cross_validation" in result:
         cv = result["cross_validation"]
         print(f"cross-validation: the defaults {json.dumps(cv['defaults'])} score {json.dumps(cv['defaults_mean_m'])}")  # type: ignore[index]
