@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rfhoming.emulator.fields import FourierField
 from rfhoming.firmware.xplr_aoa import output_angles
 from rfhoming.protocol.radio_profile import AngleError, AoaProfile, BoardWalk, Person, Reported
 
@@ -30,20 +31,10 @@ FIELD_FEATURES = 256
 """Random Fourier features per field: enough that its values are Gaussian to the eye."""
 
 
-class RandomField:
-    """A stationary Gaussian field over R^d with covariance sigma^2 exp(-|x - y| / length), as
-    random Fourier features (Rahimi and Recht, NIPS 2007): cosines with frequencies drawn from
-    the exponential kernel's spectral density, a multivariate Cauchy (a normal over sqrt(chi2_1))."""
-
-    def __init__(self, sigma: float, length_m: float, dims: int, rng: np.random.Generator) -> None:
-        z = rng.standard_normal((FIELD_FEATURES, dims))
-        u = rng.chisquare(1.0, FIELD_FEATURES)
-        self.freq = z / (np.sqrt(u)[:, None] * length_m)
-        self.phase = rng.uniform(0.0, 2 * math.pi, FIELD_FEATURES)
-        self.amp = sigma * math.sqrt(2.0 / FIELD_FEATURES)
-
-    def __call__(self, where: np.ndarray) -> float:
-        return float(self.amp * np.cos(self.freq @ where + self.phase).sum())
+def room_field(sigma: float, length_m: float, rng: np.random.Generator) -> FourierField:
+    """A board's multipath field over the 10 numbers of :meth:`AngleProcess.where`: exponential
+    kernel, drawn from the room's seed."""
+    return FourierField("exponential", sigma, length_m, 10, rng, FIELD_FEATURES)
 
 
 @dataclass
@@ -67,7 +58,7 @@ class AngleProcess:
     def __init__(self, p: AngleError, rng: np.random.Generator, room: np.random.Generator) -> None:
         self.p = p
         self.rng = rng
-        self.field = RandomField(p.field_sigma_deg, p.field_length_m, 10, room) if p.field_sigma_deg > 0 else None
+        self.field = room_field(p.field_sigma_deg, p.field_length_m, room) if p.field_sigma_deg > 0 else None
         self.compression = max(0.0, 1.0 + float(room.normal(0.0, p.compression_spread)))  # this board's
         self._tags: dict[str, _AxisState] = {}
 
@@ -138,7 +129,7 @@ class Stance:
     def __init__(self, person: Person, azimuth: AngleError, elevation: AngleError, rng: np.random.Generator,
                  room: np.random.Generator) -> None:
         self.p, self.rng = person, rng
-        self.fields = tuple(RandomField(sigma, axis.field_length_m, 10, room) if sigma > 0 else None
+        self.fields = tuple(room_field(sigma, axis.field_length_m, room) if sigma > 0 else None
                             for sigma, axis in ((person.stance_az_field_deg, azimuth),
                                                 (person.stance_el_field_deg, elevation)))
         self.headings = (azimuth.field_heading_m, elevation.field_heading_m)
