@@ -10,7 +10,9 @@ from the first waypoint + 0.5 s to the last, the last position printed at or bef
 5 m before the first) and for the angle statistics (host/angle_residuals.py: each report against
 the angle the board would give for the true position; bias, spread, tails, |azimuth| compression,
 autocorrelation time, missing events). Use cases are the captures' name prefixes (``uc1_run3`` is
-use case ``uc1``).
+use case ``uc1``). Each use case's positions are also scored for their stated uncertainty:
+``coverage95``, the fraction of ticks whose truth lies inside the position's 95 % ellipse (its x-y
+covariance; 0.90-0.98 wanted), and the positions' median sigma.
 
 ``--self-cal``: also, for each use case, `rfhoming calibrate SITE --self` on the recordings of
 every *other* use case (a copy of the site file, no ground truth), then locate this use case's
@@ -20,14 +22,21 @@ recordings with that calibration: what a user gets who calibrated on an earlier 
 a coordinate search over the report model's and the motion's settings (CV_STEPS) from the
 defaults, scored on that use case alone (in-process, the same scoring rule), then judged on
 every other use case; the defaults themselves scored beside (~25 scorings a fold, minutes).
+``--kinds FOLDER``: cross-kind folds (issue 50): the defaults and every one-setting move of CV_STEPS
+scored on each kind of walk -- the use cases, and the walks in FOLDER as one more kind
+(bench/carried_walks.py --keep FOLDER writes emulated carried walks of the same room) -- then the
+best on each kind alone and on each mix that leaves one kind out, judged on every kind, the held-out
+ones marked (one scoring per candidate and kind: ~20 x the kinds' locate time).
 
     python bench/real_aoa.py --data DIR [--self-cal] [--json]
+    python bench/carried_walks.py --data DIR --keep walks && python bench/real_aoa.py --data DIR --kinds walks
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shlex
 import shutil
@@ -37,6 +46,7 @@ import tempfile
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +54,7 @@ import rfhoming
 from rfhoming.host import site as sites
 from rfhoming.host.angle_residuals import angle_stats, residuals
 from rfhoming.host.drivers.aoa import bearing_of
-from rfhoming.host.groundtruth import area_of, load_waypoints, score
+from rfhoming.host.groundtruth import FIRST_TICK_S, TICK_S, WalkedPath, area_of, load_waypoints, score
 
 RFHOMING = [sys.executable, "-m", "rfhoming"]
 
@@ -71,14 +81,50 @@ def recordings(data: Path) -> dict[str, list[tuple[Path, Path]]]:
     return found
 
 
-def locate(site: Path, capture: Path, extra: Sequence[str]) -> list[tuple[float, float, float]]:
-    """(t, x, y) of every position `rfhoming locate` prints for the capture."""
+def positions(site: Path, capture: Path, extra: Sequence[str]) -> list[dict[str, Any]]:
+    """Every position line `rfhoming locate` prints for the capture (t, x, y, cov, ...)."""
     done = subprocess.run([*RFHOMING, "locate", str(site), "--from", f"capture:{capture}", *extra],
                           capture_output=True, text=True, check=False)
     if done.returncode:
         raise SystemExit(f"real_aoa: rfhoming locate failed on {capture}: {done.stderr.strip().splitlines()[-1:]}")
     rows = (json.loads(line) for line in done.stdout.splitlines() if line.startswith("{"))
-    return [(p["t"], p["x"], p["y"]) for p in rows if p.get("kind") == "position"]
+    return [p for p in rows if p.get("kind") == "position"]
+
+
+def locate(site: Path, capture: Path, extra: Sequence[str]) -> list[tuple[float, float, float]]:
+    """(t, x, y) of every position `rfhoming locate` prints for the capture."""
+    return [(p["t"], p["x"], p["y"]) for p in positions(site, capture, extra)]
+
+
+ELLIPSE_95 = -2.0 * math.log(0.05)
+"""The squared Mahalanobis radius of a 2-D Gaussian's 95 % ellipse (chi-square, 2 dof: 5.99)."""
+
+
+def inside_95(path: WalkedPath, rows: Sequence[dict[str, Any]]) -> np.ndarray:
+    """Per scoring tick (groundtruth.score's: the last position at or before it) whether the
+    truth lies inside that position's 95 % ellipse (its x-y covariance); ticks before the first
+    position are left out."""
+    ticks = np.arange(path.start_s + FIRST_TICK_S, path.end_s + 1e-9, TICK_S)
+    rows = sorted(rows, key=lambda p: p["t"])
+    idx = np.searchsorted([p["t"] for p in rows], ticks + 1e-9, side="right") - 1
+    truth = path.at(ticks)
+    inside = []
+    for k in np.flatnonzero(idx >= 0):
+        p = rows[idx[k]]
+        e = np.array([p["x"], p["y"]]) - truth[k]
+        cov = np.array(p["cov"], float)[:2, :2]
+        inside.append(bool(np.linalg.det(cov) > 0 and e @ np.linalg.solve(cov, e) <= ELLIPSE_95))
+    return np.array(inside, bool)
+
+
+def coverage(runs: Sequence[tuple[Path, Path]], located: Sequence[Sequence[dict[str, Any]]]) -> dict[str, object]:
+    """The fraction of ticks whose truth lies inside the position's 95 % ellipse (want 0.90-0.98),
+    pooled and per run, and the positions' median sigma (sqrt of the x-y covariance's mean diagonal)."""
+    per_run = [inside_95(load_waypoints(truth), rows) for (_, truth), rows in zip(runs, located)]
+    sigmas = [math.sqrt(max(0.0, (p["cov"][0][0] + p["cov"][1][1]) / 2)) for rows in located for p in rows]
+    return {"coverage95": round(float(np.mean(np.concatenate(per_run))), 3),
+            "coverage95_runs": {c.stem: round(float(np.mean(i)), 3) for (c, _), i in zip(runs, per_run)},
+            "sigma_median_m": round(float(np.median(sigmas)), 3) if sigmas else None}
 
 
 def self_calibrated(site: Path, captures: Sequence[Path], into: Path) -> tuple[Path, str]:
@@ -103,10 +149,12 @@ def summary(errors: np.ndarray) -> dict[str, float]:
 
 def score_case(site: Path, runs: Sequence[tuple[Path, Path]], extra: Sequence[str], jobs: int) -> dict[str, object]:
     with ThreadPoolExecutor(jobs) as pool:
-        located = list(pool.map(lambda run: locate(site, run[0], extra), runs))
-    per_run = [score(load_waypoints(truth), positions) for (_, truth), positions in zip(runs, located)]
+        located = list(pool.map(lambda run: positions(site, run[0], extra), runs))
+    per_run = [score(load_waypoints(truth), [(p["t"], p["x"], p["y"]) for p in rows])
+               for (_, truth), rows in zip(runs, located)]
     return {**summary(np.concatenate(per_run)), "runs": {c.stem: round(float(np.mean(e)), 3)
-                                                         for (c, _), e in zip(runs, per_run)}}
+                                                         for (c, _), e in zip(runs, per_run)},
+            **coverage(runs, located)}
 
 
 def angle_figures(site_path: Path, runs: Sequence[tuple[Path, Path]], model: str = "spherical") -> dict[str, object]:
@@ -185,6 +233,80 @@ def cross_validate(site_path: Path, cases: dict[str, list[tuple[Path, Path]]]) -
             "folds": folds}
 
 
+_KIND_WALKS: dict[str, list[tuple[list[tuple[float, object]], object]]] = {}
+"""cross_kind's walks by kind (events, waypoints), set before its worker processes fork."""
+
+
+def _kind_error(site: sites.Site, setting: dict[str, float], kind: str) -> float:
+    """locate's mean error on one kind's walks with ``setting`` (in-process, the data set's rule)."""
+    from dataclasses import fields, replace
+
+    from rfhoming.host.estimation.angle_tracker import AngleNoise
+    from rfhoming.host.locate import Locator
+
+    noise_keys = {f.name for f in fields(AngleNoise)}
+    noise = AngleNoise(**{k: v for k, v in setting.items() if k in noise_keys})
+    s = replace(site, az_compression=setting["az_compression"])
+    errors = []
+    for events, truth in _KIND_WALKS[kind]:
+        loc = Locator(s, noise=noise, accel_psd=setting["accel_psd"])
+        out = [p for t, e in events for p in loc.feed(t, e)] + loc.flush()  # type: ignore[arg-type]
+        errors.append(score(truth, [(p.t, float(p.point[0]), float(p.point[1])) for p in out]))  # type: ignore[arg-type]
+    got = float(np.mean(np.concatenate(errors)))
+    print(f"[kinds] {kind} {json.dumps(setting)}: {got:.3f} m", file=sys.stderr, flush=True)
+    return got
+
+
+def cross_kind(site_path: Path, kinds: dict[str, list[tuple[Path, Path]]], jobs: int = 2) -> dict[str, object]:
+    """Settings chosen on one kind of walk (or a mix), judged on the others (issue 50). Every
+    candidate -- the defaults, and each one-setting move of CV_STEPS from them -- is scored once
+    on every kind (``jobs`` processes); a training set (each kind alone, and each mix that
+    leaves one kind out) picks the candidate with the least mean of its kinds' mean errors (each
+    kind weighing alike), and that choice is read off on every kind. One table serves every fold."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rfhoming.host.estimation.angle_tracker import AngleNoise
+    from rfhoming.host.locate import ACCEL_PSD
+
+    site = sites.load(site_path)
+    for kind, runs in kinds.items():
+        _KIND_WALKS[kind] = [([(got.t, got.item) for got in rfhoming.read(f"capture:{c}", kinds={"angle"})],
+                              load_waypoints(t)) for c, t in runs]
+    defaults = {k: float(getattr(AngleNoise(), k)) for k in CV_STEPS if hasattr(AngleNoise(), k)}
+    defaults |= {"accel_psd": ACCEL_PSD["angles"], "az_compression": site.az_compression}
+    candidates = [{}] + [{k: v} for k, values in CV_STEPS.items() for v in values if v != defaults[k]]
+    names = list(kinds)
+    jobs_list = [(defaults | moved, k) for moved in candidates for k in names]
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:  # the walks, shared
+        scores = list(pool.map(_kind_error, [site] * len(jobs_list), *zip(*jobs_list)))
+    table = [dict(zip(names, scores[i * len(names):(i + 1) * len(names)])) for i in range(len(candidates))]
+    trainings = [[k] for k in names] + ([[k for k in names if k != out] for out in names] if len(names) > 2 else [])
+    folds = {}
+    for train in trainings:
+        best = min(range(len(candidates)), key=lambda i: float(np.mean([table[i][k] for k in train])))
+        folds["+".join(train)] = {"chosen": candidates[best],
+                                  "judged_m": {k: round(table[best][k], 3) for k in names}}
+    return {"kinds": {k: len(v) for k, v in kinds.items()}, "defaults": defaults,
+            "defaults_m": {k: round(table[0][k], 3) for k in names}, "folds": folds,
+            "candidates": [{"moved": c, "m": {k: round(v, 3) for k, v in row.items()}}
+                           for c, row in zip(candidates, table)]}
+
+
+def print_cross_kind(table: dict[str, object]) -> None:
+    """Cross-kind folds as a Markdown table: each row a training set, each column a kind."""
+    names = list(table["kinds"])  # type: ignore[call-overload]
+    print("cross-kind folds: the setting chosen on the row's kinds (the best of the defaults and each one-setting "
+          "move), its mean error on each kind\n")
+    print("| chosen on | moved from the defaults | " + " | ".join(names) + " |\n|---|---|" + "---|" * len(names))
+    defaults = table["defaults_m"]  # type: ignore[index]
+    print("| (the defaults) | - | " + " | ".join(f"{defaults[k]:.3f} m" for k in names) + " |")
+    for train, fold in table["folds"].items():  # type: ignore[attr-defined]
+        cells = [f"{fold['judged_m'][k]:.3f} m" + ("" if k in train.split("+") else " (held out)") for k in names]
+        print(f"| {train} | {json.dumps(fold['chosen'])} | " + " | ".join(cells) + " |")
+    print()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, required=True, help="a folder laid out as girolami_xplr_aoa/")
@@ -192,6 +314,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--locate", default="", metavar="ARGS", help="extra arguments for every rfhoming locate")
     ap.add_argument("--jobs", type=int, default=2, help="locate processes at once (default 2)")
     ap.add_argument("--cv", action="store_true", help="also: the cross-validation of the angles tracker's defaults")
+    ap.add_argument("--kinds", type=Path, metavar="FOLDER", help="also: cross-kind folds over DIR's use cases and "
+                    "the walks in FOLDER (captures and waypoint files, e.g. bench/carried_walks.py --keep FOLDER: "
+                    "emulated carried walks of the same room), as one more kind named by their prefix")
     ap.add_argument("--angle-model", choices=("spherical", "cone"), default="spherical",
                     help="the angle table's reading of the reports (default spherical: the reading the data set's figures were measured in)")
     ap.add_argument("--json", action="store_true", help="one JSON object instead of tables")
@@ -213,6 +338,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         result["self_calibrated"] = calibrated
     if args.cv:
         result["cross_validation"] = cross_validate(site, cases)
+    if args.kinds:
+        result["cross_kind"] = cross_kind(site, {**cases, **other_kinds(args.kinds)}, args.jobs)
     result["angles"] = {uc: angle_figures(site, runs, args.angle_model) for uc, runs in cases.items()}
     result["angles"]["all"] = angle_figures(site, [r for runs in cases.values() for r in runs],  # type: ignore[index]
                                             args.angle_model)
@@ -224,7 +351,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def other_kinds(folder: Path) -> dict[str, list[tuple[Path, Path]]]:
+    """Walks of other kinds in ``folder``: each ``KIND_runR.pcapng`` with its ``KIND_runR.csv``."""
+    found: dict[str, list[tuple[Path, Path]]] = {}
+    for capture in sorted(folder.glob("*_run*.pcapng")):
+        truth = capture.with_suffix(".csv")
+        if not truth.exists():
+            raise SystemExit(f"real_aoa: {capture} has no waypoint file {truth}")
+        found.setdefault(capture.stem.rsplit("_run", 1)[0], []).append((capture, truth))
+    if not found:
+        raise SystemExit(f"real_aoa: --kinds {folder} holds no KIND_runR.pcapng with its KIND_runR.csv")
+    return found
+
+
 def print_tables(result: dict[str, object]) -> None:
+    if "cross_kind" in result:
+        print_cross_kind(result["cross_kind"])  # type: ignore[arg-type]
     if "cross_validation" in result:
         cv = result["cross_validation"]
         print(f"cross-validation: the defaults {json.dumps(cv['defaults'])} score {json.dumps(cv['defaults_mean_m'])}")  # type: ignore[index]
@@ -238,6 +380,7 @@ def print_tables(result: dict[str, object]) -> None:
     for name, table in rows:
         for uc, s in table.items():  # type: ignore[attr-defined]
             print(f"| {name} | {uc} | {s['mean_m']:.3f} m | {s['median_m']:.3f} m | {s['p95_m']:.3f} m | {s['ticks']} |")
+    print_coverage(rows)
     print("\nAngle residuals against the ground truth (degrees; tails: fraction beyond 20 deg; "
           "acf: autocorrelation time, s; missing: worst recording's fraction)\n")
     print("| use case | anchor | az bias | az std | az 1.4826 MAD | az tail | el bias | el std | el tail "
@@ -249,6 +392,14 @@ def print_tables(result: dict[str, object]) -> None:
                   f"| {100 * s['az_tail']:.1f} % | {s['el_bias']:+.1f} | {s['el_std']:.1f} | {100 * s['el_tail']:.1f} % "
                   f"| {c.get('45-60', float('nan')):+.1f} / {c.get('60-90', float('nan')):+.1f} "
                   f"| {s['corr_time_s']:.2f} | {100 * s['missing']:.1f} % |")
+
+
+def print_coverage(rows: Sequence[tuple[str, object]]) -> None:
+    """The 95 % ellipses' coverage of the truth, per pipeline and use case (want 0.90-0.98)."""
+    print("\n| pipeline | use case | truth inside the 95 % ellipse | median sigma |\n|---|---|---|---|")
+    for name, table in rows:
+        for uc, s in table.items():  # type: ignore[attr-defined]
+            print(f"| {name} | {uc} | {100 * s['coverage95']:.1f} % of ticks | {s['sigma_median_m']:.3f} m |")
 
 
 if __name__ == "__main__":

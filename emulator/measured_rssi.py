@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rfhoming.emulator import draws
+from rfhoming.emulator.fields import FourierField
 from rfhoming.emulator.radio import Ends, PathLossModel, RadioChannel
 from rfhoming.protocol import devices
 from rfhoming.protocol.rssi_profile import RssiProfile
@@ -38,20 +39,13 @@ FIELD_FEATURES = 128
 """Random Fourier features per shadowing field: enough that its values look Gaussian."""
 
 
-class ShadowField:
-    """A stationary Gaussian field over a link's two ends (s_x, s_y, r_x, r_y) with covariance
-    sd^2 exp(-|Δ|^2 / distance^2), as random Fourier features (Rahimi and Recht, NIPS 2007):
-    cosines whose frequencies are drawn from the kernel's spectral density, N(0, 2 / distance^2)."""
+class ShadowField(FourierField):
+    """A link's shadowing: a Gaussian-kernel field over its two ends (s_x, s_y, r_x, r_y) with
+    covariance sd^2 exp(-|Δ|^2 / distance^2) (emulator/fields.py)."""
 
     def __init__(self, sd_db: float, distance_m: float, rng: np.random.Generator) -> None:
-        self.freq = rng.normal(0.0, math.sqrt(2.0) / distance_m, (FIELD_FEATURES, 4))
-        self.phase = rng.uniform(0.0, 2 * math.pi, FIELD_FEATURES)
-        self.amp = sd_db * math.sqrt(2.0 / FIELD_FEATURES)
+        super().__init__("gaussian", sd_db, distance_m, 4, rng, FIELD_FEATURES)
         self._last: tuple[Ends, float] | None = None  # ends that stay put (a parked robot, a fixed pair) cost nothing
-
-    def values(self, ends: np.ndarray) -> np.ndarray:
-        """The field at each row of ``ends`` (..., 4): the one formula, for one reading or a flight's million."""
-        return np.asarray(self.amp * np.cos(np.asarray(ends, float) @ self.freq.T + self.phase).sum(axis=-1), float)
 
     def at(self, ends: Ends) -> float:
         if self._last is not None and self._last[0] == ends:

@@ -82,7 +82,7 @@ def residuals(site: Site, events: Iterable[Bearing], path: WalkedPath,
     by_anchor: dict[str, list[tuple[float, float, float, float]]] = {}
     names = {a.id: a for a in site.anchors}
     for r in events:
-        if r.anchor in names and (tag is None or r.tag == tag) and path.start_s <= r.t <= path.end_s:
+        if r.anchor in names and (tag is None or r.tag == tag) and path.start_s <= r.t <= path.last_s:
             by_anchor.setdefault(r.anchor, []).append((r.t, r.clockwise_deg, r.elevation_deg or 0.0,
                                                    math.nan if r.rssi is None else r.rssi))
     out = {}

@@ -29,6 +29,7 @@ walk and no return), all of the slow error is put in the field and the profile s
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Sequence
@@ -72,6 +73,7 @@ LAG_EDGES_S = (0.0, 0.15, 0.25, 0.4, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, 3.0, 4.0, 5.5
 DISTANCE_EDGES_M = (0.0, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0, 1.3, 1.7, 2.2, FAR_M, math.inf)
 LENGTH_GRID_M = tuple(float(v) for v in np.geomspace(0.05, 10.0, 25))
 TIME_GRID_S = tuple(float(v) for v in np.geomspace(0.05, FAR_S / 3, 20))
+HEADING_GRID_M = (0.0, *(float(v) for v in np.geomspace(0.05, 10.0, 19)))
 
 GRID_STRIDE = 3
 """The grid search first takes every third point of each grid, then every point near the best."""
@@ -127,7 +129,10 @@ def fit_aoa(walks: Sequence[Walk]) -> tuple[AoaProfile, dict[str, object]]:
     """The profile's ``[aoa]`` for these recordings, and a report of what the fit saw."""
     if not walks or not any(w.residuals for w in walks):
         raise ValueError("no angle reports to fit: the recordings hold none of the site's anchors and tag")
-    fits = {axis: fit_axis(_series(walks, axis), compress=axis == "azimuth") for axis in ("azimuth", "elevation")}
+    fits = {}
+    for axis in ("azimuth", "elevation"):
+        series = _series(walks, axis)
+        fits[axis] = fit_axis(series, compress=axis == "azimuth") if _reported(series) else _not_reported(axis, series)
     missing, missing_sources, missing_report = fit_missing(walks)
     sources = {f"{axis}.{k}": v for axis, f in fits.items() for k, v in f.sources.items()}
     sources.update({f"missing.{k}": v for k, v in missing_sources.items()})
@@ -136,7 +141,53 @@ def fit_aoa(walks: Sequence[Walk]) -> tuple[AoaProfile, dict[str, object]]:
     profile = AoaProfile(fits["azimuth"].error, fits["elevation"].error, missing, sources, assumed)
     report: dict[str, object] = {axis: f.report for axis, f in fits.items()}
     report["missing"] = missing_report
+    report["warnings"] = warnings(profile)
     return profile, report
+
+
+def _reported(series: list[_Series]) -> bool:
+    """Whether the board reports this axis at all: a board without it (no elevation) prints
+    one value throughout (0), which is not an angle with an error to fit."""
+    said = np.concatenate([s.err + s.true for s in series]) if series else np.zeros(0)
+    return bool(len(said)) and float(np.ptp(said)) > 0
+
+
+def _not_reported(axis: str, series: list[_Series]) -> AxisFit:
+    """A quiet :class:`AngleError` for an axis the board does not report, and why."""
+    said = float((series[0].err + series[0].true)[0]) if series else 0.0
+    fit = AxisFit(AngleError())
+    why = f"the board reports no {axis} (every report {said:g} deg): nothing to fit, the profile gives it no error"
+    fit.assumed = {f.name: why for f in dataclasses.fields(AngleError)}
+    fit.report = {"events": int(sum(len(s.t) for s in series)), "reported": False}
+    return fit
+
+
+BOUNDS = {"field_length_m": (LENGTH_GRID_M[0], LENGTH_GRID_M[-1]),
+          "field_heading_m": (math.nan, HEADING_GRID_M[-1]),  # 0: no heading effect, a real answer
+          "slow_time_s": (TIME_GRID_S[0], TIME_GRID_S[-1])}
+"""The fit's grids: a figure at either end is where the grid stopped, not what the data say."""
+
+COMPRESSION_SPREAD_WARN = 0.5
+"""A per-board compression spread beyond this draws boards 1.5x (and 0.5x) the curve and more:
+the anchors disagree about the curve rather than share one."""
+
+
+def warnings(profile: AoaProfile) -> list[str]:
+    """One line per fitted figure that sits at the end of its grid or is implausibly wide,
+    naming it (radio-fit prints them; the profile is still written)."""
+    out = []
+    for axis in ("azimuth", "elevation"):
+        error: AngleError = getattr(profile, axis)
+        for name, (low, high) in BOUNDS.items():
+            value = float(getattr(error, name))
+            if f"{axis}.{name}" not in profile.assumed and (math.isclose(value, low, rel_tol=0.02) or math.isclose(value, high, rel_tol=0.02)):
+                out.append(f"{axis}.{name} = {value:g} is at the end of the fit's grid ({low:g}..{high:g}): the "
+                           "recordings do not determine it; walk more places, and more than once")
+        if error.compression_spread > COMPRESSION_SPREAD_WARN:
+            out.append(f"{axis}.compression_spread = {error.compression_spread:g} (> {COMPRESSION_SPREAD_WARN:g}): "
+                       "the anchors' compression curves disagree; an emulated board may draw "
+                       f"{1 + 2 * error.compression_spread:.1f}x the curve")
+    return out
 
 
 CARRIED = ("no recording of a board carried on a robot is known to the project: a carried board (S0's, and the "
@@ -385,8 +436,6 @@ class _Pairs:
         for row, values in enumerate((prod, np.ones(prod.shape), dt, d, chord)):
             self.sums[row] += np.bincount(index, values.ravel(), _BINS)
 
-
-HEADING_GRID_M = (0.0, *(float(v) for v in np.geomspace(0.05, 10.0, 19)))
 
 
 @dataclass

@@ -58,6 +58,11 @@ class WalkedPath:
     def end_s(self) -> float:
         return self.waypoints[-1].arrive_s
 
+    @property
+    def last_s(self) -> float:
+        """When the walk is over: the last waypoint left (a static survey's point: its dwell's end)."""
+        return self.waypoints[-1].leave_s
+
     def at(self, t: Sequence[float] | np.ndarray) -> np.ndarray:
         """(N, 2) positions at the times ``t`` (held at the ends)."""
         times, xy = self._knots()
@@ -70,7 +75,7 @@ class WalkedPath:
         standing = np.zeros(tt.shape, bool)
         for w in self.waypoints:
             standing |= (tt >= w.arrive_s) & (tt <= w.leave_s)
-        inside = (tt > self.start_s) & (tt < self.waypoints[-1].leave_s)
+        inside = (tt > self.start_s) & (tt < self.last_s)
         return inside & ~standing
 
     def heading(self, t: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -142,8 +147,9 @@ def load_waypoints(path: Path, area: Area | None = None) -> WalkedPath:
         if len(points) == MAX_WAYPOINTS:
             raise GroundTruthError(f"{path} row {row_no}: more than {MAX_WAYPOINTS:,} waypoints; is it the right file?")
         points.append(point)
-    if len(points) < 2:
-        raise GroundTruthError(f"{path}: a walk needs at least two waypoints, found {len(points)}")
+    if not points or (len(points) == 1 and points[0].leave_s <= points[0].arrive_s):
+        raise GroundTruthError(f"{path}: a walk needs two waypoints, or one with a dwell (leave_ms after arrival_ms: "
+                               f"a static survey's point), found {len(points)} without")
     return WalkedPath(tuple(points))
 
 

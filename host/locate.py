@@ -26,8 +26,19 @@ from typing import Any
 import numpy as np
 
 from rfhoming.host.bearing import Bearing
-from rfhoming.host.estimation.anchors3d import LOSSES, Degenerate, Fix, Ray, angle_sigma_deg, locate, make_ray
+from rfhoming.host.estimation.anchors3d import (
+    LOSSES,
+    Degenerate,
+    Fix,
+    Ray,
+    angle_sigma_deg,
+    board_direction,
+    locate,
+    make_ray,
+)
 from rfhoming.host.estimation.angle_tracker import AngleNoise, AngleTracker, TrackerBank
+from rfhoming.host.estimation.bearing_consensus import Bearings, Consensus, consensus
+from rfhoming.host.estimation.track_guard import MIN_ANCHORS, TrackGuard
 from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
 from rfhoming.host.site import Anchor, Calibration, Site, uncompress
 
@@ -58,6 +69,43 @@ FORGET_S = 60.0
 
 MAX_PER_PAIR = 2000
 """Angles kept per (tag, anchor) at most, whatever the window (a bound, not a setting)."""
+
+MAX_SPAN_S = 20.0
+"""A slow anchor's window and staleness widen up to this (s): issue 50's board reports 0.5-3 a second."""
+
+RAY_REPORTS = 5
+"""A fix's ray rests on at least this many of its anchor's reports (its window widens for them)."""
+
+STALE_GAPS = 3.0
+"""An anchor is stale after this many of its usual gaps between reports (and stale_s)."""
+
+RATE_REPORTS = 8
+"""An anchor's usual gap: the mean over its last this many."""
+
+CHECK_SPAN_S = 3.0
+"""The track's check (estimation/track_guard.py) takes each anchor's reports of the last this many
+seconds, or of its last CHECK_REPORTS (up to MAX_SPAN_S), at most CHECK_MAX of them spread evenly."""
+
+CHECK_REPORTS = 8
+CHECK_MAX = 24
+
+FLOOR_M = 0.25
+"""Added (as a standard deviation, on x and y) to an angles tracker's position covariance, times
+the tag's noise scale: the error of a tag that stands where the multipath stays put for longer
+than the tracker's slow errors last (2 s). Chosen so that the 95 % ellipse holds the truth at
+95 % of the ticks on the shared recordings: 0.29 on uc1 (then uc2: 97.8 %), 0.21 on uc2 (then
+uc1: 91.2 %); the default is the mean of the two (docs/estimation.md, "Guards")."""
+
+POOR_BOARD = 1.5
+"""A board whose reports miss the track by this many times what the noise model expects is
+tracked with its noise scaled up to match (below it, with the model's: real XPLR-AOA walks miss
+by 0.7-1.1 times, and a small scale is noise in the measure, not a poorer board)."""
+
+RESCALE = 1.1
+"""A tag's tracker takes a new noise scale when the board's spread moved it by this factor."""
+
+VERTICAL = 0.2
+"""A report whose ray is this near vertical (horizontal part below it) has no floor bearing."""
 
 
 @dataclass(frozen=True)
@@ -122,10 +170,16 @@ class Locator:
         self._pending: list[tuple[float, str, str, float, float]] = []
         self._latest = -math.inf
         self._next_tick: float | None = None
-        self._windows: dict[tuple[str, str], deque[tuple[float, float, float]]] = {}
+        self._windows: dict[tuple[str, str], deque[tuple[float, ...]]] = {}
+        """(t, azimuth, elevation, floor bearing, its fold's) of each (tag, anchor): corrected degrees, radians."""
         self._trackers: dict[str, ConstantVelocity] = {}
         self._ekfs: dict[str, BearingEkf] = {}
         self._angle_trackers: dict[str, AngleTracker | TrackerBank] = {}
+        self.extent = site.bounds()
+        self._guards: dict[str, TrackGuard] = {}
+        self._noise_scale: dict[str, float] = {}
+        """Per tag: the angles tracker's azimuth noise over ``noise``'s, when the reports miss the
+        track by more than that noise says (a poorer board than the model's): see _rescale."""
         self.log_density = 0.0
         """The sum of the angles tracker's reports' predictive log densities (in the reported
         angles' units), over ``reports_scored`` reports: its mean says how well a site (its
@@ -134,7 +188,11 @@ class Locator:
         self._lost: dict[str, float] = {}  # anchor id -> host time its driver last reported it gone
         self.counters = {"events": 0, "unknown_anchor": 0, "other_tag": 0, "late": 0, "overflow": 0,
                          "fixes": 0, "no_fix": 0, "rejected_anchor": 0, "gated": 0, "restarts": 0,
-                         "disconnects": 0, "downweighted": 0, "outside_fov": 0}
+                         "disconnects": 0, "downweighted": 0, "outside_fov": 0, "outside": 0, "held": 0}
+        """outside_fov: readings beyond their anchor's field of view (fov_deg);
+        outside: positions withheld beyond the site's extent plus its margin (each a lost track);
+        held: a tracker's state put back inside the extent plus margin after a report (estimation/extent.py);
+        restarts: lost tracks started again (outside, held too long, or their reports' check, or the tracker's own)."""
 
     # -- input -------------------------------------------------------------------------
     def feed(self, reading: Bearing) -> list[Position]:
@@ -190,9 +248,12 @@ class Locator:
             window = self._windows[(tag, anchor_id)] = deque(maxlen=MAX_PER_PAIR)
         if window and t < window[-1][0]:
             self.counters["late"] += 1  # later than reorder_s: taken, out of order
-        cal = self.anchors[anchor_id].calibration
+        while window and window[0][0] < t - 2 * MAX_SPAN_S:
+            window.popleft()
+        anchor = self.anchors[anchor_id]
+        cal = anchor.calibration
         a, e = cal.correct(az, el) if self.calibrated else (float(az), float(el))
-        window.append((t, a, e))
+        window.append((t, a, e, *self._bearing(anchor, a, e)))
         tracker = self._angle_trackers.get(tag)
         if tracker is not None and not tracker.lost:
             before, density = tracker.counters["downweighted"], tracker.log_density
@@ -200,6 +261,9 @@ class Locator:
                 self.log_density += tracker.log_density - density - (cal.log_stretch(a) if self.calibrated else 0.0)
                 self.reports_scored += 1
             self.counters["downweighted"] += tracker.counters["downweighted"] - before
+            outside = tracker.hold(self.extent)
+            self.counters["held"] += outside
+            self._guards[tag].held(t, outside)
             if tracker.lost:  # its reports disagreed with it for too long: the next tick fixes afresh
                 self.counters["restarts"] += 1
         ekf = self._ekfs.get(tag)
@@ -214,25 +278,55 @@ class Locator:
                     self.counters["restarts"] += 1
         return out
 
+    def _bearing(self, anchor: Anchor, a: float, e: float) -> tuple[float, float]:
+        """A corrected report's floor bearing and its fold's (radians; nan: none, or a ray near vertical)."""
+        rot = self.rotations[anchor.id]
+        d = rot @ board_direction(self._true_azimuth(a), e, anchor.angle_model)
+        if math.hypot(d[0], d[1]) < VERTICAL:
+            return math.nan, math.nan
+        if not anchor.two_sided:
+            return math.atan2(d[1], d[0]), math.nan
+        m = rot @ (rot.T @ d * np.array([-1.0, 1.0, 1.0]))
+        return math.atan2(d[1], d[0]), math.atan2(m[1], m[0])
+
+    def _true_azimuth(self, a: float) -> float:
+        """A corrected azimuth with the boards' |azimuth| compression undone: a +-90 board's
+        reading; one beyond +-90 (a board that sees all round) is taken as it is."""
+        return float(uncompress(a, self.site.az_compression)) if abs(a) <= 90.0 else a
+
+    def _since(self, anchor_id: str, t: float) -> float:
+        """Reports of this anchor at or before this are not used at ``t`` (its device was lost then)."""
+        lost = self._lost.get(anchor_id, -math.inf)
+        return lost if t >= lost else -math.inf  # a tick before the loss still had the anchor
+
+    def _stale_after(self, window: deque[tuple[float, ...]]) -> float:
+        """How long this anchor may be silent and still count: stale_s, or a few of its usual gaps."""
+        gap = _gap(window)
+        return self.site.stale_s if math.isinf(gap) else min(MAX_SPAN_S, max(self.site.stale_s, STALE_GAPS * gap))
+
+    def _fresh(self, tag: str, t: float) -> list[str]:
+        """The anchors heard about ``tag`` recently enough (and since any loss of their device)."""
+        return [a_id for a_id in self.anchors if (w := self._windows.get((tag, a_id)))
+                and w[-1][0] >= t - self._stale_after(w) and not w[-1][0] <= self._lost.get(a_id, -math.inf) <= t]
+
     # -- output ------------------------------------------------------------------------
     def rays_at(self, tag: str, t: float) -> tuple[list[Ray], float]:
-        """Each fresh anchor's ray for ``tag`` at ``t`` and the mean time of the angles used."""
+        """Each fresh anchor's ray for ``tag`` at ``t`` and the mean time of the angles used: the
+        median of its last window_s seconds of angles, widened for a slow anchor until it holds
+        RAY_REPORTS (up to MAX_SPAN_S)."""
         rays, times = [], []
         sigma0 = self.site.sigma_deg
         for anchor_id, anchor in self.anchors.items():
             window = self._windows.get((tag, anchor_id))
-            if not window or window[-1][0] < t - self.site.stale_s:
+            if not window or window[-1][0] < t - self._stale_after(window):
                 continue
-            while window and window[0][0] < t - self.site.stale_s - self.site.window_s:
-                window.popleft()
-            lost = self._lost.get(anchor_id, -math.inf)
-            since = lost if t >= lost else -math.inf  # a tick before the loss still had the anchor
+            since = self._since(anchor_id, t)
             last = next((w[0] for w in reversed(window) if since < w[0] <= t), None)
             if last is None:
                 continue
-            first = max(since, last - self.site.window_s)
-            recent = [w for w in window if first < w[0] <= last]
-            az = float(uncompress(statistics.median(w[1] for w in recent), self.site.az_compression))
+            first = max(since, last - min(MAX_SPAN_S, max(self.site.window_s, RAY_REPORTS * _gap(window))))
+            recent = _between(window, first, last)
+            az = self._true_azimuth(_circular_median([w[1] for w in recent]))
             el = statistics.median(w[2] for w in recent)
             sigma = math.hypot(sigma0 * 1.25 / math.sqrt(len(recent)), sigma0 * SYSTEMATIC)
             rays.append(make_ray(anchor.name, anchor.position, self.rotations[anchor_id], az, el, sigma,
@@ -240,70 +334,176 @@ class Locator:
             times.append(sum(w[0] for w in recent) / len(recent))
         return rays, sum(times) / len(times) if times else t
 
+    def recent_bearings(self, tag: str, t: float) -> tuple[Bearings, np.ndarray] | None:
+        """The fresh anchors' recent reports of ``tag`` as floor bearings, and their times: each
+        anchor's last CHECK_SPAN_S seconds, or its last CHECK_REPORTS (within MAX_SPAN_S), at
+        most CHECK_MAX spread evenly; None from fewer than MIN_ANCHORS anchors."""
+        rows: list[tuple[float, float, float, int]] = []
+        for k, anchor_id in enumerate(self.anchors):
+            window = self._windows.get((tag, anchor_id))
+            if not window or window[-1][0] < t - self._stale_after(window):
+                continue
+            span = min(MAX_SPAN_S, max(CHECK_SPAN_S, CHECK_REPORTS * _gap(window)))
+            mine = [(w[0], w[3], w[4], k) for w in _between(window, max(self._since(anchor_id, t), t - span), t)
+                    if not math.isnan(w[3])]
+            rows += mine[:: -(-len(mine) // CHECK_MAX)] if mine else []
+        if len({r[3] for r in rows}) < MIN_ANCHORS:
+            return None
+        a = np.array(rows)
+        origins = np.array([self._origins[list(self.anchors)[int(k)]][:2] for k in a[:, 3]])
+        return Bearings(origins, a[:, 1], a[:, 2], a[:, 3].astype(int)), a[:, 0]
+
+    def _consensus(self, tag: str, t: float) -> Consensus | None:
+        got = self.recent_bearings(tag, t)
+        return None if got is None else consensus(got[0], self.extent)
+
     def _tick(self, t: float) -> list[Position]:
         out = []
         gone = [k for k, w in self._windows.items() if not w or w[-1][0] < t - FORGET_S]
         for key in gone:  # tags that left (or were never wanted): bounded memory
             del self._windows[key]
             if not any(k[0] == key[0] for k in self._windows):
-                self._trackers.pop(key[0], None)
-                self._ekfs.pop(key[0], None)
-                self._angle_trackers.pop(key[0], None)
+                self._drop(key[0])
+                self._guards.pop(key[0], None)
         for tag in sorted({k[0] for k in self._windows}):
-            info = self.site.tag(tag)
-            height = info.height if info else None
-            ekf = self._ekfs.get(tag) or self._angle_trackers.get(tag)
-            if ekf is not None and ekf.t is not None and ekf.t >= t - self.site.stale_s:
-                fresh = tuple(a.name for a_id, a in self.anchors.items()
-                              if (w := self._windows.get((tag, a_id))) and w[-1][0] >= t - self.site.stale_s
-                              and not w[-1][0] <= self._lost.get(a_id, -math.inf) <= t)  # none since lost
-                point, cov = ekf.predicted(t)
-                out.append(Position(t, tag, point, cov, fresh, (), True))
-                continue
-            rays, t_fix = self.rays_at(tag, t)
-            if len(rays) < (2 if height is not None else 3):
-                self.counters["no_fix"] += 1
-                continue
-            try:
-                fix = locate(rays, height=height, loss=self.loss, height_sigma=self.height_sigma)
-            except Degenerate:
-                self.counters["no_fix"] += 1
-                continue
-            self.counters["fixes"] += 1
-            self.counters["rejected_anchor"] += len(fix.rejected)
-            if not self.track:
-                out.append(Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False, _chi2_per_dof(fix, height, self.height_sigma),
-                                    t_fix=t_fix))
-                continue
-            if self.tracker == "angles":  # a fix starts (or restarts) the tracker; angles drive it
-                angles = self._angle_trackers[tag] = self._new_angle_tracker(height)
-                angles.start(t_fix, fix.point, fix.covariance)
-                point, cov = angles.predicted(t)
-                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, _chi2_per_dof(fix, height, self.height_sigma)))
-                continue
-            if self.tracker == "ekf":  # a fix starts (or restarts) the filter; angles drive it
-                ekf = self._ekfs[tag] = BearingEkf(self.accel_psd)
-                ekf.start(t_fix, fix.point, fix.covariance)
-                point, cov = ekf.predicted(t)
-                out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, _chi2_per_dof(fix, height, self.height_sigma)))
-                continue
-            tracker = self._trackers.setdefault(tag, ConstantVelocity(self.accel_psd))
-            if not tracker.update(t_fix, fix.point, fix.covariance):
-                self.counters["gated"] += 1
-            if tracker.t is None:
-                continue
-            point, cov = tracker.predicted(t)
-            if height is not None and self.height_sigma is None:  # a constraint, not a prior
-                point = np.array([point[0], point[1], height])
-            out.append(Position(t, tag, point, cov, fix.used, fix.rejected, True, _chi2_per_dof(fix, height, self.height_sigma)))
+            out += self._tag_tick(tag, t)
         return out
 
-    def _new_angle_tracker(self, height: float | None) -> AngleTracker | TrackerBank:
+    def _drop(self, tag: str) -> None:
+        self._trackers.pop(tag, None)
+        self._ekfs.pop(tag, None)
+        self._angle_trackers.pop(tag, None)
+
+    def _tag_tick(self, tag: str, t: float) -> list[Position]:
+        """``tag``'s position at tick ``t``: from its running track (checked), or a fresh fix."""
+        info = self.site.tag(tag)
+        height = info.height if info else None
+        guard = self._guards.setdefault(tag, TrackGuard(self.extent))
+        ekf = self._ekfs.get(tag) or self._angle_trackers.get(tag)
+        fresh = self._fresh(tag, t)
+        stale = max((self._stale_after(self._windows[(tag, a)]) for a in fresh), default=self.site.stale_s)
+        if ekf is not None and ekf.t is not None and ekf.t >= t - stale:
+            point, cov = ekf.predicted(t)
+            restart: Consensus | None = None
+            if not self.extent.inside(point) or guard.held_too_long(t):  # withheld: a track that left is lost
+                self.counters["outside"] += 1
+                restart, lost = self._consensus(tag, t), True
+            elif guard.due(t) and (reports := self.recent_bearings(tag, t)) is not None:
+                restart = guard.check(*reports)
+                lost = restart is not None
+                self._rescale(tag, guard)
+            else:
+                lost = False
+            if not lost:
+                guard.record(t, point)
+                return [Position(t, tag, point, self._honest(tag, cov), tuple(self.anchors[a].name for a in fresh), (),
+                                 True)]
+            self.counters["restarts"] += 1
+            self._drop(tag)
+            guard.reset()
+            if restart is None:
+                return []
+            return [self._start(tag, t, t, self._restart_point(restart, point, height), (), ())]
+        rays, t_fix = self.rays_at(tag, t)
+        if len(rays) < (2 if height is not None else 3):
+            self.counters["no_fix"] += 1
+            return []
+        try:
+            fix = locate(rays, height=height, loss=self.loss, height_sigma=self.height_sigma)
+        except Degenerate:
+            self.counters["no_fix"] += 1
+            return []
+        self.counters["fixes"] += 1
+        self.counters["rejected_anchor"] += len(fix.rejected)
+        quality = _chi2_per_dof(fix, height, self.height_sigma)
+        if not self.extent.inside(fix.point):  # withheld; a tracker starts from the reports' consensus instead
+            self.counters["outside"] += 1
+            restart = self._consensus(tag, t) if self.track and self.tracker != "cv" else None
+            if restart is None:
+                return []
+            guard.reset()
+            return [self._start(tag, t, t, self._restart_point(restart, fix.point, height), fix.used, fix.rejected)]
+        if not self.track:
+            return [Position(t, tag, fix.point, fix.covariance, fix.used, fix.rejected, False, quality, t_fix=t_fix)]
+        if self.tracker in ("angles", "ekf"):  # a fix starts (or restarts) the tracker; angles drive it
+            guard.reset()
+            started = self._start(tag, t, t_fix, (fix.point, fix.covariance), fix.used, fix.rejected)
+            return [replace(started, quality=quality)]
+        tracker = self._trackers.setdefault(tag, ConstantVelocity(self.accel_psd))
+        if not tracker.update(t_fix, fix.point, fix.covariance):
+            self.counters["gated"] += 1
+        if tracker.t is None:
+            return []
+        point, cov = tracker.predicted(t)
+        if height is not None and self.height_sigma is None:  # a constraint, not a prior
+            point = np.array([point[0], point[1], height])
+        if not self.extent.inside(point):  # withheld, and the filter starts again
+            self.counters["outside"] += 1
+            self.counters["restarts"] += 1
+            self._trackers.pop(tag)
+            return []
+        return [Position(t, tag, point, cov, fix.used, fix.rejected, True, quality)]
+
+    def _rescale(self, tag: str, guard: TrackGuard) -> None:
+        """The board's error, measured on a fixed scale (the guard's spread), against the noise
+        model's: a board that misses by POOR_BOARD times more or beyond gets its azimuth noise scaled
+        up to match (never down: the model's noise was chosen on real boards), so a 25-degree board
+        is not tracked as if it were an 8-degree one."""
+        spread = guard.spread_deg
+        if spread is None:
+            return
+        nz = self.noise
+        ratio = spread / (0.6745 * math.hypot(nz.white_deg, nz.slow_deg))  # the model's median |miss|
+        scale = ratio if ratio >= POOR_BOARD else 1.0
+        if abs(math.log(scale / self._noise_scale.get(tag, 1.0))) < math.log(RESCALE):
+            return
+        self._noise_scale[tag] = scale
+        tracker = self._angle_trackers.get(tag)
+        if tracker is not None:
+            tracker.renoise(self._noise(tag))
+
+    def _noise(self, tag: str) -> AngleNoise:
+        k = self._noise_scale.get(tag, 1.0)
+        return replace(self.noise, white_deg=self.noise.white_deg * k, slow_deg=self.noise.slow_deg * k)
+
+    def _restart_point(self, restart: Consensus, old: np.ndarray, height: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """The consensus as a 3-D start: the tag's height, or the old height kept in the extent."""
+        z = height if height is not None else float(self.extent.clamp(old)[2])
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = restart.covariance
+        if height is None or self.height_sigma is not None:
+            cov[2, 2] = 1.0 if height is None else self.height_sigma**2  # type: ignore[operator]
+        return np.array([restart.point[0], restart.point[1], z]), cov
+
+    def _start(self, tag: str, t: float, t_start: float, start: tuple[np.ndarray, np.ndarray],
+               used: tuple[str, ...], rejected: tuple[str, ...]) -> Position:
+        """A new track of ``tag`` at ``start`` (point, covariance) as of ``t_start``; its position at ``t``."""
+        info = self.site.tag(tag)
+        height = info.height if info else None
+        tracker: AngleTracker | TrackerBank | BearingEkf
+        if self.tracker == "ekf":
+            tracker = self._ekfs[tag] = BearingEkf(self.accel_psd)
+        else:
+            tracker = self._angle_trackers[tag] = self._new_angle_tracker(height, self._noise(tag))
+        tracker.start(t_start, *start)
+        point, cov = tracker.predicted(t)
+        self._guards[tag].record(t, point)
+        return Position(t, tag, point, self._honest(tag, cov), used, rejected, True)
+
+    def _honest(self, tag: str, cov: np.ndarray) -> np.ndarray:
+        """The tracker's position covariance with FLOOR_M added (the angles tracker's; the ekf's as it is)."""
+        if self.tracker != "angles":
+            return cov
+        out = cov.copy()
+        out[[0, 1], [0, 1]] += (FLOOR_M * self._noise_scale.get(tag, 1.0)) ** 2
+        return out
+
+    def _new_angle_tracker(self, height: float | None, noise: AngleNoise) -> AngleTracker | TrackerBank:
         anchors = self.site.anchors
 
         def one(q: float) -> AngleTracker:
             return AngleTracker([a.position for a in anchors], [self.rotations[a.id] for a in anchors],
-                                [a.angle_model for a in anchors], self.noise, q, height, self.height_sigma,
+                                [a.angle_model for a in anchors], noise, q, height, self.height_sigma,
                                 self.site.az_compression)
 
         if self.accel_psd >= AGILE_ACCEL_PSD:
@@ -324,6 +524,34 @@ def smooth(fixes: list[Position], accel_psd: float = 1.0) -> list[Position]:
             point = x[:3] + x[3:] * (p.t - t_fix)
             out.append(replace(p, point=point, covariance=c, tracked=True, smoothed=True))
     return sorted(out, key=lambda p: (p.t, p.tag))
+
+
+def _circular_median(degrees: list[float]) -> float:
+    """The median of angles about their circular mean, in (-180, 180]: readings either side of
+    +-180 (a board that sees all round, the tag behind it) are not averaged to 0."""
+    if max(degrees) - min(degrees) <= 180.0:
+        return float(statistics.median(degrees))
+    r = np.radians(degrees)
+    mean = math.degrees(math.atan2(float(np.sin(r).sum()), float(np.cos(r).sum())))
+    m = mean + statistics.median((d - mean + 180.0) % 360.0 - 180.0 for d in degrees)
+    return (m + 180.0) % 360.0 - 180.0 if abs(m) > 180.0 else m
+
+
+def _gap(window: deque[tuple[float, ...]]) -> float:
+    """An anchor's usual time between reports: the mean over its last RATE_REPORTS (inf: one report)."""
+    n = min(len(window) - 1, RATE_REPORTS)
+    return (window[-1][0] - window[-1 - n][0]) / n if n > 0 else math.inf
+
+
+def _between(window: deque[tuple[float, ...]], first: float, last: float) -> list[tuple[float, ...]]:
+    """The window's entries with first < t <= last, oldest first (scanned from the newest end)."""
+    out = []
+    for w in reversed(window):
+        if w[0] <= first:
+            break
+        if w[0] <= last:
+            out.append(w)
+    return out[::-1]
 
 
 def _uncalibrated(anchor: Anchor) -> Anchor:

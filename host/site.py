@@ -10,6 +10,9 @@ calibrated, and which tags to locate.
     stale_s = 1.0         # an anchor silent this long about a tag is left out
     sigma_deg = 3.0       # one angle's error at boresight (grows toward +-90)
     az_compression = 0.2  # the boards' shared |azimuth| compression (default: XPLR-AOA's, measured)
+    extent = [[0.0, 0.0], [12.0, 6.0]]  # where tags can be: [[x0, y0], [x1, y1]] (or with z); default:
+                          # the anchors' box (docs/estimation.md, "Guards")
+    margin_m = 2.0        # positions farther outside the extent are withheld (the track is lost)
 
     [anchors.north]
     id = "CCF9578E0D01"               # its +UUDF anchor id (AT+UDFCFG tag 4; default its MAC)
@@ -47,6 +50,7 @@ import numpy as np
 from rfhoming.host import outputs, portspec
 from rfhoming.host.bearing import Bearing
 from rfhoming.host.estimation.anchors3d import ANGLE_MODELS, rotation
+from rfhoming.host.estimation.extent import MARGIN_M, Extent, from_anchors
 from rfhoming.host.portspec import PortSpecError
 from rfhoming.protocol import devices
 from rfhoming.protocol.errors import Error
@@ -172,9 +176,19 @@ class Site:
     sigma_deg: float = 3.0
     path: Path | None = field(default=None, compare=False)
     az_compression: float = BOARD_COMPRESSION
+    extent: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    """The site file's [site] extent (lo, hi corners; None: the anchors' box)."""
+    margin_m: float = MARGIN_M
 
     def anchor_by_id(self) -> dict[str, Anchor]:
         return {a.id: a for a in self.anchors}
+
+    def bounds(self) -> Extent:
+        """Where tags can be: the site file's extent, or the anchors' box (estimation/extent.py)."""
+        if self.extent is not None:
+            return Extent(self.extent[0], self.extent[1], self.margin_m)
+        return from_anchors([a.position for a in self.anchors], [a.rotation()[:, 0] for a in self.anchors],
+                            [a.two_sided for a in self.anchors], self.margin_m)
 
     def tag(self, tag_id: str) -> TagInfo | None:
         return next((t for t in self.tags if t.id == tag_id), None)
@@ -273,7 +287,8 @@ def parse(raw: dict[str, Any], where: str = "site") -> Site:
     tags = raw.get("tags", {})
     if not isinstance(head, dict) or not isinstance(tags, dict):
         raise SiteError(f"{where}: [site] and [tags.ID] must be tables (see the site file example in docs/usage.md)")
-    _check_keys(head, {"name", "rate_hz", "window_s", "stale_s", "sigma_deg", "az_compression"}, "site")
+    _check_keys(head, {"name", "rate_hz", "window_s", "stale_s", "sigma_deg", "az_compression", "extent", "margin_m"},
+                "site")
     anchors = raw.get("anchors")
     if not isinstance(anchors, dict) or len(anchors) < 2:
         raise SiteError(f"{where} needs two or more [anchors.NAME] tables (each with id, port, position)")
@@ -291,7 +306,26 @@ def parse(raw: dict[str, Any], where: str = "site") -> Site:
                 _number(head, "rate_hz", "site", 10.0, 0.1, 1000), _number(head, "window_s", "site", 0.3, 0.01, 60),
                 _number(head, "stale_s", "site", 1.0, 0.01, 600), _number(head, "sigma_deg", "site", 3.0, 0.1, 45),
                 az_compression=_number(head, "az_compression", "site", BOARD_COMPRESSION,
-                                       *CALIBRATION_LIMITS["az_compression"]))
+                                       *CALIBRATION_LIMITS["az_compression"]),
+                extent=_extent(head.get("extent"), parsed), margin_m=_number(head, "margin_m", "site", MARGIN_M, 0.0, 100))
+
+
+def _extent(raw: Any, anchors: tuple[Anchor, ...]) -> tuple[tuple[float, float, float], tuple[float, float, float]] | None:
+    """[site] extent = [[x0, y0], [x1, y1]] (or [x, y, z] corners; z by default from the floor,
+    z = 0, to the highest anchor); SiteError naming the fix."""
+    if raw is None:
+        return None
+    ok = (isinstance(raw, list) and len(raw) == 2 and all(isinstance(c, list) and len(c) == len(raw[0]) in (2, 3)
+                                                          for c in raw)
+          and all(isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= MAX_COORD_M
+                  for c in raw for v in c))
+    if not ok or not all(a < b for a, b in zip(raw[0], raw[1])):
+        raise SiteError(f"[site] extent = {raw!r}: expected [[x0, y0], [x1, y1]] (or [x, y, z] corners) in metres, "
+                        f"each within +-{MAX_COORD_M:g} m, the first corner below the second on every axis")
+    zs = [a.position[2] for a in anchors]
+    lo = (*(float(v) for v in raw[0][:2]), float(raw[0][2]) if len(raw[0]) == 3 else min(0.0, *zs))
+    hi = (*(float(v) for v in raw[1][:2]), float(raw[1][2]) if len(raw[1]) == 3 else max(zs))
+    return (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2])
 
 
 def load(path: str | Path) -> Site:

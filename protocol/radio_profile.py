@@ -5,7 +5,8 @@ A profile is one TOML file (docs/emulator.md, "Radio profiles", has the schema):
 - ``[profile]``: its name and what it is;
 - ``[recordings.ID]``: each recording a figure came from (the capture and its truth);
 - ``[aoa]``: the XPLR-AOA's angle error process, ``[aoa.azimuth]`` and ``[aoa.elevation]``
-  (:class:`AngleError`), ``[aoa.missing]`` (:class:`Missing`), and for every figure in them an
+  (:class:`AngleError`), ``[aoa.missing]`` (:class:`Missing`), optionally ``[aoa.person]``
+  (:class:`Person`: a tag a person carries and stops with), and for every figure in them an
   entry in ``[aoa.sources]`` (the recordings it came from and how) or ``[aoa.assumed]`` (why
   no recording could give it);
 - ``[rssi.NAME]``: the RSSI radios' tables, read by their own module; kept here as plain tables.
@@ -39,7 +40,7 @@ FORMAT = 1
 IDEAL = "ideal"
 """``--radio ideal``: no profile, the scenario's own idealised noise."""
 
-SHIPPED = ("measured",)
+SHIPPED = ("measured", "carried")
 """Profiles that ship with rfhoming (``protocol/profiles/NAME.toml``), by name."""
 
 RADIOS = (IDEAL, *SHIPPED)
@@ -134,6 +135,29 @@ class Missing:
 
 
 @dataclass(frozen=True)
+class Person:
+    """A tag carried by a person (``[aoa.person]``; every figure 0, the default, is off): what a
+    board sees of a tag a person holds and stops with. While the tag stands (slower than
+    ``stance_speed_m_s``) each board's error carries a stance offset, held until it moves on:
+    a field over where the tag stands and which way its carrier faces (N(0, ``stance_*_field_deg``),
+    the axis's own ``field_length_m`` and ``field_heading_m``; the same at the same place in
+    every walk through the room) plus a draw redrawn at every stop (N(0, ``stance_*_sigma_deg``):
+    the same place differs from walk to walk) plus a wander through the stop (Ornstein-Uhlenbeck,
+    ``stance_wander_deg`` on both axes, ``stance_wander_s``: a person shifts as they stand). The body shadows a board behind its carrier: the
+    random parts of the error (the stance offset too) are stretched by 1 + ``shadow_gain`` x
+    max(0, -cos a), a the angle between the way the carrier faces and the way to the board."""
+
+    stance_az_sigma_deg: float = setting(0.0, low=0.0, high=90.0, unit=DEG)
+    stance_az_field_deg: float = setting(0.0, low=0.0, high=90.0, unit=DEG)
+    stance_el_sigma_deg: float = setting(0.0, low=0.0, high=90.0, unit=DEG)
+    stance_el_field_deg: float = setting(0.0, low=0.0, high=90.0, unit=DEG)
+    stance_wander_deg: float = setting(0.0, low=0.0, high=90.0, unit=DEG)
+    stance_wander_s: float = setting(10.0, low=0.0, above=True, high=3600.0, unit=S)
+    stance_speed_m_s: float = setting(0.1, low=0.0, above=True, high=10.0, unit="m/s")
+    shadow_gain: float = setting(0.0, low=0.0, high=10.0)
+
+
+@dataclass(frozen=True)
 class Source:
     """Where one figure came from: the recordings (ids of ``[recordings]``) and how."""
 
@@ -150,6 +174,7 @@ class AoaProfile:
     missing: Missing = field(default_factory=Missing)
     sources: dict[str, Source] = field(default_factory=dict)
     assumed: dict[str, str] = field(default_factory=dict)
+    person: Person = field(default_factory=Person)  # all 0 (off) unless a profile has [aoa.person]
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,7 +239,7 @@ class RadioProfile:
 
 
 TABLES = ("profile", "recordings", "aoa", "rssi")
-FIGURE_TABLES = {"azimuth": AngleError, "elevation": AngleError, "missing": Missing}
+FIGURE_TABLES = {"azimuth": AngleError, "elevation": AngleError, "missing": Missing, "person": Person}
 """The [aoa] tables whose every key is a figure that needs a source (or an assumption)."""
 
 
@@ -338,6 +363,7 @@ def to_toml(profile: RadioProfile) -> dict[str, Any]:
     if profile.aoa is not None:
         a = profile.aoa
         out["aoa"] = {"azimuth": _table(a.azimuth), "elevation": _table(a.elevation), "missing": _table(a.missing),
+                      **({"person": _table(a.person)} if a.person != Person() else {}),
                       "sources": {k: _table(v) for k, v in a.sources.items()}, "assumed": dict(a.assumed)}
     if profile.rssi:
         out["rssi"] = {name: radio.to_table() for name, radio in profile.rssi.items()}

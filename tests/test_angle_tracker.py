@@ -32,11 +32,12 @@ def test_the_angles_tracker_beats_the_older_trackers_on_slow_heavy_tailed_errors
     """Errors like the harder real walks': slow per-anchor errors of 9 degrees (held tens of
     seconds while the walker stands), white noise of 8, 8 % wild reports, a walk with dwells.
     Taking each report with its anchor's slow error as a state, heavy-tailed, beats fixing from
-    windows (cv) by a tenth and bearings taken as independent Gaussian reports (ekf) by a fifth."""
+    windows (cv) by a tenth and bearings taken as independent Gaussian reports (ekf): by 5-32 %
+    on seeds 1-3 since an ekf track that leaves the site restarts (it ran off before: 20 %+)."""
     w = walk(seed, speed=0.8, dwell_s=5.0, slow_deg=9.0, white_deg=8.0, outliers=0.08)
     angles = mean_error(w, located(ROOM, w.events))
     assert angles < 0.9 * mean_error(w, located(ROOM, w.events, tracker="cv"))
-    assert angles < 0.8 * mean_error(w, located(ROOM, w.events, tracker="ekf"))
+    assert angles < 0.97 * mean_error(w, located(ROOM, w.events, tracker="ekf"))
     assert angles < 0.75
 
 

@@ -35,8 +35,14 @@ def test_the_score_takes_the_last_position_at_or_before_each_tick(tmp_path: Path
     assert errors.tolist() == [NO_ESTIMATE_M, 0.0, 0.5, pytest.approx(math.hypot(0.5, 1.0))]
 
 
+def test_a_static_surveys_point_is_one_waypoint_with_a_dwell(tmp_path: Path) -> None:
+    path = load_waypoints(write(tmp_path, "arrival_ms,leave_ms,x_cm,y_cm\n1000,61000,300,450\n"))
+    assert path.last_s == 61.0 and path.at([0.0, 30.0, 90.0]).tolist() == [[3.0, 4.5]] * 3
+    assert path.heading([30.0]).tolist() == [0.0] and not path.moving([30.0]).any()
+
+
 @pytest.mark.parametrize("text, says", [
-    ("1000,NaN,0,0\n", "at least two waypoints"),
+    ("1000,NaN,0,0\n", "two waypoints, or one with a dwell"),
     ("1000,NaN,0\n2000,NaN,0,0\n", "row 2: expected"),
     ("1000,NaN,0,0\n500,NaN,1,1\n", "time order"),
     ("1000,900,0,0\n2000,NaN,1,1\n", "leave_ms"),

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rfhoming.host.estimation.anchors3d import MIN_RANGE_M
+from rfhoming.host.estimation.extent import Extent
 
 HEIGHT_S = 2.0
 """With a height prior (``height_sigma``), how long the tag's height takes to wander (s)."""
@@ -104,6 +105,14 @@ class AngleTracker:
     @property
     def lost(self) -> bool:
         return self.t is None
+
+    def hold(self, extent: Extent) -> bool:
+        """The state back inside ``extent`` (Extent.hold); True when it was outside."""
+        return self.t is not None and extent.hold(self.x)
+
+    def renoise(self, noise: AngleNoise) -> None:
+        """Go on with another report model (the slow errors' spread in the state adapts as it predicts)."""
+        self.noise = noise
 
     def start(self, t: float, point: np.ndarray, covariance: np.ndarray, speed_sigma: float = 1.0) -> None:
         """(Re)start at a fix: its position and covariance, velocity unknown (``speed_sigma`` m/s),
@@ -217,7 +226,8 @@ class AngleTracker:
             self.x, self.p, self.t = x, p, max(t, self.t)
             return math.nan
         ba, be = 6 + k, 6 + n_a + k
-        innovation = np.array([azimuth_deg - angles[0] - x[ba], elevation_deg - angles[1] - x[be]])
+        miss = (azimuth_deg - angles[0] - x[ba] + 180.0) % 360.0 - 180.0  # a board that sees all round: +-180 meet
+        innovation = np.array([miss, elevation_deg - angles[1] - x[be]])
         off = max(math.cos(math.radians(angles[0])) * math.cos(math.radians(angles[1])), 1.0 / nz.max_cos_factor)
         r_diag = np.array([(nz.white_deg / off) ** 2, (nz.el_white_deg / off) ** 2])
         # P H^T for H = [jac | 0 | e_ba | e_be]: the position columns through jac, one column each bias
@@ -282,6 +292,14 @@ class TrackerBank:
     @property
     def lost(self) -> bool:
         return any(tr.lost for tr in self.trackers)
+
+    def renoise(self, noise: AngleNoise) -> None:
+        for tr in self.trackers:
+            tr.renoise(noise)
+
+    def hold(self, extent: Extent) -> bool:
+        """Each tracker's state back inside ``extent`` (Extent.hold); True when one was outside."""
+        return any([extent.hold(tr.x) for tr in self.trackers])
 
     def start(self, t: float, point: np.ndarray, covariance: np.ndarray) -> None:
         for tr in self.trackers:

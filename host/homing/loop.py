@@ -185,6 +185,7 @@ class HomingLoop:
         self.intervals: deque[float] = deque(maxlen=20)  # robot-time gaps between readings
         self._braking: bool | None = None  # base brake mode as last sent; None: unknown, send it
         self._brake_logged = False  # brake mode as the run log last said
+        self.driving = True  # False once a goal is handed to a planner (:meth:`hand_over`)
         self._tasks: list[asyncio.Task[None]] = []
         self._step_began = _step_clock()  # when this pass of the loop took the event loop
         self.brakes = devices.kind(base.kind, notice=False).brakes
@@ -516,9 +517,20 @@ class HomingLoop:
             return 1.0
         return max(0.0, (timeout - age) / (timeout - slow_after))
 
+    def hand_over(self) -> None:
+        """Another planner drives from now on (``rfhoming node``'s Nav2 mode): one stop, then the
+        loop only estimates -- it logs the commands it would send, and sends none. The final stop
+        at the run's end is still sent."""
+        if self.driving:
+            self.driving = False
+            self.base.stop()
+            self.log.write("event", self.t, what="handed over: another planner drives")
+
     def _brake(self, on: bool, t: float) -> None:
         """Base brake mode (emergency deceleration) on or off; sent on change (and again after a
         base reset), logged when the mode itself changes."""
+        if not self.driving:
+            return
         if on != self._braking and self.base.brake(on):  # not sent (base away): try again next time
             self._braking = on
             if on != self._brake_logged:
@@ -526,6 +538,10 @@ class HomingLoop:
                 self.log.write("event", t, what="brake mode " + ("on" if on else "off"))
 
     def _send(self, decision: Decision, t: float, odo: Pose2D, **fields: Any) -> None:
+        if not self.driving:
+            self.log.write("command", t, v=round(decision.v, 4), w=round(decision.w, 4), note=decision.note,
+                           unsent=True, **fields)
+            return
         self.base.send_velocity(decision.v, decision.w)
         self.commands += 1
         self.latency_ms.append((time.time() - odo.t_host) * 1000)

@@ -120,10 +120,32 @@ def is_broker(spec: str) -> bool:
     return spec.startswith(("mqtt://", "mqtts://"))
 
 
+def is_silabs(spec: str) -> bool:
+    """Silicon Labs' locators on their MQTT broker (host/silabs_source.py), not a port spec."""
+    return spec.startswith(("mqtt+silabs://", "mqtts+silabs://"))
+
+
+def silabs_url(text: str) -> str:
+    """``mqtt+silabs://HOST[:PORT][/PREFIX]`` checked by its source's parser; without the site
+    extra (paho-mqtt) it is left to the command, which names the extra."""
+    try:
+        from rfhoming.host.silabs_source import Source
+        from rfhoming.host.sitebus import BrokerError
+    except ImportError:
+        return text
+    try:
+        Source.parse(text)
+    except BrokerError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def from_spec(text: str) -> str:
     """locate's --from: a port spec (checked when opened), or a broker URL (checked now)."""
     if is_broker(text):
         return broker_url(text)
+    if is_silabs(text):
+        return silabs_url(text)
     return nonempty(text)
 
 

@@ -1,17 +1,19 @@
 """A site's anchors as one stream of bearing readings (host/bearing.py): what ``locate``,
 ``calibrate``, ``radio-fit`` and ``gateway`` open and read (the site file's ports, or --from /
---device specs, or captures, or angles files)."""
+--device specs, or captures, or angles files, or Silicon Labs locators' broker: host/silabs_source.py)"""
 
 from __future__ import annotations
 
 import asyncio
 import json
 import logging
+import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from rfhoming.cli.args import is_silabs
 from rfhoming.host import site as sites
 from rfhoming.host.capture import CaptureWriter
 from rfhoming.host.angles_file import AnglesFileError, load_angles
@@ -22,6 +24,9 @@ from rfhoming.host.ports import PortError
 from rfhoming.host.run_until import run_until
 from rfhoming.host.session import health, open_drivers
 from rfhoming.protocol.errors import Error
+
+if TYPE_CHECKING:
+    from rfhoming.host.silabs_source import SilabsLocators
 
 log = logging.getLogger(__name__)
 
@@ -50,14 +55,17 @@ def _specs(site: sites.Site, given: list[str] | None) -> list[str]:
 async def gather(command: str, site: sites.Site, sources: list[str] | None, on_angle: Callable[[Bearing], None],
                  on_lost: Callable[[float, set[str]], None] = lambda t, ids: None, *, baud: int | None = None,
                  flow: str | None = None, duration: float | None = None, capture_to: Path | None = None,
-                 counters: bool = True, on_item: Callable[[float, Any], None] | None = None) -> int:
+                 counters: bool = True, on_item: Callable[[float, Any], None] | None = None,
+                 password_file: str | None = None, ca_file: str | None = None) -> int:
     """Open the site's anchors (or ``sources``, locate's --from), feed every reading to
     ``on_angle`` in arrival order until ``duration`` or the end of a capture (``on_item``: the
     board's own item it came from, for exports that show the board's fields), and tell
     ``on_lost`` the anchor ids of a device that went away; ``capture_to``: also record every
     byte there; ``counters``: print each device's counters on stderr at the end (losses are
     warned of either way). ``angles:FILE`` sources are angles files (host/angles_file.py), read
-    whole and fed in time order. 2 on a port/capture/file error, said in one line naming ``command``."""
+    whole and fed in time order; ``mqtt+silabs://`` sources are Silicon Labs' locators on their broker
+    (``password_file``, ``ca_file``: its login and TLS), read until ``duration`` or Ctrl-C. 2 on a
+    port/capture/file error, said in one line naming ``command``."""
     by_id = site.anchor_by_id()
     refused: dict[str, int] = {}
 
@@ -70,6 +78,8 @@ async def gather(command: str, site: sites.Site, sources: list[str] | None, on_a
             refused[anchor.name] = refused.get(anchor.name, 0) + 1
 
     try:
+        if sources and any(is_silabs(s) for s in sources):
+            return await _from_silabs(command, sources, admit, duration, counters, password_file, ca_file)
         files = [s.removeprefix(ANGLES) for s in sources or [] if s.startswith(ANGLES)]
         if files:
             return _from_files(command, site, files, len(files) != len(sources or []), admit)
@@ -154,6 +164,48 @@ def _from_files(command: str, site: sites.Site, files: list[str], mixed: bool,
         return 2
     for reading in readings:
         on_angle(reading)
+    return 0
+
+
+SILABS_POLL_S = 0.02
+"""Seconds between takes of the locators' readings: the locator's 0.3 s windows see no gap."""
+
+
+def _open_silabs(url: str, password_file: str | None, ca_file: str | None) -> SilabsLocators:
+    """The locators' subscription (paho-mqtt, the "site" extra), opened off the event loop: the
+    import and a password file's read would stall it."""
+    from rfhoming.host.silabs_source import SilabsLocators, Source
+
+    return SilabsLocators(Source.parse(url), password_file=password_file, ca_file=ca_file)
+
+
+async def _from_silabs(command: str, sources: list[str], on_angle: Callable[[Bearing], None],
+                       duration: float | None, counters: bool, password_file: str | None,
+                       ca_file: str | None) -> int:
+    if len(sources) > 1:
+        print(f"rfhoming {command}: --from mqtt+silabs:// is one broker's locators; give it alone (every locator "
+              "under its topic prefix is read)", file=sys.stderr)
+        return 2
+    try:
+        locators = await asyncio.to_thread(_open_silabs, sources[0], password_file, ca_file)
+    except Error as exc:
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return 2
+    loop = asyncio.get_running_loop()
+    end = math.inf if duration is None else loop.time() + duration
+    try:
+        while loop.time() < end:
+            await asyncio.sleep(min(SILABS_POLL_S, max(0.0, end - loop.time())))
+            locators.check()
+            for reading in locators.take():
+                on_angle(reading)
+    except Error as exc:  # the broker refused for good: a login, a certificate
+        print(f"rfhoming {command}: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        await asyncio.to_thread(locators.close)  # joins paho's thread, which may be waiting to reconnect
+        if counters:
+            print(json.dumps({"kind": "counters", **locators.health()}), file=sys.stderr)
     return 0
 
 

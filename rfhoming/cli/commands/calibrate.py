@@ -74,7 +74,8 @@ def _self_calibrate(args: argparse.Namespace, site: sites.Site) -> int:
     recordings = []
     for source in sources:
         events: list[Bearing] = []
-        code = asyncio.run(gather("calibrate", site, [source] if source else None, events.append, baud=args.baud,
+        named = f"calibrate: {source}" if source else "calibrate"  # an error names the recording
+        code = asyncio.run(gather(named, site, [source] if source else None, events.append, baud=args.baud,
                                   flow=args.flow, duration=args.duration, counters=args.verbose))
         if code:
             return code

@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         stalls = StallMonitor()
         code = asyncio.run(watching(gather("locate", site, args.sources, feed, locator.disconnected, baud=args.baud,
                                            flow=args.flow, duration=args.duration, capture_to=args.capture,
+                                           password_file=args.password_file, ca_file=args.ca,
                                            on_item=(lambda t, item: ros2.on_item("", t, item)) if ros2 else None),
                                     stalls))
         if code:

@@ -42,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
     recordings: list[list[Bearing]] = []
     for source in args.sources:
         events: list[Bearing] = []
-        code = asyncio.run(gather("radio-fit", site, [source], events.append))
+        # an error names the capture it is of; each device's counters are left out (losses still warned)
+        code = asyncio.run(gather(f"radio-fit: {source}", site, [source], events.append, counters=False))
         if code:
             return code
         recordings.append(events)
@@ -67,6 +68,9 @@ def run(args: argparse.Namespace) -> int:
     if rssi is not None:
         profile = replace(profile, rssi=rssi)
     write(profile, args.output)
+    warned = report.get("warnings")
+    for line in warned if isinstance(warned, list) else []:  # a figure the recordings did not determine
+        print(f"rfhoming radio-fit: warning: {line}", file=sys.stderr)
     print(json.dumps({"kind": "radio-fit", "profile": str(args.output), "recordings": ids, **report}))
     print(f"wrote radio profile {profile.name!r} ({len(fitted)} recording(s)) to {args.output}: "
           f"rfhoming demo --radio {args.output}", file=sys.stderr)

@@ -27,10 +27,11 @@ FOXGLOVE_HELP = (f"also serve a live view on ws://127.0.0.1:PORT (default {FOXGL
 WAIT_S = 60.0
 
 IDEAL, MEASURED = "ideal", "measured"
-RADIOS = (IDEAL, MEASURED)
+RADIOS = (IDEAL, MEASURED, "carried")
 """protocol/radio_profile.py's RADIOS (a test holds them equal), named here so the parsers load no profile."""
 RADIO_HELP = ("the emulated radios' errors: measured (the project's profile, fitted to real recordings: "
-              "docs/emulator.md, \"Radio profiles\"), ideal (each scenario's own idealised noise, its paper's "
+              "docs/emulator.md, \"Radio profiles\"), carried (a tag a person carries and stands with: long "
+              "stops, errors that stay put while they stand, built from issue 50's statistics), ideal (each scenario's own idealised noise, its paper's "
               "set-up) or a profile file that `rfhoming radio-fit` wrote from your own room's recordings; default: {}")
 
 
@@ -85,5 +86,5 @@ def radio(text: str) -> str:
 
 def add_radio_option(p: argparse.ArgumentParser, default: str | None, said: str) -> None:
     """``--radio``: ``default`` (None: the command picks; ``said`` tells the user which)."""
-    p.add_argument("--radio", type=radio, default=default, metavar="measured|ideal|PROFILE",
+    p.add_argument("--radio", type=radio, default=default, metavar="measured|carried|ideal|PROFILE",
                    help=RADIO_HELP.format(said))

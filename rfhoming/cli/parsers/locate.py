@@ -41,6 +41,12 @@ examples:
   rfhoming locate site.toml --from capture:run.pcapng --smooth --loss cauchy   # after the fact
   rfhoming locate site.toml --from angles:angles.csv       # any board's angles (docs/usage.md, "An angles file")
   rfhoming locate site-64x1000 --from mqtt://127.0.0.1:1883/8 --id w1      # a site worker (below)
+  rfhoming locate hall.toml --from mqtt+silabs://broker.local:1883         # Silicon Labs locators (below)
+
+With --from mqtt+silabs://[USER@]BROKER[:PORT][/PREFIX] (mqtts+silabs:// = TLS; login as below)
+locate reads the angles Silicon Labs' bt_aoa_host_locator publishes on PREFIX/angle/LOCATOR/TAG
+(PREFIX silabs/aoa by default); each locator's address (its id without "ble-pd-") is a site
+anchor's id (docs/hardware.md, "A Silicon Labs kit"; docs/protocol.md section 11).
 
 the kit room of docs/sites, emulated (its first line printed, every link exists):
   mkdir -p /tmp/rfhoming-kit

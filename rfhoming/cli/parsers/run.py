@@ -70,6 +70,21 @@ examples:
   rfhoming run --aoa /dev/ttyUSB0 --base mavlink:udpin:127.0.0.1:14550,arm=1   # ArduPilot/PX4: arms it, ends in HOLD
 """
 
+NODE_HELP = """\
+The homing run as a ROS 2 node (rclpy: the system's ROS 2, or pip install 'rfhoming[ros2node]'),
+on ROS_DOMAIN_ID, with the same devices as run. Services ~/home (start homing on the tag
+parameter; empty: the only tag in view) and ~/cancel (stop the robot), both std_srvs/Trigger;
+~/feedback and ~/result (diagnostic_msgs/DiagnosticStatus), ~/estimate
+(PoseWithCovarianceStamped); /diagnostics at 1 Hz; each tag a TF frame FRAME -> tag_<id> on /tf.
+Parameter mode=nav2 hands the estimate to Nav2 on goal_pose instead of driving /cmd_vel.
+A ros2: base without domain= is on ROS_DOMAIN_ID. docs/usage.md, "rfhoming node".
+
+examples:
+  rfhoming node --aoa /dev/ttyUSB0 --base ros2:
+  rfhoming node --aoa /dev/ttyUSB0 --base ros2: --ros-args -r __ns:=/robot1 -p mode:=nav2
+  ros2 param set /rfhoming tag CCF9578E0D8A && ros2 service call /rfhoming/home std_srvs/srv/Trigger
+"""
+
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     raw = argparse.RawDescriptionHelpFormatter
@@ -96,6 +111,32 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
     p = sub.add_parser("run", help="home on a tag with real devices or emulator endpoints",
                        description=RUN_HELP, formatter_class=raw)
+    add_device_options(p)
+    p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command" + GROWING)
+    p.add_argument("--capture", type=output_file, help="pcapng capture of every byte" + GROWING)
+    p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
+    add_ros2_option(p, "what the run senses (a ROS 2 base's own /odom, /scan and /tf are left to it)")
+    add_foxglove_option(p)
+    p.set_defaults(func=command("run"))
+
+    p = sub.add_parser("node", help="the homing run as a ROS 2 node: services, parameters, diagnostics, tags on /tf",
+                       description=NODE_HELP, formatter_class=raw)
+    add_device_options(p)
+    p.add_argument("--ros-args", nargs=argparse.REMAINDER, default=[], metavar="ARG",
+                   help="the rest goes to ROS 2 as a node's --ros-args: -r __ns:=/robot1, -r __node:=NAME, "
+                        "-r FROM:=TO, -p NAME:=VALUE, --params-file FILE")
+    p.set_defaults(func=command("node"))
+
+    p = sub.add_parser("config", help="print the default config, or check a config file")
+    group = p.add_mutually_exclusive_group(required=True)
+    group.add_argument("--print-default", action="store_true", help="print the commented default TOML")
+    group.add_argument("--check", type=path, metavar="FILE", help="check a config file")
+    p.set_defaults(func=command("config"))
+
+
+def add_device_options(p: argparse.ArgumentParser) -> None:
+    """The devices of a homing run (run and node): each role's port spec, the controller, the
+    tag, the site, the config and the ports' defaults."""
     p.add_argument("--aoa", type=nonempty, metavar="SPEC", help="the XPLR-AOA, for --controller aoa and dock: a port spec "
                    "WHERE[,baud=,flow=,tags=] (e.g. /dev/ttyUSB0,baud=1000000); settings it leaves out come "
                    "from the config's [devices.aoa]")
@@ -119,15 +160,3 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument("--site", type=path, help="site file for --controller anchors (see rfhoming locate --help)")
     p.add_argument("--config", type=path, help="TOML config (see rfhoming config --print-default)")
     add_port_defaults(p)
-    p.add_argument("--log", type=output_file, help="JSON-lines run log of every measurement, estimate and command" + GROWING)
-    p.add_argument("--capture", type=output_file, help="pcapng capture of every byte" + GROWING)
-    p.add_argument("--mcap", type=output_file, metavar="FILE", help=MCAP_HELP)
-    add_ros2_option(p, "what the run senses (a ROS 2 base's own /odom, /scan and /tf are left to it)")
-    add_foxglove_option(p)
-    p.set_defaults(func=command("run"))
-
-    p = sub.add_parser("config", help="print the default config, or check a config file")
-    group = p.add_mutually_exclusive_group(required=True)
-    group.add_argument("--print-default", action="store_true", help="print the commented default TOML")
-    group.add_argument("--check", type=path, metavar="FILE", help="check a config file")
-    p.set_defaults(func=command("config"))
