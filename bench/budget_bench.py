@@ -362,7 +362,7 @@ def worker(run: str, seed: int, out: Path, usage_file: str | None) -> dict[str, 
 
 
 def _start_kit_home(seed: int, truth: Path, out: Path) -> tuple[subprocess.Popen, dict]:
-    cmd = [sys.executable, "-m", "rfhoming", "emulate", "kit-home", "--pty", "--speed", "1", "--seed", str(seed),
+    cmd = [sys.executable, "-m", "rfhoming", "emulate", "kit-home", "--radio", "ideal", "--pty", "--speed", "1", "--seed", str(seed),
            "--truth", str(truth), "--link-dir", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     endpoints = {}

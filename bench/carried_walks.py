@@ -1,10 +1,10 @@
-"""Emulated carried walks: the withheld kind of issue 50 (long walks, a person carrying the tag
+"""Emulated carried walks: the withheld kind of the 2026-12 field report (long walks, a person carrying the tag
 and standing at four long stops), made in the emulator, and how close their statistics come to
 the issue's.
 
 Each walk is about 280 s through the room of DIR's ``site.toml`` (the XPLR-AOA data set's office
 room): waypoints on its 1.2 m grid, walked at a person's pace, four of them long stops that fill
-87 % of the walk (issue 50: "the four long stops of each walk (87 % of the scored ticks)"), the
+87 % of the walk (the 2026-12 field report: "the four long stops of each walk (87 % of the scored ticks)"), the
 others brief pauses. The long stops are drawn from STOP_PLACES, so walks come back to the same
 places (the issue compares stops at the same place across walks). The emulator plays the site's
 anchors under a radio profile (``carried`` by default: protocol/profiles/carried.toml) and its
@@ -13,7 +13,7 @@ bytes become a capture laid out like the real ones, with a waypoint file beside 
 they read the recordings.
 
 Printed: the angle statistics of the emulated walks (host/angle_residuals.py, spherical reading)
-beside issue 50's figures for the withheld walks, the stops' own figures (RMS of each stop's mean
+beside the 2026-12 field report's figures for the withheld walks, the stops' own figures (RMS of each stop's mean
 azimuth error; how far two walks' means at the same place and anchor differ), and ``rfhoming
 locate``'s mean error with its defaults (the data set's scoring rule; while moving and standing).
 
@@ -47,13 +47,13 @@ from rfhoming.host.groundtruth import WalkedPath, Waypoint, load_waypoints, scor
 
 ISSUE_50 = {"az_std": 15.4, "az_tail": 0.21, "el_std": 21.8, "corr_time_s": 25.0, "compression_60_90": -19.0,
             "stop_mean_az_rms": 14.0, "stop_walk_to_walk_az": 7.4}
-"""Issue 50's figures for the withheld walks (spherical reading; uc1 + uc2: 9.5, 4.9 %, 11.6, ~1 s)."""
+"""the 2026-12 field report's figures for the withheld walks (spherical reading; uc1 + uc2: 9.5, 4.9 %, 11.6, ~1 s)."""
 
 WALK_S = 280.0
-"""A walk's length (issue 50: "Long walks (about 280 s each)")."""
+"""A walk's length (the 2026-12 field report: "Long walks (about 280 s each)")."""
 LONG_STOPS = 4
 STOPPED_SHARE = 0.87
-"""Four long stops, 87 % of the scored time (issue 50)."""
+"""Four long stops, 87 % of the scored time (the 2026-12 field report)."""
 WAYPOINTS = 12
 """Waypoints per walk: "stops at many waypoints" (the data set's other walks have 10-16)."""
 PACE_M_S = (0.5, 0.8)
@@ -146,7 +146,7 @@ def carried_walks(site_file: Path, folder: Path, walks: int, radio: str = "carri
 
 def stop_figures(site: sites.Site, runs: Sequence[tuple[Path, Path]]) -> dict[str, float]:
     """Each long stop's mean azimuth error per anchor: their RMS, and the RMS difference of two
-    walks' means at the same place and anchor (issue 50's "bias that stays put")."""
+    walks' means at the same place and anchor (the 2026-12 field report's "bias that stays put")."""
     means: dict[tuple[str, float, float], list[float]] = {}
     for capture, truth in runs:
         path = load_waypoints(truth)
@@ -217,7 +217,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json:
         print(json.dumps(result, indent=1))
         return 0
-    print(f"{args.walks} emulated carried walks, radio {args.radio}\n\n| statistic | emulated | issue 50 |\n|---|---|---|")
+    print(f"{args.walks} emulated carried walks, radio {args.radio}\n\n| statistic | emulated | the 2026-12 field report |\n|---|---|---|")
     for key, want in ISSUE_50.items():
         print(f"| {key} | {result['angles'][key]} | {want} |")
     loc = result["locate"]

@@ -7,7 +7,7 @@ tags, the robot's path through map -> odom -> base_link).
 
     python bench/frames_figure.py [-o docs/results/mcap-frames.png] [--s1 S1.mcap] [--anchors ANCHORS.mcap]
 
-Without --s1/--anchors it records them first: ``rfhoming demo --scenario s1-dock --seed 1``
+Without --s1/--anchors it records them first: ``rfhoming demo --scenario s1-dock --seed 1 --radio ideal`` (S1's own noise, as its figures were taken)
 and ``rfhoming run --controller anchors`` on ``rfhoming emulate kit-home --seed 1 --lockstep``.
 """
 
@@ -39,7 +39,7 @@ RFHOMING = [sys.executable, "-m", "rfhoming"]
 
 def record_s1(tmp: Path) -> Path:
     mcap = tmp / "s1-dock.mcap"
-    subprocess.run([*RFHOMING, "demo", "--scenario", "s1-dock", "--seed", "1", "--out", str(tmp / "s1"),
+    subprocess.run([*RFHOMING, "demo", "--scenario", "s1-dock", "--seed", "1", "--radio", "ideal", "--out", str(tmp / "s1"),
                     "--mcap", str(mcap), "--json"], check=False, capture_output=True, timeout=300)
     return mcap
 
@@ -50,7 +50,7 @@ def record_anchors(tmp: Path) -> Path:
     site = tmp / "site.toml"
     site.write_text((ROOT / "docs" / "sites" / "kit-home.toml").read_text().replace("/tmp/rfhoming-kit/", f"{links}/"))
     mcap = tmp / "anchors.mcap"
-    emulator = subprocess.Popen([*RFHOMING, "emulate", "kit-home", "--seed", "1", "--lockstep", "--link-dir", str(links)],
+    emulator = subprocess.Popen([*RFHOMING, "emulate", "kit-home", "--seed", "1", "--radio", "ideal", "--lockstep", "--link-dir", str(links)],
                                 stdout=subprocess.PIPE, text=True)
     try:
         for _ in range(5):

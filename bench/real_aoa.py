@@ -22,7 +22,7 @@ recordings with that calibration: what a user gets who calibrated on an earlier 
 a coordinate search over the report model's and the motion's settings (CV_STEPS) from the
 defaults, scored on that use case alone (in-process, the same scoring rule), then judged on
 every other use case; the defaults themselves scored beside (~25 scorings a fold, minutes).
-``--kinds FOLDER``: cross-kind folds (issue 50): the defaults and every one-setting move of CV_STEPS
+``--kinds FOLDER``: cross-kind folds (the 2026-12 field report): the defaults and every one-setting move of CV_STEPS
 scored on each kind of walk -- the use cases, and the walks in FOLDER as one more kind
 (bench/carried_walks.py --keep FOLDER writes emulated carried walks of the same room) -- then the
 best on each kind alone and on each mix that leaves one kind out, judged on every kind, the held-out
@@ -258,7 +258,7 @@ def _kind_error(site: sites.Site, setting: dict[str, float], kind: str) -> float
 
 
 def cross_kind(site_path: Path, kinds: dict[str, list[tuple[Path, Path]]], jobs: int = 2) -> dict[str, object]:
-    """Settings chosen on one kind of walk (or a mix), judged on the others (issue 50). Every
+    """Settings chosen on one kind of walk (or a mix), judged on the others (the 2026-12 field report). Every
     candidate -- the defaults, and each one-setting move of CV_STEPS from them -- is scored once
     on every kind (``jobs`` processes); a training set (each kind alone, and each mix that
     leaves one kind out) picks the candidate with the least mean of its kinds' mean errors (each

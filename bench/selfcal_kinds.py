@@ -1,12 +1,12 @@
 """Self-calibration across kinds of walk, emulated: calibrate on one kind, locate another in the
 same emulated room, against the default (no calibration). What a user gets who runs
-`rfhoming calibrate SITE --self` on one kind of walk and then `locate` on another (issue 50).
+`rfhoming calibrate SITE --self` on one kind of walk and then `locate` on another (the 2026-12 field report).
 
 Two kinds, both in the room of DIR (laid out as bench/real_aoa.py --help says: its site.toml and
 ground_truth/ are used, never its captures):
 
 - ``walked``: the data set's own ground-truth walks (uc1, uc2), under the ``measured`` profile;
-- ``carried`` (*assumed*, from issue 50's statistics of the withheld walks): a person carrying
+- ``carried`` (*assumed*, from the 2026-12 field report's statistics of the withheld walks): a person carrying
   the tag for ~280 s with four long stops, under a harder profile (:data:`CARRIED`): errors that
   stay put (field 12 deg), a wander correlated over 25 s, bursts for ~20 % of reports beyond
   20 deg. The walks are drawn from ``--seed``.
@@ -47,7 +47,7 @@ RATE_HZ = 37.0
 
 CARRIED = {"field_sigma_deg": 12.0, "field_length_m": 2.0, "slow_sigma_deg": 6.0, "slow_time_s": 25.0,
            "burst_rate_hz": 0.35, "burst_duration_s": 0.6, "burst_offset_excess_deg": 8.0}
-"""The carried kind's azimuth, over the measured profile's (*assumed*: issue 50's figures of the
+"""The carried kind's azimuth, over the measured profile's (*assumed*: the 2026-12 field report's figures of the
 withheld walks -- spread 15.4 deg, 21 % beyond 20 deg, errors correlated over ~25 s)."""
 
 ROOM = 7

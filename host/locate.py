@@ -71,7 +71,7 @@ MAX_PER_PAIR = 2000
 """Angles kept per (tag, anchor) at most, whatever the window (a bound, not a setting)."""
 
 MAX_SPAN_S = 20.0
-"""A slow anchor's window and staleness widen up to this (s): issue 50's board reports 0.5-3 a second."""
+"""A slow anchor's window and staleness widen up to this (s): the 2026-12 field report's board reports 0.5-3 a second."""
 
 RAY_REPORTS = 5
 """A fix's ray rests on at least this many of its anchor's reports (its window widens for them)."""

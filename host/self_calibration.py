@@ -109,7 +109,7 @@ PARAMS = ("log_az_scale", "az_bias_deg", "az_compression", "log_el_scale", "el_b
 
 PRIOR_SD = (0.05, 3.0, 0.1, 0.1, 5.0)
 """The prior each parameter is shrunk with, about its default (scales 1, the rest 0): real boards'
-azimuth errors are within +-3 deg and their scale 1 to a few per cent (issue 50)."""
+azimuth errors are within +-3 deg and their scale 1 to a few per cent (the 2026-12 field report)."""
 
 DATA_OVER_PRIOR = 0.5
 """A parameter is written only when its uncertainty is at most this fraction of its prior's ..."""

@@ -274,7 +274,7 @@ def parse(raw: dict[str, Any], where: str) -> RadioProfile:
 def _check_missing(m: Missing, where: str) -> None:
     """Refuse a loss rate runs of ``burst_events`` cannot give: losses in runs of mean B with kept events
     between them lose at most B / (B + 1) of all (0.5 for single losses), and the emulator would quietly
-    lose less than asked (issue 52: 0.99 asked, 0.53 lost)."""
+    lose less than asked (the house review of 2026-12: 0.99 asked, 0.53 lost)."""
     most = m.burst_events / (m.burst_events + 1.0)
     if m.rate_high > most:
         need = m.rate_high / (1.0 - m.rate_high)

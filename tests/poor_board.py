@@ -1,4 +1,4 @@
-"""Angle reports as poor as the second public board's (issue 50), made here, seeded.
+"""Angle reports as poor as the second public board's (the 2026-12 field report), made here, seeded.
 
 Four anchors at the corners of a 12 x 12 m square, each facing the centre, report a tag that
 stands at surveyed points (a static survey: each point a dwell, as in Paulino & Pessoa's

@@ -33,7 +33,7 @@ def test_wrap_keeps_the_whole_circle_in_minus_pi_to_pi() -> None:
 
 def test_nothing_outside_the_xplr_aoa_driver_tests_its_item_or_driver() -> None:
     """Consumers read the Bearing: isinstance on the XPLR-AOA's wire item or its driver would tie
-    them to that board again (issue 54)."""
+    them to that board again (the other-boards report of 2026-12)."""
     pattern = re.compile(r"isinstance\([^)]*\b(AngleEvent|AoaDriver|TimedAngle)\b")
     package = [p for layer in ("host", "rfhoming", "campaigns", "emulator", "firmware_py", "protocol")
                for p in (ROOT / layer).rglob("*.py") if not p.is_symlink()]

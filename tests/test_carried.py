@@ -1,4 +1,4 @@
-"""A tag a person carries and stands with (issue 50's withheld kind): the ``carried`` profile's
+"""A tag a person carries and stands with (the 2026-12 field report's withheld kind): the ``carried`` profile's
 ``[aoa.person]``, its stance offsets and the body's shadow (emulator/aoa_error.py), and the
 emulated carried walks of bench/carried_walks.py. No recording is read."""
 
@@ -81,7 +81,7 @@ def test_the_carried_profile_sources_every_figure_and_the_measured_one_has_no_pe
     assert raw["person"]["stance_az_field_deg"] > 0
     for key in raw["person"]:
         figure = f"person.{key}"
-        assert "issue 50" in carried.aoa.sources[figure].how if figure in carried.aoa.sources \
+        assert "the 2026-12 field report" in carried.aoa.sources[figure].how if figure in carried.aoa.sources \
             else figure in carried.aoa.assumed, figure
     board = MeasuredAoa(measured.aoa, "west", np.random.default_rng(1), 1)
     assert board.stance is None  # the measured profile's draws are as they were

@@ -1,5 +1,5 @@
 """Hostile input files through the commands a user runs: each refused with one line naming the file and
-exit 2, never an internal error (issue 52, "Inputs without limits"; protocol/textfile.py)."""
+exit 2, never an internal error (the house review of 2026-12, "Inputs without limits"; protocol/textfile.py)."""
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def rows(*replace: tuple[int, str]) -> str:
         "10001-rows"])
 def test_a_bad_ground_truth_file_is_refused_naming_its_row(
         cli: Callable[..., Any], tmp_path: Path, content: bytes, expected: str) -> None:
-    """radio-fit reads every --truth before any recording (issue 50: a mistyped waypoint fitted a -47 deg curve)."""
+    """radio-fit reads every --truth before any recording (the 2026-12 field report: a mistyped waypoint fitted a -47 deg curve)."""
     truth = tmp_path / "walk.csv"
     truth.write_bytes(content)
     done = cli("radio-fit", str(ROOT / "docs" / "sites" / "kit-room.toml"), "--from", "capture:none.pcapng",

@@ -1,4 +1,4 @@
-"""locate on radios as poor as issue 50's second board (tests/poor_board.py): 25 degrees median
+"""locate on radios as poor as the 2026-12 field report's second board (tests/poor_board.py): 25 degrees median
 error, 5 % beyond 90, one report a second per anchor, no elevation, four anchors at the corners
 of a 12 x 12 m square. It stays inside the site (plus its margin) and recovers after a lost
 track: the tag jumps across the square, and every anchor reports wild angles for 20 s."""

@@ -1,6 +1,6 @@
 """Where a site's tags can be: the box the localiser keeps its positions in.
 
-A tracker fed angles as poor as 25 degrees (issue 50) can drift off and keep going, kilometres
+A tracker fed angles as poor as 25 degrees (the 2026-12 field report) can drift off and keep going, kilometres
 away inside a 12 m room; nothing in the angles alone stops it. The site's extent does: the site
 file's ``extent``, or by default the anchors' own box. A side of that box is closed where an
 anchor at it looks back into the room (a wall anchor facing in, a corner anchor facing the

@@ -1,7 +1,7 @@
 """Is a tag's track still where its reports say? A check on a fixed scale, not the tracker's own.
 
 A tracker judges a report by its own covariance: once it has drifted off, that covariance has
-grown to cover the drift (a sigma of 185 km on the poor board of issue 50) and every report
+grown to cover the drift (a sigma of 185 km on the poor board of the 2026-12 field report) and every report
 looks fine to it. So once a second (``CHECK_S``) the track is held against the recent reports
 in degrees: the balanced median residual of each report against where the track put the tag
 at the report's time (estimation/bearing_consensus.py). The track is lost when that median

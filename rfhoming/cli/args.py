@@ -7,6 +7,7 @@ and would otherwise reach a timer or an allocation that overflows or never ends.
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import re
 from pathlib import Path
@@ -100,19 +101,26 @@ def bus_name(text: str) -> str:
     return text
 
 
-def broker_url(text: str) -> str:
-    """``mqtt://HOST[:PORT][/PARTITIONS]`` checked by the site bus's own parser (its partition
-    count, host and port ranges); returned as written. Without the site extra (paho-mqtt) it is
-    left to the command, which names the extra."""
+def _checked(text: str, parser: str) -> str:
+    """``text`` checked by the site extra's ``parser`` (``MODULE:CLASS``, its ``parse``), returned
+    as written; without the site extra (paho-mqtt) it is left to the command, which names the extra."""
+    module, _, name = parser.partition(":")
     try:
-        from rfhoming.host.sitebus import Broker, BrokerError
+        parse = getattr(importlib.import_module(module), name).parse
+        from rfhoming.host.sitebus import BrokerError
     except ImportError:
         return text
     try:
-        Broker.parse(text)
+        parse(text)
     except BrokerError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def broker_url(text: str) -> str:
+    """``mqtt://HOST[:PORT][/PARTITIONS]`` checked by the site bus's own parser (its partition
+    count, host and port ranges)."""
+    return _checked(text, "rfhoming.host.sitebus:Broker")
 
 
 def is_broker(spec: str) -> bool:
@@ -126,18 +134,8 @@ def is_silabs(spec: str) -> bool:
 
 
 def silabs_url(text: str) -> str:
-    """``mqtt+silabs://HOST[:PORT][/PREFIX]`` checked by its source's parser; without the site
-    extra (paho-mqtt) it is left to the command, which names the extra."""
-    try:
-        from rfhoming.host.silabs_source import Source
-        from rfhoming.host.sitebus import BrokerError
-    except ImportError:
-        return text
-    try:
-        Source.parse(text)
-    except BrokerError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
+    """``mqtt+silabs://HOST[:PORT][/PREFIX]`` checked by its source's parser."""
+    return _checked(text, "rfhoming.host.silabs_source:Source")
 
 
 def from_spec(text: str) -> str:

@@ -31,7 +31,7 @@ RADIOS = (IDEAL, MEASURED, "carried")
 """protocol/radio_profile.py's RADIOS (a test holds them equal), named here so the parsers load no profile."""
 RADIO_HELP = ("the emulated radios' errors: measured (the project's profile, fitted to real recordings: "
               "docs/emulator.md, \"Radio profiles\"), carried (a tag a person carries and stands with: long "
-              "stops, errors that stay put while they stand, built from issue 50's statistics), ideal (each scenario's own idealised noise, its paper's "
+              "stops, errors that stay put while they stand, built from the 2026-12 field report's statistics), ideal (each scenario's own idealised noise, its paper's "
               "set-up) or a profile file that `rfhoming radio-fit` wrote from your own room's recordings; default: {}")
 
 
