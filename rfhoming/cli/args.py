@@ -165,9 +165,17 @@ def nonempty(text: str) -> str:
     return text
 
 
+def expanded(text: str) -> Path:
+    """``text`` as a path, ``~`` and ``~USER`` expanded: a user the system does not know is refused."""
+    try:
+        return Path(text).expanduser()
+    except RuntimeError:  # pathlib: "Could not determine home directory."
+        raise argparse.ArgumentTypeError(f"{text!r}: no such user's home folder; give the path without ~") from None
+
+
 def path(text: str) -> Path:
     """A file or folder to read or create; an empty one would mean the current folder."""
-    return Path(nonempty(text)).expanduser()
+    return expanded(nonempty(text))
 
 
 def fault(text: str) -> str:
@@ -187,7 +195,7 @@ def output_file(text: str) -> Path:
     a killed command or being written by another -- is refused before any device is opened."""
     from rfhoming.host.outputs import WriteFailed, check
 
-    file = Path(nonempty(text)).expanduser()
+    file = expanded(nonempty(text))
     try:
         check(file)
     except WriteFailed as exc:

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
-from rfhoming.cli.args import baud, delay, nonempty, tcp_port
+from rfhoming.cli.args import baud, delay, expanded, nonempty, tcp_port
 from rfhoming.protocol.credentials import PASSWORD_ENV
 
 KINDS = ("xplr-aoa", "rss-node", "esp-at", "hci", "base", "ros2", "mavlink")
@@ -78,10 +77,11 @@ def radio(text: str) -> str:
     """``--radio``: a profile's name, or a profile file that exists (read when the scenario is built)."""
     if text in RADIOS:
         return text
-    if not Path(text).expanduser().is_file():
+    file = expanded(text)
+    if not file.is_file():
         raise argparse.ArgumentTypeError(f"{text!r}: give {' or '.join(RADIOS)}, or a radio profile file "
                                          "(rfhoming radio-fit writes one)")
-    return str(Path(text).expanduser())
+    return str(file)
 
 
 def add_radio_option(p: argparse.ArgumentParser, default: str | None, said: str) -> None:

@@ -223,7 +223,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
                    help="what the profile is, in its [profile] table (default: how many recordings of which site)")
     p.add_argument("--tag", type=nonempty, metavar="ID", help="the walked tag (default: the site file's first)")
     p.add_argument("--height", type=tag_height, metavar="M", help="the walked tag's height (default: the site file's)")
-    p.add_argument("--rssi-from", metavar="PROFILE",
+    p.add_argument("--rssi-from", type=nonempty, metavar="PROFILE",
                    help="copy this radio profile's [rssi.NAME] tables (measured, or a profile file) into the one "
                         "written: radio-fit fits the XPLR-AOA's angles, not the RSSI")
     p.set_defaults(func=command("radio_fit"))
