@@ -169,23 +169,12 @@ class TrilatController(ControllerDefaults):
         if not isinstance(item, BleRssi) or item.address not in self.anchors:
             return None
         p = self.params
-        self._t = t
-        if self._window_since is None and self.step is Step.LOCALISING:
-            self._window_since, self._window = t, {}
-        settle = p.confirm_settle_s if self.step is Step.CONFIRMING else 0.0
-        if self._window_since is not None and t - self._window_since >= settle:
-            self._window.setdefault(item.address, []).append(float(item.rssi_dbm))
-        if p.self_calibrate:
-            self._history.append((t, pose.x, pose.y, self._names.index(item.address), float(item.rssi_dbm)))
-            while self._history and t - self._history[0][0] > p.history_s:
-                self._history.popleft()
+        self._keep(t, pose, item)
         k = self._filters.setdefault(item.address, ScalarKalman(p.kalman_q, p.kalman_r))
         self._latest[item.address] = (t, from_q8(k.update(to_q8(item.rssi_dbm))))
         fresh = [(a, v) for a, (ta, v) in self._latest.items() if t - ta <= p.fresh_s]
         fields: dict[str, Any] = {"address": item.address, "rssi": item.rssi_dbm}
-        if len(fresh) < 3:
-            return fields
-        fix = self.solve(dict(fresh))
+        fix = self.solve(dict(fresh)) if len(fresh) >= 3 else None
         if fix is None:
             return fields
         odo = np.array([pose.x, pose.y])
@@ -196,20 +185,41 @@ class TrilatController(ControllerDefaults):
                 return fields
             self.offset, self.step, self._window_since = located - odo, Step.HOMING, None
         elif p.self_calibrate and self.offset is not None:
-            if self.theta is None:
-                self.theta = np.concatenate([self.offset, [p.p0_dbm, p.n], np.zeros(len(self._names))])
-            if t - self._calibrated_t >= p.calibrate_every_s:
-                self._calibrated_t = t
-                which, odo_xy, rssi = self._places()
-                self.theta = offset_and_links(np.array([self.anchors[a] for a in self._names]), which, odo_xy, rssi,
-                                              self.theta, p.p0_dbm, p.n, reading_sd_db=5.0, independent=1.0)
-                self.offset = self.theta[:2].copy()
+            self._calibrate(t)
         elif self.step is not Step.CONFIRMING:  # standing, the confirmation's fix decides
             self.offset = fix - odo if self.offset is None else self.offset + p.offset_gain * (fix - odo - self.offset)
         self.fixes += 1
         self.last_fix = fix
         fields["fix"] = [round(float(v), 3) for v in fix]
         return fields
+
+    def _keep(self, t: float, pose: Pose, item: BleRssi) -> None:
+        """The raw reading into the standing window (localising, or confirming once settled) and
+        into the self-calibration's history of ``history_s``."""
+        p = self.params
+        self._t = t
+        if self._window_since is None and self.step is Step.LOCALISING:
+            self._window_since, self._window = t, {}
+        settle = p.confirm_settle_s if self.step is Step.CONFIRMING else 0.0
+        if self._window_since is not None and t - self._window_since >= settle:
+            self._window.setdefault(item.address, []).append(float(item.rssi_dbm))
+        if p.self_calibrate:
+            self._history.append((t, pose.x, pose.y, self._names.index(item.address), float(item.rssi_dbm)))
+            while self._history and t - self._history[0][0] > p.history_s:
+                self._history.popleft()
+
+    def _calibrate(self, t: float) -> None:
+        """Every ``calibrate_every_s``: the offset, P0, n and each beacon's offset fitted to the history."""
+        p = self.params
+        assert self.offset is not None
+        if self.theta is None:
+            self.theta = np.concatenate([self.offset, [p.p0_dbm, p.n], np.zeros(len(self._names))])
+        if t - self._calibrated_t >= p.calibrate_every_s:
+            self._calibrated_t = t
+            which, odo_xy, rssi = self._places()
+            self.theta = offset_and_links(np.array([self.anchors[a] for a in self._names]), which, odo_xy, rssi,
+                                          self.theta, p.p0_dbm, p.n, reading_sd_db=5.0, independent=1.0)
+            self.offset = self.theta[:2].copy()
 
     def _places(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The history as one mean reading per beacon and place (``place_m`` cells of the
