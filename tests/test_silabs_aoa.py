@@ -7,15 +7,14 @@ from __future__ import annotations
 import json
 import math
 import os
-import select
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
 
+import rigs
 from brokers import MOSQUITTO, free_port, start, stop
 from rfhoming.emulator.silabs_locator import SilabsLocator
 from rfhoming.protocol import silabs_aoa as sa
@@ -188,14 +187,14 @@ def test_locate_fixes_a_tag_the_emulated_locators_publish(tmp_path: Path) -> Non
     positions: list[dict[str, object]] = []
     try:
         assert proc.stdout is not None
-        deadline = time.monotonic() + 300  # a hang guard, not a speed target
-        while len(positions) < 10 and time.monotonic() < deadline:
-            if select.select([proc.stdout], [], [], 1.0)[0]:
-                line = proc.stdout.readline()
-                assert line, f"locate ended early: {proc.stderr.read() if proc.stderr else ''}"
-                record = json.loads(line)
-                if record.get("kind") == "position":
-                    positions.append(record)
+        while len(positions) < 10:  # each line waited for with a deadline (a hang guard, not a speed target)
+            line = rigs.readline(proc, deadline_s=300)
+            if not line:
+                proc.wait(timeout=60)
+                pytest.fail(f"locate ended early: {rigs.readline(proc, 'stderr', 60)}")
+            record = json.loads(line)
+            if record.get("kind") == "position":
+                positions.append(record)
     finally:
         proc.terminate()
         _, err = proc.communicate(timeout=60)

@@ -51,8 +51,9 @@ def site_broker(tmp_path_factory: pytest.TempPathFactory):
     proc = brokers.start(folder, plain, f"allow_anonymous false\npassword_file {passwd}\n", tls_port=secure, tls=tls)
     files = folder / "files"
     files.mkdir()
-    (files / "gw.pass").write_text(PASSWORD + "\n")
-    (files / "wrong.pass").write_text("not-it\n")
+    for name, text in (("gw.pass", PASSWORD), ("wrong.pass", "not-it")):  # owner-only, as a user keeps one
+        (files / name).write_text(text + "\n")
+        (files / name).chmod(0o600)
     yield SimpleNamespace(plain=plain, tls=secure, ca=tls.ca, other_ca=tls.other_ca, files=files)
     brokers.stop(proc)
 
@@ -453,8 +454,9 @@ def test_the_documented_acl_keeps_gateways_and_workers_to_their_topics(tmp_path:
     port = brokers.free_port()
     broker = brokers.start(tmp_path, port, f"allow_anonymous false\npassword_file {passwd}\nacl_file {ACL}\n")
     try:
-        (tmp_path / "w1.pass").write_text("w1pw\n")
-        (tmp_path / "gw.pass").write_text("gwpw\n")
+        for name, text in (("w1.pass", "w1pw"), ("gw.pass", "gwpw")):  # owner-only, as a user keeps one
+            (tmp_path / name).write_text(text + "\n")
+            (tmp_path / name).chmod(0o600)
         ghosts = _fake_claims(SITE, 4)
         stop = {"go": True}
 
