@@ -39,6 +39,18 @@ SETTLE_LIMIT = 1000
 """Yields after a step before an in-process host that is still busy is counted and stepped past."""
 
 
+def _check_settings(transport: str, link_dir: Path | None, lockstep: bool, robot: dict[str, Any] | None,
+                    pose_from: dict[str, Any] | None) -> None:
+    """The settings that cannot go together, refused before anything is opened."""
+    if transport not in TRANSPORTS:
+        raise ScenarioError(f"transport must be one of {TRANSPORTS}")
+    if transport == "pty" and link_dir is not None and not link_dir.is_dir():
+        raise ScenarioError(f"link directory {link_dir} is not a directory (create it, or pass none for a temp dir)")
+    if pose_from is not None and (lockstep or robot is not None):
+        raise ScenarioError("--pose-from: the robot is a ROS 2 robot of its own; it takes neither --lockstep nor "
+                            "--robot (nor a scenario with [robot.mavlink])")
+
+
 class Emulator:
     def __init__(self, scenario: Scenario, *, transport: str = "pty", seed: int = 0,
                  step_ms: int = 10, speed: float = 1.0, lockstep: bool = False,
@@ -51,8 +63,8 @@ class Emulator:
         by default the scenario's own (``[robot.mavlink]``), or the serial base. ``pose_from``: the
         robot is another, a ROS 2 robot whose pose comes on a topic (emulator/ros2pose.py), e.g.
         {"topic": "/ground_truth/pose", "domain": 7}: the scenario's base is not served."""
-        if transport not in TRANSPORTS:
-            raise ScenarioError(f"transport must be one of {TRANSPORTS}")
+        robot = robot if robot is not None else scenario.vehicle
+        _check_settings(transport, link_dir, lockstep, robot, pose_from)
         self.scenario = scenario
         self.world = scenario.world
         self.step_s = step_ms / 1000
@@ -64,35 +76,18 @@ class Emulator:
         self.truth = truth
         self.t = 0.0
         self.counters = {"steps": 0, "lockstep_timeouts": 0, "settle_overruns": 0}
-        if transport == "pty" and link_dir is not None and not link_dir.is_dir():
-            raise ScenarioError(f"link directory {link_dir} is not a directory (create it, or pass none for a temp dir)")
         self.link_dir = link_dir or Path(tempfile.mkdtemp(prefix="rfhoming-"))
         self.faults = list(faults)
         self.devices: list[DeviceRunner] = []
-        robot = robot if robot is not None else scenario.vehicle
-        if pose_from is not None and (lockstep or robot is not None):
-            raise ScenarioError("--pose-from: the robot is a ROS 2 robot of its own; it takes neither --lockstep nor "
-                                "--robot (nor a scenario with [robot.mavlink])")
         self.pose_from = self._pose_follower(pose_from) if pose_from is not None else None
         start = scenario.world.robot
         self._start = (start.x, start.y, start.theta)
-        unknown = {f.device for f in self.faults if f.device} - {d.name for d in scenario.devices}
-        if unknown:
-            names = ", ".join(d.name for d in scenario.devices)
-            raise FaultError(f"fault names unknown device(s) {sorted(unknown)}; this scenario has: {names}")
-        for k, spec in enumerate(scenario.devices):
-            if self.pose_from is not None and spec.type == "base":
-                continue
-            rng = np.random.default_rng([seed, k])
-            link = self._robot_link(robot) if robot is not None and spec.type == "base" else self._link(transport, spec.name)
-            byte_faults = ByteFaults([f for f in self.faults if f.hits(spec.name)], np.random.default_rng([seed, k, 1]))
-            self.devices.append(self._device(spec.type, spec.name, k, link, byte_faults, rng, spec.options))
-        self._timed = sorted(
-            [(f.params["at"], f) for f in self.faults if "at" in f.params], key=lambda x: x[0]
-        )
-        self._triggered = {d: _HostTrigger([f for f in self.faults if "after_bytes" in f.params and f.hits(d.name)])
-                           for d in self.devices}
-        self._triggered = {d: trigger for d, trigger in self._triggered.items() if trigger.faults}
+        self._check_faults()
+        self._add_devices(seed, robot)
+        self._timed = sorted([(f.params["at"], f) for f in self.faults if "at" in f.params], key=lambda x: x[0])
+        triggers = {d: _HostTrigger([f for f in self.faults if "after_bytes" in f.params and f.hits(d.name)])
+                    for d in self.devices}
+        self._triggered = {d: trigger for d, trigger in triggers.items() if trigger.faults}
         self._base = next((d for d in self.devices if isinstance(d, BaseRunner)), None)
         self._others = [d for d in self.devices if d is not self._base]
         self._replugs: list[tuple[float, DeviceRunner]] = []
@@ -100,6 +95,25 @@ class Emulator:
         self._next_control = self.control_period_s
         if lockstep and self.base is None:
             raise ValueError("lockstep needs a robot base in the scenario: the host's velocity command is its answer")
+
+    def _check_faults(self) -> None:
+        """Every fault names a device of the scenario (or none: all of them)."""
+        unknown = {f.device for f in self.faults if f.device} - {d.name for d in self.scenario.devices}
+        if unknown:
+            names = ", ".join(d.name for d in self.scenario.devices)
+            raise FaultError(f"fault names unknown device(s) {sorted(unknown)}; this scenario has: {names}")
+
+    def _add_devices(self, seed: int, robot: dict[str, Any] | None) -> None:
+        """One runner per scenario device, each on its link, seeded by its index; no base when a
+        ROS 2 robot of its own is followed (``pose_from``)."""
+        for k, spec in enumerate(self.scenario.devices):
+            if self.pose_from is not None and spec.type == "base":
+                continue
+            rng = np.random.default_rng([seed, k])
+            link = (self._robot_link(robot) if robot is not None and spec.type == "base"
+                    else self._link(self.transport, spec.name))
+            byte_faults = ByteFaults([f for f in self.faults if f.hits(spec.name)], np.random.default_rng([seed, k, 1]))
+            self.devices.append(self._device(spec.type, spec.name, k, link, byte_faults, rng, spec.options))
 
     @staticmethod
     def _robot_link(robot: dict[str, Any]) -> Link:
