@@ -130,56 +130,21 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = No
     ``measured`` (the project's profile, fitted to real recordings) or a profile file or object
     (docs/emulator.md, "Radio profiles"); ``room_seed`` (default ``seed``) what stays put in the
     room from run to run under a profile (its error field)."""
-    if receiver is not None and receiver not in BLE_RECEIVERS:
-        raise ScenarioError(f"receiver must be one of {BLE_RECEIVERS}, not {receiver!r}")
-    if aoa_preset is not None and radio != IDEAL:
-        raise ScenarioError("--aoa-preset is S0's idealised noise: give it with --radio ideal, or leave it out")
-    try:
-        profile = radio if isinstance(radio, RadioProfile) else resolve(radio)
-    except ProfileError as exc:
-        raise ScenarioError(str(exc)) from None
+    profile = _radio(receiver, aoa_preset, radio)
     raw = _read(name_or_path)
     rng = np.random.default_rng(seed)
     try:
         bounds = tuple(float(v) for v in raw["bounds"])
         robot = raw.get("robot", {})
         start = Pose(*map(float, robot.get("start", (0.0, 0.0, 0.0))))
-        obstacles = []
-        for o in raw.get("obstacles", []):
-            if "rect" in o:
-                obstacles.append(Obstacle.rect(*map(float, o["rect"])))
-            else:
-                obstacles.append(Obstacle([_point(p) for p in o["polygon"]]))
-        targets = []
-        for i, t in enumerate(raw.get("targets", [])):
-            if i == 0 and target is not None:
-                position = _point(target)
-            elif t.get("position", "random") == "random":
-                position = _random_free_point(bounds, obstacles, rng)
-            else:
-                position = _point(t["position"])
-            targets.append(Target(
-                id=str(t["id"]), kind=str(t["kind"]), position=position,
-                height=float(t.get("height", 0.0)),
-                path=[_point(p) for p in t.get("path", [])], speed=float(t.get("speed", 0.0)),
-                interval_ms=float(t.get("interval_ms", 20.0)), jitter_ms=float(t.get("jitter_ms", 0.0)),
-                tx_power_dbm=float(t.get("tx_power_dbm", 0.0)), heading=float(t.get("heading", 0.0)),
-                timetable=_timetable(t.get("timetable", []), f"[[targets]] {t['id']}"),
-            ))
+        obstacles = [Obstacle.rect(*map(float, o["rect"])) if "rect" in o else Obstacle([_point(p) for p in o["polygon"]])
+                     for o in raw.get("obstacles", [])]
+        targets = [_target(t, _point(target) if i == 0 and target is not None else None, bounds, obstacles, rng)
+                   for i, t in enumerate(raw.get("targets", []))]
         aoa_table = dict(raw.get("aoa", {}))
         preset = aoa_preset if aoa_preset is not None else aoa_table.get("preset")
         aoa = AoaModel.s0_preset(int(preset)) if preset is not None else _model(AoaModel, aoa_table, "aoa")
-        specs = []
-        for name, spec in raw.get("devices", {}).items():
-            options = dict(spec)
-            kind = options.pop("type", None)
-            if kind not in devices.BOARDS:  # read now: a kind added to the table is known at once
-                served = devices.KINDS[kind].emulated_as if isinstance(kind, str) and kind in devices.KINDS else None
-                raise ScenarioError(f"[devices.{name}] type must be one of {tuple(devices.BOARDS)}, not {kind!r}"
-                                    + (f"; a {kind} is served by {served}" if served else ""))
-            if receiver is not None and kind in BLE_RECEIVERS:
-                kind = receiver
-            specs.append(DeviceSpec(name, kind, options))
+        specs = [_device(name, spec, receiver) for name, spec in raw.get("devices", {}).items()]
     except KeyError as exc:
         raise ScenarioError(f"scenario {name_or_path} lacks {exc}") from None
     except (TypeError, ValueError) as exc:
@@ -189,8 +154,6 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = No
     path_loss = _model(PathLossModel, raw.get("radio", {}), "radio")
     if path_loss.reflections is None:  # walls reflect where there are walls (docs/emulator.md)
         path_loss = replace(path_loss, reflections=bool(obstacles))
-    if aoa_preset is not None and aoa_preset not in range(1, 6):
-        raise ScenarioError("AoA preset must be 1..5 (S0 Table 2)")
     return Scenario(
         name=str(raw.get("name", name_or_path)),
         description=str(raw.get("description", "")),
@@ -207,6 +170,53 @@ def load(name_or_path: str, seed: int = 0, target: tuple[float, ...] | None = No
         rssi={} if profile is None else dict(profile.rssi),
         room_seed=seed if room_seed is None else room_seed,
     )
+
+
+def _radio(receiver: str | None, aoa_preset: int | None, radio: str | RadioProfile) -> RadioProfile | None:
+    """load's choices checked, and the radio profile they name (None: each paper's own noise)."""
+    if receiver is not None and receiver not in BLE_RECEIVERS:
+        raise ScenarioError(f"receiver must be one of {BLE_RECEIVERS}, not {receiver!r}")
+    if aoa_preset is not None and radio != IDEAL:
+        raise ScenarioError("--aoa-preset is S0's idealised noise: give it with --radio ideal, or leave it out")
+    if aoa_preset is not None and aoa_preset not in range(1, 6):
+        raise ScenarioError("AoA preset must be 1..5 (S0 Table 2)")
+    try:
+        return radio if isinstance(radio, RadioProfile) else resolve(radio)
+    except ProfileError as exc:
+        raise ScenarioError(str(exc)) from None
+
+
+def _target(t: dict[str, Any], forced: tuple[float, float] | None, bounds: tuple[float, ...],
+            obstacles: list[Obstacle], rng: np.random.Generator) -> Target:
+    """One ``[[targets]]`` entry; ``forced``: its position given on the command line."""
+    if forced is not None:
+        position = forced
+    elif t.get("position", "random") == "random":
+        position = _random_free_point(bounds, obstacles, rng)
+    else:
+        position = _point(t["position"])
+    return Target(
+        id=str(t["id"]), kind=str(t["kind"]), position=position,
+        height=float(t.get("height", 0.0)),
+        path=[_point(p) for p in t.get("path", [])], speed=float(t.get("speed", 0.0)),
+        interval_ms=float(t.get("interval_ms", 20.0)), jitter_ms=float(t.get("jitter_ms", 0.0)),
+        tx_power_dbm=float(t.get("tx_power_dbm", 0.0)), heading=float(t.get("heading", 0.0)),
+        timetable=_timetable(t.get("timetable", []), f"[[targets]] {t['id']}"),
+    )
+
+
+def _device(name: str, spec: dict[str, Any], receiver: str | None) -> DeviceSpec:
+    """One ``[devices.NAME]``: its type checked against the device table (read now, so a kind
+    added to the table is known at once); ``receiver`` replaces every BLE receiver's type."""
+    options = dict(spec)
+    kind = options.pop("type", None)
+    if kind not in devices.BOARDS:
+        served = devices.KINDS[kind].emulated_as if isinstance(kind, str) and kind in devices.KINDS else None
+        raise ScenarioError(f"[devices.{name}] type must be one of {tuple(devices.BOARDS)}, not {kind!r}"
+                            + (f"; a {kind} is served by {served}" if served else ""))
+    if receiver is not None and kind in BLE_RECEIVERS:
+        kind = receiver
+    return DeviceSpec(name, kind, options)
 
 
 def _vehicle(robot: dict[str, Any], where: str) -> dict[str, Any] | None:
