@@ -15,13 +15,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from loops import loop_on
+from synthetic_angles import walk
 
 from rfhoming.campaigns.closed_loop import PipePort
 from rfhoming.emulator import scenario as scenarios
 from rfhoming.emulator.runtime import Emulator
 from rfhoming.host import site as sites
-from rfhoming.host.homing.anchors import align
+from rfhoming.host.homing.anchors import AnchorsController, align
 from rfhoming.host.homing.config import Config
+from rfhoming.host.homing.types import Pose
 
 SITE = Path(__file__).resolve().parents[1] / "docs" / "sites" / "kit-home.toml"
 
@@ -36,6 +38,20 @@ def test_align_recovers_a_rotated_shifted_frame(phi, tx, ty, seed):
     got_phi, got_tau = align(odo, world)
     assert abs(math.remainder(got_phi - phi, 2 * math.pi)) < 1e-9
     assert np.allclose(got_tau, [tx, ty], atol=1e-9)
+
+
+def test_the_controller_locates_on_the_loops_clock_not_the_drivers_stamp():
+    """A Bearing carries the host time its bytes arrived; in lockstep (and with any host delay)
+    that is not the robot time the loop runs on, so the controller's fixes, and the poses it pairs
+    them with, must be on the loop's clock: the target's fix is at a loop time."""
+    site = sites.load(SITE)
+    standing = walk(1, waypoints=[(9.5, 4.2), (9.5, 4.2)], dwell_s=3.0, white_deg=1.0, slow_deg=0.0, outliers=0.0,
+                    site=site)
+    controller = AnchorsController(site)
+    for b in standing.events:
+        controller.on_input(b.t, Pose(0.0, 0.0, 0.0), b._replace(t=b.t + 1000.0))  # the host clock far ahead
+    assert controller.target_world is not None
+    assert controller.target_t <= standing.events[-1].t
 
 
 async def _home(seed: int):

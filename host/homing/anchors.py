@@ -81,7 +81,9 @@ class AnchorsController(ControllerDefaults):
             return None
         if not self._poses or self._poses[-1][0] != t:
             self._poses.append((t, pose))
-        for p in self.locator.feed(item):
+        # the loop's robot time, not the driver's host stamp: the pairs below match fixes to poses
+        # by it, and in lockstep host time runs apart from the robot's
+        for p in self.locator.feed(item._replace(t=t)):
             xy = (float(p.point[0]), float(p.point[1]))
             if p.tag == self.target_tag:
                 self.target_world, self.target_t = np.array(xy), p.t
