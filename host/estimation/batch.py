@@ -320,10 +320,12 @@ class BatchLocator:
             return []
         times = self._t[:n]
         upto = np.where(times <= t, times, -np.inf)
-        ordered = np.sort(upto, axis=1)  # -inf (none, or after t) first
-        last = ordered[:, -1]
-        back = np.minimum(np.isfinite(ordered).sum(axis=1) - 1, RATE_REPORTS).clip(0)
-        gap = usual_gap(last, ordered[np.arange(n), SLOTS - 1 - back], back)  # as Locator's, per pair
+        last = upto.max(axis=1)
+        # a pair's ring is in time order: its newest at or before t is `after` slots behind its
+        # newest, and the usual gap (as Locator's) reaches `back` reports behind that
+        after = (times > t).sum(axis=1)
+        back = np.minimum(np.isfinite(upto).sum(axis=1) - 1, RATE_REPORTS).clip(0)
+        gap = usual_gap(last, times[np.arange(n), (self._pos[:n] - 1 - after - back) % SLOTS], back)
         fresh: np.ndarray = last >= t - stale_after(gap, site.stale_s)
         if only_new:
             reported_np = np.array(self._reported)
@@ -373,6 +375,7 @@ class BatchLocator:
         names = [self.anchor_names[i] for i in anc.tolist()]
         rows_l = rows.tolist()
         hlist, suspect, ok = heights.tolist(), (result.suspect | folded[rows]).tolist(), result.ok.tolist()
+        inside = self.extent.contains(result.points).tolist()  # beyond extent + margin: withheld, as Locator's
         newest_l, t_fix_l, chi2_l, starts_l = newest.tolist(), t_fix.tolist(), result.chi2.tolist(), starts.tolist()
         for k in range(len(rows)):
             lo, hi = starts_l[k], starts_l[k + 1]
@@ -385,6 +388,7 @@ class BatchLocator:
                 except Degenerate:
                     self.counters["no_fix"] += 1
                     continue
+                inside[k] = self.extent.inside(fix.point)
             elif ok[k]:
                 fix = Fix(result.points[k], result.covariances[k], tuple(names[lo:hi]), (), chi2_l[k])
             else:
@@ -392,7 +396,7 @@ class BatchLocator:
                 continue
             self.counters["fixes"] += 1
             self.counters["rejected_anchor"] += len(fix.rejected)
-            if not self.extent.inside(fix.point):  # withheld, as Locator's
+            if not inside[k]:
                 self.counters["outside"] += 1
                 continue
             dof = max(1, 2 * len(fix.used) - (3 if height is None else 2))
@@ -422,10 +426,11 @@ class BatchLocator:
         points, covs = self.tracker.predicted(which[live], t)
         out = []
         kept = [(f, is_new) for f, is_new, keep in zip(fixes, new, live) if keep]
-        for ((k, fix, newest_k, _, qual), is_new), point, cov in zip(kept, points, covs):
-            if not np.isnan(heights[k]):
-                point = np.array([point[0], point[1], heights[k]])
-            if not self.extent.inside(point):  # withheld, and the track starts again (as Locator's)
+        at = np.array([k for (k, *_), _ in kept], np.int64)
+        points = np.where(np.isnan(heights[at])[:, None], points, np.c_[points[:, :2], heights[at]])
+        inside = self.extent.contains(points).tolist()
+        for ((k, fix, newest_k, _, qual), is_new), point, cov, within in zip(kept, points, covs, inside):
+            if not within:  # withheld, and the track starts again (as Locator's)
                 self.counters["outside"] += 1
                 self.counters["restarts"] += 1
                 self.tracker.restart(rows[k])
