@@ -38,6 +38,7 @@ from rfhoming.host.estimation.anchors3d import (
 )
 from rfhoming.host.estimation.angle_tracker import AngleNoise, AngleTracker, TrackerBank
 from rfhoming.host.estimation.bearing_consensus import Bearings, Consensus, consensus
+from rfhoming.host.estimation.spans import MAX_SPAN_S, RATE_REPORTS, ray_span, stale_after, usual_gap
 from rfhoming.host.estimation.track_guard import MIN_ANCHORS, TrackGuard
 from rfhoming.host.estimation.tracking import BearingEkf, ConstantVelocity, rts_smooth
 from rfhoming.host.site import Anchor, Calibration, Site, uncompress
@@ -69,18 +70,6 @@ FORGET_S = 60.0
 
 MAX_PER_PAIR = 2000
 """Angles kept per (tag, anchor) at most, whatever the window (a bound, not a setting)."""
-
-MAX_SPAN_S = 20.0
-"""A slow anchor's window and staleness widen up to this (s): the 2026-12 field report's board reports 0.5-3 a second."""
-
-RAY_REPORTS = 5
-"""A fix's ray rests on at least this many of its anchor's reports (its window widens for them)."""
-
-STALE_GAPS = 3.0
-"""An anchor is stale after this many of its usual gaps between reports (and stale_s)."""
-
-RATE_REPORTS = 8
-"""An anchor's usual gap: the mean over its last this many."""
 
 CHECK_SPAN_S = 3.0
 """The track's check (estimation/track_guard.py) takes each anchor's reports of the last this many
@@ -301,8 +290,7 @@ class Locator:
 
     def _stale_after(self, window: deque[tuple[float, ...]]) -> float:
         """How long this anchor may be silent and still count: stale_s, or a few of its usual gaps."""
-        gap = _gap(window)
-        return self.site.stale_s if math.isinf(gap) else min(MAX_SPAN_S, max(self.site.stale_s, STALE_GAPS * gap))
+        return float(stale_after(_gap(window), self.site.stale_s))
 
     def _fresh(self, tag: str, t: float) -> list[str]:
         """The anchors heard about ``tag`` recently enough (and since any loss of their device)."""
@@ -324,7 +312,7 @@ class Locator:
             last = next((w[0] for w in reversed(window) if since < w[0] <= t), None)
             if last is None:
                 continue
-            first = max(since, last - min(MAX_SPAN_S, max(self.site.window_s, RAY_REPORTS * _gap(window))))
+            first = max(since, last - float(ray_span(_gap(window), self.site.window_s)))
             recent = _between(window, first, last)
             az = self._true_azimuth(_circular_median([w[1] for w in recent]))
             el = statistics.median(w[2] for w in recent)
@@ -540,7 +528,7 @@ def _circular_median(degrees: list[float]) -> float:
 def _gap(window: deque[tuple[float, ...]]) -> float:
     """An anchor's usual time between reports: the mean over its last RATE_REPORTS (inf: one report)."""
     n = min(len(window) - 1, RATE_REPORTS)
-    return (window[-1][0] - window[-1 - n][0]) / n if n > 0 else math.inf
+    return float(usual_gap(window[-1][0], window[-1 - n][0], n))
 
 
 def _between(window: deque[tuple[float, ...]], first: float, last: float) -> list[tuple[float, ...]]:

@@ -503,7 +503,9 @@ def test_two_workers_split_the_site_and_one_takes_over_when_the_other_dies(broke
 
 
 def test_batch_tracker_equals_the_per_tag_tracker() -> None:
-    """Locator(tracker="cv") and BatchLocator(track=True), tick after tick on the same events."""
+    """Locator(tracker="cv") and BatchLocator(track=True), tick after tick on the same events.
+    cv: the batch engine's one tracker; Locator's track check, consensus restart, noise scale and
+    FLOOR_M belong to its angles and ekf trackers only (docs/estimation.md, "Guards")."""
     sc = SiteScenario(16, 40, seed=5, clock_spread_s=0.0)
     site = _site(sc)
     rows = sorted(r for rs in sc.events(10.0, 13.0).values() for r in rs)

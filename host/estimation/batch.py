@@ -27,13 +27,16 @@ from rfhoming.host.estimation.anchors3d import (
     locate,
     make_ray,
 )
+from rfhoming.host.estimation.spans import RATE_REPORTS, ray_span, stale_after, usual_gap
 from rfhoming.host.site import Site, uncompress
 
 SYSTEMATIC = 0.6
 """As host/locate.py: the part of an angle's error (of sigma_deg) a median does not average away."""
 
-SLOTS = 8
-"""Angles kept per (tag, anchor): the median is over the newest of them inside the window."""
+SLOTS = RATE_REPORTS + 4
+"""Angles kept per (tag, anchor): the median is over the newest of them inside the window; the
+usual gap (estimation/spans.py) wants RATE_REPORTS + 1 of them at or before the tick, the rest
+are room for events stamped after it."""
 
 INCONSISTENT_CHI2_PER_DOF = 25.0
 """A fix whose rays' chi-square per degree of freedom exceeds this is inconsistent (a site worker's
@@ -166,7 +169,8 @@ class BatchLocator:
     """Angle events in (site time, anchor id, tag id, azimuth, elevation), all tags' fixes out per tick.
 
     The windowing of host/locate.py (per (tag, anchor) the median of the angles within ``window_s``
-    of its newest, anchors heard within ``stale_s``, the same ray sigma), kept in flat arrays so a
+    of its newest, widened to RAY_REPORTS for a slow anchor, anchors heard within ``stale_s`` or a
+    few of their usual gaps: estimation/spans.py, the same ray sigma), kept in flat arrays so a
     tick costs numpy calls, not Python per tag. Events must come in time order per (tag, anchor)
     (one gateway hears one anchor); tags not listed in the site are located too (a warehouse's
     tags come and go), without a known height. With ``gate`` (a chi-square per degree of freedom) a
@@ -202,7 +206,11 @@ class BatchLocator:
         self._ptag = np.zeros(cap, np.int64)
         self._panchor = np.zeros(cap, np.int64)
         self.counters = {"events": 0, "unknown_anchor": 0, "overflow": 0, "fixes": 0, "no_fix": 0,
-                         "consensus": 0, "rejected_anchor": 0, "gated": 0, "inconsistent": 0}
+                         "consensus": 0, "rejected_anchor": 0, "gated": 0, "inconsistent": 0, "outside": 0,
+                         "restarts": 0}
+        """outside, restarts: as Locator's -- fixes (and tracks, which then start again) withheld
+        beyond the site's extent plus its margin."""
+        self.extent = site.bounds()
         self._known = {t.id: t for t in site.tags}
 
     def _tag(self, tag: str) -> int:
@@ -313,7 +321,12 @@ class BatchLocator:
         times = self._t[:n]
         upto = np.where(times <= t, times, -np.inf)
         last = upto.max(axis=1)
-        fresh = last >= t - site.stale_s
+        # a pair's ring is in time order: its newest at or before t is `after` slots behind its
+        # newest, and the usual gap (as Locator's) reaches `back` reports behind that
+        after = (times > t).sum(axis=1)
+        back = np.minimum(np.isfinite(upto).sum(axis=1) - 1, RATE_REPORTS).clip(0)
+        gap = usual_gap(last, times[np.arange(n), (self._pos[:n] - 1 - after - back) % SLOTS], back)
+        fresh: np.ndarray = last >= t - stale_after(gap, site.stale_s)
         if only_new:
             reported_np = np.array(self._reported)
             tag_newest = np.full(len(self.tags), -np.inf)
@@ -323,7 +336,7 @@ class BatchLocator:
         if len(fresh) == 0:
             return []
         tt = upto[fresh]
-        inside = tt > (last[fresh] - site.window_s)[:, None]
+        inside = tt > (last[fresh] - ray_span(gap[fresh], site.window_s))[:, None]
         count = inside.sum(axis=1)
         mean_t = np.where(inside, tt, 0.0).sum(axis=1) / count
         med = _median(np.where(inside[:, :, None], self._ang[fresh], np.inf), count)
@@ -362,6 +375,7 @@ class BatchLocator:
         names = [self.anchor_names[i] for i in anc.tolist()]
         rows_l = rows.tolist()
         hlist, suspect, ok = heights.tolist(), (result.suspect | folded[rows]).tolist(), result.ok.tolist()
+        inside = self.extent.contains(result.points).tolist()  # beyond extent + margin: withheld, as Locator's
         newest_l, t_fix_l, chi2_l, starts_l = newest.tolist(), t_fix.tolist(), result.chi2.tolist(), starts.tolist()
         for k in range(len(rows)):
             lo, hi = starts_l[k], starts_l[k + 1]
@@ -374,6 +388,7 @@ class BatchLocator:
                 except Degenerate:
                     self.counters["no_fix"] += 1
                     continue
+                inside[k] = self.extent.inside(fix.point)
             elif ok[k]:
                 fix = Fix(result.points[k], result.covariances[k], tuple(names[lo:hi]), (), chi2_l[k])
             else:
@@ -381,6 +396,9 @@ class BatchLocator:
                 continue
             self.counters["fixes"] += 1
             self.counters["rejected_anchor"] += len(fix.rejected)
+            if not inside[k]:
+                self.counters["outside"] += 1
+                continue
             dof = max(1, 2 * len(fix.used) - (3 if height is None else 2))
             fixes.append((k, fix, newest_l[k], t_fix_l[k], fix.chi2 / dof))
         reported = self._reported
@@ -408,9 +426,15 @@ class BatchLocator:
         points, covs = self.tracker.predicted(which[live], t)
         out = []
         kept = [(f, is_new) for f, is_new, keep in zip(fixes, new, live) if keep]
-        for ((k, fix, newest_k, _, qual), is_new), point, cov in zip(kept, points, covs):
-            if not np.isnan(heights[k]):
-                point = np.array([point[0], point[1], heights[k]])
+        at = np.array([k for (k, *_), _ in kept], np.int64)
+        points = np.where(np.isnan(heights[at])[:, None], points, np.c_[points[:, :2], heights[at]])
+        inside = self.extent.contains(points).tolist()
+        for ((k, fix, newest_k, _, qual), is_new), point, cov, within in zip(kept, points, covs, inside):
+            if not within:  # withheld, and the track starts again (as Locator's)
+                self.counters["outside"] += 1
+                self.counters["restarts"] += 1
+                self.tracker.restart(rows[k])
+                continue
             out.append(TagFix(t, self.tags[rows_l[k]], Fix(point, cov, fix.used, fix.rejected, fix.chi2), newest_k,
                               qual, True, is_new))
         return out + raw
@@ -442,6 +466,11 @@ class BatchConstantVelocity:
             self.x = np.concatenate([self.x, np.zeros((extra, 6))])
             self.p = np.concatenate([self.p, np.zeros((extra, 6, 6))])
             self.misses = np.r_[self.misses, np.zeros(extra, np.int64)]
+
+    def restart(self, row: int) -> None:
+        """Forget this row's track: its next fix starts it again."""
+        self.t[row] = np.nan
+        self.misses[row] = 0
 
     def _predict(self, rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         dt = np.maximum(0.0, t - self.t[rows])
