@@ -84,3 +84,25 @@ def test_debug_shows_the_traceback_of_a_bug(monkeypatch) -> None:
     _with_command(monkeypatch, KeyError("deep inside"))
     with pytest.raises(KeyError, match="deep inside"):
         cli.main(["--debug", "boom"])
+
+
+def test_a_ctrl_c_python_drops_in_a_finaliser_still_ends_the_command() -> None:
+    """A KeyboardInterrupt raised where Python cannot raise it (a finaliser, a fork hook: a
+    campaign's pool forking a worker as SIGTERM came) is only printed, and the command went on
+    to its end; main's unraisable hook raises it again in the main thread."""
+    import sys
+    import time
+
+    class Drops:
+        def __del__(self) -> None:
+            raise KeyboardInterrupt
+
+    before = sys.unraisablehook
+    sys.unraisablehook = cli._redeliver
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            Drops()  # dropped at once: its __del__'s KeyboardInterrupt is unraisable
+            for _ in range(1000):  # the redelivered interrupt comes at the next bytecode check
+                time.sleep(0.001)
+    finally:
+        sys.unraisablehook = before

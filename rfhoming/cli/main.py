@@ -6,6 +6,7 @@ only the decoders."""
 
 from __future__ import annotations
 
+import _thread
 import argparse
 import gc
 import logging
@@ -92,6 +93,16 @@ def _as_ctrl_c(signum: int, frame: object) -> None:
     signal.raise_signal(signal.SIGINT)
 
 
+def _redeliver(unraisable: sys.UnraisableHookArgs) -> None:
+    """A Ctrl-C or SIGTERM whose KeyboardInterrupt landed in a finaliser or a fork hook (a
+    campaign's pool forking a worker) is dropped by Python with a printed traceback, and the
+    command went on to its end: it is raised again in the main thread instead."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):  # from another thread: raised here, it would be dropped again
+        _thread.start_new_thread(_thread.interrupt_main, ())
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command. An rfhoming.Error (a port, a spec, a config, a file the user gave) or an
     OSError is one line and exit 2; anything else is a bug: one line saying so, exit 1, and
@@ -100,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
     before = signal.signal(signal.SIGTERM, _as_ctrl_c)
+    hook, sys.unraisablehook = sys.unraisablehook, _redeliver
     try:
         code: int = args.func(args)
         return 128 + signal.SIGTERM if _terminated and code == 130 else code
@@ -125,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     finally:
         signal.signal(signal.SIGTERM, before)
+        sys.unraisablehook = hook
 
 
 def entry() -> NoReturn:
